@@ -1,0 +1,230 @@
+"""`afford`: the one command-line app. Heavy imports live inside the commands so `afford --help` is instant."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+app = typer.Typer(
+    help="affordmap: where people can sit, relax, work and stand in a 3D room, from its point cloud.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+skeletons_app = typer.Typer(help="The virtual skeletons, one per affordance type.", no_args_is_help=True)
+app.add_typer(skeletons_app, name="skeletons")
+
+GRAVITY_HELP = "auto (find the floor), none (already z-up, floor at 0), or X,Y,Z: gravity's direction in the cloud's frame"
+
+
+class UserError(Exception):
+    """Bad input: reported as one line on stderr with exit code 2, never a traceback."""
+
+
+@contextmanager
+def _user_errors():
+    from pydantic import ValidationError
+
+    try:
+        yield
+    except ValidationError as error:
+        _fail(f"invalid settings: {error.errors()[0].get('msg', error)} (check the AFFORD_* environment variables)")
+    except (UserError, ValueError, OSError, MemoryError) as error:
+        _fail(str(error))
+
+
+def _fail(message: str) -> None:
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(2)
+
+
+def _progress(quiet: bool):
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    return Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+        console=Console(stderr=True), transient=True, disable=quiet,
+    )
+
+
+def _peak_rss_mb() -> float:
+    import resource
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 1024 if sys.platform != "darwin" else peak / 2**20
+
+
+def _stream_features(scene, skeleton, settings, progress, out_path: Path | None = None) -> tuple[int, int, float]:
+    """Compute (and optionally write) every pose's features; returns (poses, features, seconds)."""
+    from .features import iter_features
+
+    grid = scene.pose_grid(skeleton, settings)
+    layout = scene.layout
+    matrix = _open_matrix(out_path, grid.size, layout.n_features) if out_path else None
+    task = progress.add_task(f"features {skeleton.affordance}", total=grid.size)
+    start = time.perf_counter()
+    for chunk in iter_features(scene.fields, skeleton, grid, layout, settings.features.chunk_mb, reuse_buffer=True):
+        if matrix is not None:
+            matrix[chunk.start:chunk.stop] = chunk.values
+        progress.advance(task, chunk.stop - chunk.start)
+    seconds = time.perf_counter() - start
+    progress.remove_task(task)
+    if matrix is not None:
+        matrix.flush()
+    return grid.size, layout.n_features, seconds
+
+
+def _open_matrix(path: Path, rows: int, columns: int):
+    import shutil
+
+    import numpy as np
+
+    needed = rows * columns * 4
+    free = shutil.disk_usage(path.parent.resolve()).free
+    if needed > free:
+        raise UserError(f"{path}: the feature matrix needs {needed / 2**30:.1f} GiB and the disk has {free / 2**30:.1f} GiB free")
+    return np.lib.format.open_memmap(path, mode="w+", dtype=np.float32, shape=(rows, columns))
+
+
+@app.command()
+def features(
+    cloud: Path = typer.Argument(..., help="point cloud: .ply .pcd .xyz .pts .txt .npy .bin"),
+    affordance: str = typer.Option(..., "--affordance", "-a", help="affordance type (see `afford skeletons list`)"),
+    as_json: bool = typer.Option(False, "--json", help="print one JSON object: poses, features, seconds, peak_rss_mb"),
+    gravity: str = typer.Option("auto", help=GRAVITY_HELP),
+    out: Optional[Path] = typer.Option(None, "--out", help="also write the (poses x features) float32 matrix as .npy"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+) -> None:
+    """Compute every grid pose's features for one affordance (distance, collision, normal cube)."""
+    with _user_errors():
+        from .pipeline import parse_gravity, prepare_scene
+        from .scene import load_cloud
+        from .settings import Settings
+        from .skeleton import get_skeleton
+
+        start = time.perf_counter()
+        settings = Settings()
+        skeleton = get_skeleton(affordance, settings.skeleton_dirs)
+        scene = prepare_scene(load_cloud(cloud), settings, parse_gravity(gravity))
+        prepared = time.perf_counter() - start
+        with _progress(quiet) as progress:
+            poses, n_features, feature_seconds = _stream_features(scene, skeleton, settings, progress, out)
+        total = time.perf_counter() - start
+        report = {"poses": poses, "features": n_features, "seconds": round(total, 3), "peak_rss_mb": round(_peak_rss_mb(), 1)}
+        if as_json:
+            typer.echo(json.dumps(report))
+            return
+        typer.echo(f"{cloud}: {len(scene.cloud)} points; {scene.alignment.describe()}")
+        typer.echo(
+            f"{affordance}: {poses} poses x {n_features} features in {total:.2f} s "
+            f"(load, align, fields {prepared:.2f} s; features {feature_seconds:.2f} s, {poses / feature_seconds:,.0f} poses/s); "
+            f"peak memory {report['peak_rss_mb']:.0f} MB"
+        )
+        if out:
+            typer.echo(f"feature matrix written to {out}")
+
+
+@app.command()
+def align(
+    cloud: Path = typer.Argument(..., help="point cloud file"),
+    gravity: str = typer.Option("auto", help=GRAVITY_HELP),
+    out: Optional[Path] = typer.Option(None, "--out", help="write the aligned cloud (.ply, .pcd or .npy)"),
+    as_json: bool = typer.Option(False, "--json", help="print the alignment as JSON"),
+) -> None:
+    """Bring a cloud into the world frame (z up, floor at z = 0) and say what was done."""
+    with _user_errors():
+        from .gravity import align_to_gravity
+        from .pipeline import parse_gravity
+        from .scene import load_cloud, save_cloud
+        from .settings import Settings
+
+        loaded = load_cloud(cloud)
+        alignment = align_to_gravity(loaded.points, parse_gravity(gravity), Settings().gravity)
+        if out:
+            save_cloud(out, loaded.transformed(alignment.world_from_input))
+        if as_json:
+            typer.echo(json.dumps({"cloud": str(cloud), "points": len(loaded), "dropped_nonfinite": loaded.dropped_nonfinite,
+                                   **alignment.as_dict()}))
+            return
+        typer.echo(f"{cloud}: {len(loaded)} points" + (f" ({'; '.join(loaded.notes)})" if loaded.notes else ""))
+        typer.echo(alignment.describe())
+        for candidate in alignment.candidates:
+            typer.echo(f"  candidate up {candidate.axis}: {'chosen' if candidate.valid and candidate.axis == alignment.up_axis else candidate.reason}"
+                       f" (horizontal-surface score {candidate.score:.3f})")
+        if out:
+            typer.echo(f"aligned cloud written to {out}")
+
+
+@app.command()
+def demo(
+    out: Path = typer.Option(Path("afford-demo"), "--out", help="folder for the outputs"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+) -> None:
+    """Run the pipeline on the built-in example room and say where the outputs are."""
+    with _user_errors():
+        from .example import example_room
+        from .pipeline import prepare_scene
+        from .plots import plot_fields
+        from .scene import load_cloud, save_cloud
+        from .settings import Settings
+        from .skeleton import all_skeletons
+
+        settings = Settings()
+        out.mkdir(parents=True, exist_ok=True)
+        cloud_path = out / "example-room.ply"
+        save_cloud(cloud_path, example_room())
+        start = time.perf_counter()
+        scene = prepare_scene(load_cloud(cloud_path), settings, "auto")
+        typer.echo(f"example room: {len(scene.cloud)} points; {scene.alignment.describe()}")
+        typer.echo(f"fields: {scene.fields.lattice.shape} voxels of {scene.fields.lattice.resolution:.2f} m "
+                   f"in {time.perf_counter() - start:.2f} s")
+        figure = plot_fields(scene.fields, out / "fields.png")
+        rows = []
+        with _progress(quiet) as progress:
+            for skeleton in all_skeletons(settings.skeleton_dirs):
+                poses, n_features, seconds = _stream_features(scene, skeleton, settings, progress)
+                rows.append((skeleton.affordance, poses, n_features, seconds))
+        typer.echo(f"{'affordance':<20}{'poses':>12}{'features':>10}{'seconds':>10}{'poses/s':>12}")
+        for name, poses, n_features, seconds in rows:
+            typer.echo(f"{name:<20}{poses:>12,}{n_features:>10}{seconds:>10.2f}{poses / seconds:>12,.0f}")
+        typer.echo(f"peak memory {_peak_rss_mb():.0f} MB")
+        typer.echo(f"outputs: {cloud_path} (the room), {figure} (its voxel fields)")
+
+
+@app.command()
+def config(
+    current: bool = typer.Option(False, "--current", help="print the effective settings (defaults + AFFORD_* overrides) as JSON"),
+) -> None:
+    """Print every setting's default and the environment variable that overrides it."""
+    with _user_errors():
+        from .settings import Settings, describe_defaults
+
+        if current:
+            typer.echo(Settings().model_dump_json(indent=2))
+            return
+        for variable, default, description in describe_defaults():
+            typer.echo(f"{variable}={default}    # {description}" if description else f"{variable}={default}")
+
+
+@skeletons_app.command("list")
+def skeletons_list() -> None:
+    """List the affordance types (one skeleton file each)."""
+    with _user_errors():
+        from .settings import Settings
+        from .skeleton import all_skeletons
+
+        for skeleton in all_skeletons(Settings().skeleton_dirs):
+            typer.echo(f"{skeleton.affordance:<20} torso {skeleton.torso_height:.2f} m  {skeleton.source}")
+            if skeleton.description:
+                typer.echo(f"{'':<20} {skeleton.description}")
+
+
+if __name__ == "__main__":
+    app()

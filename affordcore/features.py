@@ -1,0 +1,300 @@
+"""Per-pose features (DESIGN.md, "Features of one pose"), computed slab by slab for millions of poses.
+
+One feature vector, in this order:
+
+* ``dist:<JOINT>`` (15): the distance transform at each placed joint (m);
+* ``coll:<JOINT>`` (15): the occupancy at each placed joint, a fraction in [0, 1];
+* ``normal:<i>,<j>,<k>:<axis>`` (3 per cell): the mean surface normal of each cell of a cube of
+  ``cube_size`` around the torso, cells indexed along the skeleton's own x (forward), y (left), z (up) and
+  C-ordered, the normal expressed in the skeleton frame (it turns with theta).
+
+Fields are read by trilinear interpolation between voxel centres. That makes every feature a continuous
+function of the pose (no ties at voxel faces), the collision feature the occupied fraction of a voxel-sized
+box around the joint, and a cell's normal, for a cell the size of a voxel, exactly the overlap-weighted mean
+of the voxels it covers (for larger cells, the mean over a lattice of such samples at voxel spacing).
+
+Speed. Every pose of a (z, theta) slab places its joints and cube cells at the same offsets from its own
+(x, y), and pose positions step by whole voxels, so each feature column of a slab is one shifted, strided
+slice of a field (bilinear: at most four). No per-pose work at all: the cost is writing the output. The
+z part of the interpolation depends only on the torso height, so it is done once per z level.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from .fields import SceneFields
+from .grid import PoseGrid
+from .settings import FeatureSettings, VoxelSettings
+from .skeleton import JOINTS, Skeleton, rotation_z
+
+FEATURE_VERSION = 1
+_NORMAL_RULE = "scatter-tensor principal axis; up if |n_z| > 0.5 else towards the room centre in plan"
+
+
+@dataclass(frozen=True)
+class FeatureLayout:
+    """What one feature vector holds; its `fingerprint` ties models to the code that made their features."""
+
+    cube_size: float = 1.0
+    cell_size: float = 0.10
+    voxel_resolution: float = 0.10
+
+    def __post_init__(self) -> None:
+        cells = self.cube_size / self.cell_size
+        if abs(cells - round(cells)) > 1e-6 or round(cells) < 1:
+            raise ValueError(f"cube_size {self.cube_size} is not a whole number of cells of {self.cell_size}")
+
+    @classmethod
+    def from_settings(cls, features: FeatureSettings, voxel: VoxelSettings) -> "FeatureLayout":
+        return cls(features.cube_size, features.cell_size, voxel.resolution)
+
+    @property
+    def cells_per_axis(self) -> int:
+        return round(self.cube_size / self.cell_size)
+
+    @property
+    def samples_per_cell(self) -> int:
+        """Samples per cell along each axis, at about voxel spacing."""
+        return max(1, round(self.cell_size / self.voxel_resolution))
+
+    @property
+    def samples_per_axis(self) -> int:
+        return self.cells_per_axis * self.samples_per_cell
+
+    @property
+    def n_cells(self) -> int:
+        return self.cells_per_axis**3
+
+    @property
+    def n_features(self) -> int:
+        return 2 * len(JOINTS) + 3 * self.n_cells
+
+    def sample_positions(self) -> np.ndarray:
+        """Sample coordinates along one cube axis, relative to the torso (uniform, cell-aligned)."""
+        n = self.samples_per_axis
+        return -self.cube_size / 2 + (np.arange(n) + 0.5) * self.cube_size / n
+
+    def cell_centres(self) -> np.ndarray:
+        """(n_cells, 3) cell centres in the skeleton frame, in feature order."""
+        n = self.cells_per_axis
+        axis = -self.cube_size / 2 + (np.arange(n) + 0.5) * self.cell_size
+        return np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+
+    def names(self) -> list[str]:
+        n = self.cells_per_axis
+        cells = [f"normal:{i},{j},{k}:{a}" for i in range(n) for j in range(n) for k in range(n) for a in "xyz"]
+        return [f"dist:{j}" for j in JOINTS] + [f"coll:{j}" for j in JOINTS] + cells
+
+    def describe(self) -> dict:
+        return {
+            "version": FEATURE_VERSION,
+            "joints": list(JOINTS),
+            "blocks": ["dist", "coll", "normal"],
+            "cube_size": self.cube_size,
+            "cell_size": self.cell_size,
+            "voxel_resolution": self.voxel_resolution,
+            "n_features": self.n_features,
+            "sampling": "trilinear",
+            "normals": _NORMAL_RULE,
+        }
+
+    @property
+    def fingerprint(self) -> str:
+        return hashlib.sha256(json.dumps(self.describe(), sort_keys=True).encode()).hexdigest()[:16]
+
+
+@dataclass
+class FeatureChunk:
+    """Features of the contiguous pose range [start, stop): rows of one (z, theta) slab."""
+
+    start: int
+    stop: int
+    iz: int
+    itheta: int
+    rows: slice  # x indices of the slab
+    values: np.ndarray  # (stop - start, n_features) float32
+
+
+class ReachError(ValueError):
+    """Placed joints or cube cells fall outside the voxel fields."""
+
+
+def iter_features(
+    fields: SceneFields,
+    skeleton: Skeleton,
+    grid: PoseGrid,
+    layout: FeatureLayout,
+    chunk_mb: float = 256.0,
+    reuse_buffer: bool = False,
+) -> Iterator[FeatureChunk]:
+    """Features of every pose of the grid, in pose order, a bounded chunk at a time.
+
+    With ``reuse_buffer`` every chunk's values live in one array that the next chunk overwrites: copy what
+    you keep. It saves the page faults of a fresh chunk-sized array per chunk (about 40 % of the time).
+    """
+    sampler = _SlabSampler(fields, grid, layout)
+    nz, nt, nx, ny = grid.shape
+    row_bytes = ny * layout.n_features * 4
+    rows_per_chunk = max(1, min(nx, int(chunk_mb * 2**20 // row_bytes)))
+    buffer = np.empty((rows_per_chunk, ny, layout.n_features), dtype=np.float32) if reuse_buffer else None
+    for iz in range(nz):
+        level = sampler.level(grid.z[iz], skeleton)
+        for it in range(nt):
+            slab = sampler.slab(level, skeleton, grid.theta[it])
+            for x0 in range(0, nx, rows_per_chunk):
+                rows = slice(x0, min(nx, x0 + rows_per_chunk))
+                start = ((iz * nt + it) * nx + rows.start) * ny
+                values = slab.features(rows, None if buffer is None else buffer[: rows.stop - rows.start])
+                yield FeatureChunk(start, start + len(values), iz, it, rows, values)
+
+
+def compute_features(
+    fields: SceneFields, skeleton: Skeleton, grid: PoseGrid, layout: FeatureLayout, max_mb: float = 2048.0
+) -> np.ndarray:
+    """Every pose's features as one (n_poses, n_features) array; for grids that fit in ``max_mb``."""
+    size_mb = grid.size * layout.n_features * 4 / 2**20
+    if size_mb > max_mb:
+        raise MemoryError(
+            f"{grid.size} poses x {layout.n_features} features is {size_mb:.0f} MB (limit {max_mb:.0f} MB); use iter_features"
+        )
+    out = np.empty((grid.size, layout.n_features), dtype=np.float32)
+    for chunk in iter_features(fields, skeleton, grid, layout, reuse_buffer=True):
+        out[chunk.start:chunk.stop] = chunk.values
+    return out
+
+
+class _SlabSampler:
+    """Reads fields at offsets that are the same for every pose of a slab."""
+
+    def __init__(self, fields: SceneFields, grid: PoseGrid, layout: FeatureLayout):
+        lattice = fields.lattice
+        self.fields, self.layout, self.res = fields, layout, lattice.resolution
+        step_ratio = grid.step / self.res if len(grid.x) > 1 else 1.0
+        if abs(step_ratio - round(step_ratio)) > 1e-6 and len(grid.x) > 1:
+            raise ValueError(f"pose step {grid.step} is not a whole multiple of the voxel size {self.res}")
+        self.stride = max(1, round(step_ratio))
+        self.u0 = (grid.x[0] - lattice.origin[0]) / self.res
+        self.v0 = (grid.y[0] - lattice.origin[1]) / self.res
+        self.nx, self.ny = len(grid.x), len(grid.y)
+        self.shape = lattice.shape
+
+    def level(self, torso_z: float, skeleton: Skeleton) -> dict:
+        """Everything that depends on the torso height only: fields interpolated in z."""
+        joint_heights = torso_z + skeleton.joints[:, 2]
+        sample_heights = torso_z + self.layout.sample_positions()
+        return {
+            "distance": self._lerp_z(self.fields.distance, joint_heights),  # (X, Y, 15)
+            "occupancy": self._lerp_z(self.fields.occupancy, joint_heights),  # (X, Y, 15)
+            "normals": self._cell_heights(self._lerp_z(self.fields.normals, sample_heights)),  # (X, Y, cells, 3)
+        }
+
+    def _cell_heights(self, samples: np.ndarray) -> np.ndarray:
+        """Average the z samples of each cell (averaging commutes with the bilinear read in x, y)."""
+        per_cell = self.layout.samples_per_cell
+        if per_cell == 1:
+            return samples
+        x, y, n_s, _ = samples.shape
+        return samples.reshape(x, y, n_s // per_cell, per_cell, 3).mean(axis=3)
+
+    def slab(self, level: dict, skeleton: Skeleton, theta: float) -> "_Slab":
+        rotation = rotation_z(theta)
+        joint_xy = (skeleton.joints @ rotation.T)[:, :2]
+        axis = self.layout.sample_positions()
+        grid_xy = np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2)
+        sample_xy = grid_xy @ rotation[:2, :2].T
+        # n_skeleton = R^T n_world; for row vectors that is n_world @ R.
+        normals = level["normals"] @ rotation.astype(np.float32)
+        return _Slab(self, level, joint_xy, sample_xy, normals.reshape(*normals.shape[:2], -1))
+
+    def _lerp_z(self, field: np.ndarray, heights: np.ndarray) -> np.ndarray:
+        k = (np.asarray(heights) - self.fields.lattice.origin[2]) / self.res
+        base = np.floor(k).astype(int)
+        frac = (k - base).astype(np.float32)
+        if base.min() < 0 or base.max() + 1 >= self.shape[2]:
+            raise ReachError(
+                f"heights {np.min(heights):.2f}..{np.max(heights):.2f} m leave the voxel fields "
+                f"({self.fields.lattice.origin[2]:.2f}..{self.fields.lattice.upper[2]:.2f} m); raise voxel.min_height or margin"
+            )
+        below = field[:, :, base]
+        above = field[:, :, base + 1]
+        frac = frac.reshape((1, 1, -1) + (1,) * (field.ndim - 3))
+        return below * (1 - frac) + above * frac
+
+    def corners(self, dx: float, dy: float) -> list[tuple[int, int, float]]:
+        """(x index, y index, weight) of the bilinear corners for pose (0, 0) shifted by (dx, dy) metres."""
+        u, v = self.u0 + dx / self.res, self.v0 + dy / self.res
+        bu, bv = int(np.floor(u)), int(np.floor(v))
+        fu, fv = u - bu, v - bv
+        last_u, last_v = bu + 1 + (self.nx - 1) * self.stride, bv + 1 + (self.ny - 1) * self.stride
+        if bu < 0 or bv < 0 or last_u >= self.shape[0] or last_v >= self.shape[1]:
+            raise ReachError(
+                "placed skeletons reach beyond the voxel fields in x or y; compute the fields with a larger voxel.margin"
+            )
+        weights = ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv))
+        return [(bu + cu, bv + cv, w) for cu, cv, w in weights if w > 1e-12]
+
+
+class _Slab:
+    """One (z, theta) slab: joint and cube offsets fixed, pose (x, y) varying."""
+
+    def __init__(self, sampler: _SlabSampler, level: dict, joint_xy, sample_xy, normals):
+        self.sampler, self.level, self.normals = sampler, level, normals
+        self._buffers: dict = {}
+        self.joint_corners = [sampler.corners(*xy) for xy in joint_xy]
+        self.sample_corners = [sampler.corners(*xy) for xy in sample_xy]
+
+    def _read_into(self, dest: np.ndarray, plane: np.ndarray, corners, rows: slice, accumulate: bool = False) -> None:
+        """dest (rows, ny, ...) = (or +=) the bilinear read of plane for these rows.
+
+        Corners are summed in reused contiguous scratch arrays and written to the strided destination once:
+        read-modify-writes of feature columns, and fresh temporaries (page faults), each cost as much again.
+        """
+        s, n_rows, ny = self.sampler.stride, rows.stop - rows.start, self.sampler.ny
+        shape = (n_rows, ny, *plane.shape[2:])
+        total, term = self._scratch(shape, 0), self._scratch(shape, 1)
+        for index, (cu, cv, weight) in enumerate(corners):
+            u = cu + rows.start * s
+            view = plane[u:u + (n_rows - 1) * s + 1:s, cv:cv + (ny - 1) * s + 1:s]
+            if index == 0:
+                np.multiply(view, np.float32(weight), out=total)
+            else:
+                np.multiply(view, np.float32(weight), out=term)
+                total += term
+        if accumulate:
+            dest += total
+        else:
+            dest[...] = total
+
+    def _scratch(self, shape: tuple, slot: int) -> np.ndarray:
+        key = (shape, slot)
+        if key not in self._buffers:
+            self._buffers[key] = np.empty(shape, dtype=np.float32)
+        return self._buffers[key]
+
+    def features(self, rows: slice, out: np.ndarray | None = None) -> np.ndarray:
+        layout = self.sampler.layout
+        n_rows, ny = rows.stop - rows.start, self.sampler.ny
+        if out is None:
+            out = np.empty((n_rows, ny, layout.n_features), dtype=np.float32)
+        n_joints = len(JOINTS)
+        for j, corners in enumerate(self.joint_corners):
+            self._read_into(out[:, :, j], self.level["distance"][:, :, j], corners, rows)
+            self._read_into(out[:, :, n_joints + j], self.level["occupancy"][:, :, j], corners, rows)
+        # Cells are averaged from per_cell x per_cell sample columns (z is averaged already, per level).
+        n_s, per_cell, cells = layout.samples_per_axis, layout.samples_per_cell, layout.cells_per_axis
+        width = cells * 3  # one column of cells: `cells` heights x 3 normal components
+        normal_block = out[:, :, 2 * n_joints:]
+        for index, corners in enumerate(self.sample_corners):
+            a, b = divmod(index, n_s)
+            cell = (a // per_cell) * cells + b // per_cell
+            first = a % per_cell == 0 and b % per_cell == 0
+            self._read_into(normal_block[:, :, cell * width:(cell + 1) * width], self.normals, corners, rows, not first)
+        if per_cell > 1:
+            normal_block *= np.float32(1.0 / per_cell**2)
+        return out.reshape(n_rows * ny, layout.n_features)

@@ -1,0 +1,231 @@
+"""Gravity alignment: bring a cloud into the world frame of DESIGN.md (metres, z up, floor at z = 0).
+
+Automatic alignment does not know which way the input frame is up. It tries each candidate axis
+(by default +z for z-up scans, +y for y-up scans, -y for camera frames with y down) and, for each, looks for
+a floor: a plane among the lowest points, leaning at most ``max_tilt_deg`` from that axis, found by RANSAC.
+A candidate's floor is *valid* when it covers at least ``min_floor_area`` and almost nothing lies under it
+(walls fail here: doors, windows and scan noise put points behind them). Among valid floors the one with the
+most horizontal surface above it wins (floor, seats, tables and counters are parallel to the true floor).
+No valid floor is an error (`NoFloorError`) that says, per candidate, why it failed: a wrong frame is worse
+than no frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .settings import GravitySettings
+
+_BELOW_MARGIN = 0.05  # a point this far under a floor plane is "below the floor"
+_AREA_CELL = 0.10  # floor area is counted in cells of this size
+_HORIZONTAL_COS = 0.9  # a surface whose normal is within ~25 deg of up counts as horizontal
+_FURNITURE_TOP = 1.3  # horizontal surfaces up to this height count for a floor's score (m)
+
+AXES = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0), "+z": (0, 0, 1), "-z": (0, 0, -1)}
+
+
+class NoFloorError(ValueError):
+    """No floor plane that could define the world frame."""
+
+
+@dataclass
+class FloorCandidate:
+    axis: str
+    valid: bool
+    reason: str
+    normal: np.ndarray | None = None
+    offset: float = 0.0
+    tilt_deg: float = float("nan")
+    area: float = 0.0
+    below_fraction: float = float("nan")
+    score: float = 0.0
+
+
+@dataclass
+class Alignment:
+    """What was done to a cloud: the transform and the evidence for it."""
+
+    world_from_input: np.ndarray
+    method: str  # "auto", "gravity", "none"
+    up_axis: str  # the input axis taken as up, or "given" for a gravity vector
+    tilt_deg: float  # angle between the floor's normal and that axis
+    floor_offset: float  # where the floor was along the up direction in the input frame (m)
+    floor_area: float = 0.0
+    candidates: list[FloorCandidate] = field(default_factory=list)
+
+    def describe(self) -> str:
+        if self.method == "none":
+            return "no gravity alignment (the cloud is taken as z-up with the floor at z = 0)"
+        how = f"up = input {self.up_axis}" if self.method == "auto" else "up = against the given gravity"
+        return (
+            f"gravity alignment ({self.method}): {how}, floor tilted {self.tilt_deg:.2f} deg from it, "
+            f"floor at {self.floor_offset:+.3f} m moved to z = 0, floor area {self.floor_area:.1f} m^2"
+        )
+
+    def as_dict(self) -> dict:
+        return {
+            "method": self.method,
+            "up_axis": self.up_axis,
+            "tilt_deg": round(self.tilt_deg, 4),
+            "floor_offset": round(self.floor_offset, 4),
+            "floor_area": round(self.floor_area, 2),
+            "world_from_input": self.world_from_input.round(9).tolist(),
+        }
+
+
+def align_to_gravity(
+    points: np.ndarray, gravity: str | np.ndarray | None = "auto", settings: GravitySettings | None = None
+) -> Alignment:
+    """Find the transform to the z-up, floor-at-zero world frame.
+
+    ``gravity``: "auto" (search the candidate axes), "none" or None (the cloud is already aligned), or a
+    3-vector pointing down in the input frame (the floor height is still found from the cloud).
+    """
+    settings = settings or GravitySettings()
+    if gravity is None or (isinstance(gravity, str) and gravity == "none"):
+        return Alignment(np.eye(4), "none", "+z", 0.0, 0.0)
+    sample = _thin(points, settings.sample_voxel)
+    if isinstance(gravity, str):
+        if gravity != "auto":
+            raise ValueError(f"gravity must be 'auto', 'none' or a vector, not {gravity!r}")
+        return _auto(sample, settings)
+    down = np.asarray(gravity, dtype=np.float64).reshape(3)
+    if not np.isfinite(down).all() or np.linalg.norm(down) < 1e-9:
+        raise ValueError(f"gravity vector {down.tolist()} has no direction")
+    up = -down / np.linalg.norm(down)
+    # Trust the given direction; only the floor's height comes from the cloud.
+    strict = settings.model_copy(update={"max_tilt_deg": min(settings.max_tilt_deg, 10.0)})
+    candidate = _find_floor(sample, up, "given", strict, normals=None)
+    if not candidate.valid:
+        raise NoFloorError(f"no floor found under the given gravity {down.round(4).tolist()}: {candidate.reason}")
+    on_floor = np.abs(sample @ candidate.normal - candidate.offset) < settings.ransac_threshold
+    offset = float(np.median(sample[on_floor] @ up))
+    return Alignment(_world_from(up, offset), "gravity", "given", candidate.tilt_deg, offset, candidate.area, [candidate])
+
+
+def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
+    normals = _estimate_normals(sample)
+    candidates = []
+    for axis in settings.up_candidates:
+        if axis not in AXES:
+            raise ValueError(f"unknown up candidate {axis!r}; use one of {', '.join(AXES)}")
+        candidates.append(_find_floor(sample, np.array(AXES[axis], float), axis, settings, normals))
+    valid = [c for c in candidates if c.valid]
+    if not valid:
+        reasons = "; ".join(f"{c.axis}: {c.reason}" for c in candidates)
+        raise NoFloorError(f"no floor found ({reasons}). Give the gravity direction explicitly if the floor is not in view.")
+    best = max(valid, key=lambda c: c.score)
+    return Alignment(
+        _world_from(best.normal, best.offset), "auto", best.axis, best.tilt_deg, best.offset, best.area, candidates
+    )
+
+
+def _find_floor(
+    sample: np.ndarray, up: np.ndarray, axis: str, settings: GravitySettings, normals: np.ndarray | None
+) -> FloorCandidate:
+    heights = sample @ up
+    band = sample[heights <= np.quantile(heights, settings.lowest_fraction)]
+    rng = np.random.default_rng(settings.seed)
+    plane = _ransac_plane(band, up, settings, rng)
+    if plane is None:
+        return FloorCandidate(axis, False, f"no plane within {settings.max_tilt_deg:g} deg of {axis} among the lowest points")
+    normal, inliers = plane
+    offset = float(np.median(band[inliers] @ normal))
+    tilt = float(np.degrees(np.arccos(np.clip(normal @ up, -1, 1))))
+    area = _area(band[inliers], normal)
+    height = sample @ normal - offset
+    below = float(np.mean(height < -_BELOW_MARGIN))
+    candidate = FloorCandidate(axis, True, "ok", normal, offset, tilt, area, below)
+    if area < settings.min_floor_area:
+        candidate.valid, candidate.reason = False, f"lowest plane covers only {area:.2f} m^2"
+    elif below > settings.max_below_fraction:
+        candidate.valid, candidate.reason = False, f"{below:.1%} of the points lie under the lowest plane (a wall?)"
+    if normals is not None:
+        horizontal = np.abs(normals @ normal) > _HORIZONTAL_COS
+        candidate.score = float(np.mean(horizontal & (height > -_BELOW_MARGIN) & (height < _FURNITURE_TOP)))
+    return candidate
+
+
+def _ransac_plane(
+    points: np.ndarray, up: np.ndarray, settings: GravitySettings, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The plane with the most inliers among those leaning at most max_tilt from `up`, refined by least squares."""
+    if len(points) < 3:
+        return None
+    min_cos = np.cos(np.radians(settings.max_tilt_deg))
+    picks = rng.integers(0, len(points), size=(settings.ransac_iterations, 3))
+    a, b, c = points[picks[:, 0]], points[picks[:, 1]], points[picks[:, 2]]
+    normals = np.cross(b - a, c - a)
+    lengths = np.linalg.norm(normals, axis=1)
+    ok = lengths > 1e-9
+    normals[ok] /= lengths[ok, None]
+    normals *= np.sign(normals @ up)[:, None]
+    ok &= normals @ up >= min_cos
+    if not ok.any():
+        return None
+    normals, offsets = normals[ok], np.einsum("ij,ij->i", normals[ok], a[ok])
+    best_count, best = -1, 0
+    for start in range(0, len(normals), 64):  # 64 planes x all points at a time bounds memory
+        distance = np.abs(points @ normals[start:start + 64].T - offsets[start:start + 64])
+        counts = (distance < settings.ransac_threshold).sum(axis=0)
+        if counts.max() > best_count:
+            best_count, best = int(counts.max()), start + int(counts.argmax())
+    inliers = np.abs(points @ normals[best] - offsets[best]) < settings.ransac_threshold
+    normal = _fit_normal(points[inliers], up)
+    inliers = np.abs(points @ normal - np.median(points[inliers] @ normal)) < settings.ransac_threshold
+    if normal @ up < min_cos:
+        return None
+    return normal, inliers
+
+
+def _fit_normal(points: np.ndarray, up: np.ndarray) -> np.ndarray:
+    centred = points - points.mean(axis=0)
+    normal = np.linalg.svd(centred, full_matrices=False)[2][-1]
+    return normal * np.sign(normal @ up)
+
+
+def _area(points: np.ndarray, normal: np.ndarray) -> float:
+    basis = rotation_between(normal, np.array([0.0, 0.0, 1.0]))
+    flat = (points @ basis.T)[:, :2]
+    cells = np.unique(np.floor(flat / _AREA_CELL).astype(np.int64), axis=0)
+    return len(cells) * _AREA_CELL**2
+
+
+def _thin(points: np.ndarray, voxel: float) -> np.ndarray:
+    """One point per occupied voxel (the first): an even spread, whatever the scan density."""
+    keys = np.floor(points / voxel).astype(np.int64)
+    keys -= keys.min(axis=0)
+    span = keys.max(axis=0) + 1
+    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+    _, first = np.unique(flat, return_index=True)
+    return points[np.sort(first)]
+
+
+def _estimate_normals(points: np.ndarray) -> np.ndarray:
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.1, max_nn=30))
+    return np.asarray(pcd.normals)
+
+
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking unit vector a onto unit vector b."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v, c = np.cross(a, b), float(a @ b)
+    if c < -1 + 1e-12:  # opposite: turn half way round any axis perpendicular to a
+        axis = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        return 2 * np.outer(axis, axis) - np.eye(3)
+    skew = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + skew + skew @ skew / (1 + c)
+
+
+def _world_from(up: np.ndarray, floor_offset: float) -> np.ndarray:
+    transform = np.eye(4)
+    transform[:3, :3] = rotation_between(up, np.array([0.0, 0.0, 1.0]))
+    transform[2, 3] = -floor_offset
+    return transform

@@ -1,0 +1,50 @@
+"""From a cloud to what every affordance is scored on: the aligned cloud, its voxel fields, pose grids."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .features import FeatureLayout
+from .fields import SceneFields, compute_fields
+from .gravity import Alignment, align_to_gravity
+from .grid import PoseGrid
+from .scene import Cloud
+from .settings import Settings
+from .skeleton import Skeleton
+
+
+@dataclass
+class PreparedScene:
+    cloud: Cloud  # in the world frame
+    alignment: Alignment
+    fields: SceneFields
+    layout: FeatureLayout
+
+    def pose_grid(self, skeleton: Skeleton, settings: Settings) -> PoseGrid:
+        return PoseGrid.over_footprint(
+            self.fields.footprint, skeleton.torso_height, self.fields.lattice.resolution, settings.grid
+        )
+
+
+def parse_gravity(text: str) -> str | np.ndarray:
+    """'auto', 'none', or 'X,Y,Z' (the direction of gravity, i.e. down, in the input frame)."""
+    text = text.strip().lower()
+    if text in ("auto", "none"):
+        return text
+    try:
+        vector = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        vector = np.array([])
+    if vector.shape != (3,):
+        raise ValueError(f"gravity must be 'auto', 'none' or three numbers X,Y,Z, not {text!r}")
+    return vector
+
+
+def prepare_scene(cloud: Cloud, settings: Settings | None = None, gravity: str | np.ndarray = "auto") -> PreparedScene:
+    settings = settings or Settings()
+    alignment = align_to_gravity(cloud.points, gravity, settings.gravity)
+    world = cloud.transformed(alignment.world_from_input)
+    fields = compute_fields(world.points, settings.voxel, settings.normals)
+    return PreparedScene(world, alignment, fields, FeatureLayout.from_settings(settings.features, settings.voxel))

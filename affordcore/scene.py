@@ -1,0 +1,201 @@
+"""Point clouds in, one `Cloud` out: every supported file format, with clear errors for bad input.
+
+Formats: PLY and PCD (through open3d, binary or ASCII, PCD also binary_compressed), XYZ / PTS / TXT text
+(``x y z``, ``x y z r g b``, or PTS ``x y z intensity r g b`` with an optional point-count first line),
+NPY (an (N, 3) or (N, 6) array) and raw little-endian float32 BIN (``x y z`` or ``x y z r g b`` per point).
+Colours come back as floats in [0, 1]. Points with a NaN or infinite coordinate are dropped and counted.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+SUPPORTED_SUFFIXES = (".ply", ".pcd", ".xyz", ".pts", ".txt", ".npy", ".bin")
+
+
+class CloudError(ValueError):
+    """A cloud file that cannot be used; the message names the file and the problem."""
+
+
+@dataclass
+class Cloud:
+    """Points (N, 3) float64 in metres, optional colours (N, 3) float32 in [0, 1]."""
+
+    points: np.ndarray
+    colors: np.ndarray | None = None
+    source: str = "<memory>"
+    dropped_nonfinite: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.points = np.ascontiguousarray(self.points, dtype=np.float64)
+        if self.points.ndim != 2 or self.points.shape[1] != 3:
+            raise CloudError(f"{self.source}: points must be an (N, 3) array, got shape {self.points.shape}")
+        if self.colors is not None:
+            self.colors = np.ascontiguousarray(self.colors, dtype=np.float32)
+            if self.colors.shape != self.points.shape:
+                raise CloudError(f"{self.source}: {len(self.colors)} colours for {len(self.points)} points")
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def transformed(self, transform: np.ndarray) -> "Cloud":
+        """The same cloud with a 4 x 4 rigid transform applied to its points."""
+        points = self.points @ transform[:3, :3].T + transform[:3, 3]
+        return Cloud(points, self.colors, self.source, self.dropped_nonfinite, list(self.notes))
+
+
+def load_cloud(path: str | os.PathLike, bin_columns: int | None = None) -> Cloud:
+    """Read a cloud file of any supported format; raise `CloudError` naming the file on bad input.
+
+    ``bin_columns`` (3 or 6) says how a raw ``.bin`` is laid out; by default it is inferred (6 only when the
+    last three columns read as colours).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise CloudError(f"{path}: no such file")
+    if not path.is_file():
+        raise CloudError(f"{path}: not a file")
+    if not os.access(path, os.R_OK):
+        raise CloudError(f"{path}: not readable (permission denied)")
+    suffix = path.suffix.lower()
+    readers = {".ply": _read_open3d, ".pcd": _read_open3d, ".xyz": _read_text, ".pts": _read_text,
+               ".txt": _read_text, ".npy": _read_npy, ".bin": lambda p: _read_bin(p, bin_columns)}
+    if suffix not in readers:
+        raise CloudError(f"{path}: unknown cloud format {suffix!r}; supported: {', '.join(SUPPORTED_SUFFIXES)}")
+    if path.stat().st_size == 0:
+        raise CloudError(f"{path}: empty file")
+    try:
+        points, colors = readers[suffix](path)
+    except CloudError:
+        raise
+    except Exception as error:  # a parser's own message, with the file named
+        raise CloudError(f"{path}: cannot read as {suffix[1:].upper()}: {error}") from error
+    return _finish(path, points, colors)
+
+
+def _finish(path: Path, points: np.ndarray, colors: np.ndarray | None) -> Cloud:
+    finite = np.isfinite(points).all(axis=1)
+    dropped = int((~finite).sum())
+    if dropped:
+        points = points[finite]
+        colors = colors[finite] if colors is not None else None
+    if len(points) == 0:
+        detail = f" (all {dropped} points had NaN or infinite coordinates)" if dropped else ""
+        raise CloudError(f"{path}: the cloud has no points{detail}")
+    cloud = Cloud(points, colors, str(path), dropped)
+    if dropped:
+        cloud.notes.append(f"dropped {dropped} points with NaN or infinite coordinates")
+    return cloud
+
+
+def _read_open3d(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    import open3d as o3d
+
+    _check_header(path)
+    pcd = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
+    points = np.asarray(pcd.points)
+    if len(points) == 0:
+        raise CloudError(f"{path}: no points could be read (the file is empty, truncated or not a point cloud)")
+    colors = np.asarray(pcd.colors, dtype=np.float32) if pcd.has_colors() else None
+    return points, colors
+
+
+def _check_header(path: Path) -> None:
+    """open3d prints a warning and returns nothing for a file of the wrong kind; say what is wrong instead."""
+    with path.open("rb") as handle:
+        head = handle.read(64)
+    if path.suffix.lower() == ".ply" and not head.startswith(b"ply"):
+        raise CloudError(f"{path}: not a PLY file (it does not start with 'ply')")
+    if path.suffix.lower() == ".pcd" and not any(
+        key in head for key in (b"VERSION", b"FIELDS", b"# .PCD")
+    ):
+        raise CloudError(f"{path}: not a PCD file (no PCD header)")
+
+
+def _read_text(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    with path.open("r", errors="replace") as handle:
+        lines = [line for line in handle if line.strip() and not line.lstrip().startswith(("#", "//"))]
+    if lines and len(lines[0].split()) == 1:  # PTS files start with the point count
+        lines = lines[1:]
+    if not lines:
+        raise CloudError(f"{path}: the cloud has no points")
+    try:
+        table = np.loadtxt(lines, dtype=np.float64, ndmin=2, delimiter=None if "," not in lines[0] else ",")
+    except ValueError as error:
+        raise CloudError(f"{path}: not a table of numbers ({error})") from error
+    return _split_columns(path, table)
+
+
+def _read_npy(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    array = np.load(path, allow_pickle=False)
+    if array.dtype.names:  # a structured array with x, y, z (and r, g, b) fields
+        names = array.dtype.names
+        if not {"x", "y", "z"} <= set(names):
+            raise CloudError(f"{path}: structured array without x, y, z fields (has {', '.join(names)})")
+        columns = ["x", "y", "z"] + ([c for c in ("r", "g", "b") if c in names] if {"r", "g", "b"} <= set(names) else [])
+        array = np.stack([array[c].astype(np.float64) for c in columns], axis=1)
+    if array.ndim != 2 or array.shape[1] not in (3, 6):
+        raise CloudError(f"{path}: expected an (N, 3) or (N, 6) array, got shape {array.shape}")
+    return _split_columns(path, array.astype(np.float64))
+
+
+def _read_bin(path: Path, columns: int | None) -> tuple[np.ndarray, np.ndarray | None]:
+    raw = np.fromfile(path, dtype="<f4")
+    if columns is None:
+        columns = 6 if len(raw) % 6 == 0 and _looks_like_colors(raw.reshape(-1, 6)[:, 3:]) else 3
+    if columns not in (3, 6):
+        raise CloudError(f"{path}: a .bin cloud has 3 (x y z) or 6 (x y z r g b) float32 columns, not {columns}")
+    if len(raw) % columns:
+        raise CloudError(
+            f"{path}: {path.stat().st_size} bytes is not a whole number of {columns}-float32 points"
+        )
+    return _split_columns(path, raw.reshape(-1, columns).astype(np.float64))
+
+
+def _looks_like_colors(values: np.ndarray) -> bool:
+    finite = values[np.isfinite(values).all(axis=1)]
+    if len(finite) == 0:
+        return False
+    in_unit = finite.min() >= 0 and finite.max() <= 1
+    in_bytes = finite.min() >= 0 and finite.max() <= 255 and np.all(finite == np.round(finite))
+    return bool(in_unit or in_bytes)
+
+
+def _split_columns(path: Path, table: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    n_columns = table.shape[1]
+    if n_columns == 3:
+        return table, None
+    if n_columns == 6:
+        rgb = table[:, 3:6]
+    elif n_columns == 7:  # PTS: x y z intensity r g b
+        rgb = table[:, 4:7]
+    elif n_columns == 4:  # x y z intensity: no colour
+        return table[:, :3], None
+    else:
+        raise CloudError(f"{path}: expected 3, 4, 6 or 7 columns (x y z [intensity] [r g b]), got {n_columns}")
+    finite_rgb = rgb[np.isfinite(rgb).all(axis=1)]
+    scale = 255.0 if len(finite_rgb) and finite_rgb.max() > 1.0 else 1.0
+    return table[:, :3], np.clip(rgb / scale, 0.0, 1.0).astype(np.float32)
+
+
+def save_cloud(path: str | os.PathLike, cloud: Cloud) -> None:
+    """Write a cloud as PLY (binary) or NPY, chosen by the suffix."""
+    path = Path(path)
+    if path.suffix.lower() == ".npy":
+        table = cloud.points if cloud.colors is None else np.hstack([cloud.points, cloud.colors])
+        np.save(path, table)
+        return
+    if path.suffix.lower() not in (".ply", ".pcd"):
+        raise CloudError(f"{path}: can only write .ply, .pcd or .npy")
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points))
+    if cloud.colors is not None:
+        pcd.colors = o3d.utility.Vector3dVector(cloud.colors.astype(np.float64))
+    if not o3d.io.write_point_cloud(str(path), pcd, write_ascii=False):
+        raise CloudError(f"{path}: could not write the cloud")

@@ -1,0 +1,96 @@
+"""Typed settings for every stage, overridable from the environment.
+
+Every field can be set with an ``AFFORD_`` variable; nested groups use ``__``, for example
+``AFFORD_VOXEL__RESOLUTION=0.05`` or ``AFFORD_GRAVITY__MAX_TILT_DEG=20``. ``afford config`` prints the
+defaults together with the variable that overrides each one.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import BaseModel, Field, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class VoxelSettings(BaseModel):
+    resolution: float = Field(0.10, gt=0, description="voxel edge of the occupancy, distance and normal fields (m)")
+    margin: float = Field(1.0, ge=0, description="empty space kept around the cloud so placed skeletons stay inside the fields (m)")
+    min_height: float = Field(2.2, gt=0, description="the fields reach at least this high above the floor (m), even over a low scan")
+
+
+class NormalSettings(BaseModel):
+    downsample: float = Field(0.025, ge=0, description="voxel size the cloud is thinned to before normals are estimated (m); 0 keeps every point")
+    radius: float = Field(0.10, gt=0, description="neighbourhood radius for normal estimation (m)")
+    max_neighbours: int = Field(30, ge=3, description="at most this many neighbours per normal")
+
+
+class GridSettings(BaseModel):
+    step: float = Field(0.10, gt=0, description="x, y spacing of the pose grid (m); a whole multiple of the voxel resolution")
+    theta_step: float = Field(0.1, gt=0, description="orientation spacing (rad)")
+    n_theta: int = Field(63, ge=1, description="number of orientations, theta = k * theta_step")
+    z_levels_each_side: int = Field(1, ge=0, description="torso heights tried one voxel apart above and below the skeleton's own")
+
+
+class FeatureSettings(BaseModel):
+    cube_size: float = Field(1.0, gt=0, description="edge of the normal cube around the torso (m)")
+    cell_size: float = Field(0.10, gt=0, description="edge of one normal-cube cell (m); the paper's layout is 0.10")
+    chunk_mb: float = Field(256.0, gt=0, description="feature rows are produced in chunks of at most this many MB")
+
+
+class GravitySettings(BaseModel):
+    up_candidates: list[str] = Field(
+        default_factory=lambda: ["+z", "+y", "-y"],
+        description="input-frame axes that may point up, tried by the automatic alignment: z-up scans, y-up scans, camera frames (y down)",
+    )
+    max_tilt_deg: float = Field(35.0, gt=0, le=90, description="a floor may lean at most this far from its candidate axis (a camera pitched down)")
+    lowest_fraction: float = Field(0.25, gt=0, le=1, description="the floor is searched among this lowest fraction of points along a candidate axis")
+    ransac_threshold: float = Field(0.03, gt=0, description="plane inlier distance (m)")
+    ransac_iterations: int = Field(1000, ge=10)
+    min_floor_area: float = Field(1.0, gt=0, description="a floor must cover at least this much area (m^2)")
+    max_below_fraction: float = Field(0.02, ge=0, le=1, description="at most this fraction of points may lie more than 5 cm under a floor")
+    sample_voxel: float = Field(0.03, gt=0, description="the cloud is thinned to this voxel size for the search (m)")
+    seed: int = 0
+
+
+class Settings(BaseSettings):
+    """All tunables of affordmap. Defaults follow DESIGN.md (10 cm voxels and grid, 63 orientations)."""
+
+    model_config = SettingsConfigDict(env_prefix="AFFORD_", env_nested_delimiter="__", extra="ignore")
+
+    voxel: VoxelSettings = VoxelSettings()
+    normals: NormalSettings = NormalSettings()
+    grid: GridSettings = GridSettings()
+    features: FeatureSettings = FeatureSettings()
+    gravity: GravitySettings = GravitySettings()
+    skeleton_dirs: list[Path] = Field(
+        default_factory=list,
+        description="extra folders of skeleton files (<affordance>.json); a file here overrides the built-in one of the same name",
+    )
+
+    @model_validator(mode="after")
+    def _grid_on_voxel_lattice(self) -> "Settings":
+        ratio = self.grid.step / self.voxel.resolution
+        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+            raise ValueError(
+                f"grid.step ({self.grid.step}) must be a whole multiple of voxel.resolution ({self.voxel.resolution}): "
+                "features are read from the voxel fields by shifting whole slabs"
+            )
+        return self
+
+
+def describe_defaults() -> list[tuple[str, str, str]]:
+    """(environment variable, default, description) for every setting."""
+    rows: list[tuple[str, str, str]] = []
+
+    def walk(model: type[BaseModel], prefix: str) -> None:
+        for name, field in model.model_fields.items():
+            annotation = field.annotation
+            if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+                walk(annotation, f"{prefix}{name.upper()}__")
+                continue
+            default = field.default_factory() if field.default_factory else field.default
+            rows.append((f"{prefix}{name.upper()}", repr(default), field.description or ""))
+
+    walk(Settings, "AFFORD_")
+    return rows

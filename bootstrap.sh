@@ -1,0 +1,70 @@
+#!/usr/bin/env bash
+# One entry point for a fresh machine: sets up everything affordmap needs, then runs one job.
+#
+#   bash bootstrap.sh demo [ARGS]   sets up, then maps the built-in example room (afford demo)
+#   bash bootstrap.sh test [ARGS]   sets up, then runs the whole test suite (what CI runs)
+#
+# Needs only Python >= 3.11. Missing system libraries (open3d needs libGL, libEGL and libusb) are
+# installed with apt-get when running as root; otherwise the script stops and prints the line to run.
+set -euo pipefail
+cd "$(dirname "$0")"
+
+job=${1:-}
+case "$job" in
+  demo|test) shift ;;
+  *) echo "usage: bash bootstrap.sh {demo|test} [args...]" >&2; exit 2 ;;
+esac
+
+find_python() {
+  for candidate in "${PYTHON:-}" python3.11 python3.12 python3.13 python3; do
+    [ -n "$candidate" ] || continue
+    if command -v "$candidate" >/dev/null 2>&1 &&
+       "$candidate" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
+      echo "$candidate"; return 0
+    fi
+  done
+  echo "error: affordmap needs Python >= 3.11 (set PYTHON=/path/to/python3.11)" >&2
+  return 1
+}
+PY=$(find_python)
+
+# System packages: shared libraries open3d loads, and venv support (Debian ships it separately).
+missing=()
+have_lib() { { /sbin/ldconfig -p 2>/dev/null || ldconfig -p 2>/dev/null; } | grep -q "$1"; }
+have_lib 'libGL.so.1 '        || missing+=(libgl1)
+have_lib 'libEGL.so.1 '       || missing+=(libegl1)
+have_lib 'libusb-1.0.so.0 '   || missing+=(libusb-1.0-0)
+have_lib 'libgomp.so.1 '      || missing+=(libgomp1)
+if [ ! -x .venv/bin/python ] && ! "$PY" -c 'import ensurepip, venv' 2>/dev/null; then
+  missing+=("python3-venv")
+fi
+if [ ${#missing[@]} -gt 0 ]; then
+  line="apt-get update && apt-get install -y --no-install-recommends ${missing[*]}"
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "bootstrap: installing system packages: ${missing[*]}" >&2
+    DEBIAN_FRONTEND=noninteractive apt-get update -qq >/dev/null
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+  else
+    echo "error: missing system packages: ${missing[*]}" >&2
+    echo "run as root:  sudo sh -c '$line'" >&2
+    exit 1
+  fi
+fi
+
+# Virtual environment, reinstalled only when the package's dependencies change.
+if [ ! -x .venv/bin/python ]; then
+  echo "bootstrap: creating .venv with $PY" >&2
+  "$PY" -m venv .venv
+fi
+stamp=$(cat pyproject.toml | sha256sum | cut -d' ' -f1)
+if [ "$(cat .venv/.afford-stamp 2>/dev/null)" != "$stamp" ]; then
+  echo "bootstrap: installing affordmap and its dependencies into .venv (a minute or two)" >&2
+  .venv/bin/python -m pip install --quiet --upgrade pip
+  .venv/bin/python -m pip install --quiet -e ".[test]"
+  echo "$stamp" > .venv/.afford-stamp
+fi
+
+case "$job" in
+  demo) exec .venv/bin/afford demo "$@" ;;
+  test) exec .venv/bin/python -m pytest "$@" ;;
+esac
