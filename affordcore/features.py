@@ -175,8 +175,8 @@ class _SlabSampler:
     def __init__(self, fields: SceneFields, grid: PoseGrid, layout: FeatureLayout):
         lattice = fields.lattice
         self.fields, self.layout, self.res = fields, layout, lattice.resolution
-        step_ratio = grid.step / self.res if len(grid.x) > 1 else 1.0
-        if abs(step_ratio - round(step_ratio)) > 1e-6 and len(grid.x) > 1:
+        step_ratio = 1.0 if np.isnan(grid.step) else grid.step / self.res
+        if abs(step_ratio - round(step_ratio)) > 1e-6 or round(step_ratio) < 1:
             raise ValueError(f"pose step {grid.step} is not a whole multiple of the voxel size {self.res}")
         self.stride = max(1, round(step_ratio))
         self.u0 = (grid.x[0] - lattice.origin[0]) / self.res

@@ -24,6 +24,13 @@ class PoseGrid:
     z: np.ndarray
     theta: np.ndarray
 
+    def __post_init__(self) -> None:
+        for name in ("x", "y", "z", "theta"):
+            object.__setattr__(self, name, np.atleast_1d(np.asarray(getattr(self, name), dtype=np.float64)))
+        steps = np.concatenate([np.diff(self.x), np.diff(self.y)])
+        if len(steps) and (steps.min() <= 0 or np.ptp(steps) > 1e-9):
+            raise ValueError("pose grid x and y must be increasing with one common step")
+
     @classmethod
     def over_footprint(
         cls,
@@ -54,7 +61,11 @@ class PoseGrid:
 
     @property
     def step(self) -> float:
-        return float(self.x[1] - self.x[0]) if len(self.x) > 1 else float("nan")
+        """The x and y spacing (nan for a single position)."""
+        for axis in (self.x, self.y):
+            if len(axis) > 1:
+                return float(axis[1] - axis[0])
+        return float("nan")
 
     def poses(self, index: np.ndarray) -> np.ndarray:
         """(n, 4) array of (x, y, z, theta) for flat pose indices."""
