@@ -1,0 +1,77 @@
+"""Voxel fields: occupancy, distance transform, sign-free normals."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from affordcore.example import box_surface_points
+from affordcore.fields import compute_fields, lattice_around, orientation_signs
+from affordcore.settings import VoxelSettings
+
+
+def test_lattice_centres_sit_on_multiples_of_the_resolution_and_cover_the_margin():
+    points = np.array([[0.31, -0.42, 0.05], [2.77, 1.93, 1.2]])
+    lattice = lattice_around(points, VoxelSettings(resolution=0.1, margin=0.5, min_height=2.0))
+    np.testing.assert_allclose(lattice.origin / 0.1, np.round(lattice.origin / 0.1), atol=1e-9)
+    assert np.all(lattice.origin <= points.min(axis=0) - 0.5 + 1e-9)
+    assert np.all(lattice.upper >= np.array([2.77, 1.93, 2.0]) + 0.5 - 1e-9)
+    # The floor (z = 0) is a voxel centre, not a face.
+    k = (0.0 - lattice.origin[2]) / 0.1
+    assert abs(k - round(k)) < 1e-9
+
+
+def test_occupancy_marks_exactly_the_voxels_holding_points():
+    rng = np.random.default_rng(0)
+    points = rng.uniform([0, 0, 0], [2, 2, 1], size=(300, 3))
+    fields = compute_fields(points, normals=np.tile([0.0, 0.0, 1.0], (len(points), 1)))
+    expected = np.zeros(fields.lattice.shape, bool)
+    expected[tuple(fields.lattice.voxel_of(points).T)] = True
+    np.testing.assert_array_equal(fields.occupancy > 0, expected)
+
+
+def test_distance_transform_is_the_distance_to_the_nearest_occupied_centre():
+    rng = np.random.default_rng(1)
+    points = rng.uniform([0, 0, 0], [1.5, 1.5, 1.0], size=(40, 3))
+    fields = compute_fields(points, VoxelSettings(margin=0.3, min_height=1.0), normals=np.tile([0.0, 0.0, 1.0], (40, 1)))
+    lattice = fields.lattice
+    occupied = lattice.centres(np.argwhere(fields.occupancy > 0))
+    every = np.argwhere(np.ones(lattice.shape, bool))
+    sample = every[rng.choice(len(every), 500, replace=False)]
+    brute = np.linalg.norm(lattice.centres(sample)[:, None] - occupied[None], axis=2).min(axis=1)
+    np.testing.assert_allclose(fields.distance[tuple(sample.T)], brute, atol=1e-5)
+    assert np.all(fields.distance[fields.occupancy > 0] == 0)
+
+
+def test_normals_with_random_signs_do_not_cancel():
+    """A floor whose point normals point up or down at random still gets a unit, upward voxel normal."""
+    rng = np.random.default_rng(2)
+    floor = box_surface_points(np.array([0.0, 0.0, 0.0]), np.array([2.0, 2.0, 0.0]), 2000, rng)
+    signs = rng.choice([-1.0, 1.0], size=len(floor))
+    normals = np.column_stack([np.zeros(len(floor)), np.zeros(len(floor)), signs])
+    assert abs(normals[:, 2].mean()) < 0.1  # a plain mean would nearly cancel
+    fields = compute_fields(floor, normals=normals)
+    field = fields.normals[fields.occupancy > 0]
+    np.testing.assert_allclose(field, np.tile([0.0, 0.0, 1.0], (len(field), 1)), atol=1e-6)
+
+
+def test_estimated_normals_of_a_box_room_face_up_and_inwards():
+    rng = np.random.default_rng(3)
+    floor = box_surface_points(np.array([0.0, 0.0, 0.0]), np.array([4.0, 4.0, 0.0]), 900, rng)
+    west_wall = box_surface_points(np.array([0.0, 0.0, 0.0]), np.array([0.0, 4.0, 2.4]), 900, rng)
+    fields = compute_fields(np.concatenate([floor, west_wall]))
+    lattice = fields.lattice
+    floor_voxel = tuple(lattice.voxel_of(np.array([2.0, 2.0, 0.0])))
+    wall_voxel = tuple(lattice.voxel_of(np.array([0.0, 2.0, 1.2])))
+    np.testing.assert_allclose(fields.normals[floor_voxel], [0, 0, 1], atol=0.05)
+    np.testing.assert_allclose(fields.normals[wall_voxel], [1, 0, 0], atol=0.05)  # faces the room (+x)
+    magnitudes = np.linalg.norm(fields.normals[fields.occupancy > 0], axis=1)
+    assert np.mean(np.abs(magnitudes - 1) < 1e-4) > 0.9  # unit where a surface is
+
+
+def test_orientation_rule():
+    axes = np.array([[0.1, 0.0, -0.9], [0.0, 0.2, 0.6], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.3]])
+    positions = np.array([[0, 0, 0], [0, 0, 0], [0, 0, 1], [5, 0, 1], [0, -3, 1]], float)
+    centre = np.array([2.0, 0.0, 1.0])
+    signs = orientation_signs(axes, positions, centre)
+    # up-facing ones point up; steep ones point at the centre
+    np.testing.assert_array_equal(signs, [-1, 1, -1, -1, -1])
