@@ -1,0 +1,141 @@
+"""The `afford` command line: its contract (JSON on stdout), its errors, and its start-up cost."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from affordcore.example import box_surface_points
+from affordcore.grid import PoseGrid
+from affordcore.scene import Cloud, save_cloud
+from affordcore.skeleton import all_skeletons, get_skeleton
+
+
+def afford(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "affordcore.cli", *args], capture_output=True, text=True, timeout=300, env=env)
+
+
+@pytest.fixture(scope="module")
+def small_room(tmp_path_factory) -> str:
+    rng = np.random.default_rng(0)
+    # Sizes off the 10 cm lattice, so the grid's extent does not hinge on rounding at a cell edge.
+    boxes = [((0, 0, 0), (2.47, 1.96, 0)), ((0, -0.08, 0), (2.47, 0, 2.3)), ((-0.08, 0, 0), (0, 1.96, 2.3)),
+             ((1.0, 0.8, 0.7), (1.8, 1.5, 0.74))]
+    points = np.concatenate([box_surface_points(np.array(a, float), np.array(b, float), 800, rng) for a, b in boxes])
+    path = tmp_path_factory.mktemp("cloud") / "small-room.ply"
+    save_cloud(path, Cloud(points))
+    return str(path)
+
+
+def test_importing_the_cli_loads_no_heavy_library():
+    probe = "import sys, affordcore.cli; print([m for m in ('open3d', 'scipy', 'matplotlib', 'sklearn', 'zenoh', 'rerun') if m in sys.modules])"
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "[]"
+
+
+def test_help_lists_the_subcommands():
+    result = afford("--help")
+    assert result.returncode == 0
+    for command in ("features", "align", "demo", "config", "skeletons"):
+        assert command in result.stdout
+
+
+def test_features_json_contract(small_room):
+    result = afford("features", small_room, "--affordance", "sitting-working", "--json")
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)  # stdout holds exactly one JSON object
+    assert set(report) == {"poses", "features", "seconds", "peak_rss_mb"}
+    skeleton = get_skeleton("sitting-working")
+    expected = PoseGrid.over_footprint((-0.08, -0.08, 2.47, 1.96), skeleton.torso_height, 0.1)
+    assert report["poses"] == expected.size == 26 * 21 * 3 * 63
+    assert report["features"] == 3030
+    assert report["seconds"] > 0 and report["peak_rss_mb"] > 50
+
+
+def test_features_can_write_the_matrix(small_room, tmp_path, monkeypatch):
+    out = tmp_path / "features.npy"
+    env = {**__import__("os").environ, "AFFORD_FEATURES__CELL_SIZE": "0.5", "AFFORD_GRID__N_THETA": "2"}
+    result = afford("features", small_room, "-a", "standing-working", "--out", str(out), "--quiet", env=env)
+    assert result.returncode == 0, result.stderr
+    matrix = np.load(out, mmap_mode="r")
+    assert matrix.shape == (26 * 21 * 3 * 2, 30 + 3 * 8)
+    assert np.isfinite(matrix).all() and matrix[:, :15].max() > 0.5  # distances were written, not zeros
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["features", "/nonexistent/room.ply", "-a", "sitting-working"], "no such file"),
+        (["features", "{room}", "-a", "flying"], "unknown affordance 'flying'"),
+        (["features", "{room}", "-a", "sitting-working", "--gravity", "1,2"], "three numbers"),
+        (["align", "{bad}"], "unknown cloud format"),
+    ],
+)
+def test_bad_input_is_one_clear_line_and_exit_2(small_room, tmp_path, args, message):
+    bad = tmp_path / "room.las"
+    bad.write_text("x")
+    args = [a.format(room=small_room, bad=bad) for a in args]
+    result = afford(*args)
+    assert result.returncode == 2
+    assert message in result.stderr and "Traceback" not in result.stderr
+
+
+def test_no_floor_is_an_error_not_a_frame(tmp_path):
+    rng = np.random.default_rng(0)
+    sphere = rng.normal(size=(3000, 3))
+    sphere /= np.linalg.norm(sphere, axis=1, keepdims=True)
+    path = tmp_path / "ball.npy"
+    np.save(path, sphere)
+    result = afford("align", str(path))
+    assert result.returncode == 2 and "no floor found" in result.stderr
+
+
+def test_align_reports_the_frame_it_found(small_room, tmp_path):
+    from affordcore.scene import load_cloud
+
+    cloud = load_cloud(small_room)
+    y_up = cloud.points @ np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]], float).T + [0, 0.8, 0]
+    path = tmp_path / "y-up.npy"
+    np.save(path, y_up)
+    out = tmp_path / "aligned.ply"
+    result = afford("align", str(path), "--json", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    assert report["up_axis"] == "+y" and abs(report["floor_offset"] - 0.8) < 0.02
+    aligned = load_cloud(out).points
+    np.testing.assert_allclose(np.sort(aligned[:, 2])[[0, -1]], np.sort(cloud.points[:, 2])[[0, -1]], atol=0.02)
+
+
+def test_config_prints_every_default_with_its_variable():
+    result = afford("config")
+    assert result.returncode == 0
+    assert "AFFORD_VOXEL__RESOLUTION=0.1" in result.stdout
+    assert "AFFORD_GRID__N_THETA=63" in result.stdout
+
+
+def test_config_current_shows_environment_overrides():
+    env = {**__import__("os").environ, "AFFORD_GRID__N_THETA": "12"}
+    result = afford("config", "--current", env=env)
+    assert json.loads(result.stdout)["grid"]["n_theta"] == 12
+
+
+def test_skeletons_list_names_every_affordance():
+    result = afford("skeletons", "list")
+    assert result.returncode == 0
+    for skeleton in all_skeletons():
+        assert skeleton.affordance in result.stdout
+
+
+@pytest.mark.slow
+def test_demo_runs_on_the_built_in_room(tmp_path):
+    result = afford("demo", "--out", str(tmp_path), "--quiet")
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "example-room.ply").stat().st_size > 1_000_000
+    assert (tmp_path / "fields.png").read_bytes()[:4] == b"\x89PNG"
+    for skeleton in all_skeletons():
+        assert skeleton.affordance in result.stdout
+    assert "up = input +z" in result.stdout
