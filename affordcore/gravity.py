@@ -21,7 +21,8 @@ from .settings import GravitySettings
 _BELOW_MARGIN = 0.05  # a point this far under a floor plane is "below the floor"
 _AREA_CELL = 0.10  # floor area is counted in cells of this size
 _HORIZONTAL_COS = 0.9  # a surface whose normal is within ~25 deg of up counts as horizontal
-_FURNITURE_TOP = 1.3  # horizontal surfaces up to this height count for a floor's score (m)
+_FURNITURE_TOP = 1.3
+_REFITS = 10  # horizontal surfaces up to this height count for a floor's score (m)
 
 AXES = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0), "+z": (0, 0, 1), "-z": (0, 0, -1)}
 
@@ -172,9 +173,17 @@ def _ransac_plane(
         counts = (distance < settings.ransac_threshold).sum(axis=0)
         if counts.max() > best_count:
             best_count, best = int(counts.max()), start + int(counts.argmax())
-    inliers = np.abs(points @ normals[best] - offsets[best]) < settings.ransac_threshold
-    normal = _fit_normal(points[inliers], up)
-    inliers = np.abs(points @ normal - np.median(points[inliers] @ normal)) < settings.ransac_threshold
+    normal, offset = normals[best], offsets[best]
+    # Refit until the inliers settle: one refit stays near whichever rough plane RANSAC drew, which on a
+    # thick (noisy) floor moves the result by centimetres with the sampling order.
+    for _ in range(_REFITS):
+        inliers = np.abs(points @ normal - offset) < settings.ransac_threshold
+        normal = _fit_normal(points[inliers], up)
+        new_offset = float(np.median(points[inliers] @ normal))
+        if abs(new_offset - offset) < 1e-4:
+            break
+        offset = new_offset
+    inliers = np.abs(points @ normal - offset) < settings.ransac_threshold
     if normal @ up < min_cos:
         return None
     return normal, inliers
@@ -212,16 +221,21 @@ def _estimate_normals(points: np.ndarray) -> np.ndarray:
 
 
 def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest rotation taking unit vector a onto unit vector b."""
-    a = a / np.linalg.norm(a)
-    b = b / np.linalg.norm(b)
-    v, c = np.cross(a, b), float(a @ b)
-    if c < -1 + 1e-12:  # opposite: turn half way round any axis perpendicular to a
-        axis = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-        axis /= np.linalg.norm(axis)
-        return 2 * np.outer(axis, axis) - np.eye(3)
-    skew = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    return np.eye(3) + skew + skew @ skew / (1 + c)
+    """The smallest rotation taking unit vector a onto unit vector b (Rodrigues, stable near opposite)."""
+    a = np.asarray(a, dtype=np.float64) / np.linalg.norm(a)
+    b = np.asarray(b, dtype=np.float64) / np.linalg.norm(b)
+    cross = np.cross(a, b)
+    sine, cosine = np.linalg.norm(cross), float(a @ b)
+    if sine < 1e-12:
+        if cosine > 0:
+            return np.eye(3)
+        # opposite: half a turn about any axis perpendicular to a
+        cross = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        sine = np.linalg.norm(cross)
+    axis = cross / sine
+    angle = np.arctan2(np.linalg.norm(np.cross(a, b)), cosine)
+    skew = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * skew + (1 - np.cos(angle)) * skew @ skew
 
 
 def _world_from(up: np.ndarray, floor_offset: float) -> np.ndarray:

@@ -1,6 +1,7 @@
 """Point clouds in, one `Cloud` out: every supported file format, with clear errors for bad input.
 
-Formats: PLY and PCD (through open3d, binary or ASCII, PCD also binary_compressed), XYZ / PTS / TXT text
+Formats: PLY (plyfile: it fails loudly on a truncated or malformed file, where open3d returns the header's
+number of points filled with garbage), PCD (open3d; binary, ASCII, binary_compressed), XYZ / PTS / TXT text
 (``x y z``, ``x y z r g b``, or PTS ``x y z intensity r g b`` with an optional point-count first line),
 NPY (an (N, 3) or (N, 6) array) and raw little-endian float32 BIN (``x y z`` or ``x y z r g b`` per point).
 Colours come back as floats in [0, 1]. Points with a NaN or infinite coordinate are dropped and counted.
@@ -9,6 +10,7 @@ Colours come back as floats in [0, 1]. Points with a NaN or infinite coordinate 
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -63,7 +65,7 @@ def load_cloud(path: str | os.PathLike, bin_columns: int | None = None) -> Cloud
     if not os.access(path, os.R_OK):
         raise CloudError(f"{path}: not readable (permission denied)")
     suffix = path.suffix.lower()
-    readers = {".ply": _read_open3d, ".pcd": _read_open3d, ".xyz": _read_text, ".pts": _read_text,
+    readers = {".ply": _read_ply, ".pcd": _read_pcd, ".xyz": _read_text, ".pts": _read_text,
                ".txt": _read_text, ".npy": _read_npy, ".bin": lambda p: _read_bin(p, bin_columns)}
     if suffix not in readers:
         raise CloudError(f"{path}: unknown cloud format {suffix!r}; supported: {', '.join(SUPPORTED_SUFFIXES)}")
@@ -93,7 +95,24 @@ def _finish(path: Path, points: np.ndarray, colors: np.ndarray | None) -> Cloud:
     return cloud
 
 
-def _read_open3d(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+def _read_ply(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    from plyfile import PlyData
+
+    _check_header(path)
+    vertices = PlyData.read(str(path), mmap=False)["vertex"].data
+    names = vertices.dtype.names or ()
+    if not {"x", "y", "z"} <= set(names):
+        raise CloudError(f"{path}: the PLY vertices have no x, y, z properties (have {', '.join(names)})")
+    points = np.column_stack([vertices[c].astype(np.float64) for c in ("x", "y", "z")])
+    channels = next((c for c in (("red", "green", "blue"), ("r", "g", "b")) if set(c) <= set(names)), None)
+    if channels is None:
+        return points, None
+    rgb = np.column_stack([vertices[c].astype(np.float64) for c in channels])
+    scale = 255.0 if vertices[channels[0]].dtype.kind in "ui" else 1.0
+    return points, np.clip(rgb / scale, 0.0, 1.0).astype(np.float32)
+
+
+def _read_pcd(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     import open3d as o3d
 
     _check_header(path)
@@ -106,21 +125,19 @@ def _read_open3d(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
 
 
 def _check_header(path: Path) -> None:
-    """open3d prints a warning and returns nothing for a file of the wrong kind; say what is wrong instead."""
+    """Readers given a file of the wrong kind fail obscurely (open3d only warns); say what is wrong instead."""
     with path.open("rb") as handle:
         head = handle.read(64)
     if path.suffix.lower() == ".ply" and not head.startswith(b"ply"):
         raise CloudError(f"{path}: not a PLY file (it does not start with 'ply')")
-    if path.suffix.lower() == ".pcd" and not any(
-        key in head for key in (b"VERSION", b"FIELDS", b"# .PCD")
-    ):
+    if path.suffix.lower() == ".pcd" and not any(key in head for key in (b"VERSION", b"FIELDS", b"# .PCD")):
         raise CloudError(f"{path}: not a PCD file (no PCD header)")
 
 
 def _read_text(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     with path.open("r", errors="replace") as handle:
         lines = [line for line in handle if line.strip() and not line.lstrip().startswith(("#", "//"))]
-    if lines and len(lines[0].split()) == 1:  # PTS files start with the point count
+    if lines and len(re.split(r"[\s,]+", lines[0].strip())) == 1:  # PTS files start with the point count
         lines = lines[1:]
     if not lines:
         raise CloudError(f"{path}: the cloud has no points")
@@ -145,6 +162,9 @@ def _read_npy(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
 
 
 def _read_bin(path: Path, columns: int | None) -> tuple[np.ndarray, np.ndarray | None]:
+    size = path.stat().st_size
+    if size % 4:
+        raise CloudError(f"{path}: {size} bytes is not a whole number of float32 values")
     raw = np.fromfile(path, dtype="<f4")
     if columns is None:
         columns = 6 if len(raw) % 6 == 0 and _looks_like_colors(raw.reshape(-1, 6)[:, 3:]) else 3

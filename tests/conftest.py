@@ -1,0 +1,25 @@
+"""Shared test helpers.
+
+Real sensor data lives beside the project in ``<root>/shared/data`` (the project is ``<root>/main``). It is
+read in place, never copied, and tests that need it skip cleanly when it is absent.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+needs_shared = pytest.mark.skipif(
+    not SHARED_DATA.is_dir(), reason=f"shared real data not available at {SHARED_DATA}"
+)
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """The shared data folder; skips the test when it is absent."""
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"shared real data not available at {SHARED_DATA}")
+    return SHARED_DATA

@@ -1,0 +1,380 @@
+"""Gravity alignment: rotation_between, the synthetic example room in several input frames, given gravity,
+clear failures without a floor, and real sensor data (skipped when ../shared is absent)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import SHARED_DATA, needs_shared
+
+from affordcore.example import box_surface_points, example_room
+from affordcore.gravity import Alignment, NoFloorError, align_to_gravity, rotation_between
+from affordcore.settings import GravitySettings
+
+Z = np.array([0.0, 0.0, 1.0])
+
+
+def axis_angle(axis, degrees: float) -> np.ndarray:
+    """Rotation matrix about `axis` by `degrees` (Rodrigues, written independently of rotation_between)."""
+    axis = np.asarray(axis, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis)
+    angle = np.radians(degrees)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+def rigid(rotation: np.ndarray, translation=(0.0, 0.0, 0.0)) -> np.ndarray:
+    transform = np.eye(4)
+    transform[:3, :3] = rotation
+    transform[:3, 3] = translation
+    return transform
+
+
+def apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ transform[:3, :3].T + transform[:3, 3]
+
+
+def rotation_angle_deg(rotation: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1.0, 1.0))))
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+    return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
+
+
+def up_in_input(alignment: Alignment) -> np.ndarray:
+    """The input-frame direction that the alignment sends to world +z."""
+    return alignment.world_from_input[2, :3].copy()
+
+
+def assert_proper_rotation(rotation: np.ndarray, atol: float = 1e-9) -> None:
+    np.testing.assert_allclose(rotation.T @ rotation, np.eye(3), atol=atol, rtol=0)
+    assert abs(np.linalg.det(rotation) - 1.0) < atol
+
+
+# z-up -> y-up (+z onto +y) and z-up -> camera frame with y down (+z onto -y)
+Y_UP = axis_angle([1, 0, 0], -90)
+CAM = axis_angle([1, 0, 0], 90)
+assert np.allclose(Y_UP @ Z, [0, 1, 0]) and np.allclose(CAM @ Z, [0, -1, 0])
+
+
+# --- rotation_between ---------------------------------------------------------------------------------------
+
+
+def test_rotation_between_random_unit_vectors():
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        a, b = rng.normal(size=(2, 3))
+        a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+        rotation = rotation_between(a, b)
+        np.testing.assert_allclose(rotation @ a, b, atol=1e-9)
+        assert_proper_rotation(rotation)
+        # the smallest rotation: its angle is the angle between the vectors
+        assert abs(rotation_angle_deg(rotation) - angle_deg(a, b)) < 1e-6
+
+
+def test_rotation_between_unnormalised_and_equal_vectors():
+    rotation = rotation_between(np.array([0.0, 0.0, 5.0]), np.array([0.0, 3.0, 0.0]))
+    np.testing.assert_allclose(rotation @ Z, [0, 1, 0], atol=1e-12)
+    assert_proper_rotation(rotation)
+    v = np.array([0.3, -0.4, 0.5])
+    np.testing.assert_allclose(rotation_between(v, v), np.eye(3), atol=1e-12)
+
+
+def test_rotation_between_opposite_vectors():
+    rng = np.random.default_rng(1)
+    vectors = [np.array(v, float) for v in np.vstack([np.eye(3), -np.eye(3)])]
+    vectors += [v / np.linalg.norm(v) for v in rng.normal(size=(200, 3))]
+    for a in vectors:
+        rotation = rotation_between(a, -a)
+        np.testing.assert_allclose(rotation @ a, -a, atol=1e-12)
+        assert_proper_rotation(rotation, atol=1e-12)
+
+
+def test_rotation_between_nearly_opposite_vectors():
+    """Just off antipodal (a floor normal against a candidate axis, a noisy gravity vector) stays a rotation."""
+    rng = np.random.default_rng(2)
+    worst_orthonormal = worst_mapping = 0.0
+    for eps in (1e-3, 1e-4, 1e-5, 3e-6, 1e-6, 1e-7):
+        for _ in range(50):
+            a = rng.normal(size=3)
+            a /= np.linalg.norm(a)
+            b = -a + eps * rng.normal(size=3)
+            b /= np.linalg.norm(b)
+            rotation = rotation_between(a, b)
+            worst_orthonormal = max(worst_orthonormal, np.abs(rotation.T @ rotation - np.eye(3)).max())
+            worst_mapping = max(worst_mapping, np.linalg.norm(rotation @ a - b))
+    assert worst_orthonormal < 1e-9, f"R^T R deviates from I by {worst_orthonormal:.2e}"
+    assert worst_mapping < 1e-6, f"|R a - b| up to {worst_mapping:.2e}"
+
+
+# --- the synthetic example room -----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def room() -> np.ndarray:
+    return example_room().points
+
+
+@pytest.fixture(scope="module")
+def room_alignment(room) -> Alignment:
+    return align_to_gravity(room)
+
+
+def check_room_recovered(original: np.ndarray, aligned: np.ndarray) -> None:
+    """The floor is at z = 0 again and furniture keeps its height (yaw and x, y are free)."""
+    floor = np.abs(original[:, 2]) < 0.012
+    counter_top = (original[:, 2] > 0.92) & (original[:, 2] < 0.95)
+    desk_top = (original[:, 2] > 0.71) & (original[:, 2] < 0.75)
+    assert floor.sum() > 10_000 and counter_top.sum() > 500 and desk_top.sum() > 500
+    floor_error = np.abs(aligned[floor, 2]).max()
+    assert floor_error < 0.03, f"floor points up to {floor_error:.3f} m from z = 0"
+    for name, part in (("counter top", counter_top), ("desk top", desk_top)):
+        error = np.abs(aligned[part, 2] - original[part, 2]).max()
+        assert error < 0.03, f"{name} moved {error:.3f} m in height"
+
+
+def test_example_room_is_left_alone(room, room_alignment):
+    alignment = room_alignment
+    assert alignment.method == "auto"
+    assert alignment.up_axis == "+z"
+    assert alignment.tilt_deg < 0.5
+    assert abs(alignment.floor_offset) < 0.02
+    assert rotation_angle_deg(alignment.world_from_input[:3, :3]) < 0.5
+    assert alignment.floor_area > 20.0  # a 6 m x 5 m floor, partly under furniture
+    aligned = apply(alignment.world_from_input, room)
+    assert abs(np.percentile(aligned[:, 2], 1)) < 0.01
+    check_room_recovered(room, aligned)
+    # The evidence: +z is valid, the wrong axes were rejected for a reason.
+    by_axis = {c.axis: c for c in alignment.candidates}
+    assert set(by_axis) == {"+z", "+y", "-y"}
+    assert by_axis["+z"].valid
+    assert all(c.reason for c in alignment.candidates if not c.valid)
+    assert "+z" in alignment.describe()
+    assert alignment.as_dict()["up_axis"] == "+z"
+
+
+@pytest.mark.parametrize(
+    "frame, expected_axis, tilt_deg, tilt_azimuth_deg, shift",
+    [
+        ("y-up", "+y", 4.0, 30.0, 1.7),
+        ("camera (y down)", "-y", 6.0, 200.0, -1.25),
+    ],
+)
+def test_example_room_in_other_frames(room, frame, expected_axis, tilt_deg, tilt_azimuth_deg, shift):
+    axes = Y_UP if expected_axis == "+y" else CAM
+    azimuth = np.radians(tilt_azimuth_deg)
+    tilt = axis_angle([np.cos(azimuth), np.sin(azimuth), 0.0], tilt_deg)  # about a horizontal axis
+    rotation = axes @ tilt
+    presented_up = axes @ Z  # +y or -y
+    input_from_world = rigid(rotation, shift * presented_up + np.array([0.4, 0.0, -0.7]))
+    cloud = apply(input_from_world, room)
+
+    alignment = align_to_gravity(cloud)
+
+    assert alignment.up_axis == expected_axis, [(c.axis, c.valid, c.reason) for c in alignment.candidates]
+    assert abs(alignment.tilt_deg - tilt_deg) < 0.5
+    total = alignment.world_from_input @ input_from_world  # world -> input -> recovered world
+    assert angle_deg(total[:3, :3] @ Z, Z) < 0.3
+    assert abs(total[2, 3]) < 0.02
+    check_room_recovered(room, apply(alignment.world_from_input, cloud))
+
+
+def test_given_gravity_z_up_shifted(room):
+    cloud = room + [0.0, 0.0, 1.3]
+    alignment = align_to_gravity(cloud, gravity=[0.0, 0.0, -1.0])
+    assert alignment.method == "gravity" and alignment.up_axis == "given"
+    assert abs(alignment.floor_offset - 1.3) < 0.01
+    np.testing.assert_allclose(alignment.world_from_input[:3, :3], np.eye(3), atol=1e-12)
+    assert abs(alignment.world_from_input[2, 3] + 1.3) < 0.01
+    check_room_recovered(room, apply(alignment.world_from_input, cloud))
+
+
+def test_given_gravity_of_a_rotated_cloud(room):
+    rotation = CAM @ axis_angle([1, 1, 0], 12.0)
+    input_from_world = rigid(rotation, [0.3, 0.9, 2.0])
+    cloud = apply(input_from_world, room)
+    down = -(rotation @ Z) * 9.81  # an accelerometer reading: any length
+    alignment = align_to_gravity(cloud, gravity=down)
+    # The given direction is trusted exactly; only the floor height comes from the cloud.
+    np.testing.assert_allclose(alignment.world_from_input[:3, :3] @ (rotation @ Z), Z, atol=1e-9)
+    assert alignment.tilt_deg < 0.5
+    total = alignment.world_from_input @ input_from_world
+    assert abs(total[2, 3]) < 0.01
+    check_room_recovered(room, apply(alignment.world_from_input, cloud))
+
+
+def test_gravity_none_is_identity(room):
+    for gravity in ("none", None):
+        alignment = align_to_gravity(room, gravity=gravity)
+        assert alignment.method == "none"
+        np.testing.assert_array_equal(alignment.world_from_input, np.eye(4))
+        assert alignment.floor_offset == 0.0
+        assert "no gravity alignment" in alignment.describe()
+
+
+@pytest.mark.parametrize("gravity", ["up", "AUTO", [0.0, 0.0, 0.0], [np.nan, 0.0, -1.0]])
+def test_bad_gravity_argument(gravity):
+    with pytest.raises(ValueError) as info:
+        align_to_gravity(np.random.default_rng(0).random((100, 3)), gravity=gravity)
+    assert not isinstance(info.value, NoFloorError)
+
+
+def test_unknown_up_candidate(room):
+    with pytest.raises(ValueError, match="'up'"):
+        align_to_gravity(room[::20], settings=GravitySettings(up_candidates=["+z", "up"]))
+
+
+# --- no floor -----------------------------------------------------------------------------------------------
+
+
+def _floating_box() -> np.ndarray:
+    rng = np.random.default_rng(3)
+    box = box_surface_points(np.array([1.0, 2.0, 1.0]), np.array([1.6, 2.5, 1.4]), 2000.0, rng)
+    return box + rng.normal(scale=0.003, size=box.shape)
+
+
+def _sphere() -> np.ndarray:
+    rng = np.random.default_rng(4)
+    directions = rng.normal(size=(20_000, 3))
+    return 1.2 * directions / np.linalg.norm(directions, axis=1, keepdims=True) + [0.0, 0.0, 1.5]
+
+
+@pytest.mark.parametrize("make", [_floating_box, _sphere], ids=["small-box-in-the-air", "sphere"])
+def test_no_floor_auto(make):
+    with pytest.raises(NoFloorError, match="no floor") as info:
+        align_to_gravity(make())
+    message = str(info.value)
+    for axis in ("+z", "+y", "-y"):  # says, per candidate, why it failed
+        assert axis in message
+    assert "gravity" in message  # and what to do instead
+
+
+@pytest.mark.parametrize("make", [_floating_box, _sphere], ids=["small-box-in-the-air", "sphere"])
+def test_no_floor_given_gravity(make):
+    with pytest.raises(NoFloorError, match="no floor"):
+        align_to_gravity(make(), gravity=[0.0, 0.0, -1.0])
+
+
+# --- real data ----------------------------------------------------------------------------------------------
+
+ROOMS = sorted((SHARED_DATA / "rooms").glob("*.ply")) if SHARED_DATA.is_dir() else []
+
+
+@pytest.fixture(scope="module", params=ROOMS or [None], ids=lambda p: p.name.split("_")[0] if p else "absent")
+def real_room(request):
+    if request.param is None:
+        pytest.skip(f"no rooms under {SHARED_DATA}")
+    from affordcore.scene import load_cloud
+
+    points = load_cloud(request.param).points
+    return request.param.name, points, align_to_gravity(points)
+
+
+@needs_shared
+def test_real_rooms_present():
+    assert len(ROOMS) == 2, ROOMS
+
+
+@needs_shared
+def test_real_room_is_already_aligned(real_room):
+    name, points, alignment = real_room
+    assert alignment.up_axis == "+z"
+    assert alignment.tilt_deg < 3.0
+    assert abs(alignment.floor_offset) < 0.1
+    aligned = apply(alignment.world_from_input, points)
+    assert abs(np.percentile(aligned[:, 2], 2)) < 0.05
+    if name.startswith("7scenes_redkitchen"):
+        # The labels file: "tilted 1.8 deg (table top 1.4 deg)".
+        assert 1.0 < alignment.tilt_deg < 2.5
+
+
+@needs_shared
+@pytest.mark.parametrize("frame", ["y-up", "camera"])
+def test_real_room_in_other_frames(real_room, frame):
+    name, points, original = real_room
+    axes = Y_UP if frame == "y-up" else CAM
+    input_from_world = rigid(axes, 0.8 * (axes @ Z))
+    alignment = align_to_gravity(apply(input_from_world, points))
+    assert alignment.up_axis == ("+y" if frame == "y-up" else "-y")
+    total = alignment.world_from_input @ input_from_world
+    difference = rotation_angle_deg(total[:3, :3] @ original.world_from_input[:3, :3].T)
+    assert difference < 1.0, f"{name}: {difference:.2f} deg from the original's alignment"
+    offset_difference = abs(total[2, 3] - original.world_from_input[2, 3])
+    assert offset_difference < 0.02, (
+        f"{name}: floor offset {-total[2, 3]:+.4f} m (tilt {alignment.tilt_deg:.2f} deg) presented {frame}, "
+        f"{-original.world_from_input[2, 3]:+.4f} m (tilt {original.tilt_deg:.2f} deg) as given"
+    )
+
+
+@needs_shared
+def test_real_office_camera_frame():
+    import open3d as o3d
+
+    from affordcore.scene import load_cloud
+
+    cloud = load_cloud(SHARED_DATA / "single_frames" / "pcl_test_office1.pcd")
+    assert cloud.dropped_nonfinite > 0  # an organised frame: invalid pixels are NaN
+    alignment = align_to_gravity(cloud.points)
+    assert alignment.up_axis == "-y", [(c.axis, c.valid, c.reason) for c in alignment.candidates]
+    aligned = apply(alignment.world_from_input, cloud.points)
+    z = aligned[:, 2]
+    assert abs(np.percentile(z, 2)) < 0.05
+    assert np.mean(z < -0.05) < 0.005 and np.mean(z < -0.15) < 0.0005
+
+    # The desk: horizontal surface points (normal within ~18 deg of up) between 0.6 and 0.9 m pile up at one
+    # height. A misaligned frame smears a desk top over many heights and tips its normals out of the filter.
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(aligned)).voxel_down_sample(0.02)
+    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.06, max_nn=30))
+    heights = np.asarray(pcd.points)[:, 2]
+    horizontal = np.abs(np.asarray(pcd.normals)[:, 2]) > 0.95
+    band = heights[horizontal & (heights > 0.6) & (heights < 0.9)]
+    counts, edges = np.histogram(band, bins=np.arange(0.6, 0.9001, 0.02))
+    window = np.convolve(counts, np.ones(3, dtype=int), mode="valid")  # 6 cm windows
+    peak = int(window.argmax())
+    peak_height = edges[peak] + 0.03
+    assert window[peak] > 300, counts
+    assert window[peak] > 0.7 * len(band), counts
+    assert 0.7 < peak_height < 0.85, peak_height
+
+
+SEVEN_SCENES = SHARED_DATA / "sequences" / "7scenes_redkitchen_frames_000000-000299"
+
+
+def _back_project(depth_png, pose_txt) -> np.ndarray:
+    from PIL import Image
+
+    depth = np.asarray(Image.open(depth_png))
+    assert depth.dtype == np.uint16 and depth.shape == (480, 640)
+    # 65535 marks invalid pixels; 0 (no return) is never a valid depth either
+    valid = (depth > 0) & (depth < 65535)
+    valid[1::2, :] = valid[:, 1::2] = False  # every other row and column: plenty for a 3 cm search
+    rows, cols = np.nonzero(valid)
+    z = depth[rows, cols] / 1000.0
+    camera = np.stack([(cols - 320.0) * z / 585.0, (rows - 240.0) * z / 585.0, z], axis=1)
+    return apply(np.loadtxt(pose_txt), camera)
+
+
+@needs_shared
+def test_real_7scenes_merged_frames_find_gravity():
+    gravity = np.loadtxt(SEVEN_SCENES / "gravity-direction.txt")
+    assert gravity.shape == (3,)
+    frames = range(0, 300, 30)
+    world = np.concatenate(
+        [_back_project(SEVEN_SCENES / f"frame-{i:06d}.depth.png", SEVEN_SCENES / f"frame-{i:06d}.pose.txt") for i in frames]
+    )
+    assert len(world) > 500_000
+    alignment = align_to_gravity(world)
+    error = angle_deg(up_in_input(alignment), -gravity)
+    assert error < 3.0, f"up found {error:.2f} deg from -gravity (picked {alignment.up_axis})"
+    # KinectFusion's world frame is y down-ish: up is -y leaning about 25 deg toward -z, inside the 35 deg search.
+    assert alignment.up_axis == "-y"
+
+    # The given gravity agrees with it on where the floor is: both put the same floor points at z ~ 0.
+    given = align_to_gravity(world, gravity=gravity)
+    auto_z = apply(alignment.world_from_input, world)[:, 2]
+    given_z = apply(given.world_from_input, world)[:, 2]
+    floor = np.abs(auto_z) < 0.02
+    assert floor.mean() > 0.05
+    assert abs(np.median(given_z[floor])) < 0.05
