@@ -1,0 +1,301 @@
+"""Procedural rooms: a shell (walls with doors and windows, floor, ceiling) furnished by kind, with labels
+that come from the furniture's own semantics.
+
+Kinds: ``living`` (sofas, corner sofas, armchairs, coffee tables, TV units, shelves), ``office`` (desks with
+office chairs in varied states, desks without chairs, meeting tables, cabinets), ``workshop`` (kitchen
+counters, workbenches, high tables, stools, counter-height shelves with things on top) and ``mixed``. Every
+kind also gets distractors: things at seat or counter height that afford nothing (benches without a backrest,
+boxes, lone chairs, cluttered benches, low shelves, coffee tables).
+
+Placement is rejection sampling: a piece is kept only where it lies inside the room, touches no wall, no
+other piece, no door's swing, and where the free space each of its labels needs (feet in front of a sofa,
+a pulled-out chair, a person at a counter) is free of everything else.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import furniture as F
+from .shapes import Box, Piece, rot2
+
+KINDS = ("living", "office", "workshop", "mixed")
+ROLES_FILE = Path(__file__).resolve().parents[1] / "data" / "furniture_roles.json"
+WALL = 0.10
+WALL_COLOR = (0.86, 0.85, 0.80)
+FLOOR_COLOR = (0.55, 0.47, 0.38)
+
+
+def role_affordances() -> dict[str, str]:
+    """Furniture role -> affordance name (data, so the code lists no affordance types)."""
+    return json.loads(ROLES_FILE.read_text())["roles"]
+
+
+@dataclass
+class Opening:
+    edge: int
+    start: float  # along the edge from its first vertex (m)
+    width: float
+    bottom: float
+    top: float
+    kind: str  # "door" or "window"
+
+
+@dataclass
+class Room:
+    name: str
+    kind: str
+    polygon: np.ndarray  # (n, 2) floor outline, counter-clockwise
+    height: float
+    openings: list[Opening] = field(default_factory=list)
+    pieces: list[Piece] = field(default_factory=list)
+    walls: list[Box] = field(default_factory=list)
+    keep_free: list[Box] = field(default_factory=list)  # door swings
+
+    def shell_boxes(self) -> list[Box]:
+        low, high = self.polygon.min(axis=0), self.polygon.max(axis=0)
+        floor = [Box.span((a[0], a[1], -0.05), (b[0], b[1], 0.0), FLOOR_COLOR) for a, b in _floor_rectangles(self.polygon)]
+        ceiling = Box.span((low[0] - WALL, low[1] - WALL, self.height), (high[0] + WALL, high[1] + WALL, self.height + 0.05),
+                           (0.93, 0.93, 0.92))
+        return floor + self.walls + [ceiling]
+
+    def furniture_boxes(self) -> list[Box]:
+        return [part for piece in self.pieces for part in piece.world_parts()]
+
+    def labels(self) -> dict:
+        """The room's ground truth in the `affordance-labels/1` format (DESIGN.md)."""
+        roles = role_affordances()
+        labels = []
+        for piece in self.pieces:
+            for anchor in piece.anchors:
+                if anchor.role not in roles:
+                    continue
+                start, end = piece.world_point(anchor.start), piece.world_point(anchor.end)
+                facing = float(np.angle(np.exp(1j * (anchor.facing + piece.yaw))))
+                label = {"affordance": roles[anchor.role]}
+                if anchor.is_point:
+                    label["at"] = _rounded((start + end) / 2)
+                else:
+                    label["from"], label["to"] = _rounded(start), _rounded(end)
+                label["facing"] = round(facing, 4)
+                label["note"] = f"{piece.note}; {anchor.note}"
+                labels.append(label)
+        return {
+            "format": "affordance-labels/1",
+            "scene": f"{self.name} (procedural {self.kind} room)",
+            "cloud": f"{self.name}.ply",
+            "frame": "z-up, metres, floor at z = 0",
+            "labels": labels,
+            "unlabelled_regions": [],
+        }
+
+
+def _rounded(point) -> list[float]:
+    return [round(float(v), 4) for v in point]
+
+
+def generate_room(kind: str, rng: np.random.Generator, name: str) -> Room:
+    if kind not in KINDS:
+        raise ValueError(f"unknown room kind {kind!r}; choose from {', '.join(KINDS)}")
+    room = _shell(kind, rng, name)
+    for builder, mode in _program(kind, rng):
+        piece = builder(rng)
+        anchor_piece = room.pieces[-1] if mode == "in-front" and room.pieces else None
+        _place(room, piece, mode, rng, anchor_piece)
+    return room
+
+
+# ---------------------------------------------------------------- the shell
+
+def _shell(kind: str, rng: np.random.Generator, name: str) -> Room:
+    low, high = {"living": (3.0, 7.0), "office": (3.5, 10.0), "workshop": (3.0, 8.0), "mixed": (4.0, 10.0)}[kind]
+    width, depth = rng.uniform(low, high, 2)
+    polygon = np.array([[0, 0], [width, 0], [width, depth], [0, depth]], float)
+    if rng.random() < 0.3 and min(width, depth) > 4.0:  # an L: cut away one corner
+        cut_w, cut_d = rng.uniform(0.25, 0.45) * width, rng.uniform(0.25, 0.45) * depth
+        polygon = np.array([[0, 0], [width, 0], [width, depth - cut_d], [width - cut_w, depth - cut_d],
+                            [width - cut_w, depth], [0, depth]], float)
+    room = Room(name, kind, polygon, float(rng.uniform(2.4, 3.0)))
+    room.openings = _openings(polygon, rng, room.height)
+    room.walls = _walls(polygon, room.openings, room.height)
+    room.keep_free = [_door_swing(polygon, door) for door in room.openings if door.kind == "door"]
+    return room
+
+
+def _edges(polygon: np.ndarray):
+    for i, start in enumerate(polygon):
+        end = polygon[(i + 1) % len(polygon)]
+        length = float(np.linalg.norm(end - start))
+        direction = (end - start) / length
+        inward = np.array([-direction[1], direction[0]])  # counter-clockwise: the inside is on the left
+        yield i, start, direction, inward, length
+
+
+def _openings(polygon: np.ndarray, rng: np.random.Generator, height: float) -> list[Opening]:
+    edges = [e for e in _edges(polygon) if e[4] >= 1.6]
+    openings = []
+    for k in range(int(rng.integers(1, 3)) + int(rng.integers(0, 4))):
+        index, _, _, _, length = edges[int(rng.integers(len(edges)))]
+        door = k < 1 or rng.random() < 0.2
+        width = rng.uniform(0.8, 1.0) if door else rng.uniform(0.8, min(2.0, length - 0.6))
+        start = rng.uniform(0.3, length - width - 0.3)
+        candidate = Opening(index, start, width, 0.0 if door else rng.uniform(0.8, 1.0),
+                            min(height - 0.2, 2.05) if door else min(height - 0.15, rng.uniform(2.0, 2.3)),
+                            "door" if door else "window")
+        if all(o.edge != index or start > o.start + o.width + 0.3 or start + width < o.start - 0.3 for o in openings):
+            openings.append(candidate)
+    return openings
+
+
+def _walls(polygon: np.ndarray, openings: list[Opening], height: float) -> list[Box]:
+    walls = []
+    for index, start, direction, inward, length in _edges(polygon):
+        yaw = float(np.arctan2(direction[1], direction[0]))
+        pieces = []  # (from, to, bottom, top) along the edge, extended past its ends to close the corners
+        cursor = -WALL
+        for opening in sorted((o for o in openings if o.edge == index), key=lambda o: o.start):
+            pieces.append((cursor, opening.start, 0.0, height))
+            if opening.bottom > 0:
+                pieces.append((opening.start, opening.start + opening.width, 0.0, opening.bottom))
+            pieces.append((opening.start, opening.start + opening.width, opening.top, height))
+            cursor = opening.start + opening.width
+        pieces.append((cursor, length + WALL, 0.0, height))
+        for a, b, bottom, top in pieces:
+            middle = start + direction * (a + b) / 2 - inward * WALL / 2
+            walls.append(Box((float(middle[0]), float(middle[1]), (bottom + top) / 2), (b - a, WALL, top - bottom), yaw, WALL_COLOR))
+    return walls
+
+
+def _door_swing(polygon: np.ndarray, door: Opening) -> Box:
+    _, start, direction, inward, _ = list(_edges(polygon))[door.edge]
+    centre = start + direction * (door.start + door.width / 2) + inward * 0.5
+    return Box((float(centre[0]), float(centre[1]), 1.0), (door.width + 0.1, 1.0, 2.0),
+               float(np.arctan2(direction[1], direction[0])), (0, 0, 0))
+
+
+def _floor_rectangles(polygon: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The floor as axis-aligned rectangles (the outlines here are rectangles and L shapes)."""
+    xs, ys = np.unique(polygon[:, 0]), np.unique(polygon[:, 1])
+    cells = []
+    for x0, x1 in zip(xs[:-1], xs[1:]):
+        for y0, y1 in zip(ys[:-1], ys[1:]):
+            if inside_polygon(polygon, np.array([[(x0 + x1) / 2, (y0 + y1) / 2]]))[0]:
+                cells.append((np.array([x0, y0]), np.array([x1, y1])))
+    return cells
+
+
+def inside_polygon(polygon: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Even-odd rule, vectorised over points (boundary points count as inside within 1e-9)."""
+    x, y = points[:, 0, None], points[:, 1, None]
+    x0, y0 = polygon[:, 0], polygon[:, 1]
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    crosses = ((y0 > y) != (y1 > y)) & (x < (x1 - x0) * (y - y0) / np.where(y1 != y0, y1 - y0, 1) + x0)
+    return (crosses.sum(axis=1) % 2 == 1) | _on_boundary(polygon, points)
+
+
+def _on_boundary(polygon: np.ndarray, points: np.ndarray) -> np.ndarray:
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    ab = b - a
+    t = np.clip(np.einsum("pij,ij->pi", points[:, None] - a, ab) / np.einsum("ij,ij->i", ab, ab), 0, 1)
+    closest = a + t[..., None] * ab
+    return (np.linalg.norm(points[:, None] - closest, axis=2) < 1e-9).any(axis=1)
+
+
+# ---------------------------------------------------------------- what goes in a room
+
+def _program(kind: str, rng: np.random.Generator) -> list[tuple]:
+    """(builder, placement) pairs in placement order: the big pieces first, then context and distractors."""
+    n = lambda low, high: int(rng.integers(low, high + 1))  # noqa: E731
+    living = ([(F.corner_sofa if rng.random() < 0.3 else F.sofa, "wall"), (F.coffee_table, "in-front")]
+              + [(F.armchair, "free" if rng.random() < 0.5 else "wall") for _ in range(n(0, 2))]
+              + [(F.tv_unit, "wall")] * n(0, 1) + [(F.shelf, "wall")] * n(0, 2))
+    office = ([(F.desk, "wall") for _ in range(n(1, 4))] + [(F.meeting_table, "free")] * n(0, 1)
+              + [(F.cabinet, "wall")] * n(1, 3) + [(F.shelf, "wall")] * n(0, 2))
+    workshop = ([(F.counter, "wall") for _ in range(n(1, 3))]
+                + [(lambda r: F.workbench(r, both_sides=True), "free")] * n(0, 2)
+                + [(F.workbench, "wall")] * n(0, 1) + [(F.high_table, "free")] * n(0, 1)
+                + [(F.cabinet, "wall")] * n(0, 2))
+    distractors = ([(F.bench, "any")] * n(0, 1) + [(F.storage_box, "any")] * n(0, 2) + [(F.lone_chair, "any")] * n(0, 2)
+                   + [(lambda r: F.shelf(r, low=True), "wall")] * n(0, 1) + [(F.stool, "any")] * n(0, 2)
+                   + [(lambda r: F.counter(r, cluttered=True), "wall")] * n(0, 1)
+                   + [(lambda r: F.desk(r, with_chair=False, cluttered=r.random() < 0.5), "wall")] * n(0, 1)
+                   + [(lambda r: F.workbench(r, cluttered=True), "any")] * n(0, 1) + [(F.coffee_table, "any")] * n(0, 1))
+    if kind == "mixed":
+        main = living[:2] + office[: n(1, 2)] + workshop[: n(1, 2)] + [(F.armchair, "free")] * n(0, 1)
+    else:
+        main = {"living": living, "office": office, "workshop": workshop}[kind]
+    chosen = [distractors[i] for i in sorted(rng.permutation(len(distractors))[: n(2, 5)])]
+    return main + chosen
+
+
+def _place(room: Room, piece: Piece, mode: str, rng: np.random.Generator, anchor_piece: Piece | None, tries: int = 80) -> bool:
+    edges = list(_edges(room.polygon))
+    lengths = np.array([e[4] for e in edges])
+    lo, hi = piece.local_bounds()
+    for _ in range(tries):
+        if mode == "in-front" and anchor_piece is not None:
+            front = anchor_piece.local_bounds()[1][0]
+            gap = rng.uniform(0.46, 0.65)
+            piece.x, piece.y = anchor_piece.world_point((front + gap - lo[0], rng.uniform(-0.2, 0.2)))
+            piece.yaw = anchor_piece.yaw
+        elif mode == "wall" or (mode == "any" and rng.random() < 0.6):
+            _, start, direction, inward, length = edges[int(rng.choice(len(edges), p=lengths / lengths.sum()))]
+            along = rng.uniform(0, length)
+            piece.x, piece.y = start + direction * along + inward * (rng.uniform(0.005, 0.04) - lo[0])
+            piece.yaw = float(np.arctan2(inward[1], inward[0]))
+        else:
+            low, high = room.polygon.min(axis=0), room.polygon.max(axis=0)
+            piece.x, piece.y = rng.uniform(low, high)
+            piece.yaw = float(rng.integers(4) * np.pi / 2 + rng.normal(0, 0.1)) if rng.random() < 0.7 else float(rng.uniform(0, 2 * np.pi))
+        if fits(room, piece):
+            room.pieces.append(piece)
+            return True
+    return False
+
+
+def fits(room: Room, piece: Piece) -> bool:
+    """Inside the room, clear of walls, door swings, other pieces, and every piece's free space."""
+    parts, clearance = piece.world_parts(), piece.world_clearance()
+    corners = np.vstack([box.corners_xy() for box in parts + clearance])
+    if not inside_polygon(room.polygon, corners).all():
+        return False
+    others = [p for other in room.pieces for p in other.world_parts()]
+    others_free = [c for other in room.pieces for c in other.world_clearance()]
+    return not (
+        any_overlap(parts, room.walls + room.keep_free + others + others_free)
+        or any_overlap(clearance, room.walls + others)
+    )
+
+
+def any_overlap(boxes: list[Box], others: list[Box], tolerance: float = 1e-3) -> bool:
+    """Do any of `boxes` overlap any of `others`? Axis-aligned bounds first (vectorised), then exact tests."""
+    from .shapes import boxes_overlap
+
+    if not boxes or not others:
+        return False
+    a, b = _bounds(boxes), _bounds(others)
+    candidates = np.argwhere(np.all(
+        (a[:, None, :3] < b[None, :, 3:] - tolerance) & (b[None, :, :3] < a[:, None, 3:] - tolerance), axis=2))
+    return any(boxes_overlap(boxes[i], others[j], tolerance) for i, j in candidates)
+
+
+def _bounds(boxes: list[Box]) -> np.ndarray:
+    """(n, 6) axis-aligned bounds: x, y, z minima then maxima."""
+    rows = []
+    for box in boxes:
+        corners = box.corners_xy()
+        z0, z1 = box.z_range
+        rows.append([*corners.min(axis=0), z0, *corners.max(axis=0), z1])
+    return np.array(rows)
+
+
+def world_anchor_boxes(piece: Piece) -> list[tuple]:
+    """(anchor, its clearance boxes in the world) for every anchor of a placed piece."""
+    return [(anchor, [box.placed(piece.x, piece.y, piece.yaw) for box in anchor.clearance]) for anchor in piece.anchors]
+
+
+__all__ = ["KINDS", "Room", "generate_room", "fits", "any_overlap", "inside_polygon", "role_affordances", "rot2"]

@@ -1,0 +1,264 @@
+"""A virtual depth camera (and a spinning LiDAR) that sees a generated room the way a real sensor would.
+
+The room's boxes become one triangle mesh in an open3d ray-casting scene. A depth frame casts one ray per
+pixel (jittered by the lateral noise), keeps the first hit, and then applies what a Kinect-class sensor does
+to it: range limits (0.5 to 4.5 m), axial noise growing with the square of the range (Nguyen, Izadi & Lovell
+2012: sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 m), disparity quantisation (steps of 2.85e-3 z^2 m), no return
+at grazing incidence (beyond 80 degrees), and random dropouts. Occlusion is exact, so what the camera never
+sees (under tables, behind sofas, the far side of a chair back) is missing as in real scans.
+
+A room scan fuses frames from several person-height viewpoints in free space and thins the result to one
+point per 1 cm voxel (the mean), like the real rooms in ../shared/data (fused at 1 to 1.5 cm). Uniform
+surface sampling is the cheap alternative: every face of every box, no occlusion, no noise.
+
+Camera frame: x right, y down, z forward (OpenCV, 7-Scenes). LiDAR frame: x forward, y left, z up (ROS).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .rooms import Room, any_overlap, inside_polygon
+from .shapes import Box
+
+FUSION_VOXEL = 0.01
+
+
+@dataclass(frozen=True)
+class DepthCamera:
+    width: int = 640
+    height: int = 480
+    fx: float = 585.0
+    fy: float = 585.0
+    cx: float = 320.0
+    cy: float = 240.0
+    min_range: float = 0.5
+    max_range: float = 4.5
+    lateral_px: float = 0.5
+    dropout: float = 0.02
+    grazing_deg: float = 80.0
+    noisy: bool = True
+
+    @classmethod
+    def qvga(cls, **changes) -> "DepthCamera":
+        """The same sensor at 320 x 240 (Kinect's QVGA depth mode): a quarter of the rays, for fused room scans
+        where 1 cm fusion voxels are coarser than a VGA pixel's footprint anyway."""
+        return cls(width=320, height=240, fx=292.5, fy=292.5, cx=160.0, cy=120.0, lateral_px=0.25, **changes)
+
+    @property
+    def intrinsics(self) -> np.ndarray:
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+
+
+def axial_sigma(depth: np.ndarray) -> np.ndarray:
+    """Kinect v1 axial noise (m) at a given depth (m)."""
+    return 0.0012 + 0.0019 * (depth - 0.4) ** 2
+
+
+class Raycaster:
+    """All boxes of a room as one mesh; a hit reports the box it struck (for colour) and the surface normal."""
+
+    def __init__(self, boxes: list[Box]):
+        import open3d as o3d
+
+        vertices, triangles = [], []
+        for index, box in enumerate(boxes):
+            v, t = box.mesh_arrays()
+            vertices.append(v)
+            triangles.append(t + 8 * index)
+        self.colors = np.array([box.color for box in boxes], dtype=np.float32)
+        mesh = o3d.t.geometry.TriangleMesh()
+        mesh.vertex.positions = o3d.core.Tensor(np.vstack(vertices).astype(np.float32))
+        mesh.triangle.indices = o3d.core.Tensor(np.vstack(triangles).astype(np.int32))
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(mesh)
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Distance along each direction (in units of its length; inf for a miss), box index, unit normal."""
+        import open3d as o3d
+
+        rays = np.concatenate([origins, directions], axis=-1).astype(np.float32)
+        hit = self.scene.cast_rays(o3d.core.Tensor(rays), nthreads=0)
+        distance = hit["t_hit"].numpy().astype(np.float64)
+        box = (hit["primitive_ids"].numpy().astype(np.int64) // 12).clip(0, len(self.colors) - 1)
+        return distance, box, hit["primitive_normals"].numpy().astype(np.float64)
+
+
+def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Camera-to-world (4 x 4) for an OpenCV camera at `eye` looking at `target`, image upright (z is up)."""
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    pose = np.eye(4)
+    pose[:3, :3] = np.column_stack([right, down, forward])
+    pose[:3, 3] = eye
+    return pose
+
+
+def depth_frame(raycaster: Raycaster, camera: DepthCamera, cam_to_world: np.ndarray, rng: np.random.Generator):
+    """(depth (H, W) in metres with 0 where nothing was measured, box index (H, W) of each hit)."""
+    v, u = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
+    if camera.noisy and camera.lateral_px > 0:
+        u = u + rng.normal(0, camera.lateral_px, u.shape)
+        v = v + rng.normal(0, camera.lateral_px, v.shape)
+    rays_cam = np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones_like(u)], axis=-1)
+    directions = rays_cam @ cam_to_world[:3, :3].T  # z component 1 in the camera: distance = depth
+    origins = np.broadcast_to(cam_to_world[:3, 3], directions.shape)
+    depth, box, normal = raycaster.cast(origins, directions)
+    valid = np.isfinite(depth) & (depth >= camera.min_range) & (depth <= camera.max_range)
+    if camera.noisy:
+        unit = directions / np.linalg.norm(directions, axis=-1, keepdims=True)
+        incidence = np.abs(np.einsum("hwi,hwi->hw", unit, normal))
+        valid &= incidence > np.cos(np.radians(camera.grazing_deg))
+        valid &= rng.random(depth.shape) >= camera.dropout
+        depth = np.where(valid, depth, 1.0)  # placeholder where nothing returns, so the noise stays finite
+        noisy = depth + rng.normal(0, 1, depth.shape) * axial_sigma(depth)
+        step = 2.85e-3 * noisy**2
+        depth = np.round(noisy / step) * step
+    return np.where(valid, depth, 0.0), box
+
+
+def backproject(depth: np.ndarray, camera: DepthCamera, cam_to_world: np.ndarray | None = None) -> np.ndarray:
+    """Points (N, 3) of the valid pixels, in the camera frame or, with a pose, in the world."""
+    v, u = np.nonzero(depth > 0)
+    z = depth[v, u]
+    points = np.column_stack([(u - camera.cx) * z / camera.fx, (v - camera.cy) * z / camera.fy, z])
+    if cam_to_world is not None:
+        points = points @ cam_to_world[:3, :3].T + cam_to_world[:3, 3]
+    return points
+
+
+def free_positions(room: Room, rng: np.random.Generator, count: int, clearance: float = 0.35) -> np.ndarray:
+    """Up to `count` floor positions where a person could stand with a sensor, spread out (farthest-point)."""
+    low, high = room.polygon.min(axis=0), room.polygon.max(axis=0)
+    candidates = rng.uniform(low, high, size=(400, 2))
+    candidates = candidates[inside_polygon(room.polygon, candidates)]
+    furniture = room.furniture_boxes() + room.walls
+    free = [p for p in candidates
+            if not any_overlap([Box((p[0], p[1], 1.0), (2 * clearance, 2 * clearance, 2.0))], furniture)]
+    if not free:
+        raise RuntimeError(f"{room.name}: no free floor to scan from")
+    free = np.array(free)
+    chosen = [int(rng.integers(len(free)))]
+    distance = np.linalg.norm(free - free[chosen[0]], axis=1)
+    while len(chosen) < min(count, len(free)):
+        chosen.append(int(distance.argmax()))
+        distance = np.minimum(distance, np.linalg.norm(free - free[chosen[-1]], axis=1))
+    return free[chosen]
+
+
+def viewpoints(room: Room, rng: np.random.Generator, count: int | None = None, turns: int = 3) -> list[np.ndarray]:
+    """Person-height cameras in free space: at each spot the person turns round in `turns` steps, the first
+    aimed at a piece of furniture, pitched 15 to 35 degrees down (the floor near walls shows, as in real scans)."""
+    area = abs(_polygon_area(room.polygon))
+    count = count or int(np.clip(round(area / 6) + 2, 3, 10))
+    targets = [box.centre for box in room.furniture_boxes()] or [(*room.polygon.mean(axis=0), 0.5)]
+    poses = []
+    for eye_xy in free_positions(room, rng, count):
+        eye = np.array([*eye_xy, rng.uniform(1.2, 1.7)])
+        aim = np.array(targets[int(rng.integers(len(targets)))][:2]) - eye_xy
+        heading = np.arctan2(aim[1], aim[0]) if np.linalg.norm(aim) > 0.3 else rng.uniform(0, 2 * np.pi)
+        for turn in range(turns):
+            yaw = heading + 2 * np.pi * turn / turns + rng.normal(0, 0.15)
+            pitch = -np.radians(rng.uniform(15, 35))
+            direction = np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)])
+            poses.append(look_at(eye, eye + direction))
+    return poses
+
+
+def scan_room(room: Room, rng: np.random.Generator, camera: DepthCamera | None = None,
+              views: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Fused, thinned points (N, 3) and colours (N, 3) of depth frames from several viewpoints."""
+    camera = camera or DepthCamera.qvga()
+    boxes = room.shell_boxes() + room.furniture_boxes()
+    raycaster = Raycaster(boxes)
+    points, colors = [], []
+    for pose in viewpoints(room, rng, views):
+        depth, box = depth_frame(raycaster, camera, pose, rng)
+        points.append(backproject(depth, camera, pose))
+        colors.append(raycaster.colors[box[depth > 0]])
+    return thin(np.concatenate(points), np.concatenate(colors), FUSION_VOXEL)
+
+
+def sample_room_uniform(room: Room, rng: np.random.Generator, points_per_m2: float = 2500.0) -> tuple[np.ndarray, np.ndarray]:
+    """Points spread uniformly over every face of every box (no occlusion, no noise): the cheap option."""
+    points, colors = [], []
+    for box in room.shell_boxes() + room.furniture_boxes():
+        vertices, triangles = box.mesh_arrays()
+        a, b, c = (vertices[triangles[:, k]] for k in range(3))
+        areas = np.linalg.norm(np.cross(b - a, c - a), axis=1) / 2
+        counts = rng.poisson(areas * points_per_m2)
+        which = np.repeat(np.arange(len(triangles)), counts)
+        r1, r2 = rng.random((2, len(which)))
+        flip = r1 + r2 > 1
+        r1, r2 = np.where(flip, 1 - r1, r1), np.where(flip, 1 - r2, r2)
+        points.append(a[which] + r1[:, None] * (b - a)[which] + r2[:, None] * (c - a)[which])
+        colors.append(np.tile(np.array(box.color, np.float32), (len(which), 1)))
+    return np.concatenate(points), np.concatenate(colors)
+
+
+def thin(points: np.ndarray, colors: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """The mean point and colour of each occupied voxel, in a fixed order (deterministic, unlike a hash map)."""
+    keys = np.floor(points / voxel).astype(np.int64)
+    keys -= keys.min(axis=0)
+    span = keys.max(axis=0) + 1
+    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+    _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
+    mean = lambda values: np.stack([np.bincount(inverse, values[:, k]) for k in range(3)], axis=1) / counts[:, None]  # noqa: E731
+    return mean(points), mean(colors.astype(np.float64)).astype(np.float32)
+
+
+def trajectory(room: Room, rng: np.random.Generator, frames: int, step: float = 0.02) -> list[np.ndarray]:
+    """A hand-held camera walking a smooth loop through free space at about 2 cm and 1 degree per frame,
+    looking outwards at the furniture with a slow pitch and yaw sway."""
+    waypoints = free_positions(room, rng, 6, clearance=0.45)
+    centre = waypoints.mean(axis=0)
+    order = np.argsort(np.arctan2(*(waypoints - centre).T[::-1]))
+    loop = np.vstack([waypoints[order], waypoints[order][:1]])
+    dense = _smooth_path(loop, step)
+    poses = []
+    height = rng.uniform(1.3, 1.6)
+    for k in range(frames):
+        position = dense[k % len(dense)]
+        outward = position - centre
+        heading = np.arctan2(outward[1], outward[0]) + 0.5 * np.sin(k / 40.0)
+        pitch = np.radians(-20 + 8 * np.sin(k / 55.0))
+        eye = np.array([*position, height + 0.03 * np.sin(k / 15.0)])
+        target = eye + np.array([np.cos(heading) * np.cos(pitch), np.sin(heading) * np.cos(pitch), np.sin(pitch)])
+        poses.append(look_at(eye, target))
+    return poses
+
+
+def _smooth_path(loop: np.ndarray, step: float) -> np.ndarray:
+    """Chaikin-smoothed closed polyline resampled at a fixed arc length."""
+    path = loop
+    for _ in range(4):
+        q = 0.75 * path[:-1] + 0.25 * path[1:]
+        r = 0.25 * path[:-1] + 0.75 * path[1:]
+        path = np.vstack([np.column_stack([q, r]).reshape(-1, 2), q[:1]])
+    arc = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    samples = np.arange(0, arc[-1], step)
+    return np.column_stack([np.interp(samples, arc, path[:, 0]), np.interp(samples, arc, path[:, 1])])
+
+
+def lidar_scan(raycaster: Raycaster, sensor_to_world: np.ndarray, rng: np.random.Generator, beams: int = 16,
+               vertical_fov_deg: float = 30.0, columns: int = 1800, max_range: float = 30.0, sigma: float = 0.015) -> np.ndarray:
+    """One revolution of a spinning multi-beam LiDAR: points (N, 3) in the sensor frame (x forward, z up)."""
+    elevation = np.radians(np.linspace(-vertical_fov_deg / 2, vertical_fov_deg / 2, beams))
+    azimuth = np.linspace(-np.pi, np.pi, columns, endpoint=False)
+    el, az = np.meshgrid(elevation, azimuth, indexing="ij")
+    local = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=-1)
+    directions = local @ sensor_to_world[:3, :3].T
+    origins = np.broadcast_to(sensor_to_world[:3, 3], directions.shape)
+    distance, _, _ = raycaster.cast(origins, directions)
+    valid = np.isfinite(distance) & (distance > 0.3) & (distance < max_range)
+    ranges = distance[valid] + rng.normal(0, sigma, valid.sum())
+    return local[valid] * ranges[:, None]
+
+
+def _polygon_area(polygon: np.ndarray) -> float:
+    x, y = polygon[:, 0], polygon[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))

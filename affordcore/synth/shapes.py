@@ -1,0 +1,128 @@
+"""Boxes turned about z: the one solid the room generator builds furniture, walls and floors from.
+
+A `Box` is a centre, a size and a yaw. Furniture pieces are lists of boxes in their own frame (x forward:
+the side a person uses, y left, z up, origin on the floor under the piece's centre), placed in a room by a
+yaw and a translation. Overlap tests use the separating-axis theorem in plan and interval overlap in height.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+_TRIANGLES = np.array(
+    [[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
+     [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]]
+)  # outward-facing, vertices ordered bottom (0-3) then top (4-7), counter-clockwise from (-x, -y)
+
+
+def rot2(yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s], [s, c]])
+
+
+@dataclass(frozen=True)
+class Box:
+    centre: tuple[float, float, float]
+    size: tuple[float, float, float]
+    yaw: float = 0.0
+    color: tuple[float, float, float] = (0.6, 0.6, 0.6)
+
+    @classmethod
+    def span(cls, low, high, color=(0.6, 0.6, 0.6), yaw: float = 0.0) -> "Box":
+        """An axis-aligned box (in its own frame) from its low and high corners."""
+        low, high = np.asarray(low, float), np.asarray(high, float)
+        return cls(tuple((low + high) / 2), tuple(high - low), yaw, tuple(color))
+
+    def placed(self, x: float, y: float, yaw: float) -> "Box":
+        """This box moved by a rotation `yaw` about the origin, then a translation (x, y)."""
+        cx, cy = rot2(yaw) @ np.array(self.centre[:2]) + (x, y)
+        return Box((float(cx), float(cy), self.centre[2]), self.size, self.yaw + yaw, self.color)
+
+    def corners_xy(self) -> np.ndarray:
+        half = np.array(self.size[:2]) / 2
+        square = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * half
+        return square @ rot2(self.yaw).T + self.centre[:2]
+
+    @property
+    def z_range(self) -> tuple[float, float]:
+        return self.centre[2] - self.size[2] / 2, self.centre[2] + self.size[2] / 2
+
+    def mesh_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """(8, 3) vertices and (12, 3) triangles."""
+        low, high = self.z_range
+        ring = self.corners_xy()
+        vertices = np.vstack([np.column_stack([ring, np.full(4, low)]), np.column_stack([ring, np.full(4, high)])])
+        return vertices, _TRIANGLES.copy()
+
+
+def boxes_overlap(a: Box, b: Box, tolerance: float = 1e-3) -> bool:
+    """True when the two solids share volume deeper than `tolerance` (touching is allowed)."""
+    a_low, a_high = a.z_range
+    b_low, b_high = b.z_range
+    if min(a_high, b_high) - max(a_low, b_low) <= tolerance:
+        return False
+    return rectangles_overlap(a.corners_xy(), b.corners_xy(), tolerance)
+
+
+def rectangles_overlap(a: np.ndarray, b: np.ndarray, tolerance: float = 1e-3) -> bool:
+    """Separating-axis test for two convex quadrilaterals given as (4, 2) corners."""
+    for polygon in (a, b):
+        edges = np.roll(polygon, -1, axis=0) - polygon
+        normals = np.column_stack([-edges[:, 1], edges[:, 0]])
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        pa, pb = a @ normals.T, b @ normals.T
+        gap = np.maximum(pa.min(axis=0) - pb.max(axis=0), pb.min(axis=0) - pa.max(axis=0))
+        if np.any(gap >= -tolerance):
+            return False
+    return True
+
+
+@dataclass
+class Anchor:
+    """Where a person uses a piece, in the piece's frame: a segment (or a point) of torso positions, a facing,
+    and the space that must stay free for them (boxes in the piece's frame)."""
+
+    role: str
+    start: tuple[float, float]
+    end: tuple[float, float]
+    facing: float
+    clearance: list[Box] = field(default_factory=list)
+    note: str = ""
+
+    @property
+    def is_point(self) -> bool:
+        return bool(np.allclose(self.start, self.end, atol=0.05))
+
+
+@dataclass
+class Piece:
+    """One furniture item (or a group such as a desk with its chair) in its own frame, then placed."""
+
+    kind: str
+    parts: list[Box]
+    anchors: list[Anchor] = field(default_factory=list)
+    x: float = 0.0
+    y: float = 0.0
+    yaw: float = 0.0
+    note: str = ""
+
+    def world_parts(self) -> list[Box]:
+        return [part.placed(self.x, self.y, self.yaw) for part in self.parts]
+
+    def world_clearance(self) -> list[Box]:
+        return [box.placed(self.x, self.y, self.yaw) for anchor in self.anchors for box in anchor.clearance]
+
+    def world_point(self, local_xy) -> np.ndarray:
+        return rot2(self.yaw) @ np.asarray(local_xy, float) + (self.x, self.y)
+
+    @property
+    def depth(self) -> float:
+        """Extent along the piece's own x (front to back)."""
+        corners = np.vstack([part.corners_xy() for part in self.parts])
+        return float(np.ptp(corners[:, 0]))
+
+    def local_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        corners = np.vstack([part.corners_xy() for part in self.parts])
+        return corners.min(axis=0), corners.max(axis=0)
