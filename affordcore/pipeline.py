@@ -28,6 +28,17 @@ class PreparedScene:
         )
 
 
+def pose_grids_for_footprint(footprint: tuple[float, float, float, float], settings: Settings | None = None) -> dict[str, PoseGrid]:
+    """One pose grid per affordance type (they differ in their torso heights) over a floor footprint."""
+    from .skeleton import all_skeletons
+
+    settings = settings or Settings()
+    return {
+        skeleton.affordance: PoseGrid.over_footprint(footprint, skeleton.torso_height, settings.voxel.resolution, settings.grid)
+        for skeleton in all_skeletons(settings.skeleton_dirs)
+    }
+
+
 def parse_gravity(text: str) -> str | np.ndarray:
     """'auto', 'none', or 'X,Y,Z' (the direction of gravity, i.e. down, in the input frame)."""
     text = text.strip().lower()

@@ -212,8 +212,8 @@ def thin(points: np.ndarray, colors: np.ndarray, voxel: float) -> tuple[np.ndarr
 
 
 def trajectory(room: Room, rng: np.random.Generator, frames: int, step: float = 0.02) -> list[np.ndarray]:
-    """A hand-held camera walking a smooth loop through free space at about 2 cm and 1 degree per frame,
-    looking outwards at the furniture with a slow pitch and yaw sway."""
+    """A hand-held camera walking a smooth loop through free space at about 2 cm per frame, looking across
+    the room (towards the loop's centre, swaying up to 45 degrees either side) and pitched down."""
     waypoints = free_positions(room, rng, 6, clearance=0.45)
     centre = waypoints.mean(axis=0)
     order = np.argsort(np.arctan2(*(waypoints - centre).T[::-1]))
@@ -223,8 +223,8 @@ def trajectory(room: Room, rng: np.random.Generator, frames: int, step: float = 
     height = rng.uniform(1.3, 1.6)
     for k in range(frames):
         position = dense[k % len(dense)]
-        outward = position - centre
-        heading = np.arctan2(outward[1], outward[0]) + 0.5 * np.sin(k / 40.0)
+        across = centre - position
+        heading = np.arctan2(across[1], across[0]) + 0.8 * np.sin(k / 40.0)
         pitch = np.radians(-20 + 8 * np.sin(k / 55.0))
         eye = np.array([*position, height + 0.03 * np.sin(k / 15.0)])
         target = eye + np.array([np.cos(heading) * np.cos(pitch), np.sin(heading) * np.cos(pitch), np.sin(pitch)])

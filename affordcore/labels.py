@@ -1,0 +1,429 @@
+"""Ground-truth labels (DESIGN.md, "Ground-truth labels: affordance-labels/1"): file I/O, per-pose ground
+truth on the pose grid, place-level matching, and a top-view plot.
+
+A label is where a person's torso is while using an affordance: a segment ``from`` -> ``to`` (a sofa's seat
+line, a counter's working edge) or a point ``at`` (one chair), with ``facing`` the theta of the person. A pose
+is positive when its (x, y) is within ``XY_TOLERANCE`` of a label of its affordance (distance to the segment,
+end caps included, or to the point) and its theta within ``THETA_TOLERANCE`` of the label's facing, angles
+compared modulo 2 pi; every z level counts. Poses whose (x, y) is inside an unlabelled region are excluded
+from training and scoring, whatever their theta. Both bounds are inclusive (with 1e-9 of slack, so a pose
+exactly on the tolerance of a round-number label is positive whatever the floating-point rounding).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from .grid import PoseGrid
+
+FORMAT = "affordance-labels/1"
+XY_TOLERANCE = 0.15  # m, DESIGN.md
+THETA_TOLERANCE = 0.4  # rad, DESIGN.md
+_SLACK = 1e-9
+
+Point = tuple[float, float]
+
+
+class LabelError(ValueError):
+    """A label file that cannot be used; the message names the file and the field."""
+
+
+@dataclass(frozen=True)
+class Label:
+    """One labelled place: either ``at`` (a point) or ``start`` -> ``end`` (the file's "from" / "to")."""
+
+    affordance: str
+    facing: float
+    at: Point | None = None
+    start: Point | None = None
+    end: Point | None = None
+    note: str | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("at", "start", "end"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, tuple(float(v) for v in value))
+        object.__setattr__(self, "facing", float(self.facing))
+        if (self.at is None) == (self.start is None) or (self.start is None) != (self.end is None):
+            raise ValueError("a label is either a point 'at' or a segment 'from' -> 'to'")
+
+    def distance(self, xy: np.ndarray) -> np.ndarray:
+        """Distance in plan from points (..., 2) to the label (to the nearest end beyond a segment's ends)."""
+        xy = np.asarray(xy, dtype=np.float64)
+        if self.at is not None:
+            return np.hypot(*np.moveaxis(xy - self.at, -1, 0))
+        a, d = np.array(self.start), np.subtract(self.end, self.start)
+        t = np.clip((xy - a) @ d / max(d @ d, 1e-300), 0.0, 1.0)
+        return np.hypot(*np.moveaxis(xy - a - t[..., None] * d, -1, 0))
+
+
+@dataclass(frozen=True)
+class UnlabelledRegion:
+    polygon: tuple[Point, ...]
+    note: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "polygon", tuple(tuple(float(v) for v in p) for p in self.polygon))
+
+    def contains(self, xy: np.ndarray) -> np.ndarray:
+        """Even-odd point-in-polygon test for points (..., 2)."""
+        xy = np.asarray(xy, dtype=np.float64)
+        x, y = xy[..., 0], xy[..., 1]
+        inside = np.zeros(x.shape, dtype=bool)
+        vertices = np.array(self.polygon)
+        for (x0, y0), (x1, y1) in zip(vertices, np.roll(vertices, -1, axis=0)):
+            crosses = (y0 > y) != (y1 > y)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                inside ^= crosses & (x < x0 + (y - y0) * (x1 - x0) / (y1 - y0))
+        return inside
+
+
+@dataclass(frozen=True)
+class LabelSet:
+    scene: str
+    cloud: str
+    frame: str
+    labels: tuple[Label, ...] = ()
+    unlabelled_regions: tuple[UnlabelledRegion, ...] = ()
+    format: str = FORMAT
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "labels", tuple(self.labels))
+        object.__setattr__(self, "unlabelled_regions", tuple(self.unlabelled_regions))
+
+    @property
+    def affordances(self) -> list[str]:
+        return sorted({label.affordance for label in self.labels})
+
+    def of(self, affordance: str) -> list[Label]:
+        return [label for label in self.labels if label.affordance == affordance]
+
+    def unlabelled(self, xy: np.ndarray) -> np.ndarray:
+        """Whether points (..., 2) lie inside any unlabelled region."""
+        xy = np.asarray(xy, dtype=np.float64)
+        inside = np.zeros(xy.shape[:-1], dtype=bool)
+        for region in self.unlabelled_regions:
+            inside |= region.contains(xy)
+        return inside
+
+
+# ---------------------------------------------------------------------------------------------- file I/O
+
+
+def load_labels(path: str | Path) -> LabelSet:
+    """Read and validate a label file; every error is a `LabelError` naming the file and the field."""
+    path = Path(path)
+    try:
+        document = json.loads(path.read_text())
+    except OSError as error:
+        raise LabelError(f"{path}: cannot read ({error.strerror or error})") from error
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise LabelError(f"{path}: not valid JSON ({error})") from error
+    return _parse(document, str(path))
+
+
+def save_labels(path: str | Path, labels: LabelSet) -> Path:
+    """Write a label file (validated first, so whatever is saved loads back equal)."""
+    path = Path(path)
+    document: dict[str, Any] = {"format": labels.format, "scene": labels.scene, "cloud": labels.cloud,
+                                "frame": labels.frame, "labels": [], "unlabelled_regions": []}
+    for label in labels.labels:
+        entry: dict[str, Any] = {"affordance": label.affordance}
+        entry.update({"at": list(label.at)} if label.at is not None else
+                     {"from": list(label.start), "to": list(label.end)})
+        entry["facing"] = label.facing
+        if label.note is not None:
+            entry["note"] = label.note
+        document["labels"].append(entry)
+    for region in labels.unlabelled_regions:
+        polygon = [list(vertex) for vertex in region.polygon]
+        document["unlabelled_regions"].append({"polygon": polygon, "note": region.note})
+    _parse(document, str(path))
+    path.write_text(json.dumps(document, indent=1, ensure_ascii=False, allow_nan=False) + "\n")
+    return path
+
+
+def _parse(document: Any, name: str) -> LabelSet:
+    def fail(where: str, problem: str) -> LabelError:
+        return LabelError(f"{name}: {where} {problem}")
+
+    def check_keys(obj: dict, where: str, required: set[str], optional: set[str]) -> None:
+        for key in sorted(required - set(obj)):
+            raise fail(f"{where}.{key}" if where else key, "is missing")
+        for key in sorted(set(obj) - required - optional):
+            raise fail(f"{where}.{key}" if where else key, f"is not a field of {FORMAT}")
+
+    def text(obj: dict, key: str, where: str, non_empty: bool = False) -> str:
+        value = obj[key]
+        if not isinstance(value, str) or (non_empty and not value.strip()):
+            raise fail(where, "must be a non-empty string" if non_empty else "must be a string")
+        return value
+
+    def number(value: Any, where: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise fail(where, f"must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise fail(where, f"must be finite, got {value!r}")
+        return float(value)
+
+    def point(value: Any, where: str) -> Point:
+        if not isinstance(value, list) or len(value) != 2:
+            raise fail(where, f"must be 2 numbers [x, y], got {value!r}")
+        return (number(value[0], f"{where}[0]"), number(value[1], f"{where}[1]"))
+
+    def items(value: Any, where: str) -> list:
+        if not isinstance(value, list):
+            raise fail(where, f"must be a list, got {type(value).__name__}")
+        return value
+
+    if not isinstance(document, dict):
+        raise LabelError(f"{name}: the top level must be a JSON object")
+    if document.get("format") != FORMAT:
+        raise fail("format", f"must be {FORMAT!r}, got {document.get('format')!r}")
+    check_keys(document, "", {"format", "scene", "cloud", "frame", "labels"}, {"unlabelled_regions"})
+    labels = []
+    for i, entry in enumerate(items(document["labels"], "labels")):
+        where = f"labels[{i}]"
+        if not isinstance(entry, dict):
+            raise fail(where, "must be an object")
+        has_at, has_segment = "at" in entry, "from" in entry or "to" in entry
+        if has_at == has_segment:
+            raise fail(where, "must have either 'at' (a point) or 'from' and 'to' (a segment)" +
+                       (", not both" if has_at else ""))
+        check_keys(entry, where, {"affordance", "facing"} | ({"at"} if has_at else {"from", "to"}), {"note"})
+        labels.append(Label(
+            affordance=text(entry, "affordance", f"{where}.affordance", non_empty=True),
+            facing=number(entry["facing"], f"{where}.facing"),
+            at=point(entry["at"], f"{where}.at") if has_at else None,
+            start=None if has_at else point(entry["from"], f"{where}.from"),
+            end=None if has_at else point(entry["to"], f"{where}.to"),
+            note=text(entry, "note", f"{where}.note") if "note" in entry else None,
+        ))
+    regions = []
+    for j, entry in enumerate(items(document.get("unlabelled_regions", []), "unlabelled_regions")):
+        where = f"unlabelled_regions[{j}]"
+        if not isinstance(entry, dict):
+            raise fail(where, "must be an object")
+        check_keys(entry, where, {"polygon"}, {"note"})
+        polygon = items(entry["polygon"], f"{where}.polygon")
+        if len(polygon) < 3:
+            raise fail(f"{where}.polygon", f"must have at least 3 vertices, has {len(polygon)}")
+        regions.append(UnlabelledRegion(
+            tuple(point(p, f"{where}.polygon[{k}]") for k, p in enumerate(polygon)),
+            text(entry, "note", f"{where}.note") if "note" in entry else "",
+        ))
+    return LabelSet(
+        scene=text(document, "scene", "scene"), cloud=text(document, "cloud", "cloud"),
+        frame=text(document, "frame", "frame"), labels=tuple(labels), unlabelled_regions=tuple(regions),
+    )
+
+
+# ------------------------------------------------------------------------------------- ground truth
+
+
+def angle_gap(a: np.ndarray | float, b: np.ndarray | float) -> np.ndarray:
+    """|a - b| with the difference wrapped to [-pi, pi]."""
+    return np.abs((np.asarray(a) - b + np.pi) % (2 * np.pi) - np.pi)
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """One affordance's ground truth on a pose grid. Labels do not depend on z, so they are held per
+    (theta, x, y); every z level of the grid repeats them."""
+
+    grid: PoseGrid
+    positive: np.ndarray  # (n_theta, nx, ny) bool, False where excluded
+    excluded: np.ndarray  # (nx, ny) bool: inside an unlabelled region, every theta and z left out
+
+    def pose_mask(self) -> np.ndarray:
+        """(nz, n_theta, nx, ny) positives; ``.ravel()`` follows the grid's pose numbering."""
+        return np.broadcast_to(self.positive, self.grid.shape)
+
+    def scored_mask(self) -> np.ndarray:
+        """(nz, n_theta, nx, ny): the poses used in training and scoring (not in an unlabelled region)."""
+        return np.broadcast_to(~self.excluded, self.grid.shape)
+
+    def counts(self) -> tuple[int, int]:
+        """(positives, negatives) over every pose of the grid, excluded poses left out."""
+        nz, n_theta = self.grid.shape[:2]
+        positives = int(self.positive.sum()) * nz
+        return positives, int((~self.excluded).sum()) * n_theta * nz - positives
+
+
+def ground_truth(
+    labels: LabelSet,
+    affordance: str,
+    grid: PoseGrid,
+    xy_tolerance: float = XY_TOLERANCE,
+    theta_tolerance: float = THETA_TOLERANCE,
+) -> GroundTruth:
+    """Which poses of ``grid`` are positive for ``affordance`` (see the module docstring)."""
+    xy = np.stack(np.meshgrid(grid.x, grid.y, indexing="ij"), axis=-1)  # (nx, ny, 2)
+    positive = np.zeros((len(grid.theta), len(grid.x), len(grid.y)), dtype=bool)
+    for label in labels.of(affordance):
+        near = label.distance(xy) <= xy_tolerance + _SLACK
+        facing = angle_gap(grid.theta, label.facing) <= theta_tolerance + _SLACK
+        positive |= facing[:, None, None] & near[None]
+    excluded = labels.unlabelled(xy)
+    return GroundTruth(grid, positive & ~excluded, excluded)
+
+
+class ClassCount(NamedTuple):
+    positives: int
+    negatives: int
+    ratio: str  # "1:N" as in the paper's table (N = negatives // positives)
+
+    @classmethod
+    def of(cls, positives: int, negatives: int) -> "ClassCount":
+        return cls(positives, negatives, f"1:{negatives // positives:,}" if positives else "no positives")
+
+
+def class_counts(labels: LabelSet, grids: dict[str, PoseGrid], **tolerances: float) -> dict[str, ClassCount]:
+    """Per affordance with a grid: positives, negatives and their ratio (sum the first two over rooms and
+    call `ClassCount.of` for a data set's table)."""
+    return {name: ClassCount.of(*ground_truth(labels, name, grid, **tolerances).counts())
+            for name, grid in sorted(grids.items())}
+
+
+# ---------------------------------------------------------------------------------- place-level match
+
+
+@dataclass(frozen=True)
+class PlaceMatch:
+    labels: list[Label]  # the labels of the affordance, in file order
+    found: np.ndarray  # (n_labels,) bool: some counted skeleton within the tolerances
+    false: np.ndarray  # (n_skeletons,) bool: matches no label (and is not in an unlabelled region)
+    ignored: np.ndarray  # (n_skeletons,) bool: inside an unlabelled region, neither finds nor is false
+
+    @property
+    def recall(self) -> float:
+        return float(self.found.mean()) if len(self.found) else float("nan")
+
+
+def match_places(
+    labels: LabelSet,
+    affordance: str,
+    skeletons: np.ndarray,
+    xy_tolerance: float = XY_TOLERANCE,
+    theta_tolerance: float = THETA_TOLERANCE,
+) -> PlaceMatch:
+    """Place-level matching (DESIGN.md, "Metrics") of predicted skeletons, (n, 3) rows of (x, y, theta)."""
+    skeletons = np.asarray(skeletons, dtype=np.float64).reshape(-1, 3)
+    ignored = labels.unlabelled(skeletons[:, :2])
+    chosen = labels.of(affordance)
+    matches = np.zeros((len(chosen), len(skeletons)), dtype=bool)
+    for i, label in enumerate(chosen):
+        matches[i] = ((label.distance(skeletons[:, :2]) <= xy_tolerance + _SLACK)
+                      & (angle_gap(skeletons[:, 2], label.facing) <= theta_tolerance + _SLACK) & ~ignored)
+    return PlaceMatch(chosen, matches.any(axis=1), ~matches.any(axis=0) & ~ignored, ignored)
+
+
+# ---------------------------------------------------------------------------------------------- plot
+
+
+def affordance_colours(names: list[str] | set[str]) -> dict[str, tuple]:
+    """A colour per affordance from the sorted names (tab10, then tab20 beyond ten)."""
+    import matplotlib
+
+    ordered = sorted(names)
+    cmap = matplotlib.colormaps["tab10" if len(ordered) <= 10 else "tab20"]
+    return {name: cmap(i % cmap.N) for i, name in enumerate(ordered)}
+
+
+def plot_labels(
+    points: np.ndarray,
+    labels: LabelSet,
+    path: str | Path,
+    grid: PoseGrid | None = None,
+    ground_truth: dict[str, GroundTruth] | None = None,
+    max_points: int = 200_000,
+) -> Path:
+    """Top view of a room: the cloud coloured by height, each label as its segment or point in its
+    affordance's colour with arrows along ``facing``, unlabelled regions hatched, and optionally the grid's
+    footprint (dashed) and the (x, y) cells that are positive at some theta (shaded)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch, Polygon
+
+    from .skeleton import skeleton_files
+
+    ground_truth = ground_truth or {}
+    points = np.asarray(points, dtype=np.float64)
+    if len(points) > max_points:
+        points = points[np.random.default_rng(0).choice(len(points), max_points, replace=False)]
+    points = points[np.argsort(points[:, 2])]  # higher points drawn last: what a view from above sees
+    # the built-in types take part so that an affordance has the same colour in every room's plot
+    colours = affordance_colours(set(labels.affordances) | set(ground_truth) | set(skeleton_files()))
+
+    span = np.ptp(points[:, :2], axis=0) if len(points) else np.ones(2)
+    scale = 10 / max(span.max(), 1.0)
+    figure, axis = plt.subplots(figsize=(max(7.0, span[0] * scale + 2.5), max(5.0, span[1] * scale + 2.5)),
+                                layout="constrained")
+    shown = axis.scatter(points[:, 0], points[:, 1], c=points[:, 2], s=0.4, cmap="Greys", vmin=-0.8,
+                         vmax=max(2.0, float(np.percentile(points[:, 2], 99))) if len(points) else 2.0,
+                         linewidths=0, rasterized=True)
+    figure.colorbar(shown, ax=axis, shrink=0.7, label="height of the point (m)")
+    handles = []
+    for name, truth in sorted(ground_truth.items()):
+        cells = truth.positive.any(axis=0)
+        if not cells.any():
+            continue
+        image = np.zeros((*cells.shape, 4))
+        image[cells] = (*colours[name][:3], 0.45)
+        axis.imshow(image.transpose(1, 0, 2), origin="lower", interpolation="nearest", zorder=2,
+                    extent=_extent(truth.grid))
+        handles.append(Patch(color=colours[name], alpha=0.45,
+                             label=f"{name}: positive cells ({truth.counts()[0]:,} poses)"))
+    if grid is not None:
+        x0, x1, y0, y1 = _extent(grid)
+        axis.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="tab:cyan", ls="--", lw=1))
+        handles.append(Line2D([], [], color="tab:cyan", ls="--", label="pose grid footprint"))
+    for region in labels.unlabelled_regions:
+        axis.add_patch(Polygon(region.polygon, fill=False, hatch="///", ec="dimgray", lw=1, zorder=3))
+    if labels.unlabelled_regions:
+        handles.append(Patch(fill=False, hatch="///", ec="dimgray", label="unlabelled region (not scored)"))
+    arrow = 0.35
+    for label in labels.labels:
+        colour = colours[label.affordance]
+        if label.at is not None:
+            bases = np.array([label.at])
+            axis.plot(*label.at, "o", ms=8, color=colour, mec="black", mew=0.8, zorder=5)
+        else:
+            ends = np.array([label.start, label.end])
+            axis.plot(*ends.T, "-", lw=4, color=colour, solid_capstyle="round", zorder=5)
+            axis.plot(*ends.T, "-", lw=0.8, color="black", zorder=5)
+            bases = ends[0] + np.linspace(0, 1, 3)[:, None] * (ends[1] - ends[0])
+        for base in bases:
+            axis.annotate("", base + arrow * np.array([math.cos(label.facing), math.sin(label.facing)]), base,
+                          arrowprops=dict(arrowstyle="-|>", color=colour, lw=2, mutation_scale=14), zorder=6)
+    for name in labels.affordances:
+        count = len(labels.of(name))
+        handles.append(Line2D([], [], color=colours[name], lw=4, marker="o", mec="black",
+                              label=f"{name}: {count} label{'s' * (count != 1)} (arrows: facing)"))
+    figure.legend(handles=handles, loc="outside lower center", ncol=2, fontsize=9, frameon=False)
+    axis.set_aspect("equal")
+    axis.margins(0.03)
+    axis.set_xlabel("x (m)")
+    axis.set_ylabel("y (m)")
+    axis.grid(alpha=0.25)
+    axis.set_title(f"{labels.scene}\n{labels.cloud}: labels over the cloud seen from above", fontsize=10)
+    path = Path(path)
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+    return path
+
+
+def _extent(grid: PoseGrid) -> tuple[float, float, float, float]:
+    """(x0, x1, y0, y1): the outer edges of the grid's cells."""
+    half = (grid.step if np.isfinite(grid.step) else 0.1) / 2
+    return (grid.x[0] - half, grid.x[-1] + half, grid.y[0] - half, grid.y[-1] + half)

@@ -1,0 +1,172 @@
+"""Labelled data sets of generated rooms: `afford synth`.
+
+Per room: ``<room>.ply`` (gravity-aligned, metres, colours), ``<room>.labels.json`` (affordance-labels/1),
+and with sequences ``<room>.sequence/`` (a depth camera's frames in the 7-Scenes layout, or a LiDAR's scans,
+with ground-truth poses). ``summary.json`` and ``summary.md`` give the class imbalance per affordance.
+
+Reproducible: room i draws from the i-th child of ``SeedSequence(seed)``, so the same seed gives the same
+files byte for byte, in any order and with any number of worker processes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from .rooms import KINDS, generate_room
+
+SENSORS = ("depth", "lidar")
+SCANNERS = ("depth", "uniform")
+
+
+@dataclass(frozen=True)
+class SynthOptions:
+    rooms: int
+    seed: int = 0
+    kinds: tuple[str, ...] = ("living", "office", "workshop")
+    scanner: str = "depth"  # how the room cloud is made: fused depth frames, or uniform surface samples
+    sequences: bool = False
+    sensor: str = "depth"  # what a sequence holds: depth frames or LiDAR scans
+    frames: int = 300
+
+    def __post_init__(self) -> None:
+        unknown = set(self.kinds) - set(KINDS)
+        if unknown or not self.kinds:
+            raise ValueError(f"unknown room kinds {sorted(unknown)}; choose from {', '.join(KINDS)}")
+        if self.scanner not in SCANNERS:
+            raise ValueError(f"scanner must be one of {', '.join(SCANNERS)}, not {self.scanner!r}")
+        if self.sensor not in SENSORS:
+            raise ValueError(f"sensor must be one of {', '.join(SENSORS)}, not {self.sensor!r}")
+        if self.rooms < 1 or self.frames < 1:
+            raise ValueError("rooms and frames must be at least 1")
+
+    def room_name(self, index: int) -> str:
+        return f"{self.kinds[index % len(self.kinds)]}-{index:03d}"
+
+
+def synthesize(options: SynthOptions, out: Path, workers: int | None = None,
+               on_room_done: Callable[[dict], None] | None = None) -> dict:
+    """Generate every room (in parallel processes), then write the summary; returns it."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    workers = max(1, min(workers or os.cpu_count() or 1, options.rooms))
+    seeds = np.random.SeedSequence(options.seed).spawn(options.rooms)
+    reports = []
+    for report in _run(options, out, seeds, workers):
+        reports.append(report)
+        if on_room_done:
+            on_room_done(report)
+    reports.sort(key=lambda r: r["room"])
+    summary = _summary(options, reports)
+    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    (out / "summary.md").write_text(summary_table(summary))
+    return summary
+
+
+def _run(options: SynthOptions, out: Path, seeds, workers: int) -> Iterator[dict]:
+    jobs = [(options, out, index, seed) for index, seed in enumerate(seeds)]
+    if workers == 1:
+        yield from (make_room(*job) for job in jobs)
+        return
+    # spawn, not fork: open3d keeps threads that a forked child would inherit mid-flight
+    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+        futures = [pool.submit(make_room, *job) for job in jobs]
+        for future in as_completed(futures):
+            yield future.result()
+
+
+def make_room(options: SynthOptions, out: Path, index: int, seed: np.random.SeedSequence) -> dict:
+    """Generate, scan and label one room; returns its report (points, labels and class counts)."""
+    from ..labels import class_counts, load_labels
+    from ..pipeline import pose_grids_for_footprint
+    from ..scene import Cloud, save_cloud
+    from .scanner import sample_room_uniform, scan_room
+
+    rng = np.random.default_rng(seed)
+    name = options.room_name(index)
+    room = generate_room(options.kinds[index % len(options.kinds)], rng, name)
+    points, colors = scan_room(room, rng) if options.scanner == "depth" else sample_room_uniform(room, rng)
+    save_cloud(out / f"{name}.ply", Cloud(points, colors))
+    labels_path = out / f"{name}.labels.json"
+    labels_path.write_text(json.dumps(room.labels(), indent=1) + "\n")
+    labels = load_labels(labels_path)  # what was written must read back valid
+    footprint = (*points[:, :2].min(axis=0), *points[:, :2].max(axis=0))
+    counts = class_counts(labels, pose_grids_for_footprint(footprint))
+    if options.sequences:
+        write_sequence(room, rng, out / f"{name}.sequence", options.sensor, options.frames)
+    return {
+        "room": name,
+        "kind": room.kind,
+        "size_m": [round(float(v), 2) for v in np.ptp(room.polygon, axis=0)],
+        "points": int(len(points)),
+        "pieces": [piece.kind for piece in room.pieces],
+        "labels": {name: sum(label.affordance == name for label in labels.labels) for name in counts},
+        "class_counts": {name: [c.positives, c.negatives] for name, c in counts.items()},
+    }
+
+
+def write_sequence(room, rng: np.random.Generator, folder: Path, sensor: str, frames: int) -> None:
+    """Frames along a hand-held path with ground-truth poses.
+
+    depth: ``frame-NNNNNN.depth.png`` (16-bit millimetres, 0 = no return), ``frame-NNNNNN.pose.txt``
+    (camera-to-world 4 x 4), ``camera-intrinsics.txt`` and ``gravity-direction.txt``: the 7-Scenes layout.
+    lidar: ``scan-NNNNNN.bin`` (float32 x y z in the sensor frame) and ``scan-NNNNNN.pose.txt``.
+    """
+    from PIL import Image
+
+    from .scanner import DepthCamera, Raycaster, depth_frame, lidar_scan, trajectory
+
+    folder.mkdir(parents=True, exist_ok=True)
+    raycaster = Raycaster(room.shell_boxes() + room.furniture_boxes())
+    camera = DepthCamera()
+    np.savetxt(folder / "camera-intrinsics.txt", camera.intrinsics, fmt="%.6f")
+    np.savetxt(folder / "gravity-direction.txt", [0.0, 0.0, -1.0], fmt="%.6f")
+    to_lidar = np.array([[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]], float)  # ROS axes from camera axes
+    for k, pose in enumerate(trajectory(room, rng, frames)):
+        if sensor == "depth":
+            depth, _ = depth_frame(raycaster, camera, pose, rng)
+            millimetres = np.clip(np.round(depth * 1000), 0, 65534).astype(np.uint16)
+            Image.fromarray(millimetres).save(folder / f"frame-{k:06d}.depth.png")
+            np.savetxt(folder / f"frame-{k:06d}.pose.txt", pose, fmt="%.9f")
+        else:
+            sensor_pose = pose @ np.linalg.inv(to_lidar)
+            lidar_scan(raycaster, sensor_pose, rng).astype("<f4").tofile(folder / f"scan-{k:06d}.bin")
+            np.savetxt(folder / f"scan-{k:06d}.pose.txt", sensor_pose, fmt="%.9f")
+
+
+def _summary(options: SynthOptions, reports: list[dict]) -> dict:
+    from ..labels import ClassCount
+
+    totals: dict[str, list[int]] = {}
+    for report in reports:
+        for name, (positives, negatives) in report["class_counts"].items():
+            total = totals.setdefault(name, [0, 0])
+            total[0] += positives
+            total[1] += negatives
+    return {
+        "seed": options.seed,
+        "kinds": list(options.kinds),
+        "scanner": options.scanner,
+        "rooms": reports,
+        "class_imbalance": {name: ClassCount.of(*pair)._asdict() for name, pair in sorted(totals.items())},
+    }
+
+
+def summary_table(summary: dict) -> str:
+    rows = [f"# Generated rooms (seed {summary['seed']}, {len(summary['rooms'])} rooms, scanner {summary['scanner']})", "",
+            "| affordance | labels | positive poses | negative poses | ratio |", "|---|---:|---:|---:|---:|"]
+    for name, count in summary["class_imbalance"].items():
+        labels = sum(room["labels"].get(name, 0) for room in summary["rooms"])
+        rows.append(f"| {name} | {labels} | {count['positives']:,} | {count['negatives']:,} | {count['ratio']} |")
+    rows += ["", "| room | kind | size (m) | points | labels |", "|---|---|---|---:|---|"]
+    for room in summary["rooms"]:
+        labels = ", ".join(f"{n} {k}" for n, k in room["labels"].items() if k) or "none"
+        rows.append(f"| {room['room']} | {room['kind']} | {room['size_m'][0]} x {room['size_m'][1]} | {room['points']:,} | {labels} |")
+    return "\n".join(rows) + "\n"
