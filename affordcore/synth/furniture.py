@@ -286,7 +286,8 @@ def high_table(rng: np.random.Generator) -> Piece:
 def _standing_edge(edge_x: float, length: float) -> Anchor:
     reach = max(0.0, length / 2 - STANDING_INSET)
     x = edge_x + STANDING_OFFSET
-    room = _free_space(edge_x + 0.02, edge_x + 0.65, -reach, reach, 1.9)
+    half_width = 0.30  # a person's shoulders and elbows reach this far either side of the label
+    room = _free_space(edge_x + 0.02, edge_x + 0.65, -reach - half_width, reach + half_width, 1.9)
     return Anchor(STANDING_EDGE, (x, -reach), (x, reach), np.pi, [room], "free edge of a work surface")
 
 
