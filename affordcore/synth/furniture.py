@@ -353,6 +353,49 @@ def storage_box(rng: np.random.Generator) -> Piece:
                  note="box at seat height")
 
 
+# ---------------------------------------------------------------- decor: what makes a room more than a box
+
+def picture(rng: np.random.Generator) -> Piece:
+    """A framed picture or a wall shelf with things on it, hung at eye height (depth gives ICP something to hold)."""
+    width, bottom = rng.uniform(0.3, 1.2), rng.uniform(1.1, 1.6)
+    if rng.random() < 0.6:
+        height, depth = rng.uniform(0.3, 0.8), rng.uniform(0.02, 0.05)
+        parts = [Box.span((-depth / 2, -width / 2, bottom), (depth / 2, width / 2, bottom + height), tuple(rng.uniform(0.1, 0.9, 3)))]
+        return Piece("picture", parts, note="picture")
+    depth = rng.uniform(0.18, 0.28)
+    parts = [Box.span((-depth / 2, -width / 2, bottom), (depth / 2, width / 2, bottom + 0.025), _pick(rng, WOOD))]
+    parts += _clutter(rng, (-depth / 2 + 0.02, depth / 2 - 0.02), (-width / 2 + 0.03, width / 2 - 0.03), bottom + 0.025,
+                      count=int(rng.integers(1, 5)))
+    return Piece("wall-shelf", parts, note="wall shelf")
+
+
+def radiator(rng: np.random.Generator) -> Piece:
+    width, height = rng.uniform(0.6, 1.4), rng.uniform(0.4, 0.6)
+    fins = [Box.span((-0.05, y - 0.01, 0.12), (0.05, y + 0.01, 0.12 + height), METAL[1])
+            for y in np.arange(-width / 2 + 0.02, width / 2, 0.06)]
+    return Piece("radiator", fins, note="radiator")
+
+
+def floor_clutter(rng: np.random.Generator) -> Piece:
+    """A plant, a bin, a bag or a stack of boxes on the floor."""
+    kind = rng.choice(["plant", "bin", "boxes"])
+    if kind == "plant":
+        pot = rng.uniform(0.2, 0.4)
+        parts = [Box.span((-pot / 2, -pot / 2, 0), (pot / 2, pot / 2, pot), (0.6, 0.35, 0.25))]
+        parts += [Box((rng.normal(0, 0.08), rng.normal(0, 0.08), pot + h / 2), (0.12, 0.12, h), rng.uniform(0, np.pi), (0.2, 0.5, 0.2))
+                  for h in rng.uniform(0.2, 0.9, 4)]
+    elif kind == "bin":
+        size = rng.uniform(0.25, 0.4)
+        parts = [Box.span((-size / 2, -size / 2, 0), (size / 2, size / 2, rng.uniform(0.3, 0.6)), _pick(rng, METAL + LAMINATE))]
+    else:
+        parts, z = [], 0.0
+        for _ in range(int(rng.integers(1, 4))):
+            sx, sy, sz = rng.uniform(0.25, 0.55, 3)
+            parts.append(Box((rng.normal(0, 0.03), rng.normal(0, 0.03), z + sz / 2), (sx, sy, sz), rng.normal(0, 0.2), (0.65, 0.5, 0.32)))
+            z += sz
+    return Piece(str(kind), parts, note=str(kind))
+
+
 def _clutter(rng, x_range, y_range, z, count: int, tall: bool = False, max_height: float = 0.35) -> list[Box]:
     items = []
     for _ in range(count):

@@ -104,6 +104,7 @@ def generate_room(kind: str, rng: np.random.Generator, name: str) -> Room:
     room = _shell(kind, rng, name)
     for builder, mode in _program(kind, rng):
         piece = builder(rng)
+        reserve_body_space(piece)
         anchor_piece = room.pieces[-1] if mode == "in-front" and room.pieces else None
         _place(room, piece, mode, rng, anchor_piece)
     return room
@@ -167,6 +168,19 @@ def _walls(polygon: np.ndarray, openings: list[Opening], height: float) -> list[
         for a, b, bottom, top in pieces:
             middle = start + direction * (a + b) / 2 - inward * WALL / 2
             walls.append(Box((float(middle[0]), float(middle[1]), (bottom + top) / 2), (b - a, WALL, top - bottom), yaw, WALL_COLOR))
+            if bottom == 0.0:  # a skirting board along every stretch that reaches the floor
+                board = start + direction * (max(a, 0.0) + min(b, length)) / 2 + inward * 0.0075
+                walls.append(Box((float(board[0]), float(board[1]), 0.04), (min(b, length) - max(a, 0.0), 0.015, 0.08), yaw,
+                                 (0.95, 0.95, 0.93)))
+        for opening in (o for o in openings if o.edge == index):  # door and window frames stand proud
+            for along in (opening.start - 0.035, opening.start + opening.width + 0.035):
+                post = start + direction * along + inward * 0.01
+                walls.append(Box((float(post[0]), float(post[1]), (opening.bottom + opening.top) / 2),
+                                 (0.07, 0.02, opening.top - opening.bottom + 0.07), yaw, (0.95, 0.95, 0.93)))
+            if opening.kind == "window":
+                sill = start + direction * (opening.start + opening.width / 2) + inward * 0.08
+                walls.append(Box((float(sill[0]), float(sill[1]), opening.bottom - 0.015),
+                                 (opening.width + 0.14, 0.16, 0.03), yaw, (0.95, 0.95, 0.93)))
     return walls
 
 
@@ -224,12 +238,14 @@ def _program(kind: str, rng: np.random.Generator) -> list[tuple]:
                    + [(lambda r: F.counter(r, cluttered=True), "wall")] * n(0, 1)
                    + [(lambda r: F.desk(r, with_chair=False, cluttered=r.random() < 0.5), "wall")] * n(0, 1)
                    + [(lambda r: F.workbench(r, cluttered=True), "any")] * n(0, 1) + [(F.coffee_table, "any")] * n(0, 1))
+    decor = ([(F.picture, "wall") for _ in range(n(2, 6))] + [(F.radiator, "wall")] * n(0, 2)
+             + [(F.floor_clutter, "any") for _ in range(n(2, 6))])
     if kind == "mixed":
         main = living[:2] + office[: n(1, 2)] + workshop[: n(1, 2)] + [(F.armchair, "free")] * n(0, 1)
     else:
         main = {"living": living, "office": office, "workshop": workshop}[kind]
     chosen = [distractors[i] for i in sorted(rng.permutation(len(distractors))[: n(2, 5)])]
-    return main + chosen
+    return main + chosen + decor
 
 
 def _place(room: Room, piece: Piece, mode: str, rng: np.random.Generator, anchor_piece: Piece | None, tries: int = 80) -> bool:
@@ -245,7 +261,7 @@ def _place(room: Room, piece: Piece, mode: str, rng: np.random.Generator, anchor
         elif mode == "wall" or (mode == "any" and rng.random() < 0.6):
             _, start, direction, inward, length = edges[int(rng.choice(len(edges), p=lengths / lengths.sum()))]
             along = rng.uniform(0, length)
-            piece.x, piece.y = start + direction * along + inward * (rng.uniform(0.005, 0.04) - lo[0])
+            piece.x, piece.y = start + direction * along + inward * (rng.uniform(0.02, 0.05) - lo[0])
             piece.yaw = float(np.arctan2(inward[1], inward[0]))
         else:
             low, high = room.polygon.min(axis=0), room.polygon.max(axis=0)
@@ -255,6 +271,20 @@ def _place(room: Room, piece: Piece, mode: str, rng: np.random.Generator, anchor
             room.pieces.append(piece)
             return True
     return False
+
+
+def reserve_body_space(piece: Piece, margin: float = 0.05) -> None:
+    """Add to each anchor's free space the box its affordance's skeleton fills along the whole label (from the
+    floor to above the head), so nothing else is placed where that person's knees, feet or elbows would be."""
+    from ..skeleton import get_skeleton, place_joints
+
+    roles = role_affordances()
+    for anchor in piece.anchors:
+        skeleton = get_skeleton(roles[anchor.role])
+        ends = np.array([[*anchor.start, skeleton.torso_height, anchor.facing], [*anchor.end, skeleton.torso_height, anchor.facing]])
+        joints = place_joints(skeleton.joints, ends).reshape(-1, 3)
+        low, high = joints.min(axis=0) - margin, joints.max(axis=0) + margin
+        anchor.clearance.append(Box.span((low[0], low[1], 0.0), (high[0], high[1], high[2]), (0, 0, 0)))
 
 
 def fits(room: Room, piece: Piece) -> bool:
