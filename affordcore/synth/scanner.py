@@ -3,7 +3,8 @@
 The room's boxes become one triangle mesh in an open3d ray-casting scene. A depth frame casts one ray per
 pixel (jittered by the lateral noise), keeps the first hit, and then applies what a Kinect-class sensor does
 to it: range limits (0.5 to 4.5 m), axial noise growing with the square of the range (Nguyen, Izadi & Lovell
-2012: sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 m), disparity quantisation (steps of 2.85e-3 z^2 m), no return
+2012: sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 m, which already includes the disparity quantisation, so only the
+remainder is added as Gaussian noise before quantising to steps of 2.85e-3 z^2 m), no return
 at grazing incidence (beyond 80 degrees), and random dropouts. Occlusion is exact, so what the camera never
 sees (under tables, behind sofas, the far side of a chair back) is missing as in real scans.
 
@@ -115,9 +116,11 @@ def depth_frame(raycaster: Raycaster, camera: DepthCamera, cam_to_world: np.ndar
         valid &= incidence > np.cos(np.radians(camera.grazing_deg))
         valid &= rng.random(depth.shape) >= camera.dropout
         depth = np.where(valid, depth, 1.0)  # placeholder where nothing returns, so the noise stays finite
-        noisy = depth + rng.normal(0, 1, depth.shape) * axial_sigma(depth)
-        step = 2.85e-3 * noisy**2
-        depth = np.round(noisy / step) * step
+        # Nguyen's sigma was measured on real output, quantisation included: add only the rest before quantising.
+        step = 2.85e-3 * depth**2
+        extra = np.sqrt(np.maximum(axial_sigma(depth) ** 2 - step**2 / 12, 0.0))
+        noisy = depth + rng.normal(0, 1, depth.shape) * extra
+        depth = np.round(noisy / (2.85e-3 * noisy**2)) * (2.85e-3 * noisy**2)
     return np.where(valid, depth, 0.0), box
 
 
@@ -211,34 +214,81 @@ def thin(points: np.ndarray, colors: np.ndarray, voxel: float) -> tuple[np.ndarr
     return mean(points), mean(colors.astype(np.float64)).astype(np.float32)
 
 
-def trajectory(room: Room, rng: np.random.Generator, frames: int, step: float = 0.02) -> list[np.ndarray]:
-    """A hand-held camera walking a smooth loop through free space at about 2 cm per frame, looking across
-    the room (towards the loop's centre, swaying up to 45 degrees either side) and pitched down."""
-    waypoints = free_positions(room, rng, 6, clearance=0.45)
-    centre = waypoints.mean(axis=0)
-    order = np.argsort(np.arctan2(*(waypoints - centre).T[::-1]))
-    loop = np.vstack([waypoints[order], waypoints[order][:1]])
-    dense = _smooth_path(loop, step)
+def walkable(room: Room, resolution: float = 0.05, body_radius: float = 0.30) -> tuple[np.ndarray, np.ndarray]:
+    """Cell centres (nx, ny, 2) of a plan raster and whether a person can stand there: inside the room and at
+    least `body_radius` from every wall and every piece below head height (a table too: nobody walks through it)."""
+    low, high = room.polygon.min(axis=0), room.polygon.max(axis=0)
+    xs, ys = np.arange(low[0], high[0], resolution), np.arange(low[1], high[1], resolution)
+    cells = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1)
+    free = inside_polygon(room.polygon, cells.reshape(-1, 2)).reshape(cells.shape[:2])
+    for box in room.walls + room.furniture_boxes():
+        if box.z_range[0] > 1.9:
+            continue
+        local = (cells - box.centre[:2]) @ np.array([[np.cos(box.yaw), -np.sin(box.yaw)], [np.sin(box.yaw), np.cos(box.yaw)]])
+        outside = np.maximum(np.abs(local) - np.array(box.size[:2]) / 2, 0.0)
+        free &= np.linalg.norm(outside, axis=-1) > body_radius
+    return cells, free
+
+
+def trajectory(room: Room, rng: np.random.Generator, frames: int, step: float = 0.007) -> list[np.ndarray]:
+    """A hand-held camera carried round a loop through free space at 7 mm per frame (a slow walk at 30 Hz,
+    like the 7-Scenes sequences), looking across the room (towards the loop's centre, swaying up to 45
+    degrees either side) and pitched down. The loop is the longest ellipse, of random candidates, that never
+    comes within a body's width of a wall or a piece of furniture."""
+    cells, free = walkable(room)
+    origin, resolution = cells[0, 0], cells[1, 0, 0] - cells[0, 0, 0]
+    candidates = cells[free]
+    if len(candidates) == 0:
+        raise RuntimeError(f"{room.name}: nowhere to walk")
+    best, best_length = None, 0.0
+    for _ in range(150):
+        centre = candidates[int(rng.integers(len(candidates)))]
+        radii, turn = rng.uniform(0.2, 1.6, 2), rng.uniform(0, np.pi)
+        angles = np.linspace(0, 2 * np.pi, 400, endpoint=False)
+        loop = centre + np.column_stack([radii[0] * np.cos(angles), radii[1] * np.sin(angles)]) @ np.array(
+            [[np.cos(turn), np.sin(turn)], [-np.sin(turn), np.cos(turn)]])
+        index = np.round((loop - origin) / resolution).astype(int)
+        inside = np.all((index >= 0) & (index < free.shape), axis=1)
+        if not inside.all() or not free[index[:, 0], index[:, 1]].all():
+            continue
+        length = float(np.linalg.norm(np.diff(np.vstack([loop, loop[:1]]), axis=0), axis=1).sum())
+        if length > best_length:
+            best, best_length = (centre, loop), length
+    if best is None:  # no room for a loop: walk to and fro along the longest free straight line
+        best = _to_and_fro(candidates, free, origin, resolution, rng)
+        if best is None:
+            raise RuntimeError(f"{room.name}: no free path to walk")
+    centre, loop = best
+    dense = _resample(np.vstack([loop, loop[:1]]), step)
     poses = []
     height = rng.uniform(1.3, 1.6)
     for k in range(frames):
         position = dense[k % len(dense)]
-        across = centre - position
-        heading = np.arctan2(across[1], across[0]) + 0.8 * np.sin(k / 40.0)
-        pitch = np.radians(-20 + 8 * np.sin(k / 55.0))
-        eye = np.array([*position, height + 0.03 * np.sin(k / 15.0)])
+        across = centre - position if np.linalg.norm(centre - position) > 0.2 else np.array([1.0, 0.0])
+        heading = np.arctan2(across[1], across[0]) + 0.8 * np.sin(k / 120.0)
+        pitch = np.radians(-20 + 8 * np.sin(k / 150.0))
+        eye = np.array([*position, height + 0.03 * np.sin(k / 45.0)])
         target = eye + np.array([np.cos(heading) * np.cos(pitch), np.sin(heading) * np.cos(pitch), np.sin(pitch)])
         poses.append(look_at(eye, target))
     return poses
 
 
-def _smooth_path(loop: np.ndarray, step: float) -> np.ndarray:
-    """Chaikin-smoothed closed polyline resampled at a fixed arc length."""
-    path = loop
-    for _ in range(4):
-        q = 0.75 * path[:-1] + 0.25 * path[1:]
-        r = 0.25 * path[:-1] + 0.75 * path[1:]
-        path = np.vstack([np.column_stack([q, r]).reshape(-1, 2), q[:1]])
+def _to_and_fro(candidates, free, origin, resolution, rng):
+    best, best_length = None, 0.0
+    for _ in range(300):
+        a, b = candidates[rng.integers(len(candidates), size=2)]
+        line = a + np.linspace(0, 1, 200)[:, None] * (b - a)
+        index = np.round((line - origin) / resolution).astype(int)
+        length = float(np.linalg.norm(b - a))
+        if length > best_length and free[index[:, 0], index[:, 1]].all():
+            # look at a point off to the side of the line, so the view sweeps the room as the camera walks
+            side = np.array([-(b - a)[1], (b - a)[0]]) / max(length, 1e-9)
+            best, best_length = ((a + b) / 2 + side, np.vstack([line, line[::-1]])), length
+    return best
+
+
+def _resample(path: np.ndarray, step: float) -> np.ndarray:
+    """A polyline resampled at a fixed arc length."""
     arc = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
     samples = np.arange(0, arc[-1], step)
     return np.column_stack([np.interp(samples, arc, path[:, 0]), np.interp(samples, arc, path[:, 1])])
