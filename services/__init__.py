@@ -1,0 +1,1 @@
+"""The Zenoh processes (scan assembly, feature extraction, inference): thin wrappers over affordcore."""
