@@ -86,7 +86,7 @@ def corner_sofa(rng: np.random.Generator) -> Piece:
     # The wing runs forward (+x) along the left end, its back on the far-left side (+y), facing -y.
     y1 = hi[1]
     wing = [
-        Box.span((hi[0], y1 - depth + back_t, leg_h), (hi[0] + wing_len, y1 - 0.0, seat_top), color),
+        Box.span((hi[0], y1 - depth, leg_h), (hi[0] + wing_len, y1 - back_t, seat_top), color),
         Box.span((hi[0], y1 - back_t, leg_h), (hi[0] + wing_len, y1, back_top), color),
         Box.span((hi[0] + wing_len - 0.15, y1 - depth, leg_h), (hi[0] + wing_len, y1, seat_top + 0.15), color),
     ]
@@ -94,7 +94,7 @@ def corner_sofa(rng: np.random.Generator) -> Piece:
     parts = [p for p in main.parts if not (p.centre[1] > hi[1] - 0.3 and p.size[1] < 0.3 and p.size[2] > 0.3)] + wing
     anchor = main.anchors[0]
     main_end = min(anchor.end[1], y1 - depth - SEAT_INSET + 0.1)
-    wing_x = y1 - (depth + back_t) / 2 + back_t / 2
+    wing_x = y1 - (depth + back_t) / 2  # the wing seat's centre line
     wing_anchor = Anchor(
         LOUNGE, (hi[0] + SEAT_INSET, wing_x), (hi[0] + wing_len - 0.15 - SEAT_INSET, wing_x), -np.pi / 2,
         [_free_space(hi[0], hi[0] + wing_len - 0.15, y1 - depth - 0.45, y1 - depth, 0.35)], "corner sofa, wing",
@@ -160,7 +160,7 @@ def _seat_at_edge(rng, edge_x: float, along: float, chair: list[Box], serve: boo
     Pushed in (seat reaching under the top, barely turned), pulled out, swivelled, or turned away. When it
     serves the table, its label is 0.25 m outside the edge on the chair's line, facing the table.
     """
-    state = rng.choice(["pushed-in", "pulled-out", "turned-away"], p=[0.35, 0.5, 0.15])
+    state = rng.choice(["pushed-in", "pulled-out", "turned-away"], p=[0.6, 0.3, 0.1])  # real rooms: mostly pushed in
     if state == "pushed-in":
         offset, turn = rng.uniform(0.02, 0.15), rng.normal(0, 0.08)
     elif state == "pulled-out":
@@ -266,7 +266,8 @@ def workbench(rng: np.random.Generator, both_sides: bool = False, cluttered: boo
     length, depth, height = rng.uniform(1.2, 2.4), rng.uniform(0.60, 0.90), rng.uniform(0.85, 1.00)
     color = _pick(rng, WOOD + METAL[:2])
     parts = table(rng, length, depth, height, color)
-    parts.append(Box.span((-depth / 2 + 0.05, -length / 2 + 0.05, 0.15), (depth / 2 - 0.05, length / 2 - 0.05, 0.18), color))
+    if rng.random() < 0.5:  # a lower shelf
+        parts.append(Box.span((-depth / 2 + 0.05, -length / 2 + 0.05, 0.15), (depth / 2 - 0.05, length / 2 - 0.05, 0.18), color))
     parts += _clutter(rng, (-depth / 2 + 0.05, depth / 2 - 0.05), (-length / 2 + 0.05, length / 2 - 0.05), height,
                       count=int(rng.integers(10, 16)) if cluttered else int(rng.integers(0, 4)), tall=cluttered)
     anchors = [] if cluttered else [_standing_edge(depth / 2, length)]

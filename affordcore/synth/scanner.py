@@ -173,17 +173,32 @@ def viewpoints(room: Room, rng: np.random.Generator, count: int | None = None, t
 
 
 def scan_room(room: Room, rng: np.random.Generator, camera: DepthCamera | None = None,
-              views: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Fused, thinned points (N, 3) and colours (N, 3) of depth frames from several viewpoints."""
+              views: int | None = None, registration_error: tuple[float, float] = (0.005, 0.3)) -> tuple[np.ndarray, np.ndarray]:
+    """Fused, thinned points (N, 3) and colours (N, 3) of depth frames from several viewpoints.
+
+    Each frame is fused with its pose off by `registration_error` (metres, degrees; standard deviations), as
+    a real fusion's poses are: surfaces seen from two places come out slightly thick or doubled."""
     camera = camera or DepthCamera.qvga()
     boxes = room.shell_boxes() + room.furniture_boxes()
     raycaster = Raycaster(boxes)
     points, colors = [], []
     for pose in viewpoints(room, rng, views):
         depth, box = depth_frame(raycaster, camera, pose, rng)
-        points.append(backproject(depth, camera, pose))
+        points.append(backproject(depth, camera, perturbed(pose, rng, registration_error)))
         colors.append(raycaster.colors[box[depth > 0]])
     return thin(np.concatenate(points), np.concatenate(colors), FUSION_VOXEL)
+
+
+def perturbed(pose: np.ndarray, rng: np.random.Generator, error: tuple[float, float]) -> np.ndarray:
+    """A pose moved by a random translation and rotation of the given standard deviations (m, degrees)."""
+    translation, degrees = error
+    axis = rng.normal(size=3)
+    angle = np.radians(rng.normal(0, degrees))
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]]) / np.linalg.norm(axis)
+    out = pose.copy()
+    out[:3, :3] = (np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k) @ pose[:3, :3]
+    out[:3, 3] += rng.normal(0, translation, 3)
+    return out
 
 
 def sample_room_uniform(room: Room, rng: np.random.Generator, points_per_m2: float = 2500.0) -> tuple[np.ndarray, np.ndarray]:
@@ -191,6 +206,8 @@ def sample_room_uniform(room: Room, rng: np.random.Generator, points_per_m2: flo
     points, colors = [], []
     for box in room.shell_boxes() + room.furniture_boxes():
         vertices, triangles = box.mesh_arrays()
+        if box.z_range[1] <= 0.0:  # the floor slab: only its top face, not the underside below the floor
+            triangles = triangles[vertices[triangles].min(axis=1)[:, 2] >= 0.0]
         a, b, c = (vertices[triangles[:, k]] for k in range(3))
         areas = np.linalg.norm(np.cross(b - a, c - a), axis=1) / 2
         counts = rng.poisson(areas * points_per_m2)
