@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .scene import voxel_thin
 from .settings import GravitySettings
 
 _BELOW_MARGIN = 0.05  # a point this far under a floor plane is "below the floor"
@@ -87,7 +88,7 @@ def align_to_gravity(
     settings = settings or GravitySettings()
     if gravity is None or (isinstance(gravity, str) and gravity == "none"):
         return Alignment(np.eye(4), "none", "+z", 0.0, 0.0)
-    sample = _thin(points, settings.sample_voxel)
+    sample = voxel_thin(points, settings.sample_voxel)[0]
     if isinstance(gravity, str):
         if gravity != "auto":
             raise ValueError(f"gravity must be 'auto', 'none' or a vector, not {gravity!r}")
@@ -200,16 +201,6 @@ def _area(points: np.ndarray, normal: np.ndarray) -> float:
     flat = (points @ basis.T)[:, :2]
     cells = np.unique(np.floor(flat / _AREA_CELL).astype(np.int64), axis=0)
     return len(cells) * _AREA_CELL**2
-
-
-def _thin(points: np.ndarray, voxel: float) -> np.ndarray:
-    """One point per occupied voxel (the first): an even spread, whatever the scan density."""
-    keys = np.floor(points / voxel).astype(np.int64)
-    keys -= keys.min(axis=0)
-    span = keys.max(axis=0) + 1
-    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
-    _, first = np.unique(flat, return_index=True)
-    return points[np.sort(first)]
 
 
 def _estimate_normals(points: np.ndarray) -> np.ndarray:

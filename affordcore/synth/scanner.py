@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..scene import voxel_thin
 from .rooms import Room, any_overlap, inside_polygon
 from .shapes import Box
 
@@ -186,7 +187,7 @@ def scan_room(room: Room, rng: np.random.Generator, camera: DepthCamera | None =
         depth, box = depth_frame(raycaster, camera, pose, rng)
         points.append(backproject(depth, camera, perturbed(pose, rng, registration_error)))
         colors.append(raycaster.colors[box[depth > 0]])
-    return thin(np.concatenate(points), np.concatenate(colors), FUSION_VOXEL)
+    return voxel_thin(np.concatenate(points), FUSION_VOXEL, np.concatenate(colors))
 
 
 def perturbed(pose: np.ndarray, rng: np.random.Generator, error: tuple[float, float]) -> np.ndarray:
@@ -218,17 +219,6 @@ def sample_room_uniform(room: Room, rng: np.random.Generator, points_per_m2: flo
         points.append(a[which] + r1[:, None] * (b - a)[which] + r2[:, None] * (c - a)[which])
         colors.append(np.tile(np.array(box.color, np.float32), (len(which), 1)))
     return np.concatenate(points), np.concatenate(colors)
-
-
-def thin(points: np.ndarray, colors: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
-    """The mean point and colour of each occupied voxel, in a fixed order (deterministic, unlike a hash map)."""
-    keys = np.floor(points / voxel).astype(np.int64)
-    keys -= keys.min(axis=0)
-    span = keys.max(axis=0) + 1
-    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
-    _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
-    mean = lambda values: np.stack([np.bincount(inverse, values[:, k]) for k in range(3)], axis=1) / counts[:, None]  # noqa: E731
-    return mean(points), mean(colors.astype(np.float64)).astype(np.float32)
 
 
 def walkable(room: Room, resolution: float = 0.05, body_radius: float = 0.30) -> tuple[np.ndarray, np.ndarray]:
