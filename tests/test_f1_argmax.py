@@ -1,0 +1,87 @@
+"""The structured SVM's loss-augmented argmax for F1: exact against brute force and SVMperf's double loop."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from affordcore.learn.f1_argmax import f1_loss, most_violated, most_violated_double_loop
+
+
+def _brute_force(scores: np.ndarray, labels: np.ndarray) -> float:
+    """max over all 2^n labellings of 1 - F1(y, y') + sum_i y'_i s_i."""
+    positive = labels > 0
+    best = -np.inf
+    for bits in itertools.product((-1, 1), repeat=len(scores)):
+        guess = np.array(bits)
+        tp = int(np.sum((guess > 0) & positive))
+        fp = int(np.sum((guess > 0) & ~positive))
+        best = max(best, float(f1_loss(tp, fp, positive.sum())) + float(guess @ scores))
+    return best
+
+
+def _value(violation, scores, labels) -> float:
+    """Recompute the objective from the returned labelling (it must be what it claims)."""
+    positive = labels > 0
+    guess = violation.labelling
+    tp, fp = int(np.sum((guess > 0) & positive)), int(np.sum((guess > 0) & ~positive))
+    assert (tp, fp) == (violation.true_positives, violation.false_positives)
+    assert violation.loss == pytest.approx(float(f1_loss(tp, fp, positive.sum())))
+    return float(f1_loss(tp, fp, positive.sum())) + float(guess @ scores)
+
+
+@pytest.mark.parametrize("seed", range(60))
+def test_matches_brute_force_over_all_labellings(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 12))
+    labels = np.where(rng.random(n) < rng.uniform(0.1, 0.6), 1, -1)
+    if not (labels > 0).any():
+        labels[0] = 1
+    scale = [0.01, 0.1, 1.0][seed % 3]  # small scores: the loss term decides; large: the scores do
+    scores = rng.normal(0, scale, n)
+    if seed % 5 == 0:
+        scores = np.round(scores, 1)  # ties
+    violation = most_violated(scores, labels)
+    assert _value(violation, scores, labels) == pytest.approx(violation.objective, abs=1e-12)
+    assert violation.objective == pytest.approx(_brute_force(scores, labels), abs=1e-12)
+
+
+@pytest.mark.parametrize("n, ratio", [(2000, 10), (5000, 500), (20000, 1000)])
+def test_matches_svmperf_double_loop_on_imbalanced_data(n, ratio):
+    rng = np.random.default_rng(n)
+    labels = np.where(rng.random(n) < 1 / (ratio + 1), 1, -1)
+    labels[:3] = 1
+    for spread in (0.001, 0.05, 1.0):
+        scores = rng.normal(0, spread, n) + 0.5 * spread * (labels > 0)
+        fast, slow = most_violated(scores, labels), most_violated_double_loop(scores, labels)
+        assert fast.objective == pytest.approx(slow.objective, rel=1e-12, abs=1e-12)
+        assert _value(fast, scores, labels) == pytest.approx(fast.objective, abs=1e-9)
+
+
+def test_with_zero_weights_the_loss_picks_everything_positive():
+    """w = 0: every labelling scores 0, so the argmax is the worst F1 there is: no true positive (loss 1)."""
+    labels = np.array([1, -1, -1, 1, -1])
+    violation = most_violated(np.zeros(5), labels)
+    assert violation.loss == 1.0 and violation.true_positives == 0
+
+
+def test_a_perfect_separator_with_a_margin_leaves_nothing_violated():
+    """Scores beyond +-1 on the right sides: the true labelling wins, loss 0."""
+    labels = np.array([1, 1, -1, -1, -1, -1])
+    scores = np.array([2.0, 1.5, -1.5, -2.0, -3.0, -1.2])
+    violation = most_violated(scores, labels)
+    np.testing.assert_array_equal(violation.labelling, labels)
+    assert violation.loss == 0.0
+
+
+def test_f1_loss_values():
+    assert f1_loss(0, 0, 3) == 1.0
+    assert f1_loss(3, 0, 3) == 0.0
+    assert f1_loss(1, 1, 2) == pytest.approx(1 - 2 / 4)
+
+
+def test_rejects_mismatched_inputs():
+    with pytest.raises(ValueError, match="equal"):
+        most_violated(np.zeros(3), np.ones(4))
