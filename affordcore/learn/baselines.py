@@ -1,0 +1,139 @@
+"""The paper's SVM baselines for extreme imbalance, on scikit-learn's linear SVMs, as linear models.
+
+* `linear_tuned`: LinearSVC on all data, threshold tuned for F1 on the training data (the simple strong
+  baseline every learner here must beat).
+* `undersample`: all positives and `ratio` x as many random negatives (None: all of them).
+* `different_costs`: the different cost model, C+ = cost_ratio x C- (class weights).
+* `focused_resampling` (Batuwita & Palade 2010): train on all, resample only where the boundary is decided
+  (every positive, the negatives nearest the boundary, rebalanced), retrain.
+* `zsvm` (Imam, Ting & Kamruzzaman 2006): a linear SVM's weight split into what its positive and its
+  negative support vectors contribute, w_z = z w+ - w-, with z chosen by an exact sweep over the values
+  where a validation example changes side (`best_z`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .f1_argmax import f1_loss
+
+
+@dataclass(frozen=True)
+class LinearModel:
+    weights: np.ndarray
+    bias: float
+    threshold: float = 0.0
+
+    def decision(self, X: np.ndarray) -> np.ndarray:
+        return X @ self.weights.astype(X.dtype, copy=False) + self.bias
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        return self.decision(X) > self.threshold
+
+
+def f1_at(scores: np.ndarray, labels: np.ndarray, threshold: float = 0.0) -> float:
+    positive, predicted = labels > 0, scores > threshold
+    return 1.0 - float(f1_loss(np.sum(positive & predicted), np.sum(~positive & predicted), positive.sum()))
+
+
+def tune_threshold(scores: np.ndarray, labels: np.ndarray) -> tuple[float, float]:
+    """The threshold with the best F1 (predict positive above it) and that F1: exact, one sort."""
+    order = np.argsort(-scores, kind="stable")
+    ranked, positive = scores[order], labels[order] > 0
+    tp, fp = np.cumsum(positive), np.cumsum(~positive)
+    f1 = 2 * tp / (positive.sum() + tp + fp)
+    distinct = np.append(ranked[1:] < ranked[:-1], True)  # cut only between different scores
+    k = int(np.argmax(np.where(distinct, f1, -1)))
+    below = ranked[k + 1] if k + 1 < len(ranked) else ranked[k] - 1.0
+    return float((ranked[k] + below) / 2), float(f1[k])
+
+
+def _svc(X: np.ndarray, y: np.ndarray, C: float, class_weight=None):
+    from sklearn.svm import LinearSVC
+
+    return LinearSVC(C=C, class_weight=class_weight, dual="auto", max_iter=5000).fit(X, y)
+
+
+def _model(svc, threshold: float = 0.0) -> LinearModel:
+    return LinearModel(svc.coef_.ravel().astype(np.float64), float(svc.intercept_[0]), threshold)
+
+
+def linear_tuned(X: np.ndarray, y: np.ndarray, C: float = 1.0) -> LinearModel:
+    model = _model(_svc(X, y, C))
+    return LinearModel(model.weights, model.bias, tune_threshold(model.decision(X), y)[0])
+
+
+def undersample(X: np.ndarray, y: np.ndarray, ratio: float | None, rng: np.random.Generator, C: float = 1.0) -> LinearModel:
+    keep = _undersampled(y, ratio, rng)
+    return _model(_svc(X[keep], y[keep], C))
+
+
+def _undersampled(y: np.ndarray, ratio: float | None, rng: np.random.Generator) -> np.ndarray:
+    positives, negatives = np.flatnonzero(y > 0), np.flatnonzero(y <= 0)
+    if ratio is not None and ratio * len(positives) < len(negatives):
+        negatives = rng.choice(negatives, int(round(ratio * len(positives))), replace=False)
+    return np.sort(np.concatenate([positives, negatives]))
+
+
+def different_costs(X: np.ndarray, y: np.ndarray, cost_ratio: float, C: float = 1.0) -> LinearModel:
+    return _model(_svc(X, y, C, class_weight={1: cost_ratio, -1: 1.0}))
+
+
+def focused_resampling(X: np.ndarray, y: np.ndarray, rng: np.random.Generator, C: float = 1.0, band: float = 1.0,
+                       balance: float = 1.0) -> LinearModel:
+    """Train on all; keep every positive and the negatives within `band` of the boundary (at least as many
+    as there are positives, nearest first), where the boundary is decided; rebalance them to `balance`
+    negatives per positive by undersampling; retrain."""
+    first = _model(_svc(X, y, C))
+    margin = np.abs(first.decision(X))
+    positives, negatives = np.flatnonzero(y > 0), np.flatnonzero(y <= 0)
+    nearest = negatives[np.argsort(margin[negatives], kind="stable")]
+    near = nearest[: max(len(positives), int(np.sum(margin[negatives] <= band)))]
+    near = rng.choice(near, min(len(near), int(round(balance * len(positives)))), replace=False)
+    keep = np.sort(np.concatenate([positives, near]))
+    return _model(_svc(X[keep], y[keep], C))
+
+
+def zsvm(X: np.ndarray, y: np.ndarray, validation: tuple[np.ndarray, np.ndarray], rng: np.random.Generator,
+         C: float = 1.0, max_negatives: int = 20000) -> LinearModel:
+    """zSVM on a linear SVC (libsvm exposes the dual coefficients LinearSVC does not); the SVC sees every
+    positive and at most `max_negatives` negatives, since kernel SVMs do not scale to millions."""
+    from sklearn.svm import SVC
+
+    keep = _undersampled(y, max_negatives / max(1, np.sum(y > 0)), rng)
+    svc = SVC(kernel="linear", C=C).fit(X[keep], y[keep])
+    coef, support = svc.dual_coef_.ravel(), svc.support_  # coef = alpha_i y_i
+    sv = X[keep][support].astype(np.float64)
+    w_plus, w_minus = coef[coef > 0] @ sv[coef > 0], -(coef[coef < 0] @ sv[coef < 0])
+    z = best_z(validation[0] @ w_plus, validation[0] @ w_minus - float(svc.intercept_[0]), validation[1])
+    return LinearModel(z * w_plus - w_minus, float(svc.intercept_[0]))
+
+
+def best_z(plus: np.ndarray, minus: np.ndarray, labels: np.ndarray) -> float:
+    """The z > 0 maximising F1 of the rule z * plus - minus > 0, exactly: F1 only changes where an example
+    changes side, at z_i = minus_i / plus_i, so one sweep over the sorted breakpoints finds the best."""
+    positive = labels > 0
+    rising = plus > 0  # these turn positive as z passes their breakpoint; plus < 0 turn negative
+    flat = plus == 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        breaks = np.where(flat, np.inf, minus / np.where(flat, 1.0, plus))
+    z0 = 1e-12
+    state = np.where(flat, -minus > 0, z0 * plus - minus > 0)  # sides just above z = 0
+    tp, fp = int(np.sum(state & positive)), int(np.sum(state & ~positive))
+    moving = np.flatnonzero(~flat & (breaks > z0))
+    order = moving[np.argsort(breaks[moving], kind="stable")]
+    values = breaks[order]
+    step = np.where(rising[order], 1, -1)  # crossing a breakpoint upwards turns a rising example on, others off
+    tps = tp + np.cumsum(step * positive[order])
+    fps = fp + np.cumsum(step * ~positive[order])
+    f1 = 1.0 - f1_loss(tps, fps, positive.sum())
+    distinct = np.append(values[1:] > values[:-1], True)  # score only between distinct breakpoints
+    f1 = np.where(distinct, f1, -1.0)
+    start_f1 = 1.0 - float(f1_loss(tp, fp, positive.sum()))
+    if len(order) == 0 or f1.max() <= start_f1:
+        return z0 if len(order) == 0 else float(min(values[0] / 2, 1.0)) if values[0] > 2 * z0 else z0
+    k = int(np.argmax(f1))
+    upper = values[k + 1] if k + 1 < len(values) else values[k] * 2 + 1.0
+    return float((values[k] + upper) / 2)

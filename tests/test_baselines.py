@@ -1,0 +1,64 @@
+"""Baseline learners: exact threshold and z sweeps against brute force, and each learner on Gaussian data."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from affordcore.learn.baselines import (
+    best_z, different_costs, f1_at, focused_resampling, linear_tuned, tune_threshold, undersample, zsvm,
+)
+
+
+def _gaussian(n, d, ratio, shift, seed):
+    rng = np.random.default_rng(seed)
+    y = np.where(rng.random(n) < 1 / (ratio + 1), 1, -1)
+    y[:3] = 1
+    X = rng.normal(size=(n, d)).astype(np.float32)
+    X[y > 0] += shift
+    return X, y
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_tuned_threshold_is_the_best_there_is(seed):
+    rng = np.random.default_rng(seed)
+    scores = np.round(rng.normal(size=300), 1 if seed % 2 else 6)
+    labels = np.where(rng.random(300) < 0.2, 1, -1)
+    threshold, f1 = tune_threshold(scores, labels)
+    brute = max(f1_at(scores, labels, t) for t in np.concatenate([np.unique(scores) - 1e-9, [scores.max() + 1]]))
+    assert f1 == pytest.approx(brute) and f1_at(scores, labels, threshold) == pytest.approx(f1)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_best_z_is_the_best_there_is(seed):
+    rng = np.random.default_rng(seed)
+    plus, minus = rng.normal(size=200), rng.normal(size=200)
+    labels = np.where(rng.random(200) < 0.3, 1, -1)
+    z = best_z(plus, minus, labels)
+    breaks = np.unique((minus / plus)[minus / plus > 0])
+    grid = np.concatenate([[breaks[0] / 2], (breaks[1:] + breaks[:-1]) / 2, [breaks[-1] * 2]])  # one z per interval
+    brute = max(f1_at(g * plus - minus, labels) for g in grid)
+    assert z > 0 and f1_at(z * plus - minus, labels) == pytest.approx(brute)
+
+
+def test_every_baseline_learns_a_separable_problem():
+    X, y = _gaussian(4000, 8, 100, 5.0, 0)
+    rng = np.random.default_rng(0)
+    models = {
+        "linear-tuned": linear_tuned(X, y),
+        "undersample": undersample(X, y, 10, rng),
+        "dcm": different_costs(X, y, 50.0),
+        "focused": focused_resampling(X, y, rng),
+        "zsvm": zsvm(X, y, (X, y), rng),
+    }
+    for name, model in models.items():
+        assert f1_at(model.decision(X), y, model.threshold) > 0.95, name
+
+
+def test_undersampling_keeps_every_positive_and_the_ratio():
+    from affordcore.learn.baselines import _undersampled
+
+    y = np.where(np.arange(10000) < 20, 1, -1)
+    keep = _undersampled(y, 5, np.random.default_rng(0))
+    assert np.sum(y[keep] > 0) == 20 and np.sum(y[keep] < 0) == 100
+    assert len(_undersampled(y, None, np.random.default_rng(0))) == 10000
