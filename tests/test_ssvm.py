@@ -19,7 +19,7 @@ def _gaussian(n: int, d: int, ratio: int, shift: float, seed: int):
 
 def test_separable_data_is_learned_perfectly():
     X, y = _gaussian(3000, 5, 50, 6.0, 0)
-    result = train_ssvm(X, y, SSVMSettings(C=100.0))
+    result = train_ssvm(X, y, SSVMSettings(C=1e6))
     assert result.converged
     assert result.iterations[-1].train_f1 == 1.0
 
@@ -27,7 +27,7 @@ def test_separable_data_is_learned_perfectly():
 def test_converges_to_epsilon_and_keeps_every_iteration():
     X, y = _gaussian(20000, 20, 100, 1.0, 1)
     Xv, yv = _gaussian(20000, 20, 100, 1.0, 2)
-    settings = SSVMSettings(C=100.0, epsilon=0.5, max_iterations=600)
+    settings = SSVMSettings(C=1e7, epsilon=0.5, max_iterations=600)
     result = train_ssvm(X, y, settings, validation=(Xv, yv))
     assert result.converged and result.iterations[-1].violation <= settings.epsilon
     assert [it.number for it in result.iterations] == list(range(1, len(result.iterations) + 1))

@@ -1,7 +1,9 @@
 """Structured SVM that optimises F1 directly (Joachims 2005), trained with 1-slack cutting planes.
 
-The whole training set is one structured example. With Psi(x, y) = sum_i y_i [x_i, 1] (a bias column that is
-regularised like the rest, as SVMperf's), the problem is
+The whole training set is one structured example. With Psi(x, y) = (1/n) sum_i y_i [x_i, 1] (a bias column
+that is regularised like the rest, as SVMperf's; averaged, so that a plane is the size of one example and the
+cutting-plane iteration bound, which grows with C max|plane|^2, does not grow with n^2: unaveraged, 50,000
+Gaussian examples did not converge in 300 iterations, averaged they converge in 37-167), the problem is
 
     min_w  1/2 |w|^2 + C xi    s.t.  w . (Psi(y) - Psi(y')) >= Delta(y, y') - xi   for every labelling y'
 
@@ -30,7 +32,7 @@ from .f1_argmax import f1_loss, most_violated
 
 @dataclass(frozen=True)
 class SSVMSettings:
-    C: float = 1e4
+    C: float = 1e7  # weighs the averaged slack: useful values are 1e6-1e8 (Gaussian data, 50k examples at 1:500)
     loss_scale: float = 100.0  # Delta in percent, as SVMperf
     epsilon: float = 0.1  # stop when the most violated constraint is within this of the slack (loss units)
     max_iterations: int = 500
@@ -90,9 +92,9 @@ def train_ssvm(
     start = time.perf_counter()
     for number in range(1, settings.max_iterations + 1):
         scores = decision(X, weights)
-        violator = most_violated(scores / settings.loss_scale, y)  # argmax of loss_scale * Delta + sum y' s
+        violator = most_violated(scores / (len(y) * settings.loss_scale), y)  # argmax of loss_scale Delta + Psi(y') . w
         differ = np.flatnonzero(violator.labelling != y)
-        plane = np.append(2.0 * (y[differ].astype(np.float64) @ X[differ]), 2.0 * y[differ].sum())
+        plane = np.append(2.0 * (y[differ].astype(np.float64) @ X[differ]), 2.0 * y[differ].sum()) / len(y)
         loss = settings.loss_scale * violator.loss
         slack = max(0.0, float(np.max(losses - planes @ weights))) if len(losses) else 0.0
         violation = loss - float(plane @ weights) - slack
