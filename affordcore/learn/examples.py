@@ -51,7 +51,6 @@ def room_examples(cloud: Path, labels_path: Path, affordance: str, settings: Set
     skeleton = get_skeleton(affordance, settings.skeleton_dirs)
     labels = load_labels(labels_path)
     scene = prepare_scene(load_cloud(cloud), settings, "none")
-    scene.layout = layout
     grid = scene.pose_grid(skeleton, settings)
     truth = ground_truth(labels, affordance, grid)
     scored = truth.scored_mask().ravel()
