@@ -1,0 +1,84 @@
+"""Model files: one linear classifier per affordance, versioned and self-describing (JSON).
+
+A model says what it was trained for and on: the affordance and its skeleton, the feature layout (with the
+fingerprint of `FeatureLayout.describe()`), the pose grid's resolution, the learner and its parameters, the
+weights, bias and threshold, the training rooms with their class counts, and validation metrics. Loading a
+model against a feature layout other than its own is a `ModelError`, not a silent wrong answer.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..features import FeatureLayout
+
+FORMAT = "affordance-model/1"
+
+
+class ModelError(ValueError):
+    """A model file that cannot be used here; the message names the file and the problem."""
+
+
+@dataclass
+class AffordanceModel:
+    affordance: str
+    layout: dict  # FeatureLayout.describe()
+    fingerprint: str
+    weights: np.ndarray
+    bias: float
+    threshold: float
+    learner: str
+    parameters: dict = field(default_factory=dict)
+    skeleton: dict = field(default_factory=dict)  # joints, torso_height, source
+    grid: dict = field(default_factory=dict)  # step, theta_step, n_theta, z levels
+    training: dict = field(default_factory=dict)  # rooms and class counts
+    validation: dict = field(default_factory=dict)  # precision, recall, f1
+
+    def decision(self, X: np.ndarray) -> np.ndarray:
+        return X @ self.weights.astype(X.dtype, copy=False) + self.bias
+
+    def check_layout(self, layout: FeatureLayout, source: str = "model") -> None:
+        if layout.fingerprint != self.fingerprint:
+            raise ModelError(
+                f"{source}: trained on feature layout {self.fingerprint} ({_summary(self.layout)}), but the running "
+                f"code computes {layout.fingerprint} ({_summary(layout.describe())}); retrain it or set the settings to match"
+            )
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        document = {"format": FORMAT, **asdict(self), "weights": [float(v) for v in self.weights]}
+        path.write_text(json.dumps(document, indent=1) + "\n")
+        return path
+
+
+def load_model(path: str | Path, layout: FeatureLayout | None = None) -> AffordanceModel:
+    """Read a model file; with `layout`, refuse a model made for another feature layout."""
+    path = Path(path)
+    try:
+        document = json.loads(path.read_text())
+    except OSError as error:
+        raise ModelError(f"{path}: cannot read ({error.strerror})") from error
+    except json.JSONDecodeError as error:
+        raise ModelError(f"{path}: not JSON ({error})") from error
+    if not isinstance(document, dict) or document.get("format") != FORMAT:
+        raise ModelError(f"{path}: not an {FORMAT} file (format {document.get('format') if isinstance(document, dict) else None!r})")
+    try:
+        document.pop("format")
+        weights = np.asarray(document.pop("weights"), dtype=np.float64)
+        model = AffordanceModel(weights=weights, **document)
+    except (KeyError, TypeError, ValueError) as error:
+        raise ModelError(f"{path}: malformed model ({error})") from error
+    if len(model.weights) != model.layout.get("n_features"):
+        raise ModelError(f"{path}: {len(model.weights)} weights for a layout of {model.layout.get('n_features')} features")
+    if layout is not None:
+        model.check_layout(layout, str(path))
+    return model
+
+
+def _summary(layout: dict) -> str:
+    return (f"v{layout.get('version')}, {layout.get('n_features')} features, {layout.get('cell_size')} m cells, "
+            f"{layout.get('voxel_resolution')} m voxels")
