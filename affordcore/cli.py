@@ -225,6 +225,34 @@ def synth(
 
 
 @app.command()
+def train(
+    data: Path = typer.Option(..., "--data", help="folder of <room>.ply + <room>.labels.json (afford synth writes one)"),
+    affordance: str = typer.Option(..., "--affordance", "-a", help="affordance type"),
+    learner: str = typer.Option("ssvm", "--learner", help="ssvm, undersample, focused, zsvm, dcm or linear-tuned"),
+    out: Path = typer.Option(..., "--out", help="model file to write (JSON)"),
+    C: Optional[float] = typer.Option(None, "--C", help="regularisation trade-off (learner's default when omitted)"),
+    seed: int = typer.Option(0, "--seed", help="seeds the room split and resampling"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+) -> None:
+    """Train one affordance's classifier on a data set (rooms split into training and validation by room)."""
+    with _user_errors():
+        from .learn.examples import data_set_rooms
+        from .learn.train import train as train_model
+        from .settings import Settings
+
+        rooms = data_set_rooms(data)
+        with _progress(quiet) as progress:
+            task = progress.add_task("rooms", total=len(rooms))
+            model = train_model(data, affordance, learner, Settings(), {} if C is None else {"C": C}, seed,
+                                on_room=lambda name: progress.advance(task))
+        model.save(out)
+        v = model.validation
+        typer.echo(f"{affordance} / {learner}: validation rooms {', '.join(v['rooms'])}: precision {v['precision']:.3f}, "
+                   f"recall {v['recall']:.3f}, f1 {v['f1']:.3f} ({v['positives']} positive poses)")
+        typer.echo(f"model written to {out}")
+
+
+@app.command()
 def config(
     current: bool = typer.Option(False, "--current", help="print the effective settings (defaults + AFFORD_* overrides) as JSON"),
 ) -> None:

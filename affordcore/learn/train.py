@@ -1,0 +1,104 @@
+"""One interface to every learner: rooms in, an `AffordanceModel` out.
+
+Rooms are split by room, never by pose: a seeded quarter of them (at least one, when there are two or more)
+is held out for validation, which picks the structured SVM's iteration and zSVM's z and gives the model's
+validation metrics. With a single room, validation uses the training room (and says so).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from ..features import FeatureLayout
+from ..settings import Settings
+from ..skeleton import get_skeleton
+from . import baselines
+from .examples import RoomExamples, data_set_rooms, room_examples
+from .f1_argmax import f1_loss
+from .model import AffordanceModel
+from .ssvm import SSVMSettings, decision, train_ssvm
+
+LEARNERS = ("ssvm", "undersample", "focused", "zsvm", "dcm", "linear-tuned")
+
+
+def metrics(scores: np.ndarray, labels: np.ndarray, threshold: float) -> dict:
+    positive, predicted = labels > 0, scores > threshold
+    tp, fp = int(np.sum(positive & predicted)), int(np.sum(~positive & predicted))
+    fn = int(np.sum(positive & ~predicted))
+    return {
+        "precision": tp / (tp + fp) if tp + fp else 0.0,
+        "recall": tp / (tp + fn) if tp + fn else 0.0,
+        "f1": 1.0 - float(f1_loss(tp, fp, positive.sum())),
+        "positives": int(positive.sum()), "negatives": int((~positive).sum()),
+    }
+
+
+def split_rooms(names: list[str], seed: int, fraction: float = 0.25) -> tuple[list[str], list[str]]:
+    if len(names) < 2:
+        return list(names), list(names)
+    order = np.random.default_rng(seed).permutation(len(names))
+    held = max(1, int(round(fraction * len(names))))
+    validation = sorted(names[i] for i in order[:held])
+    return [n for n in names if n not in validation], validation
+
+
+def fit(learner: str, train: RoomExamples, validation: RoomExamples, params: dict, seed: int) -> tuple[np.ndarray, float, float, dict]:
+    """(weights, bias, threshold, what the learner reports) for one learner."""
+    rng = np.random.default_rng(seed)
+    X, y = train.X, train.y
+    if learner == "ssvm":
+        result = train_ssvm(X, y, SSVMSettings(**params), validation=(validation.X, validation.y))
+        best = result.best
+        return best.weights[:-1], float(best.weights[-1]), 0.0, {
+            "iterations": len(result.iterations), "best_iteration": best.number, "converged": result.converged,
+            "train_f1": [it.train_f1 for it in result.iterations], "validation_f1": [it.validation_f1 for it in result.iterations]}
+    if learner == "linear-tuned":
+        model = baselines.linear_tuned(X, y, params.get("C", 1.0))
+    elif learner == "undersample":
+        model = baselines.undersample(X, y, params.get("ratio", 1.0), rng, params.get("C", 1.0))
+    elif learner == "dcm":
+        model = baselines.different_costs(X, y, params.get("cost_ratio", float(np.sum(y <= 0) / max(1, np.sum(y > 0)))), params.get("C", 1.0))
+    elif learner == "focused":
+        model = baselines.focused_resampling(X, y, rng, params.get("C", 1.0))
+    elif learner == "zsvm":
+        model = baselines.zsvm(X, y, (validation.X, validation.y), rng, params.get("C", 1.0))
+    else:
+        raise ValueError(f"unknown learner {learner!r}; choose from {', '.join(LEARNERS)}")
+    return model.weights, model.bias, model.threshold, {}
+
+
+def train(data: str | Path, affordance: str, learner: str, settings: Settings | None = None, params: dict | None = None,
+          seed: int = 0, on_room: Callable[[str], None] | None = None) -> AffordanceModel:
+    if learner not in LEARNERS:
+        raise ValueError(f"unknown learner {learner!r}; choose from {', '.join(LEARNERS)}")
+    settings = settings or Settings()
+    layout = FeatureLayout.from_settings(settings.features, settings.voxel)
+    rooms = data_set_rooms(data)
+    train_names, validation_names = split_rooms([name for name, _, _ in rooms], seed)
+    examples = {}
+    for name, cloud, labels in rooms:
+        examples[name] = room_examples(cloud, labels, affordance, settings, layout)
+        if on_room:
+            on_room(name)
+    training, validation = _stack(examples, train_names), _stack(examples, validation_names)
+    if training.positives == 0:
+        raise ValueError(f"{data}: the training rooms hold no {affordance} label")
+    weights, bias, threshold, report = fit(learner, training, validation, params or {}, seed)
+    skeleton = get_skeleton(affordance, settings.skeleton_dirs)
+    return AffordanceModel(
+        affordance=affordance, layout=layout.describe(), fingerprint=layout.fingerprint,
+        weights=np.asarray(weights, dtype=np.float64), bias=float(bias), threshold=float(threshold), learner=learner,
+        parameters={**(params or {}), "seed": seed, **({"report": report} if report else {})},
+        skeleton={"joints": skeleton.joints.round(4).tolist(), "torso_height": skeleton.torso_height, "source": skeleton.source},
+        grid=settings.grid.model_dump(),
+        training={"rooms": train_names, "positives": training.positives, "negatives": int(len(training.y) - training.positives)},
+        validation={"rooms": validation_names, **metrics(decision(validation.X, np.append(weights, bias)), validation.y, threshold)},
+    )
+
+
+def _stack(examples: dict[str, RoomExamples], names: list[str]) -> RoomExamples:
+    return RoomExamples("+".join(names), np.concatenate([examples[n].X for n in names]),
+                        np.concatenate([examples[n].y for n in names]))
