@@ -21,6 +21,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .grid import PoseGrid
+from .jsonfile import read_json
 
 FORMAT = "affordance-labels/1"
 XY_TOLERANCE = 0.15  # m, DESIGN.md
@@ -120,13 +121,7 @@ class LabelSet:
 def load_labels(path: str | Path) -> LabelSet:
     """Read and validate a label file; every error is a `LabelError` naming the file and the field."""
     path = Path(path)
-    try:
-        document = json.loads(path.read_text())
-    except OSError as error:
-        raise LabelError(f"{path}: cannot read ({error.strerror or error})") from error
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise LabelError(f"{path}: not valid JSON ({error})") from error
-    return _parse(document, str(path))
+    return _parse(read_json(path, LabelError), str(path))
 
 
 def save_labels(path: str | Path, labels: LabelSet) -> Path:

@@ -7,11 +7,12 @@ in the code lists the types.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from .jsonfile import read_json
 
 JOINTS = (
     "HEAD", "NECK", "TORSO", "L_SHOULDER", "L_ELBOW", "R_SHOULDER", "R_ELBOW",
@@ -61,14 +62,10 @@ def place_joints(joints: np.ndarray, poses: np.ndarray) -> np.ndarray:
 def load_skeleton(path: str | Path) -> Skeleton:
     """Read and validate one skeleton file; errors name the file and the field."""
     path = Path(path)
-    try:
-        document = json.loads(path.read_text())
-    except OSError as error:
-        raise SkeletonError(f"{path}: cannot read ({error.strerror})") from error
-    except json.JSONDecodeError as error:
-        raise SkeletonError(f"{path}: not JSON ({error})") from error
-    if document.get("format") != FORMAT:
-        raise SkeletonError(f"{path}: 'format' must be {FORMAT!r}, got {document.get('format')!r}")
+    document = read_json(path, SkeletonError)
+    if not isinstance(document, dict) or document.get("format") != FORMAT:
+        found = document.get("format") if isinstance(document, dict) else None
+        raise SkeletonError(f"{path}: 'format' must be {FORMAT!r}, got {found!r}")
     name = document.get("affordance")
     if not isinstance(name, str) or not name:
         raise SkeletonError(f"{path}: 'affordance' must be a non-empty name")

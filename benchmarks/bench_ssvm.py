@@ -19,7 +19,8 @@ import time
 
 import numpy as np
 
-from affordcore.learn.baselines import f1_at, linear_tuned
+from affordcore.learn.baselines import linear_tuned
+from affordcore.learn.f1_argmax import f1_at
 from affordcore.learn.ssvm import SSVMSettings, train_ssvm
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -23,3 +24,14 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"shared real data not available at {SHARED_DATA}")
     return SHARED_DATA
+
+
+def imbalanced_gaussian(n: int, d: int, ratio: int, shift: float, seed: int):
+    """n examples in d dimensions, about one positive per `ratio` negatives (at least three), positives
+    shifted by `shift` in every feature: the Gaussian set-up of DESIGN.md's learner figures."""
+    rng = np.random.default_rng(seed)
+    y = np.where(rng.random(n) < 1 / (ratio + 1), 1, -1)
+    y[:3] = 1
+    X = rng.normal(size=(n, d)).astype(np.float32)
+    X[y > 0] += shift
+    return X, y

@@ -4,19 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import imbalanced_gaussian
 
 from affordcore.learn.baselines import (
-    best_z, different_costs, f1_at, focused_resampling, linear_tuned, tune_threshold, undersample, zsvm,
+    best_z, different_costs, focused_resampling, linear_tuned, tune_threshold, undersample, zsvm,
 )
-
-
-def _gaussian(n, d, ratio, shift, seed):
-    rng = np.random.default_rng(seed)
-    y = np.where(rng.random(n) < 1 / (ratio + 1), 1, -1)
-    y[:3] = 1
-    X = rng.normal(size=(n, d)).astype(np.float32)
-    X[y > 0] += shift
-    return X, y
+from affordcore.learn.f1_argmax import f1_at
 
 
 @pytest.mark.parametrize("seed", range(20))
@@ -42,7 +35,7 @@ def test_best_z_is_the_best_there_is(seed):
 
 
 def test_every_baseline_learns_a_separable_problem():
-    X, y = _gaussian(4000, 8, 100, 5.0, 0)
+    X, y = imbalanced_gaussian(4000, 8, 100, 5.0, 0)
     rng = np.random.default_rng(0)
     models = {
         "linear-tuned": linear_tuned(X, y),

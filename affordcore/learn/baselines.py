@@ -33,11 +33,6 @@ class LinearModel:
         return self.decision(X) > self.threshold
 
 
-def f1_at(scores: np.ndarray, labels: np.ndarray, threshold: float = 0.0) -> float:
-    positive, predicted = labels > 0, scores > threshold
-    return 1.0 - float(f1_loss(np.sum(positive & predicted), np.sum(~positive & predicted), positive.sum()))
-
-
 def tune_threshold(scores: np.ndarray, labels: np.ndarray) -> tuple[float, float]:
     """The threshold with the best F1 (predict positive above it) and that F1: exact, one sort."""
     order = np.argsort(-scores, kind="stable")

@@ -32,6 +32,12 @@ def f1_loss(true_positives, false_positives, positives) -> np.ndarray:
     return 1.0 - np.divide(2 * tp, denominator, out=np.zeros_like(denominator + tp), where=denominator > 0)
 
 
+def f1_at(scores: np.ndarray, labels: np.ndarray, threshold: float = 0.0) -> float:
+    """F1 of predicting positive where the score exceeds the threshold."""
+    positive, predicted = np.asarray(labels) > 0, scores > threshold
+    return 1.0 - float(f1_loss(np.sum(positive & predicted), np.sum(~positive & predicted), positive.sum()))
+
+
 @dataclass(frozen=True)
 class Violation:
     labelling: np.ndarray  # (n,) in {-1, +1}: the most violated labelling y'

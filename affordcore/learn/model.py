@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..features import FeatureLayout
+from ..jsonfile import read_json
 
 FORMAT = "affordance-model/1"
 
@@ -58,12 +59,7 @@ class AffordanceModel:
 def load_model(path: str | Path, layout: FeatureLayout | None = None) -> AffordanceModel:
     """Read a model file; with `layout`, refuse a model made for another feature layout."""
     path = Path(path)
-    try:
-        document = json.loads(path.read_text())
-    except OSError as error:
-        raise ModelError(f"{path}: cannot read ({error.strerror})") from error
-    except json.JSONDecodeError as error:
-        raise ModelError(f"{path}: not JSON ({error})") from error
+    document = read_json(path, ModelError)
     if not isinstance(document, dict) or document.get("format") != FORMAT:
         raise ModelError(f"{path}: not an {FORMAT} file (format {document.get('format') if isinstance(document, dict) else None!r})")
     try:

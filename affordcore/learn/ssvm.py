@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .f1_argmax import f1_loss, most_violated
+from .f1_argmax import f1_at, most_violated
 
 
 @dataclass(frozen=True)
@@ -68,11 +68,6 @@ def decision(X: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return X @ weights[:-1].astype(X.dtype, copy=False) + weights[-1]
 
 
-def f1_score_at_zero(scores: np.ndarray, labels: np.ndarray) -> float:
-    positive, predicted = labels > 0, scores > 0
-    return 1.0 - float(f1_loss(np.sum(positive & predicted), np.sum(~positive & predicted), positive.sum()))
-
-
 def train_ssvm(
     X: np.ndarray,
     y: np.ndarray,
@@ -99,8 +94,8 @@ def train_ssvm(
         slack = max(0.0, float(np.max(losses - planes @ weights))) if len(losses) else 0.0
         violation = loss - float(plane @ weights) - slack
         result.iterations.append(Iteration(
-            number, weights.copy(), f1_score_at_zero(scores, y),
-            None if validation is None else f1_score_at_zero(decision(validation[0], weights), validation[1]),
+            number, weights.copy(), f1_at(scores, y),
+            None if validation is None else f1_at(decision(validation[0], weights), validation[1]),
             violation, slack, len(losses), time.perf_counter() - start))
         if on_iteration:
             on_iteration(result.iterations[-1])
