@@ -74,16 +74,19 @@ class UnlabelledRegion:
         object.__setattr__(self, "polygon", tuple(tuple(float(v) for v in p) for p in self.polygon))
 
     def contains(self, xy: np.ndarray) -> np.ndarray:
-        """Even-odd point-in-polygon test for points (..., 2)."""
-        xy = np.asarray(xy, dtype=np.float64)
-        x, y = xy[..., 0], xy[..., 1]
-        inside = np.zeros(x.shape, dtype=bool)
-        vertices = np.array(self.polygon)
-        for (x0, y0), (x1, y1) in zip(vertices, np.roll(vertices, -1, axis=0)):
-            crosses = (y0 > y) != (y1 > y)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                inside ^= crosses & (x < x0 + (y - y0) * (x1 - x0) / (y1 - y0))
-        return inside
+        return polygon_contains(np.array(self.polygon), xy)
+
+
+def polygon_contains(polygon: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Even-odd point-in-polygon test for points (..., 2)."""
+    xy = np.asarray(xy, dtype=np.float64)
+    x, y = xy[..., 0], xy[..., 1]
+    inside = np.zeros(x.shape, dtype=bool)
+    for (x0, y0), (x1, y1) in zip(polygon, np.roll(polygon, -1, axis=0)):
+        crosses = (y0 > y) != (y1 > y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inside ^= crosses & (x < x0 + (y - y0) * (x1 - x0) / (y1 - y0))
+    return inside
 
 
 @dataclass(frozen=True)

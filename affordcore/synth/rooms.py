@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..labels import polygon_contains
 from . import furniture as F
 from .shapes import Box, Piece, rot2
 
@@ -204,11 +205,7 @@ def _floor_rectangles(polygon: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]
 
 def inside_polygon(polygon: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Even-odd rule, vectorised over points (boundary points count as inside within 1e-9)."""
-    x, y = points[:, 0, None], points[:, 1, None]
-    x0, y0 = polygon[:, 0], polygon[:, 1]
-    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
-    crosses = ((y0 > y) != (y1 > y)) & (x < (x1 - x0) * (y - y0) / np.where(y1 != y0, y1 - y0, 1) + x0)
-    return (crosses.sum(axis=1) % 2 == 1) | _on_boundary(polygon, points)
+    return polygon_contains(polygon, points) | _on_boundary(polygon, points)
 
 
 def _on_boundary(polygon: np.ndarray, points: np.ndarray) -> np.ndarray:
