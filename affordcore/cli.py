@@ -253,6 +253,55 @@ def train(
 
 
 @app.command()
+def evaluate(
+    data: Path = typer.Option(..., "--data", help="folder of <room>.ply + <room>.labels.json"),
+    folds: int = typer.Option(3, "--folds", min=2, help="k of the k-fold split over rooms"),
+    learners: str = typer.Option(",".join(("ssvm", "undersample", "focused", "zsvm", "dcm", "linear-tuned")), "--learners",
+                                 help="comma-separated learners"),
+    affordances: Optional[str] = typer.Option(None, "--affordances", help="comma-separated affordances (default: every built-in skeleton)"),
+    ratios: str = typer.Option("1,2,4,8,16,32,64,128,256,512,1024,2048,all", "--ratios",
+                               help="imbalance test: negatives per positive to train at, 'all' for every negative; 'none' skips the test"),
+    out: Path = typer.Option(..., "--out", help="folder for results.json, results.md and the plots"),
+    seed: int = typer.Option(0, "--seed", help="seeds the folds, the validation split and resampling"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+) -> None:
+    """Compare learners by k-fold over rooms: the paper's table, its imbalance test, the SSVM's iterations."""
+    with _user_errors():
+        from .learn.evaluate import evaluate as run_evaluation, write_outputs
+        from .settings import Settings
+        from .skeleton import skeleton_files
+
+        settings = Settings()
+        chosen = _names(learners)
+        kinds = _names(affordances) if affordances else sorted(skeleton_files(settings.skeleton_dirs))
+        sweep = () if ratios.strip() == "none" else tuple(None if r == "all" else _ratio(r) for r in _names(ratios))
+        sweep_runs = sum(1 for r in sweep for name in chosen if r is not None or name == "undersample")  # others reuse fold 1
+        steps = len(kinds) * (folds * len(chosen) + sweep_runs)
+        with _progress(quiet) as progress:
+            task = progress.add_task("evaluate", total=steps)
+
+            def step(message: str) -> None:
+                progress.update(task, description=message)
+                if ": features of " not in message:
+                    progress.advance(task)
+
+            evaluation = run_evaluation(data, kinds, chosen, folds, settings, seed, sweep, on_step=step)
+        paths = write_outputs(evaluation, out)
+        typer.echo(paths[1].read_text().split("\n## Imbalance")[0])
+        typer.echo("written: " + ", ".join(str(p) for p in paths))
+
+
+def _names(text: str) -> list[str]:
+    return [part.strip() for part in text.split(",") if part.strip()]
+
+
+def _ratio(text: str) -> int:
+    if not text.isdigit() or int(text) < 1:
+        raise UserError(f"--ratios: {text!r} is not a whole number of negatives per positive (or 'all')")
+    return int(text)
+
+
+@app.command()
 def config(
     current: bool = typer.Option(False, "--current", help="print the effective settings (defaults + AFFORD_* overrides) as JSON"),
 ) -> None:

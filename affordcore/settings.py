@@ -34,7 +34,7 @@ class GridSettings(BaseModel):
 
 class FeatureSettings(BaseModel):
     cube_size: float = Field(1.0, gt=0, description="edge of the normal cube around the torso (m)")
-    cell_size: float = Field(0.10, gt=0, description="edge of one normal-cube cell (m); the paper's layout is 0.10")
+    cell_size: float = Field(0.25, gt=0, description="edge of one normal-cube cell (m): 0.25 gives 222 features; the paper's 0.10 gives 3030, 15.7 GB per 1.3 million training poses")
     chunk_mb: float = Field(256.0, gt=0, description="feature rows are produced in chunks of at most this many MB")
 
 

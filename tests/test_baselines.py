@@ -49,9 +49,9 @@ def test_every_baseline_learns_a_separable_problem():
 
 
 def test_undersampling_keeps_every_positive_and_the_ratio():
-    from affordcore.learn.baselines import _undersampled
+    from affordcore.learn.baselines import undersampled_indices
 
     y = np.where(np.arange(10000) < 20, 1, -1)
-    keep = _undersampled(y, 5, np.random.default_rng(0))
+    keep = undersampled_indices(y, 5, np.random.default_rng(0))
     assert np.sum(y[keep] > 0) == 20 and np.sum(y[keep] < 0) == 100
-    assert len(_undersampled(y, None, np.random.default_rng(0))) == 10000
+    assert len(undersampled_indices(y, None, np.random.default_rng(0))) == 10000

@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 
 from affordcore.example import box_surface_points
+from affordcore.features import FeatureLayout
 from affordcore.grid import PoseGrid
 from affordcore.scene import Cloud, save_cloud
+from affordcore.settings import Settings
 from affordcore.skeleton import all_skeletons, get_skeleton
 
 
@@ -52,7 +54,7 @@ def test_features_json_contract(small_room):
     skeleton = get_skeleton("sitting-working")
     expected = PoseGrid.over_footprint((-0.08, -0.08, 2.47, 1.96), skeleton.torso_height, 0.1)
     assert report["poses"] == expected.size == 26 * 21 * 3 * 63
-    assert report["features"] == 3030
+    assert report["features"] == FeatureLayout.from_settings(Settings().features, Settings().voxel).n_features == 222
     assert report["seconds"] > 0 and report["peak_rss_mb"] > 50
 
 

@@ -12,7 +12,7 @@ from affordcore.learn.ssvm import SSVMSettings, decision, train_ssvm
 
 def test_separable_data_is_learned_perfectly():
     X, y = imbalanced_gaussian(3000, 5, 50, 6.0, 0)
-    result = train_ssvm(X, y, SSVMSettings(C=1e6))
+    result = train_ssvm(X, y, SSVMSettings(C=0.1))
     assert result.converged
     assert result.iterations[-1].train_f1 == 1.0
 
@@ -20,7 +20,7 @@ def test_separable_data_is_learned_perfectly():
 def test_converges_to_epsilon_and_keeps_every_iteration():
     X, y = imbalanced_gaussian(20000, 20, 100, 1.0, 1)
     Xv, yv = imbalanced_gaussian(20000, 20, 100, 1.0, 2)
-    settings = SSVMSettings(C=1e7, epsilon=0.5, max_iterations=600)
+    settings = SSVMSettings(C=0.025, epsilon=0.5, max_iterations=600)
     result = train_ssvm(X, y, settings, validation=(Xv, yv))
     assert result.converged and result.iterations[-1].violation <= settings.epsilon
     assert [it.number for it in result.iterations] == list(range(1, len(result.iterations) + 1))

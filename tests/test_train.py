@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from affordcore.learn.model import load_model
+from affordcore.learn.evaluate import deal_folds, evaluate, write_outputs
 from affordcore.learn.train import LEARNERS, split_rooms, train
 from affordcore.settings import FeatureSettings, GridSettings, Settings
 
@@ -36,7 +37,7 @@ def _affordance(folder) -> str:
 
 @pytest.mark.parametrize("learner", LEARNERS)
 def test_every_learner_trains_and_beats_chance(data_set, learner):
-    params = {"C": 1e7, "max_iterations": 60} if learner == "ssvm" else {}
+    params = {"max_iterations": 60} if learner == "ssvm" else {}
     model = train(data_set, _affordance(data_set), learner, _settings(), params)
     assert model.learner == learner and len(model.weights) == 30 + 3 * 8
     assert set(model.training["rooms"]).isdisjoint(model.validation["rooms"])  # split by room
@@ -60,3 +61,56 @@ def test_afford_train_writes_a_model(data_set, tmp_path):
     assert result.returncode == 0, result.stderr
     model = load_model(out)
     assert model.affordance == _affordance(data_set) and "f1" in result.stdout
+
+
+def test_folds_are_stratified_seeded_and_cover_every_room():
+    names = [f"{kind}-{i}" for kind in ("living", "office", "workshop") for i in range(4)]
+    groups = {name: name.split("-")[0] for name in names}
+    folds = deal_folds(names, 3, seed=5, groups=groups)
+    assert sorted(sum(folds, [])) == sorted(names)
+    for fold in folds:  # every fold's training rooms keep every kind of room
+        assert {groups[n] for n in names if n not in fold} == {"living", "office", "workshop"}
+    assert deal_folds(names, 3, seed=5, groups=groups) == folds
+    with pytest.raises(ValueError, match="13 folds need at least 13 rooms"):
+        deal_folds(names, 13, seed=0)
+
+
+def test_evaluate_runs_every_learner_per_fold_and_the_imbalance_test(data_set, tmp_path):
+    affordance = _affordance(data_set)
+    learners = ["linear-tuned", "undersample", "ssvm"]
+    evaluation = evaluate(data_set, [affordance], learners, 3, _settings(), seed=0, ratios=(1, 4, None),
+                          params={"ssvm": {"max_iterations": 30}})
+    rooms = sorted(sum(evaluation.folds, []))
+    assert len(rooms) == 3 and all(len(fold) == 1 for fold in evaluation.folds)
+    table = evaluation.table()
+    assert [row["learner"] for row in table] == learners
+    for row in table:
+        runs = [o for o in evaluation.outcomes if o.learner == row["learner"] and not o.sweep]
+        assert sorted(o.fold for o in runs) == [0, 1, 2]
+        assert row["f1"] == pytest.approx(np.mean([o.f1 for o in runs]))
+        assert row["f1_std"] == pytest.approx(np.std([o.f1 for o in runs]))
+        for o in runs:  # never validated on, or trained near, the fold's own test room
+            assert not set(o.report["validation_rooms"]) & set(evaluation.folds[o.fold])
+    sweep = evaluation.sweep()
+    for learner in learners:
+        points = sorted((o.ratio or 10**9, o.train_ratio) for o in sweep if o.learner == learner)
+        assert [p[0] for p in points] == [1, 4, 10**9]
+        assert points[0][1] == pytest.approx(1.0, rel=0.01) and points[1][1] == pytest.approx(4.0, rel=0.01)
+        assert points[2][1] > 50  # all data: the real imbalance
+    # plain SVM at 1:1 predicts far more positives than at the full imbalance: recall up, precision down
+    plain = {o.ratio: o for o in sweep if o.learner == "undersample"}
+    assert plain[1].recall >= plain[None].recall and plain[1].precision <= plain[None].precision
+
+    paths = write_outputs(evaluation, tmp_path / "eval")
+    results = json.loads(paths[0].read_text())["results"]
+    assert {tuple(sorted(r)) for r in results} == {("affordance", "f1", "f1_std", "folds", "learner", "precision", "recall", "train_seconds")}
+    markdown = paths[1].read_text()
+    assert all(f"| {learner} |" in markdown for learner in learners) and "Imbalance test" in markdown
+    assert all(p.stat().st_size > 10_000 for p in paths[2:])  # two real figures
+
+
+def test_evaluate_rejects_bad_ratios_and_learners(data_set, tmp_path):
+    for option, value, message in (("--ratios", "1,x", "'x' is not a whole number"), ("--learners", "svm", "unknown learner")):
+        result = subprocess.run([sys.executable, "-m", "affordcore.cli", "evaluate", "--data", str(data_set), "--out", str(tmp_path),
+                                 option, value, "--quiet"], capture_output=True, text=True, timeout=120, env={**os.environ, **SMALL})
+        assert result.returncode == 2 and message in result.stderr, result.stderr

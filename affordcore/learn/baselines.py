@@ -61,11 +61,12 @@ def linear_tuned(X: np.ndarray, y: np.ndarray, C: float = 1.0) -> LinearModel:
 
 
 def undersample(X: np.ndarray, y: np.ndarray, ratio: float | None, rng: np.random.Generator, C: float = 1.0) -> LinearModel:
-    keep = _undersampled(y, ratio, rng)
+    keep = undersampled_indices(y, ratio, rng)
     return _model(_svc(X[keep], y[keep], C))
 
 
-def _undersampled(y: np.ndarray, ratio: float | None, rng: np.random.Generator) -> np.ndarray:
+def undersampled_indices(y: np.ndarray, ratio: float | None, rng: np.random.Generator) -> np.ndarray:
+    """Sorted indices of every positive and `ratio` x as many random negatives (all of them when None or fewer)."""
     positives, negatives = np.flatnonzero(y > 0), np.flatnonzero(y <= 0)
     if ratio is not None and ratio * len(positives) < len(negatives):
         negatives = rng.choice(negatives, int(round(ratio * len(positives))), replace=False)
@@ -97,7 +98,7 @@ def zsvm(X: np.ndarray, y: np.ndarray, validation: tuple[np.ndarray, np.ndarray]
     positive and at most `max_negatives` negatives, since kernel SVMs do not scale to millions."""
     from sklearn.svm import SVC
 
-    keep = _undersampled(y, max_negatives / max(1, np.sum(y > 0)), rng)
+    keep = undersampled_indices(y, max_negatives / max(1, np.sum(y > 0)), rng)
     svc = SVC(kernel="linear", C=C).fit(X[keep], y[keep])
     coef, support = svc.dual_coef_.ravel(), svc.support_  # coef = alpha_i y_i
     sv = X[keep][support].astype(np.float64)

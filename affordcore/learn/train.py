@@ -83,7 +83,7 @@ def train(data: str | Path, affordance: str, learner: str, settings: Settings | 
         examples[name] = room_examples(cloud, labels, affordance, settings, layout)
         if on_room:
             on_room(name)
-    training, validation = _stack(examples, train_names), _stack(examples, validation_names)
+    training, validation = stack(examples, train_names), stack(examples, validation_names)
     if training.positives == 0:
         raise ValueError(f"{data}: the training rooms hold no {affordance} label")
     weights, bias, threshold, report = fit(learner, training, validation, params or {}, seed)
@@ -99,6 +99,6 @@ def train(data: str | Path, affordance: str, learner: str, settings: Settings | 
     )
 
 
-def _stack(examples: dict[str, RoomExamples], names: list[str]) -> RoomExamples:
+def stack(examples: dict[str, RoomExamples], names: list[str]) -> RoomExamples:
     return RoomExamples("+".join(names), np.concatenate([examples[n].X for n in names]),
                         np.concatenate([examples[n].y for n in names]))

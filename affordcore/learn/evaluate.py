@@ -1,0 +1,287 @@
+"""k-fold evaluation over rooms: every learner, every affordance, and the paper's imbalance test.
+
+Rooms are dealt into k folds (seeded). Each fold's rooms are the test set; the other rooms train, and a
+quarter of them (by room, `train.split_rooms`) is held out inside training to pick the structured SVM's
+iteration and zSVM's z. Test metrics are pose-level (DESIGN.md, "Metrics"), summed over the fold's rooms;
+results are means (and the standard deviation of F1) over folds.
+
+The imbalance test (the paper's): on the first fold, the training rooms' negatives are undersampled to
+1:r for r = 1, 2, 4, ... 2048 and all, every learner is trained on that, and F1 is measured on the full test
+rooms. For `undersample` the ratio is the learner's own, so its curve is the plain SVM at each ratio.
+Features are computed once per room and affordance and held for all folds (25 cm cells: 0.9 KB a pose).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..features import FeatureLayout
+from ..labels import load_labels
+from ..settings import Settings
+from .baselines import undersampled_indices
+from .examples import RoomExamples, data_set_rooms, room_examples
+from .ssvm import decision
+from .train import LEARNERS, fit, metrics, split_rooms, stack
+
+SWEEP_RATIOS: tuple[int | None, ...] = (*(2**k for k in range(12)), None)  # 1:1 ... 1:2048, then all data
+
+
+@dataclass
+class Outcome:
+    """One learner trained on one fold (at one imbalance ratio) and scored on the fold's test rooms."""
+
+    affordance: str
+    learner: str
+    fold: int
+    ratio: int | None  # negatives per positive in training; None = every negative
+    precision: float
+    recall: float
+    f1: float
+    train_seconds: float
+    train_ratio: float  # the training set's actual negatives per positive
+    sweep: bool = False  # a point of the imbalance test rather than a row of the table
+    report: dict = field(default_factory=dict)
+
+
+@dataclass
+class Evaluation:
+    folds: list[list[str]]
+    outcomes: list[Outcome] = field(default_factory=list)
+    class_counts: dict[str, dict] = field(default_factory=dict)
+
+    def table(self) -> list[dict]:
+        """The results.json rows: means over folds of the full-data runs."""
+        rows = []
+        for affordance in dict.fromkeys(o.affordance for o in self.outcomes):
+            for learner in dict.fromkeys(o.learner for o in self.outcomes):
+                runs = [o for o in self.outcomes if o.affordance == affordance and o.learner == learner and not o.sweep]
+                if runs:
+                    rows.append({
+                        "affordance": affordance, "learner": learner,
+                        **{k: float(np.mean([getattr(o, k) for o in runs])) for k in ("precision", "recall", "f1")},
+                        "f1_std": float(np.std([o.f1 for o in runs])),
+                        "train_seconds": float(np.mean([o.train_seconds for o in runs])),
+                        "folds": len(runs),
+                    })
+        return rows
+
+    def sweep(self) -> list[Outcome]:
+        return [o for o in self.outcomes if o.sweep]
+
+    def to_json(self) -> dict:
+        return {"format": "affordance-evaluation/1", "folds": self.folds, "class_counts": self.class_counts,
+                "results": self.table(), "runs": [_without_curves(asdict(o)) for o in self.outcomes]}
+
+
+def _without_curves(run: dict) -> dict:
+    run["report"] = {k: v for k, v in run["report"].items() if k not in ("train_f1", "validation_f1")}
+    return run
+
+
+def deal_folds(names: list[str], k: int, seed: int, groups: dict[str, str] | None = None) -> list[list[str]]:
+    """k folds of rooms, stratified: rooms of one group (say, the affordances they hold) are shuffled and
+    dealt round-robin, so that no fold's training rooms lose a whole kind of room."""
+    if not 2 <= k <= len(names):
+        raise ValueError(f"{k} folds need at least {k} rooms and k >= 2; the data set has {len(names)} rooms")
+    rng = np.random.default_rng(seed)
+    groups = groups or {}
+    order = [name for key in sorted(set(groups.get(n, "") for n in names))
+             for name in rng.permutation(sorted(n for n in names if groups.get(n, "") == key))]
+    return [sorted(order[f::k]) for f in range(k)]
+
+
+def evaluate(data: str | Path, affordances: list[str], learners: list[str], k: int, settings: Settings | None = None,
+             seed: int = 0, ratios: tuple[int | None, ...] = SWEEP_RATIOS, params: dict[str, dict] | None = None,
+             on_step: Callable[[str], None] | None = None) -> Evaluation:
+    """Runs len(affordances) x (k x len(learners) + len(ratios) x len(learners)) trainings; `on_step`
+    hears each room's features and each training."""
+    unknown = [name for name in learners if name not in LEARNERS]
+    if unknown:
+        raise ValueError(f"unknown learner(s) {', '.join(unknown)}; choose from {', '.join(LEARNERS)}")
+    settings = settings or Settings()
+    layout = FeatureLayout.from_settings(settings.features, settings.voxel)
+    rooms = data_set_rooms(data)
+    held = {name: ",".join(load_labels(path).affordances) for name, _, path in rooms}
+    folds = deal_folds([name for name, _, _ in rooms], k, seed, held)
+    result = Evaluation(folds)
+    for affordance in affordances:
+        examples = {}
+        for name, cloud, labels in rooms:
+            examples[name] = room_examples(cloud, labels, affordance, settings, layout)
+            _tell(on_step, f"{affordance}: features of {name}")
+        positives = sum(e.positives for e in examples.values())
+        total = sum(len(e.y) for e in examples.values())
+        result.class_counts[affordance] = {"positives": positives, "negatives": total - positives,
+                                           "ratio": (total - positives) / max(1, positives)}
+        for f, test_rooms in enumerate(folds):
+            for learner in learners:
+                outcome = _run(examples, test_rooms, affordance, learner, f, None, (params or {}).get(learner, {}), seed)
+                result.outcomes.append(outcome)
+                _tell(on_step, f"{affordance}: {learner}, fold {f + 1}/{k}: F1 {outcome.f1:.3f}")
+        for ratio in ratios:
+            for learner in learners:
+                if ratio is None and learner != "undersample":  # fold 1's table run is the sweep's all-data point
+                    table_run = next(o for o in result.outcomes if o.affordance == affordance and o.learner == learner
+                                     and o.fold == 0 and not o.sweep)
+                    result.outcomes.append(replace(table_run, sweep=True))
+                    continue
+                outcome = _run(examples, folds[0], affordance, learner, 0, ratio, (params or {}).get(learner, {}), seed, sweep=True)
+                result.outcomes.append(outcome)
+                _tell(on_step, f"{affordance}: {learner} at {'all data' if ratio is None else f'1:{ratio}'}: F1 {outcome.f1:.3f}")
+    return result
+
+
+def _tell(on_step, message: str) -> None:
+    if on_step:
+        on_step(message)
+
+
+def _run(examples: dict[str, RoomExamples], test_rooms: list[str], affordance: str, learner: str, fold: int,
+         ratio: int | None, params: dict, seed: int, sweep: bool = False) -> Outcome:
+    train_names = [name for name in examples if name not in test_rooms]
+    fit_names, validation_names = split_rooms(train_names, seed + fold)
+    if not any(examples[name].positives for name in fit_names):  # too few rooms to hold some out: validate on training
+        fit_names = validation_names = train_names
+    training, validation = stack(examples, fit_names), stack(examples, validation_names)
+    if ratio is not None:
+        training = _undersampled(training, ratio, np.random.default_rng([seed, fold, ratio]))
+    if sweep and learner == "undersample":  # in the imbalance test the plain SVM trains at the test's ratio
+        params = {**params, "ratio": None if ratio is None else float(ratio)}
+    if training.positives == 0:
+        raise ValueError(f"fold {fold + 1}: the training rooms {', '.join(fit_names)} hold no {affordance} label; use fewer folds or more rooms")
+    start = time.perf_counter()
+    weights, bias, threshold, report = fit(learner, training, validation, params, seed)
+    report = {**report, "validation_rooms": validation_names}
+    seconds = time.perf_counter() - start
+    w = np.append(weights, bias)  # test rooms scored one by one: no copy of their features
+    scores = np.concatenate([decision(examples[name].X, w) for name in test_rooms])
+    scored = metrics(scores, np.concatenate([examples[name].y for name in test_rooms]), threshold)
+    return Outcome(affordance, learner, fold, ratio, scored["precision"], scored["recall"], scored["f1"], seconds,
+                   (len(training.y) - training.positives) / training.positives, sweep, report)
+
+
+def _undersampled(examples: RoomExamples, ratio: int, rng: np.random.Generator) -> RoomExamples:
+    keep = undersampled_indices(examples.y, ratio, rng)
+    return RoomExamples(examples.room, examples.X[keep], examples.y[keep])
+
+
+def write_outputs(evaluation: Evaluation, out: str | Path) -> list[Path]:
+    """results.json, results.md and the two figures; returns the paths written."""
+    import json
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / "results.json", out / "results.md", out / "imbalance.png", out / "ssvm_iterations.png"]
+    paths[0].write_text(json.dumps(evaluation.to_json(), indent=1) + "\n")
+    paths[1].write_text(results_markdown(evaluation))
+    plot_imbalance(evaluation, paths[2])
+    plot_ssvm_iterations(evaluation, paths[3])
+    return paths
+
+
+PAPER = {  # DESIGN.md: Piyathilaka & Kodagoda's 12 real rooms (best baseline, structured SVM P / R / F1)
+    "sitting-relaxing": ("0.36 (zSVM)", "0.65 / 0.80 / 0.72"),
+    "standing-working": ("0.23 (focused)", "0.28 / 0.81 / 0.42"),
+    "sitting-working": ("0.52 (dcm)", "0.40 / 0.77 / 0.48"),
+}
+
+
+def results_markdown(evaluation: Evaluation) -> str:
+    rows = evaluation.table()
+    affordances = list(dict.fromkeys(r["affordance"] for r in rows))
+    learners = list(dict.fromkeys(r["learner"] for r in rows))
+    cell = {(r["affordance"], r["learner"]): r for r in rows}
+    k = len(evaluation.folds)
+    lines = [f"# Learners compared ({k}-fold over {sum(map(len, evaluation.folds))} rooms)", "",
+             "Pose-level precision / recall / F1 on the held-out rooms, mean over folds (F1 ± its standard deviation",
+             "over folds), and seconds to train once.", "",
+             "| learner | " + " | ".join(affordances) + " |", "|---|" + "---|" * len(affordances)]
+    for learner in learners:
+        values = []
+        for affordance in affordances:
+            r = cell.get((affordance, learner))
+            values.append("" if r is None else f"{r['precision']:.2f} / {r['recall']:.2f} / **{r['f1']:.2f}** ± {r['f1_std']:.2f} ({r['train_seconds']:.0f} s)")
+        lines.append(f"| {learner} | " + " | ".join(values) + " |")
+    lines += ["", "Class counts (all rooms): " + "; ".join(
+        f"{a} {c['positives']:,} / {c['negatives']:,} (1:{c['ratio']:,.0f})" for a, c in evaluation.class_counts.items()), ""]
+    lines += ["## Beside the paper (its 12 real rooms)", "",
+              "| affordance | paper: best SVM baseline F1 | paper: structured SVM P / R / F1 | ours: best learner F1 | ours: ssvm P / R / F1 |",
+              "|---|---|---|---|---|"]
+    for affordance in affordances:
+        ours = [r for r in rows if r["affordance"] == affordance]
+        best = max(ours, key=lambda r: r["f1"])
+        ssvm = cell.get((affordance, "ssvm"))
+        paper = PAPER.get(affordance, ("-", "-"))
+        ssvm_text = "-" if ssvm is None else f"{ssvm['precision']:.2f} / {ssvm['recall']:.2f} / {ssvm['f1']:.2f}"
+        lines.append(f"| {affordance} | {paper[0]} | {paper[1]} | {best['f1']:.2f} ({best['learner']}) | {ssvm_text} |")
+    sweep = evaluation.sweep()
+    if sweep:
+        lines += ["", "## Imbalance test (fold 1): F1 against the training set's negatives per positive", ""]
+        for affordance in affordances:
+            runs = [o for o in sweep if o.affordance == affordance]
+            ratios = sorted({o.ratio for o in runs if o.ratio is not None}) + [None]
+            lines += [f"**{affordance}**", "", "| learner | " + " | ".join("all" if r is None else f"1:{r}" for r in ratios) + " |",
+                      "|---|" + "---:|" * len(ratios)]
+            for learner in learners:
+                by_ratio = {o.ratio: o.f1 for o in runs if o.learner == learner}
+                lines.append(f"| {learner} | " + " | ".join(f"{by_ratio[r]:.2f}" if r in by_ratio else "" for r in ratios) + " |")
+            lines.append("")
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def plot_imbalance(evaluation: Evaluation, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sweep = evaluation.sweep()
+    affordances = list(dict.fromkeys(o.affordance for o in evaluation.outcomes))
+    fig, axes = plt.subplots(1, len(affordances), figsize=(5 * len(affordances), 4), squeeze=False, sharey=True)
+    for ax, affordance in zip(axes[0], affordances):
+        runs = [o for o in sweep if o.affordance == affordance]
+        for learner in dict.fromkeys(o.learner for o in runs):
+            points = sorted((o.train_ratio, o.f1) for o in runs if o.learner == learner)
+            ax.plot(*zip(*points), marker="o", label=learner)
+        ax.set_xscale("log", base=2)
+        ax.set_title(affordance)
+        ax.set_xlabel("negatives per positive in training (rightmost: all data)")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("F1 on the test rooms")
+    axes[0][-1].legend(fontsize=8)
+    fig.suptitle("Imbalance test: F1 against the training imbalance (fold 1)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_ssvm_iterations(evaluation: Evaluation, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = [o for o in evaluation.outcomes if o.learner == "ssvm" and o.fold == 0 and not o.sweep]
+    fig, axes = plt.subplots(1, max(1, len(runs)), figsize=(5 * max(1, len(runs)), 4), squeeze=False, sharey=True)
+    for ax, run in zip(axes[0], runs):
+        train_f1, validation_f1 = run.report["train_f1"], run.report["validation_f1"]
+        steps = np.arange(1, len(train_f1) + 1)
+        ax.plot(steps, train_f1, label="training rooms")
+        ax.plot(steps, validation_f1, label="validation rooms")
+        ax.axvline(run.report["best_iteration"], color="grey", ls="--", label="kept (best on validation)")
+        ax.set_title(run.affordance)
+        ax.set_xlabel("cutting-plane iteration")
+        ax.grid(alpha=0.3)
+    if not runs:
+        axes[0][0].text(0.5, 0.5, "the structured SVM was not evaluated", ha="center", va="center")
+    axes[0][0].set_ylabel("F1")
+    axes[0][-1].legend(fontsize=8)
+    fig.suptitle("Structured SVM: F1 per iteration (fold 1)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
