@@ -114,3 +114,14 @@ def test_evaluate_rejects_bad_ratios_and_learners(data_set, tmp_path):
         result = subprocess.run([sys.executable, "-m", "affordcore.cli", "evaluate", "--data", str(data_set), "--out", str(tmp_path),
                                  option, value, "--quiet"], capture_output=True, text=True, timeout=120, env={**os.environ, **SMALL})
         assert result.returncode == 2 and message in result.stderr, result.stderr
+
+
+def test_split_keeps_positives_on_both_sides():
+    names = [f"room-{i}" for i in range(9)]
+    positives = {name: (5 if i in (2, 7) else 0) for i, name in enumerate(names)}
+    for seed in range(20):
+        training, validation = split_rooms(names, seed, positives=positives)
+        assert sum(positives[n] for n in training) > 0 and sum(positives[n] for n in validation) > 0
+        assert sorted(training + validation) == names
+    lonely = {name: (5 if name == "room-3" else 0) for name in names}  # one room with positives: used for both
+    assert split_rooms(names, 0, positives=lonely) == (names, names)

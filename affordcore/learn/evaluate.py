@@ -144,9 +144,7 @@ def _tell(on_step, message: str) -> None:
 def _run(examples: dict[str, RoomExamples], test_rooms: list[str], affordance: str, learner: str, fold: int,
          ratio: int | None, params: dict, seed: int, sweep: bool = False) -> Outcome:
     train_names = [name for name in examples if name not in test_rooms]
-    fit_names, validation_names = split_rooms(train_names, seed + fold)
-    if not any(examples[name].positives for name in fit_names):  # too few rooms to hold some out: validate on training
-        fit_names = validation_names = train_names
+    fit_names, validation_names = split_rooms(train_names, seed + fold, positives={n: examples[n].positives for n in train_names})
     training, validation = stack(examples, fit_names), stack(examples, validation_names)
     if ratio is not None:
         training = _undersampled(training, ratio, np.random.default_rng([seed, fold, ratio]))

@@ -36,12 +36,22 @@ def metrics(scores: np.ndarray, labels: np.ndarray, threshold: float) -> dict:
     }
 
 
-def split_rooms(names: list[str], seed: int, fraction: float = 0.25) -> tuple[list[str], list[str]]:
-    if len(names) < 2:
+def split_rooms(names: list[str], seed: int, fraction: float = 0.25,
+                positives: dict[str, int] | None = None) -> tuple[list[str], list[str]]:
+    """(training, validation) rooms: a seeded `fraction` held out, drawn separately from the rooms that hold
+    positives and those that do not, so that both sides keep positives whenever two rooms hold any.
+    A single room (or a single room with positives) is used for both."""
+    positives = positives or {}
+    holding = [n for n in names if positives.get(n, 1) > 0]
+    if len(names) < 2 or len(holding) < 2:
         return list(names), list(names)
-    order = np.random.default_rng(seed).permutation(len(names))
-    held = max(1, int(round(fraction * len(names))))
-    validation = sorted(names[i] for i in order[:held])
+    rng = np.random.default_rng(seed)
+    validation = []
+    for group in (holding, [n for n in names if n not in holding]):
+        order = rng.permutation(len(group))
+        held = min(len(group) - (group is holding), max(group is holding, int(round(fraction * len(group)))))
+        validation += [group[i] for i in order[:held]]
+    validation = sorted(validation)
     return [n for n in names if n not in validation], validation
 
 
@@ -77,12 +87,12 @@ def train(data: str | Path, affordance: str, learner: str, settings: Settings | 
     settings = settings or Settings()
     layout = FeatureLayout.from_settings(settings.features, settings.voxel)
     rooms = data_set_rooms(data)
-    train_names, validation_names = split_rooms([name for name, _, _ in rooms], seed)
     examples = {}
     for name, cloud, labels in rooms:
         examples[name] = room_examples(cloud, labels, affordance, settings, layout)
         if on_room:
             on_room(name)
+    train_names, validation_names = split_rooms(list(examples), seed, positives={n: e.positives for n, e in examples.items()})
     training, validation = stack(examples, train_names), stack(examples, validation_names)
     if training.positives == 0:
         raise ValueError(f"{data}: the training rooms hold no {affordance} label")
