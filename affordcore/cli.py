@@ -19,6 +19,8 @@ app = typer.Typer(
 )
 skeletons_app = typer.Typer(help="The virtual skeletons, one per affordance type.", no_args_is_help=True)
 app.add_typer(skeletons_app, name="skeletons")
+models_app = typer.Typer(help="The shipped default models, one per affordance type.", no_args_is_help=True)
+app.add_typer(models_app, name="models")
 
 GRAVITY_HELP = "auto (find the floor), none (already z-up, floor at 0), or X,Y,Z: gravity's direction in the cloud's frame"
 
@@ -162,40 +164,62 @@ def align(
             typer.echo(f"aligned cloud written to {out}")
 
 
+@app.command("map")
+def map_command(
+    cloud: Path = typer.Argument(..., help="the room's point cloud (.ply, .pcd, .xyz, .pts, .txt, .npy, .bin)"),
+    out: Path = typer.Option(..., "--out", help="folder for <affordance>.json, <affordance>.png and the recording"),
+    model: Optional[list[Path]] = typer.Option(None, "--model", help="a model file (repeatable); default: the shipped models"),
+    affordance: Optional[list[str]] = typer.Option(None, "--affordance", "-a", help="only this affordance (repeatable)"),
+    gravity: str = typer.Option("auto", "--gravity", help=GRAVITY_HELP),
+    rrd: Optional[Path] = typer.Option(None, "--rrd", help="the Rerun recording (default: OUT/map.rrd)"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+) -> None:
+    """Map where people can sit, relax, work and stand in a room: skeleton map, confidence map, positives."""
+    with _user_errors():
+        _map_room(cloud, out, model or [], affordance or [], gravity, rrd or out / "map.rrd", quiet)
+
+
+def _map_room(cloud_path: Path, out: Path, model_files: list[Path], affordances: list[str], gravity: str, rrd: Path,
+              quiet: bool) -> list[Path]:
+    from .outputs import choose_models, summary_line, thin_huge_cloud, write_map_outputs
+    from .pipeline import map_affordances, parse_gravity, prepare_scene
+    from .scene import load_cloud
+    from .settings import Settings
+
+    settings = Settings()
+    start = time.perf_counter()
+    cloud, warning = thin_huge_cloud(load_cloud(cloud_path), settings.map)
+    if warning:
+        typer.echo(f"warning: {warning}", err=True)
+    scene = prepare_scene(cloud, settings, parse_gravity(gravity))
+    models = choose_models(model_files, affordances, scene.layout)
+    typer.echo(f"{cloud_path}: {len(scene.cloud):,} points; {scene.alignment.describe()}")
+    with _progress(quiet) as progress:
+        task = progress.add_task("affordance maps", total=len(models))
+        maps = map_affordances(scene, models, settings, on_done=lambda name: progress.advance(task))
+    for amap in maps.values():
+        typer.echo(summary_line(amap))
+    written = write_map_outputs(scene, maps, models, out, rrd)
+    typer.echo(f"{time.perf_counter() - start:.1f} s, peak memory {_peak_rss_mb():.0f} MB")
+    typer.echo("outputs: " + ", ".join(str(path) for path in written))
+    return written
+
+
 @app.command()
 def demo(
     out: Path = typer.Option(Path("afford-demo"), "--out", help="folder for the outputs"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
-    """Run the pipeline on the built-in example room and say where the outputs are."""
+    """Map the built-in example room with the shipped models and say where the outputs are."""
     with _user_errors():
         from .example import example_room
-        from .pipeline import prepare_scene
-        from .plots import plot_fields
-        from .scene import load_cloud, save_cloud
-        from .settings import Settings
-        from .skeleton import all_skeletons
+        from .scene import save_cloud
 
-        settings = Settings()
         out.mkdir(parents=True, exist_ok=True)
         cloud_path = out / "example-room.ply"
         save_cloud(cloud_path, example_room())
-        start = time.perf_counter()
-        scene = prepare_scene(load_cloud(cloud_path), settings, "auto")
-        typer.echo(f"example room: {len(scene.cloud)} points; {scene.alignment.describe()}")
-        typer.echo(f"fields: {scene.fields.lattice.shape} voxels of {scene.fields.lattice.resolution:.2f} m "
-                   f"in {time.perf_counter() - start:.2f} s")
-        figure = plot_fields(scene.fields, out / "fields.png")
-        rows = []
-        with _progress(quiet) as progress:
-            for skeleton in all_skeletons(settings.skeleton_dirs):
-                poses, n_features, seconds = _stream_features(scene, skeleton, settings, progress)
-                rows.append((skeleton.affordance, poses, n_features, seconds))
-        typer.echo(f"{'affordance':<20}{'poses':>12}{'features':>10}{'seconds':>10}{'poses/s':>12}")
-        for name, poses, n_features, seconds in rows:
-            typer.echo(f"{name:<20}{poses:>12,}{n_features:>10}{seconds:>10.2f}{poses / seconds:>12,.0f}")
-        typer.echo(f"peak memory {_peak_rss_mb():.0f} MB")
-        typer.echo(f"outputs: {cloud_path} (the room), {figure} (its voxel fields)")
+        _map_room(cloud_path, out, [], [], "auto", out / "map.rrd", quiet)
+        typer.echo(f"open the recording with: rerun {out / 'map.rrd'}")
 
 
 @app.command()
@@ -314,6 +338,37 @@ def config(
             return
         for variable, default, description in describe_defaults():
             typer.echo(f"{variable}={default}    # {description}" if description else f"{variable}={default}")
+
+
+@models_app.command("list")
+def models_list() -> None:
+    """Every shipped model: learner, training data and validation metrics."""
+    with _user_errors():
+        from .learn.model import load_model
+        from .outputs import shipped_models
+
+        for name, path in shipped_models().items():
+            model = load_model(path)
+            v = model.validation
+            typer.echo(f"{name:<18} {model.learner:<13} {model.id}  validation P/R/F1 {v.get('precision', 0):.2f}/"
+                       f"{v.get('recall', 0):.2f}/{v.get('f1', 0):.2f} on {', '.join(v.get('rooms', []))}")
+
+
+@models_app.command("rebuild")
+def models_rebuild(
+    learner: str = typer.Option("ssvm", "--learner", help="the learner the evaluation chose"),
+    rooms: int = typer.Option(12, "--rooms", min=2, help="generated rooms to train on"),
+    seed: int = typer.Option(1, "--seed", help="same seed, same models"),
+    out: Optional[Path] = typer.Option(None, "--out", help="folder for the model files (default: the package's own)"),
+    workers: int = typer.Option(2, "--workers", min=1, help="rooms generated in parallel"),
+) -> None:
+    """Retrain the default models from generated rooms, reproducibly."""
+    with _user_errors():
+        from .learn.defaults import rebuild_default_models
+        from .outputs import MODELS_DIR
+
+        written = rebuild_default_models(out or MODELS_DIR, learner, rooms, seed, workers, on_step=typer.echo)
+        typer.echo("written: " + ", ".join(str(p) for p in written))
 
 
 @skeletons_app.command("list")

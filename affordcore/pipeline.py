@@ -1,7 +1,9 @@
-"""From a cloud to what every affordance is scored on: the aligned cloud, its voxel fields, pose grids."""
+"""From a cloud to what every affordance is scored on (the aligned cloud, its voxel fields, pose grids), and to
+the affordance maps."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,3 +61,23 @@ def prepare_scene(cloud: Cloud, settings: Settings | None = None, gravity: str |
     world = cloud.transformed(alignment.world_from_input)
     fields = compute_fields(world.points, settings.voxel, settings.normals)
     return PreparedScene(world, alignment, fields, FeatureLayout.from_settings(settings.features, settings.voxel))
+
+
+def map_affordances(scene: PreparedScene, models: list, settings: Settings | None = None,
+                    on_done: Callable[[str], None] | None = None) -> dict:
+    """Every model's affordance map of the scene: {affordance: AffordanceMap}. Models must match the scene's
+    feature layout (a `ModelError` names the model otherwise); each places the skeleton it was trained with."""
+    from .inference import score_poses
+    from .maps import build_map
+
+    settings = settings or Settings()
+    maps = {}
+    for model in models:
+        model.check_layout(scene.layout, f"model {model.id}")
+        skeleton = model.as_skeleton()
+        grid = scene.pose_grid(skeleton, settings)
+        scores = score_poses(scene.fields, skeleton, grid, scene.layout, model.weights, model.bias)
+        maps[model.affordance] = build_map(model.affordance, scores, grid, skeleton, model.threshold, settings.map.nms_radius)
+        if on_done:
+            on_done(model.affordance)
+    return maps

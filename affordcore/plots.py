@@ -44,3 +44,38 @@ def plot_fields(fields: SceneFields, path: str | Path, slice_height: float = 0.4
     figure.savefig(path, dpi=110)
     plt.close(figure)
     return path
+
+
+def plot_map(points: np.ndarray, amap, path: str | Path, max_points: int = 200_000) -> Path:
+    """Plan view of one affordance map: the cloud from above (grey, darker = higher), the confidence map as
+    filled contours above the model's threshold, and each skeleton of the skeleton map as a dot with an arrow
+    along its facing, labelled with its score."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if len(points) > max_points:  # a plan view needs no more; a fixed stride keeps it reproducible
+        points = points[:: int(np.ceil(len(points) / max_points))]
+    grid = amap.grid
+    figure, ax = plt.subplots(figsize=(9, 9 * max(0.4, np.ptp(points[:, 1]) / max(np.ptp(points[:, 0]), 1e-6))), constrained_layout=True)
+    order = np.argsort(points[:, 2])
+    ax.scatter(points[order, 0], points[order, 1], c=points[order, 2], cmap="Greys", s=0.3, linewidths=0, vmin=-0.5, vmax=2.5)
+    confidence = amap.confidence.T  # rows y, columns x
+    top = float(np.max(confidence))
+    if top > amap.threshold:
+        levels = np.linspace(amap.threshold, top, 8)
+        filled = ax.contourf(grid.x, grid.y, confidence, levels=levels, cmap="viridis", alpha=0.55)
+        figure.colorbar(filled, ax=ax, shrink=0.7, label="decision value (above the model's threshold)")
+    for x, y, _, theta, score in amap.skeletons:
+        ax.plot(x, y, "o", color="crimson", ms=6)
+        ax.annotate("", (x + 0.35 * np.cos(theta), y + 0.35 * np.sin(theta)), (x, y),
+                    arrowprops={"arrowstyle": "->", "color": "crimson", "lw": 1.6})
+        ax.text(x, y - 0.18, f"{score:.2f}", color="crimson", fontsize=7, ha="center", va="top")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"{amap.affordance}: {len(amap.skeletons)} places, {len(amap.positives):,} poses above the threshold")
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return Path(path)

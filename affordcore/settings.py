@@ -53,6 +53,12 @@ class GravitySettings(BaseModel):
     seed: int = 0
 
 
+class MapSettings(BaseModel):
+    nms_radius: float = Field(0.45, gt=0, description="one skeleton per place: cells within this distance of a better one are suppressed (m)")
+    max_points: int = Field(5_000_000, ge=1000, description="a larger cloud is thinned (with a warning) to about this many points")
+    thin_voxel: float = Field(0.01, gt=0, description="voxel size the first thinning pass of a huge cloud uses (m); doubled until it fits")
+
+
 class Settings(BaseSettings):
     """All tunables of affordmap. Defaults follow DESIGN.md (10 cm voxels and grid, 63 orientations)."""
 
@@ -63,6 +69,7 @@ class Settings(BaseSettings):
     grid: GridSettings = GridSettings()
     features: FeatureSettings = FeatureSettings()
     gravity: GravitySettings = GravitySettings()
+    map: MapSettings = MapSettings()
     skeleton_dirs: list[Path] = Field(
         default_factory=list,
         description="extra folders of skeleton files (<affordance>.json); a file here overrides the built-in one of the same name",

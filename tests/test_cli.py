@@ -130,14 +130,3 @@ def test_skeletons_list_names_every_affordance():
     assert result.returncode == 0
     for skeleton in all_skeletons():
         assert skeleton.affordance in result.stdout
-
-
-@pytest.mark.slow
-def test_demo_runs_on_the_built_in_room(tmp_path):
-    result = afford("demo", "--out", str(tmp_path), "--quiet")
-    assert result.returncode == 0, result.stderr
-    assert (tmp_path / "example-room.ply").stat().st_size > 1_000_000
-    assert (tmp_path / "fields.png").read_bytes()[:4] == b"\x89PNG"
-    for skeleton in all_skeletons():
-        assert skeleton.affordance in result.stdout
-    assert "up = input +z" in result.stdout

@@ -8,6 +8,7 @@ model against a feature layout other than its own is a `ModelError`, not a silen
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -16,6 +17,7 @@ import numpy as np
 
 from ..features import FeatureLayout
 from ..jsonfile import read_json
+from ..skeleton import Skeleton
 
 FORMAT = "affordance-model/1"
 
@@ -38,6 +40,17 @@ class AffordanceModel:
     grid: dict = field(default_factory=dict)  # step, theta_step, n_theta, z levels
     training: dict = field(default_factory=dict)  # rooms and class counts
     validation: dict = field(default_factory=dict)  # precision, recall, f1
+
+    @property
+    def id(self) -> str:
+        """affordance/learner/hash of the weights: names exactly this model in the maps it makes."""
+        digest = hashlib.sha256(np.asarray(self.weights, dtype=np.float64).tobytes() + repr((self.bias, self.threshold)).encode())
+        return f"{self.affordance}/{self.learner}/{digest.hexdigest()[:12]}"
+
+    def as_skeleton(self) -> Skeleton:
+        """The skeleton the model was trained with (maps place it, not whatever skeleton file is installed now)."""
+        return Skeleton(self.affordance, np.asarray(self.skeleton["joints"], dtype=np.float64), float(self.skeleton["torso_height"]),
+                        source=self.skeleton.get("source", ""))
 
     def decision(self, X: np.ndarray) -> np.ndarray:
         return X @ self.weights.astype(X.dtype, copy=False) + self.bias

@@ -1,0 +1,77 @@
+"""Scores of every pose of a grid under a linear model, without materialising a single feature vector.
+
+A linear model's score is w . f + b, and every feature is a bilinear read of a field at an offset fixed per
+(z, theta) slab (`features.py`). So the weights can be applied to the fields first:
+
+* joints: w_dist,j D_j + w_coll,j O_j is one plane per joint, read once at the joint's offset;
+* the normal cube: a cell's normal enters in the skeleton frame, n . (R_theta w) with R_theta a turn about z,
+  which is cos(theta) (w_x n_x + w_y n_y) + sin(theta) (w_x n_y - w_y n_x) + w_z n_z. The three planes in
+  brackets, summed over the cell's heights, do not depend on theta: they are computed once per z level and
+  cell column, and each slab combines them and reads them at its rotated sample offsets.
+
+Per slab that is (15 + samples) bilinear reads of one plane each, against (30 + 3 x cells) feature columns
+written when features are materialised: the whole grid's scores cost about as much as one slab's features.
+Equal to `compute_features(...) @ w + b` up to float32 rounding (tests/test_inference.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .features import FeatureLayout, _SlabSampler
+from .fields import SceneFields
+from .grid import PoseGrid
+from .skeleton import JOINTS, Skeleton, rotation_z
+
+
+def score_poses(fields: SceneFields, skeleton: Skeleton, grid: PoseGrid, layout: FeatureLayout,
+                weights: np.ndarray, bias: float) -> np.ndarray:
+    """w . f + b of every pose, shaped like the grid (z, theta, x, y), float32."""
+    weights = np.asarray(weights, dtype=np.float64)
+    if weights.shape != (layout.n_features,):
+        raise ValueError(f"the model has {weights.shape[0]} weights; the feature layout has {layout.n_features} features")
+    sampler = _SlabSampler(fields, grid, layout)
+    nz, nt, nx, ny = grid.shape
+    n_joints, cells, per_cell, n_s = len(JOINTS), layout.cells_per_axis, layout.samples_per_cell, layout.samples_per_axis
+    w_dist, w_coll = weights[:n_joints], weights[n_joints:2 * n_joints]
+    w_cube = weights[2 * n_joints:].reshape(cells * cells, cells, 3)  # (cell column i*cells+j, height k, axis)
+    # which cell column each sample column (a, b) of the n_s x n_s sample lattice falls in
+    a, b = np.divmod(np.arange(n_s * n_s), n_s)
+    column_of_sample = (a // per_cell) * cells + b // per_cell
+    scores = np.empty(grid.shape, dtype=np.float32)
+    for iz in range(nz):
+        level = sampler.level(grid.z[iz], skeleton)
+        joint_planes = (level["distance"] * w_dist.astype(np.float32) + level["occupancy"] * w_coll.astype(np.float32))
+        n = level["normals"]  # (X, Y, cells in z, 3), world frame
+        along = np.einsum("xykc,qkc->qxy", n[..., :2], w_cube[..., :2], optimize=True)  # w_x n_x + w_y n_y
+        across = np.einsum("xyk,qk->qxy", n[..., 1], w_cube[..., 0]) - np.einsum("xyk,qk->qxy", n[..., 0], w_cube[..., 1])
+        vertical = np.einsum("xyk,qk->qxy", n[..., 2], w_cube[..., 2])
+        for it in range(nt):
+            theta = float(grid.theta[it])
+            cube_planes = (np.cos(theta) * along + np.sin(theta) * across + vertical).astype(np.float32)
+            cube_planes *= np.float32(1.0 / per_cell**2)  # a cell's normal is the mean of its sample columns
+            scores[iz, it] = bias + _slab_scores(sampler, skeleton, theta, joint_planes, cube_planes, column_of_sample)
+    return scores
+
+
+def _slab_scores(sampler: _SlabSampler, skeleton: Skeleton, theta: float, joint_planes: np.ndarray,
+                 cube_planes: np.ndarray, column_of_sample: np.ndarray) -> np.ndarray:
+    rotation = rotation_z(theta)
+    joint_xy = (skeleton.joints @ rotation.T)[:, :2]
+    axis = sampler.layout.sample_positions()
+    sample_xy = np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2) @ rotation[:2, :2].T
+    total = np.zeros((sampler.nx, sampler.ny), dtype=np.float32)
+    term = np.empty_like(total)
+    for j, xy in enumerate(joint_xy):
+        _add_bilinear(total, term, joint_planes[:, :, j], sampler, xy)
+    for s, xy in enumerate(sample_xy):
+        _add_bilinear(total, term, cube_planes[column_of_sample[s]], sampler, xy)
+    return total
+
+
+def _add_bilinear(total: np.ndarray, term: np.ndarray, plane: np.ndarray, sampler: _SlabSampler, xy) -> None:
+    """total += plane read bilinearly at every pose of the slab shifted by xy (metres)."""
+    stride, nx, ny = sampler.stride, sampler.nx, sampler.ny
+    for cu, cv, weight in sampler.corners(*xy):
+        np.multiply(plane[cu:cu + (nx - 1) * stride + 1:stride, cv:cv + (ny - 1) * stride + 1:stride], np.float32(weight), out=term)
+        total += term

@@ -1,0 +1,137 @@
+"""`afford map` and `afford demo`: the three outputs from a cloud, in the world frame, and clear errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from affordcore.example import example_room
+from affordcore.features import FeatureLayout
+from affordcore.learn.model import load_model
+from affordcore.outputs import shipped_models, thin_huge_cloud
+from affordcore.recording import recorded_entities
+from affordcore.scene import Cloud, load_cloud, save_cloud
+from affordcore.settings import MapSettings, Settings
+
+AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")
+
+
+def afford(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "affordcore.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=600, env={**os.environ, **(env or {})})
+
+
+@pytest.fixture(scope="module")
+def example(tmp_path_factory):
+    path = tmp_path_factory.mktemp("room") / "example.ply"
+    save_cloud(path, example_room())
+    return path
+
+
+@pytest.fixture(scope="module")
+def mapped(example, tmp_path_factory):
+    out = tmp_path_factory.mktemp("map")
+    result = afford("map", example, "--out", out, "--quiet")
+    assert result.returncode == 0, result.stderr
+    return out, result
+
+
+def test_every_affordance_has_a_model_for_the_running_layout():
+    layout = FeatureLayout.from_settings(Settings().features, Settings().voxel)
+    assert set(shipped_models()) == set(AFFORDANCES)
+    for path in shipped_models().values():
+        load_model(path, layout)  # raises if the shipped model no longer matches the code
+
+
+def test_map_writes_json_png_and_a_verified_recording(mapped):
+    out, _ = mapped
+    for affordance in AFFORDANCES:
+        document = json.loads((out / f"{affordance}.json").read_text())
+        assert document["affordance"] == affordance and document["model"].startswith(affordance + "/")
+        assert np.array(document["world_from_input"]).shape == (4, 4)
+        grid = document["grid"]
+        assert grid["step"] == pytest.approx(0.1) and grid["n_theta"] == 63 and len(grid["z"]) == 3
+        scores = [p["score"] for p in document["positives"]]
+        assert all(s > document["threshold"] - 1e-4 for s in scores) and scores == sorted(scores, reverse=True)
+        for skeleton in document["skeletons"]:
+            assert np.array(skeleton["joints"]).shape == (15, 3) and skeleton["score"] > document["threshold"] - 1e-4
+        assert (out / f"{affordance}.png").stat().st_size > 20_000
+    verify = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(out / "map.rrd")], capture_output=True, text=True)
+    assert verify.returncode == 0, verify.stderr
+    entities = recorded_entities(out / "map.rrd")
+    assert "/world/cloud" in entities
+    for affordance in AFFORDANCES:
+        assert {f"/world/{affordance}/confidence", f"/world/{affordance}/skeletons"} <= entities
+
+
+def test_the_example_sofa_is_found(mapped):
+    """The built-in room's sofa (x 0.05-0.95, y 1.2-3.4, facing +x) must hold sitting-relaxing skeletons."""
+    out, _ = mapped
+    skeletons = json.loads((out / "sitting-relaxing.json").read_text())["skeletons"]
+    on_sofa = [s for s in skeletons if 0.2 < s["x"] < 1.0 and 1.3 < s["y"] < 3.3 and np.cos(s["theta"]) > 0.7]
+    assert len(on_sofa) >= 2
+
+
+def test_world_from_input_maps_the_input_cloud_to_the_world(example, tmp_path):
+    tilted = load_cloud(example)
+    angle = np.deg2rad(90)  # the room stored y-up, as many scanners write it
+    rotation = np.array([[1, 0, 0], [0, np.cos(angle), -np.sin(angle)], [0, np.sin(angle), np.cos(angle)]])
+    path = tmp_path / "y-up.ply"
+    save_cloud(path, Cloud(tilted.points @ rotation.T + [0.3, 1.0, -0.2]))
+    result = afford("map", path, "--out", tmp_path / "out", "-a", "sitting-relaxing", "--quiet")
+    assert result.returncode == 0, result.stderr
+    document = json.loads((tmp_path / "out" / "sitting-relaxing.json").read_text())
+    world_from_input = np.array(document["world_from_input"])
+    points = load_cloud(path).points @ world_from_input[:3, :3].T + world_from_input[:3, 3]
+    assert abs(np.percentile(points[:, 2], 1)) < 0.02  # the floor at z = 0
+    assert np.percentile(points[:, 2], 99.9) > 2.0  # and up is up
+
+
+@pytest.mark.parametrize("case, message", [
+    ("empty", "empty file"),
+    ("no-floor", "floor"),
+    ("other-layout", "feature layout"),
+    ("unknown-affordance", "no shipped model for sitting-upside-down"),
+])
+def test_bad_input_is_a_clear_error(case, message, example, tmp_path):
+    args = [example]
+    env = {}
+    if case == "empty":
+        (tmp_path / "empty.xyz").write_text("")
+        args = [tmp_path / "empty.xyz"]
+    elif case == "no-floor":
+        rng = np.random.default_rng(0)
+        sphere = rng.normal(size=(20000, 3))
+        save_cloud(tmp_path / "ball.ply", Cloud(sphere / np.linalg.norm(sphere, axis=1, keepdims=True) + 3.0))
+        args = [tmp_path / "ball.ply"]
+    elif case == "other-layout":
+        env = {"AFFORD_FEATURES__CELL_SIZE": "0.5"}
+    else:
+        args += ["-a", "sitting-upside-down"]
+    result = afford("map", *args, "--out", tmp_path / "out", "--quiet", env=env)
+    assert result.returncode == 2 and result.stderr.startswith("error: ") and message in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_a_huge_cloud_is_thinned_with_a_warning():
+    cloud = example_room()
+    thinned, warning = thin_huge_cloud(cloud, MapSettings(max_points=40_000))
+    assert len(thinned) <= 40_000 and len(thinned) > 10_000 and "thinned" in warning
+    same, none = thin_huge_cloud(cloud, MapSettings())
+    assert same is cloud and none is None
+    # the thinned cloud keeps the room's extent
+    np.testing.assert_allclose(thinned.points.min(axis=0), cloud.points.min(axis=0), atol=0.05)
+
+
+@pytest.mark.slow
+def test_demo_maps_the_example_room(tmp_path):
+    result = afford("demo", "--out", tmp_path / "demo", "--quiet")
+    assert result.returncode == 0, result.stderr
+    assert all((tmp_path / "demo" / f"{a}.json").exists() for a in AFFORDANCES)
+    assert "map.rrd" in result.stdout and "rerun " in result.stdout
+    assert (tmp_path / "demo" / "example-room.ply").stat().st_size > 1_000_000 and "up = input +z" in result.stdout

@@ -1,0 +1,57 @@
+"""Affordance maps from scores: positives above the threshold, the best over theta and z, one skeleton per place."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from affordcore.grid import PoseGrid
+from affordcore.maps import build_map
+from affordcore.skeleton import get_skeleton
+
+
+def _grid() -> PoseGrid:
+    return PoseGrid(np.arange(20) * 0.1 + 0.05, np.arange(10) * 0.1 + 0.05, np.array([0.5, 0.6]), np.arange(8) * np.pi / 4)
+
+
+def _bump(grid: PoseGrid, x: float, y: float, iz: int, it: int, height: float) -> np.ndarray:
+    """Scores peaking at (x, y) in slab (iz, it), falling by 1 per 0.1 m."""
+    xx, yy = np.meshgrid(grid.x, grid.y, indexing="ij")
+    scores = np.full(grid.shape, -5.0)
+    scores[iz, it] = height - np.hypot(xx - x, yy - y) / 0.1
+    return scores
+
+
+def test_one_skeleton_per_place_at_its_best_pose():
+    grid, skeleton = _grid(), get_skeleton("sitting-relaxing")
+    scores = np.maximum(_bump(grid, 0.45, 0.45, 1, 2, 3.0), _bump(grid, 1.55, 0.55, 0, 5, 2.0))
+    result = build_map("sitting-relaxing", scores, grid, skeleton, threshold=0.0)
+    assert len(result.skeletons) == 2  # two places, though dozens of poses score above the threshold
+    assert len(result.positives) > 10 and np.all(np.diff(result.positives[:, 4]) <= 0)
+    (x1, y1, z1, t1, s1), (x2, y2, z2, t2, s2) = result.skeletons
+    assert (x1, y1, z1, t1, s1) == (0.45, 0.45, 0.6, np.pi / 2, 3.0)
+    assert (x2, y2, z2) == (1.55, 0.55, 0.5) and np.isclose(t2, 5 * np.pi / 4) and np.isclose(s2, 2.0)
+    assert result.joints.shape == (2, 15, 3)
+    np.testing.assert_allclose(result.joints[0].mean(axis=0)[:2], [0.45, 0.45] + (skeleton.joints @ _rz(np.pi / 2).T).mean(axis=0)[:2], atol=1e-9)
+    # the confidence map is the best over theta and z, and remembers which theta
+    assert result.confidence.shape == (20, 10) and result.confidence[4, 4] == 3.0 and result.best_theta[4, 4] == np.pi / 2
+
+
+def test_nothing_above_the_threshold_gives_empty_maps_and_valid_json():
+    grid = _grid()
+    result = build_map("x", np.full(grid.shape, -1.0), grid, get_skeleton("standing-working"), threshold=0.0)
+    assert len(result.skeletons) == 0 and len(result.positives) == 0
+    document = result.to_json("model-id", np.eye(4))
+    assert document["skeletons"] == [] and document["positives"] == [] and document["world_from_input"][3] == [0, 0, 0, 1]
+
+
+def test_json_holds_the_grid_and_every_positive():
+    grid = _grid()
+    result = build_map("a", _bump(grid, 1.0, 0.5, 0, 0, 1.0), grid, get_skeleton("sitting-working"), threshold=0.0)
+    document = result.to_json("m", np.eye(4))
+    assert document["grid"]["nx"] == 20 and document["grid"]["n_theta"] == 8
+    assert len(document["positives"]) == len(result.positives) and set(document["skeletons"][0]) == {"x", "y", "z", "theta", "score", "joints"}
+
+
+def _rz(theta: float) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
