@@ -41,7 +41,8 @@ def score_poses(fields: SceneFields, skeleton: Skeleton, grid: PoseGrid, layout:
     scores = np.empty(grid.shape, dtype=np.float32)
     for iz in range(nz):
         level = sampler.level(grid.z[iz], skeleton)
-        joint_planes = (level["distance"] * w_dist.astype(np.float32) + level["occupancy"] * w_coll.astype(np.float32))
+        joint_planes = level["distance"] * w_dist.astype(np.float32) + level["occupancy"] * w_coll.astype(np.float32)
+        joint_planes = np.ascontiguousarray(np.moveaxis(joint_planes, 2, 0))  # (joint, X, Y): contiguous reads
         n = level["normals"]  # (X, Y, cells in z, 3), world frame
         along = np.einsum("xykc,qkc->qxy", n[..., :2], w_cube[..., :2], optimize=True)  # w_x n_x + w_y n_y
         across = np.einsum("xyk,qk->qxy", n[..., 1], w_cube[..., 0]) - np.einsum("xyk,qk->qxy", n[..., 0], w_cube[..., 1])
@@ -60,18 +61,22 @@ def _slab_scores(sampler: _SlabSampler, skeleton: Skeleton, theta: float, joint_
     joint_xy = (skeleton.joints @ rotation.T)[:, :2]
     axis = sampler.layout.sample_positions()
     sample_xy = np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2) @ rotation[:2, :2].T
-    total = np.zeros((sampler.nx, sampler.ny), dtype=np.float32)
-    term = np.empty_like(total)
+    reads: dict[tuple[int, int, int], float] = {}  # (plane, x index, y index) -> weight
     for j, xy in enumerate(joint_xy):
-        _add_bilinear(total, term, joint_planes[:, :, j], sampler, xy)
+        for cu, cv, weight in sampler.corners(*xy):
+            reads[(j, cu, cv)] = reads.get((j, cu, cv), 0.0) + weight
+    # the samples of one cell column read the same plane at offsets a voxel apart: their bilinear corners
+    # overlap, so summing weights per corner first halves the reads (2 x 2 samples: 9 corners, not 16)
+    n_joints = len(joint_planes)
     for s, xy in enumerate(sample_xy):
-        _add_bilinear(total, term, cube_planes[column_of_sample[s]], sampler, xy)
-    return total
-
-
-def _add_bilinear(total: np.ndarray, term: np.ndarray, plane: np.ndarray, sampler: _SlabSampler, xy) -> None:
-    """total += plane read bilinearly at every pose of the slab shifted by xy (metres)."""
+        for cu, cv, weight in sampler.corners(*xy):
+            key = (n_joints + int(column_of_sample[s]), cu, cv)
+            reads[key] = reads.get(key, 0.0) + weight
     stride, nx, ny = sampler.stride, sampler.nx, sampler.ny
-    for cu, cv, weight in sampler.corners(*xy):
-        np.multiply(plane[cu:cu + (nx - 1) * stride + 1:stride, cv:cv + (ny - 1) * stride + 1:stride], np.float32(weight), out=term)
+    total = np.zeros((nx, ny), dtype=np.float32)
+    term = np.empty_like(total)
+    for (plane, cu, cv), weight in reads.items():
+        field = joint_planes[plane] if plane < n_joints else cube_planes[plane - n_joints]
+        np.multiply(field[cu:cu + (nx - 1) * stride + 1:stride, cv:cv + (ny - 1) * stride + 1:stride], np.float32(weight), out=term)
         total += term
+    return total

@@ -46,21 +46,25 @@ def plot_fields(fields: SceneFields, path: str | Path, slice_height: float = 0.4
     return path
 
 
-def plot_map(points: np.ndarray, amap, path: str | Path, max_points: int = 200_000) -> Path:
-    """Plan view of one affordance map: the cloud from above (grey, darker = higher), the confidence map as
-    filled contours above the model's threshold, and each skeleton of the skeleton map as a dot with an arrow
-    along its facing, labelled with its score."""
+def plot_map(points: np.ndarray, amap, path: str | Path, cell: float = 0.05) -> Path:
+    """Plan view of one affordance map: the cloud from above (the highest point per 5 cm cell, darker =
+    higher), the confidence map as filled contours above the model's threshold, and each skeleton of the
+    skeleton map as a dot with an arrow along its facing, labelled with its score."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    if len(points) > max_points:  # a plan view needs no more; a fixed stride keeps it reproducible
-        points = points[:: int(np.ceil(len(points) / max_points))]
     grid = amap.grid
-    figure, ax = plt.subplots(figsize=(9, 9 * max(0.4, np.ptp(points[:, 1]) / max(np.ptp(points[:, 0]), 1e-6))), constrained_layout=True)
-    order = np.argsort(points[:, 2])
-    ax.scatter(points[order, 0], points[order, 1], c=points[order, 2], cmap="Greys", s=0.3, linewidths=0, vmin=-0.5, vmax=2.5)
+    low, high = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
+    shape = np.ceil((high - low) / cell).astype(int) + 1
+    index = np.floor((points[:, :2] - low) / cell).astype(int)
+    top = np.full(shape, np.nan)
+    order = np.argsort(points[:, 2])  # written lowest first, so each cell ends with its highest point
+    top[index[order, 0], index[order, 1]] = points[order, 2]
+    figure, ax = plt.subplots(figsize=(9, 9 * max(0.4, shape[1] / shape[0])), constrained_layout=True)
+    ax.imshow(top.T, origin="lower", extent=(low[0], low[0] + shape[0] * cell, low[1], low[1] + shape[1] * cell),
+              cmap="Greys", vmin=-0.5, vmax=2.5, interpolation="nearest")
     confidence = amap.confidence.T  # rows y, columns x
     top = float(np.max(confidence))
     if top > amap.threshold:

@@ -1,0 +1,116 @@
+"""Cloud in, affordance maps out: where the time goes, for all three affordances of a 10 m x 10 m room.
+
+The room of bench_features.py (walls, door, sofas, tables, desks, counters, shelves; 100 x 100 x 3 x 63 =
+1.89 million poses per affordance), mapped with the shipped models. Stages, each the median of the repeats:
+gravity alignment, voxel fields, scoring every pose (the linear model applied to the fields, no features
+materialised), skeleton / confidence maps, and writing the JSON, PNG and Rerun outputs. Side by side, one
+affordance scored the other way (materialise every feature vector, then w . f), checked equal.
+
+    .venv/bin/python benchmarks/bench_map.py             # about 2 minutes on 2 cores
+    .venv/bin/python benchmarks/bench_map.py --repeats 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_features import POINTS_PER_M2, SEED, room_boxes  # noqa: E402
+
+from affordcore.example import box_surface_points  # noqa: E402
+from affordcore.features import iter_features  # noqa: E402
+from affordcore.gravity import align_to_gravity  # noqa: E402
+from affordcore.inference import score_poses  # noqa: E402
+from affordcore.learn.model import load_model  # noqa: E402
+from affordcore.maps import build_map  # noqa: E402
+from affordcore.outputs import shipped_models, write_map_outputs  # noqa: E402
+from affordcore.pipeline import prepare_scene  # noqa: E402
+from affordcore.scene import Cloud  # noqa: E402
+from affordcore.settings import Settings  # noqa: E402
+
+
+def room_cloud(side: float = 10.0) -> Cloud:
+    rng = np.random.default_rng(SEED)
+    points = np.concatenate([box_surface_points(low, high, POINTS_PER_M2, rng) for low, high in room_boxes(side, rng)])
+    return Cloud(points + rng.normal(scale=0.003, size=points.shape), source="10 m benchmark room")
+
+
+def one_run(cloud: Cloud, settings: Settings, models) -> dict[str, float]:
+    seconds = {}
+    start = time.perf_counter()
+    alignment = align_to_gravity(cloud.points, "auto", settings.gravity)
+    seconds["gravity alignment (auto: floor search over 3 axes)"] = time.perf_counter() - start
+    start = time.perf_counter()
+    scene = prepare_scene(cloud.transformed(alignment.world_from_input), settings, "none")
+    seconds["voxel fields (occupancy, distance, normals)"] = time.perf_counter() - start
+    maps = {}
+    for model in models:
+        skeleton = model.as_skeleton()
+        grid = scene.pose_grid(skeleton, settings)
+        start = time.perf_counter()
+        scores = score_poses(scene.fields, skeleton, grid, scene.layout, model.weights, model.bias)
+        seconds[f"score {model.affordance} ({grid.size:,} poses)"] = time.perf_counter() - start
+        start = time.perf_counter()
+        maps[model.affordance] = build_map(model.affordance, scores, grid, skeleton, model.threshold, settings.map.nms_radius)
+        seconds["skeleton and confidence maps"] = seconds.get("skeleton and confidence maps", 0.0) + time.perf_counter() - start
+    with tempfile.TemporaryDirectory() as out:
+        start = time.perf_counter()
+        write_map_outputs(scene, maps, models, Path(out), Path(out) / "map.rrd")
+        seconds["JSON + PNG + Rerun outputs"] = time.perf_counter() - start
+    seconds["cloud in to maps computed (no outputs)"] = sum(v for k, v in seconds.items() if not k.startswith("JSON"))
+    return seconds, scene
+
+
+def materialised(scene, model, settings) -> tuple[float, float]:
+    """Seconds to score by features @ w, and the largest difference from score_poses."""
+    skeleton = model.as_skeleton()
+    grid = scene.pose_grid(skeleton, settings)
+    start = time.perf_counter()
+    scores = np.empty(grid.size, dtype=np.float32)
+    weights = model.weights.astype(np.float32)
+    for chunk in iter_features(scene.fields, skeleton, grid, scene.layout, settings.features.chunk_mb, reuse_buffer=True):
+        scores[chunk.start:chunk.stop] = chunk.values @ weights + model.bias
+    seconds = time.perf_counter() - start
+    fast = score_poses(scene.fields, skeleton, grid, scene.layout, model.weights, model.bias).ravel()
+    return seconds, float(np.max(np.abs(fast - scores)) / max(1e-9, float(np.max(np.abs(scores)))))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    settings = Settings()
+    models = [load_model(path) for path in shipped_models().values()]
+    cloud = room_cloud()
+    import open3d  # noqa: F401  (import cost is not the pipeline's)
+    import rerun  # noqa: F401
+
+    runs, cpu = [], []
+    for _ in range(args.repeats):
+        cpu_start, wall_start = time.process_time(), time.perf_counter()
+        seconds, scene = one_run(cloud, settings, models)
+        cpu.append((time.process_time() - cpu_start) / (time.perf_counter() - wall_start))
+        runs.append(seconds)
+    print(f"{len(cloud):,} points, {os.cpu_count()} cores, {args.repeats} repeats, cpu/wall {min(cpu):.2f}-{max(cpu):.2f} "
+          f"(2.0 would be both cores busy; far below 1 means a contended machine)")
+    print("| stage | seconds (median) |\n|---|---:|")
+    for stage in runs[0]:
+        print(f"| {stage} | {statistics.median(r[stage] for r in runs):.2f} |")
+    slow, difference = materialised(scene, models[0], settings)
+    fast = statistics.median(r[next(k for k in r if k.startswith(f"score {models[0].affordance}"))] for r in runs)
+    print(f"\n{models[0].affordance}: features materialised then w . f: {slow:.2f} s; applied to the fields: {fast:.2f} s "
+          f"({slow / fast:.1f}x); largest difference {difference:.1e} of the largest score")
+    print(f"peak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:,.0f} MB (the whole process)")
+
+
+if __name__ == "__main__":
+    main()
