@@ -46,10 +46,11 @@ def plot_fields(fields: SceneFields, path: str | Path, slice_height: float = 0.4
     return path
 
 
-def plot_map(points: np.ndarray, amap, path: str | Path, cell: float = 0.05) -> Path:
+def plot_map(points: np.ndarray, amap, path: str | Path, cell: float = 0.05, labels=None) -> Path:
     """Plan view of one affordance map: the cloud from above (the highest point per 5 cm cell, darker =
     higher), the confidence map as filled contours above the model's threshold, and each skeleton of the
-    skeleton map as a dot with an arrow along its facing, labelled with its score."""
+    skeleton map as a dot with an arrow along its facing, labelled with its score. Given a `LabelSet`, the
+    affordance's ground-truth labels are drawn too (orange, with their facing)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -76,6 +77,12 @@ def plot_map(points: np.ndarray, amap, path: str | Path, cell: float = 0.05) -> 
         ax.annotate("", (x + 0.35 * np.cos(theta), y + 0.35 * np.sin(theta)), (x, y),
                     arrowprops={"arrowstyle": "->", "color": "crimson", "lw": 1.6})
         ax.text(x, y - 0.18, f"{score:.2f}", color="crimson", fontsize=7, ha="center", va="top")
+    for label in (labels.of(amap.affordance) if labels is not None else []):
+        ends = np.array([label.at] if label.at is not None else [label.start, label.end])
+        ax.plot(ends[:, 0], ends[:, 1], "-o", color="darkorange", lw=3, ms=4, alpha=0.8)
+        middle = ends.mean(axis=0)
+        ax.annotate("", middle + 0.3 * np.array([np.cos(label.facing), np.sin(label.facing)]), middle,
+                    arrowprops={"arrowstyle": "->", "color": "darkorange", "lw": 1.6})
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")

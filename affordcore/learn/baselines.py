@@ -20,6 +20,9 @@ import numpy as np
 from .f1_argmax import f1_loss
 
 
+DUAL_EPOCHS = 300  # passes of dual coordinate descent for class-weighted fits
+
+
 @dataclass(frozen=True)
 class LinearModel:
     weights: np.ndarray
@@ -48,14 +51,24 @@ def tune_threshold(scores: np.ndarray, labels: np.ndarray) -> tuple[float, float
 def _svc(X: np.ndarray, y: np.ndarray, C: float, class_weight=None) -> LinearModel:
     """LinearSVC on standardised features, returned as a model of the raw features. Unstandardised room
     features (metres, fractions, normal components) left liblinear's solvers unconverged after 10 minutes
-    with a 1:1,300 class weight; standardised, the primal solver converges in about 20 Newton steps."""
+    with a 1:1,300 class weight. Even standardised, the primal (trust-region Newton) solver with such a weight
+    took over 10 minutes on 400k poses, so weighted fits use the dual coordinate-descent solver with a bounded
+    number of epochs (its cost is then at most `DUAL_EPOCHS` passes over the data)."""
+    import warnings
+
+    from sklearn.exceptions import ConvergenceWarning
     from sklearn.svm import LinearSVC
 
     mean = X.mean(axis=0, dtype=np.float64)
     scale = X.std(axis=0, dtype=np.float64)
     scale = np.where(scale > 1e-9, scale, 1.0)
     standard = ((X - mean.astype(X.dtype)) / scale.astype(X.dtype)).astype(np.float32, copy=False)
-    svc = LinearSVC(C=C, class_weight=class_weight, dual="auto", max_iter=5000).fit(standard, y)
+    if class_weight is None:
+        svc = LinearSVC(C=C, dual="auto", max_iter=5000).fit(standard, y)
+    else:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)  # bounded on purpose; see above
+            svc = LinearSVC(C=C, class_weight=class_weight, dual=True, max_iter=DUAL_EPOCHS).fit(standard, y)
     weights = svc.coef_.ravel().astype(np.float64) / scale  # w . (x - mean) / scale + b = (w / scale) . x + b'
     return LinearModel(weights, float(svc.intercept_[0]) - float(weights @ mean))
 

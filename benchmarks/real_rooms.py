@@ -1,0 +1,74 @@
+"""The shipped models on the real rooms with hand-made labels (../shared/data/rooms): the report of issue 5.
+
+For each room and each affordance it labels: pose-level precision / recall / F1 at the model's threshold
+(DESIGN.md, "Metrics"), the F1 an oracle threshold would reach on that room (how well the scores rank poses,
+apart from where the threshold sits), and place-level recall with the count of false skeletons. Figures of
+the maps with the labels go to docs/figures/real-rooms/. Needs ../shared beside the project.
+
+    .venv/bin/python benchmarks/real_rooms.py            # about a minute on 2 cores
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from affordcore.labels import ground_truth, load_labels, match_places
+from affordcore.learn.baselines import tune_threshold
+from affordcore.learn.model import load_model
+from affordcore.learn.train import metrics
+from affordcore.outputs import shipped_models
+from affordcore.pipeline import map_affordances, prepare_scene
+from affordcore.plots import plot_map
+from affordcore.scene import load_cloud
+from affordcore.settings import Settings
+
+ROOMS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "rooms"
+FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures" / "real-rooms"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--gravity", default="none", help="none: the rooms are z-up already; auto: find the floor as for any cloud")
+    parser.add_argument("--figures", type=Path, default=FIGURES)
+    args = parser.parse_args()
+    if not ROOMS.is_dir():
+        sys.exit(f"{ROOMS} not found: this report needs ../shared/data/rooms beside the project")
+    settings = Settings()
+    models = {name: load_model(path) for name, path in shipped_models().items()}
+    args.figures.mkdir(parents=True, exist_ok=True)
+    print("| room | affordance | labels | positive poses | P / R / F1 at the threshold | oracle-threshold F1 | places found | false skeletons |")
+    print("|---|---|---:|---:|---|---:|---:|---:|")
+    for cloud_path in sorted(ROOMS.glob("*.ply")):
+        labels = load_labels(cloud_path.with_name(cloud_path.stem + ".labels.json"))
+        scene = prepare_scene(load_cloud(cloud_path), settings, args.gravity)
+        chosen = [models[name] for name in labels.affordances if name in models]
+        maps = map_affordances(scene, chosen, settings)
+        short = cloud_path.stem.split("_")[0]
+        for model in chosen:
+            amap = maps[model.affordance]
+            truth = ground_truth(labels, model.affordance, amap.grid)
+            scored = truth.scored_mask().ravel()
+            y = np.where(truth.pose_mask().ravel()[scored], 1, -1)
+            scores = _scores(amap, scene, model, settings)[scored]
+            at = metrics(scores, y, model.threshold)
+            oracle = tune_threshold(scores, y)[1] if (y > 0).any() else 0.0
+            places = match_places(labels, model.affordance, amap.skeletons[:, [0, 1, 3]])
+            print(f"| {short} | {model.affordance} | {len(labels.of(model.affordance))} | {at['positives']:,} | "
+                  f"{at['precision']:.2f} / {at['recall']:.2f} / {at['f1']:.2f} | {oracle:.2f} | "
+                  f"{int(places.found.sum())} / {len(places.found)} | {int(places.false.sum())} |")
+            plot_map(scene.cloud.points, amap, args.figures / f"{short}-{model.affordance}.png", labels=labels)
+
+
+def _scores(amap, scene, model, settings) -> np.ndarray:
+    from affordcore.inference import score_poses
+
+    skeleton = model.as_skeleton()
+    return score_poses(scene.fields, skeleton, amap.grid, scene.layout, model.weights, model.bias).ravel()
+
+
+if __name__ == "__main__":
+    main()
