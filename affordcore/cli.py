@@ -356,7 +356,8 @@ def models_list() -> None:
 
 @models_app.command("rebuild")
 def models_rebuild(
-    learner: str = typer.Option("ssvm", "--learner", help="the learner the evaluation chose"),
+    learner: str = typer.Option("ssvm", "--learner", help="one learner for every affordance"),
+    evaluation: Optional[Path] = typer.Option(None, "--evaluation", help="an afford evaluate results.json: each affordance gets its best learner"),
     rooms: int = typer.Option(12, "--rooms", min=2, help="generated rooms to train on"),
     seed: int = typer.Option(1, "--seed", help="same seed, same models"),
     out: Optional[Path] = typer.Option(None, "--out", help="folder for the model files (default: the package's own)"),
@@ -364,10 +365,11 @@ def models_rebuild(
 ) -> None:
     """Retrain the default models from generated rooms, reproducibly."""
     with _user_errors():
-        from .learn.defaults import rebuild_default_models
+        from .learn.defaults import rebuild_default_models, winners
         from .outputs import MODELS_DIR
 
-        written = rebuild_default_models(out or MODELS_DIR, learner, rooms, seed, workers, on_step=typer.echo)
+        chosen = winners(evaluation) if evaluation else learner
+        written = rebuild_default_models(out or MODELS_DIR, chosen, rooms, seed, workers, on_step=typer.echo)
         typer.echo("written: " + ", ".join(str(p) for p in written))
 
 

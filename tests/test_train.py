@@ -125,3 +125,12 @@ def test_split_keeps_positives_on_both_sides():
         assert sorted(training + validation) == names
     lonely = {name: (5 if name == "room-3" else 0) for name in names}  # one room with positives: used for both
     assert split_rooms(names, 0, positives=lonely) == (names, names)
+
+
+def test_the_evaluation_picks_each_affordance_its_best_learner(tmp_path):
+    from affordcore.learn.defaults import winners
+
+    rows = [{"affordance": "a", "learner": "ssvm", "f1": 0.2}, {"affordance": "a", "learner": "dcm", "f1": 0.3},
+            {"affordance": "b", "learner": "ssvm", "f1": 0.5}, {"affordance": "b", "learner": "zsvm", "f1": 0.1}]
+    (tmp_path / "results.json").write_text(json.dumps({"results": rows}))
+    assert winners(tmp_path / "results.json") == {"a": "dcm", "b": "ssvm"}

@@ -17,8 +17,20 @@ from ..skeleton import skeleton_files
 ROOMS, SEED, KINDS, TRAIN_STEP = 12, 1, ("living", "office", "workshop"), 0.2
 
 
-def rebuild_default_models(out: Path, learner: str, rooms: int = ROOMS, seed: int = SEED, workers: int = 1,
-                           on_step: Callable[[str], None] | None = None) -> list[Path]:
+def winners(results_json: Path) -> dict[str, str]:
+    """{affordance: learner with the best mean F1} from an `afford evaluate` results.json."""
+    from ..jsonfile import read_json
+
+    best: dict[str, tuple[float, str]] = {}
+    for row in read_json(Path(results_json), ValueError).get("results", []):
+        if row["f1"] > best.get(row["affordance"], (-1.0, ""))[0]:
+            best[row["affordance"]] = (row["f1"], row["learner"])
+    return {affordance: learner for affordance, (_, learner) in best.items()}
+
+
+def rebuild_default_models(out: Path, learners: dict[str, str] | str, rooms: int = ROOMS, seed: int = SEED,
+                           workers: int = 1, on_step: Callable[[str], None] | None = None) -> list[Path]:
+    """`learners`: one learner for every affordance, or {affordance: learner} (say, from `winners`)."""
     from ..synth.dataset import SynthOptions, synthesize
     from .train import train
 
@@ -31,10 +43,11 @@ def rebuild_default_models(out: Path, learner: str, rooms: int = ROOMS, seed: in
         if on_step:
             on_step(f"{rooms} rooms generated")
         for affordance in sorted(skeleton_files(settings.skeleton_dirs)):
+            learner = learners if isinstance(learners, str) else learners.get(affordance, "ssvm")
             model = train(data, affordance, learner, settings, seed=seed)
             model.parameters["data"] = {"generator": "afford synth", "rooms": rooms, "seed": seed, "kinds": list(KINDS),
                                         "train_grid_step": TRAIN_STEP}
             written.append(model.save(out / f"{affordance}.model.json"))
             if on_step:
-                on_step(f"{affordance}: validation F1 {model.validation['f1']:.3f}")
+                on_step(f"{affordance} ({learner}): validation F1 {model.validation['f1']:.3f}")
     return written
