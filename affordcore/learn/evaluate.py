@@ -13,6 +13,7 @@ Features are computed once per room and affordance and held for all folds (25 cm
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -170,8 +171,6 @@ def _undersampled(examples: RoomExamples, ratio: int, rng: np.random.Generator) 
 
 def write_outputs(evaluation: Evaluation, out: str | Path) -> list[Path]:
     """results.json, results.md and the two figures; returns the paths written."""
-    import json
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "results.json", out / "results.md", out / "imbalance.png", out / "ssvm_iterations.png"]
@@ -182,11 +181,7 @@ def write_outputs(evaluation: Evaluation, out: str | Path) -> list[Path]:
     return paths
 
 
-PAPER = {  # DESIGN.md: Piyathilaka & Kodagoda's 12 real rooms (best baseline, structured SVM P / R / F1)
-    "sitting-relaxing": ("0.36 (zSVM)", "0.65 / 0.80 / 0.72"),
-    "standing-working": ("0.23 (focused)", "0.28 / 0.81 / 0.42"),
-    "sitting-working": ("0.52 (dcm)", "0.40 / 0.77 / 0.48"),
-}
+PAPER_RESULTS = Path(__file__).parents[1] / "data" / "paper_results.json"  # the paper's table (DESIGN.md)
 
 
 def results_markdown(evaluation: Evaluation) -> str:
@@ -210,11 +205,13 @@ def results_markdown(evaluation: Evaluation) -> str:
     lines += ["## Beside the paper (its 12 real rooms)", "",
               "| affordance | paper: best SVM baseline F1 | paper: structured SVM P / R / F1 | ours: best learner F1 | ours: ssvm P / R / F1 |",
               "|---|---|---|---|---|"]
+    paper_rows = json.loads(PAPER_RESULTS.read_text())["affordances"]
     for affordance in affordances:
         ours = [r for r in rows if r["affordance"] == affordance]
         best = max(ours, key=lambda r: r["f1"])
         ssvm = cell.get((affordance, "ssvm"))
-        paper = PAPER.get(affordance, ("-", "-"))
+        paper = paper_rows.get(affordance, {})
+        paper = (paper.get("best_baseline", "-"), paper.get("structured_svm", "-"))
         ssvm_text = "-" if ssvm is None else f"{ssvm['precision']:.2f} / {ssvm['recall']:.2f} / {ssvm['f1']:.2f}"
         lines.append(f"| {affordance} | {paper[0]} | {paper[1]} | {best['f1']:.2f} ({best['learner']}) | {ssvm_text} |")
     sweep = evaluation.sweep()

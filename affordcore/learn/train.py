@@ -62,7 +62,8 @@ def fit(learner: str, train: RoomExamples, validation: RoomExamples, params: dic
     if learner == "ssvm":
         result = train_ssvm(X, y, SSVMSettings(**params), validation=(validation.X, validation.y))
         best = result.best
-        return best.weights[:-1], float(best.weights[-1]), 0.0, {
+        weights = best.weights / len(y)  # in SVMperf's units (summed Psi): the same sign, scores of order one
+        return weights[:-1], float(weights[-1]), 0.0, {
             "iterations": len(result.iterations), "best_iteration": best.number, "converged": result.converged,
             "train_f1": [it.train_f1 for it in result.iterations], "validation_f1": [it.validation_f1 for it in result.iterations]}
     if learner == "linear-tuned":
