@@ -139,3 +139,21 @@ def orientation_signs(axis: np.ndarray, positions: np.ndarray, room_centre: np.n
     towards_centre = np.einsum("ij,ij->i", axis[:, :2], room_centre[:2] - positions[:, :2])
     sign = np.where(up_facing, np.sign(axis[:, 2]), np.sign(towards_centre))
     return np.where(sign == 0, 1.0, sign)
+
+
+def observed_floor(fields: SceneFields, x: np.ndarray, y: np.ndarray, margin: float) -> np.ndarray:
+    """(len(x), len(y)) bool: whether a floor voxel (z within one voxel of 0) holds points within `margin`
+    of each (x, y). Unscanned floor looks like free space to the other fields; a person's place is next to
+    floor the sensor saw (seats and desks hide the floor right under them, hence the margin)."""
+    from scipy import ndimage
+
+    lattice = fields.lattice
+    k0 = int(round(-lattice.origin[2] / lattice.resolution))
+    seen = fields.occupancy[:, :, max(0, k0 - 1):k0 + 2].max(axis=2) > 0
+    reach = int(round(margin / lattice.resolution))
+    if reach > 0:
+        dy, dx = np.mgrid[-reach:reach + 1, -reach:reach + 1]
+        seen = ndimage.binary_dilation(seen, dx**2 + dy**2 <= reach**2)
+    ix = np.clip(np.rint((x - lattice.origin[0]) / lattice.resolution).astype(int), 0, lattice.shape[0] - 1)
+    iy = np.clip(np.rint((y - lattice.origin[1]) / lattice.resolution).astype(int), 0, lattice.shape[1] - 1)
+    return seen[np.ix_(ix, iy)]

@@ -50,8 +50,11 @@ class AffordanceMap:
 
 
 def build_map(affordance: str, scores: np.ndarray, grid: PoseGrid, skeleton: Skeleton, threshold: float,
-              nms_radius: float = 0.45) -> AffordanceMap:
-    """The three outputs from the scores of every pose (shaped like the grid: z, theta, x, y)."""
+              nms_radius: float = 0.45, allowed: np.ndarray | None = None) -> AffordanceMap:
+    """The three outputs from the scores of every pose (shaped like the grid: z, theta, x, y); cells where
+    `allowed` (nx, ny) is False hold no positive and no skeleton (their confidence is float32's lowest)."""
+    if allowed is not None:
+        scores = np.where(allowed[None, None], scores, np.finfo(np.float32).min).astype(np.float32)
     nz, nt, nx, ny = grid.shape
     flat = scores.reshape(nz * nt, nx, ny)
     best = flat.argmax(axis=0)  # per (x, y): the best (z, theta) slab

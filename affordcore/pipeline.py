@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .features import FeatureLayout
-from .fields import SceneFields, compute_fields
+from .fields import SceneFields, compute_fields, observed_floor
 from .gravity import Alignment, align_to_gravity
 from .grid import PoseGrid
 from .scene import Cloud
@@ -77,7 +77,8 @@ def map_affordances(scene: PreparedScene, models: list, settings: Settings | Non
         skeleton = model.as_skeleton()
         grid = scene.pose_grid(skeleton, settings)
         scores = score_poses(scene.fields, skeleton, grid, scene.layout, model.weights, model.bias)
-        maps[model.affordance] = build_map(model.affordance, scores, grid, skeleton, model.threshold, settings.map.nms_radius)
+        allowed = observed_floor(scene.fields, grid.x, grid.y, settings.map.floor_margin) if settings.map.floor_margin >= 0 else None
+        maps[model.affordance] = build_map(model.affordance, scores, grid, skeleton, model.threshold, settings.map.nms_radius, allowed)
         if on_done:
             on_done(model.affordance)
     return maps

@@ -55,6 +55,7 @@ class GravitySettings(BaseModel):
 
 class MapSettings(BaseModel):
     nms_radius: float = Field(0.45, gt=0, description="one skeleton per place: cells within this distance of a better one are suppressed (m)")
+    floor_margin: float = Field(0.3, description="only cells within this distance of scanned floor are mapped (m); negative: map every cell")
     max_points: int = Field(5_000_000, ge=1000, description="a larger cloud is thinned (with a warning) to about this many points")
     thin_voxel: float = Field(0.01, gt=0, description="voxel size the first thinning pass of a huge cloud uses (m); doubled until it fits")
 

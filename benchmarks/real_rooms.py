@@ -64,10 +64,15 @@ def main() -> None:
 
 
 def _scores(amap, scene, model, settings) -> np.ndarray:
+    """Every pose's score as the map saw it (cells away from scanned floor never count as positive)."""
+    from affordcore.fields import observed_floor
     from affordcore.inference import score_poses
 
-    skeleton = model.as_skeleton()
-    return score_poses(scene.fields, skeleton, amap.grid, scene.layout, model.weights, model.bias).ravel()
+    scores = score_poses(scene.fields, model.as_skeleton(), amap.grid, scene.layout, model.weights, model.bias)
+    if settings.map.floor_margin >= 0:
+        allowed = observed_floor(scene.fields, amap.grid.x, amap.grid.y, settings.map.floor_margin)
+        scores = np.where(allowed[None, None], scores, -np.inf)
+    return scores.ravel()
 
 
 if __name__ == "__main__":

@@ -55,3 +55,26 @@ def test_json_holds_the_grid_and_every_positive():
 def _rz(theta: float) -> np.ndarray:
     c, s = np.cos(theta), np.sin(theta)
     return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+def test_cells_away_from_scanned_floor_hold_no_skeleton():
+    grid, skeleton = _grid(), get_skeleton("sitting-relaxing")
+    scores = np.maximum(_bump(grid, 0.45, 0.45, 1, 2, 3.0), _bump(grid, 1.55, 0.55, 0, 5, 2.0))
+    allowed = np.ones((20, 10), dtype=bool)
+    allowed[10:] = False  # the second place lies over floor nobody scanned
+    result = build_map("sitting-relaxing", scores, grid, skeleton, threshold=0.0, allowed=allowed)
+    assert len(result.skeletons) == 1 and result.skeletons[0][0] == 0.45
+    assert np.all(result.positives[:, 0] < 1.0)
+
+
+def test_observed_floor_is_the_scanned_floor_and_a_margin():
+    from affordcore.fields import compute_fields, observed_floor
+    from affordcore.settings import NormalSettings, VoxelSettings
+
+    rng = np.random.default_rng(0)
+    floor = np.column_stack([rng.uniform(0, 2, 20000), rng.uniform(0, 4, 20000), np.zeros(20000)])  # x 0-2 scanned
+    wall = np.column_stack([np.full(8000, 4.0), rng.uniform(0, 4, 8000), rng.uniform(0, 2.4, 8000)])  # x 2-4 not
+    fields = compute_fields(np.concatenate([floor, wall]), VoxelSettings(), NormalSettings())
+    x, y = np.array([0.55, 1.85, 2.25, 2.55, 3.05]), np.array([2.05])
+    np.testing.assert_array_equal(observed_floor(fields, x, y, 0.3)[:, 0], [True, True, True, False, False])
+    np.testing.assert_array_equal(observed_floor(fields, x, y, 0.0)[:, 0], [True, True, False, False, False])
