@@ -346,10 +346,9 @@ def plot_labels(
     """Top view of a room: the cloud coloured by height, each label as its segment or point in its
     affordance's colour with arrows along ``facing``, unlabelled regions hatched, and optionally the grid's
     footprint (dashed) and the (x, y) cells that are positive at some theta (shaded)."""
-    import matplotlib
+    from .plots import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch, Polygon
 

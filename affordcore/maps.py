@@ -26,6 +26,7 @@ class AffordanceMap:
     affordance: str
     grid: PoseGrid
     threshold: float
+    scores: np.ndarray  # (z, theta, x, y) every pose's score as mapped (float32's lowest where not allowed)
     confidence: np.ndarray  # (nx, ny) best score over theta and z
     best_theta: np.ndarray  # (nx, ny) radians
     best_z: np.ndarray  # (nx, ny) metres
@@ -77,4 +78,4 @@ def build_map(affordance: str, scores: np.ndarray, grid: PoseGrid, skeleton: Ske
     i, j = picked[:, 0], picked[:, 1]
     skeletons = np.column_stack([grid.x[i], grid.y[j], best_z[i, j], best_theta[i, j], confidence[i, j]]) if len(picked) else np.empty((0, 5))
     joints = place_joints(skeleton.joints, skeletons[:, :4]) if len(picked) else np.empty((0, len(skeleton.joints), 3))
-    return AffordanceMap(affordance, grid, float(threshold), confidence, best_theta, best_z, positives, skeletons, joints)
+    return AffordanceMap(affordance, grid, float(threshold), scores, confidence, best_theta, best_z, positives, skeletons, joints)

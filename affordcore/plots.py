@@ -9,13 +9,20 @@ import numpy as np
 from .fields import SceneFields
 
 
-def plot_fields(fields: SceneFields, path: str | Path, slice_height: float = 0.45) -> Path:
-    """Plan views of a room's fields: the height of the highest occupied voxel, and the distance field at
-    ``slice_height`` (seat height by default), with the floor footprint the pose grid covers."""
+def pyplot():
+    """matplotlib's pyplot on the Agg backend: every figure here goes to a file, no screen needed."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_fields(fields: SceneFields, path: str | Path, slice_height: float = 0.45) -> Path:
+    """Plan views of a room's fields: the height of the highest occupied voxel, and the distance field at
+    ``slice_height`` (seat height by default), with the floor footprint the pose grid covers."""
+    plt = pyplot()
 
     lattice = fields.lattice
     z = lattice.origin[2] + np.arange(lattice.shape[2]) * lattice.resolution
@@ -51,10 +58,7 @@ def plot_map(points: np.ndarray, amap, path: str | Path, cell: float = 0.05, lab
     higher), the confidence map as filled contours above the model's threshold, and each skeleton of the
     skeleton map as a dot with an arrow along its facing, labelled with its score. Given a `LabelSet`, the
     affordance's ground-truth labels are drawn too (orange, with their facing)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     grid = amap.grid
     low, high = points[:, :2].min(axis=0), points[:, :2].max(axis=0)

@@ -398,10 +398,9 @@ def plot_skeletons(skeletons: list[Skeleton], path: str | Path, members: dict[st
     """One row per skeleton: front (y-z, seen from the front) and side (x-z, seen from its right) views standing
     on the floor, left bones blue and right red, and faintly up to ``max_members`` frames of its cluster (each
     with its own proportions, at the model's torso height). One PNG."""
-    import matplotlib
+    from .plots import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from matplotlib.collections import LineCollection
 
     def segments(joints: np.ndarray, h: int, lift: float) -> np.ndarray:

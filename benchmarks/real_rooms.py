@@ -53,7 +53,7 @@ def main() -> None:
             truth = ground_truth(labels, model.affordance, amap.grid)
             scored = truth.scored_mask().ravel()
             y = np.where(truth.pose_mask().ravel()[scored], 1, -1)
-            scores = _scores(amap, scene, model, settings)[scored]
+            scores = amap.scores.ravel()[scored]  # as the map scored them (scanned floor only)
             at = metrics(scores, y, model.threshold)
             oracle = tune_threshold(scores, y)[1] if (y > 0).any() else 0.0
             places = match_places(labels, model.affordance, amap.skeletons[:, [0, 1, 3]])
@@ -61,18 +61,6 @@ def main() -> None:
                   f"{at['precision']:.2f} / {at['recall']:.2f} / {at['f1']:.2f} | {oracle:.2f} | "
                   f"{int(places.found.sum())} / {len(places.found)} | {int(places.false.sum())} |")
             plot_map(scene.cloud.points, amap, args.figures / f"{short}-{model.affordance}.png", labels=labels)
-
-
-def _scores(amap, scene, model, settings) -> np.ndarray:
-    """Every pose's score as the map saw it (cells away from scanned floor never count as positive)."""
-    from affordcore.fields import observed_floor
-    from affordcore.inference import score_poses
-
-    scores = score_poses(scene.fields, model.as_skeleton(), amap.grid, scene.layout, model.weights, model.bias)
-    if settings.map.floor_margin >= 0:
-        allowed = observed_floor(scene.fields, amap.grid.x, amap.grid.y, settings.map.floor_margin)
-        scores = np.where(allowed[None, None], scores, -np.inf)
-    return scores.ravel()
 
 
 if __name__ == "__main__":

@@ -120,18 +120,22 @@ def evaluate(data: str | Path, affordances: list[str], learners: list[str], k: i
         result.class_counts[affordance] = {"positives": positives, "negatives": total - positives,
                                            "ratio": (total - positives) / max(1, positives)}
         for f, test_rooms in enumerate(folds):
+            split = _split(examples, test_rooms, affordance, f, seed)  # stacked once, shared by every learner
             for learner in learners:
-                outcome = _run(examples, test_rooms, affordance, learner, f, None, (params or {}).get(learner, {}), seed)
+                outcome = _run(examples, split, affordance, learner, None, (params or {}).get(learner, {}), seed)
                 result.outcomes.append(outcome)
                 _tell(on_step, f"{affordance}: {learner}, fold {f + 1}/{k}: F1 {outcome.f1:.3f}")
+        split = _split(examples, folds[0], affordance, 0, seed) if ratios else None
         for ratio in ratios:
+            at_ratio = split if ratio is None else replace(
+                split, training=_undersampled(split.training, ratio, np.random.default_rng([seed, 0, ratio])))
             for learner in learners:
                 if ratio is None and learner != "undersample":  # fold 1's table run is the sweep's all-data point
                     table_run = next(o for o in result.outcomes if o.affordance == affordance and o.learner == learner
                                      and o.fold == 0 and not o.sweep)
                     result.outcomes.append(replace(table_run, sweep=True))
                     continue
-                outcome = _run(examples, folds[0], affordance, learner, 0, ratio, (params or {}).get(learner, {}), seed, sweep=True)
+                outcome = _run(examples, at_ratio, affordance, learner, ratio, (params or {}).get(learner, {}), seed, sweep=True)
                 result.outcomes.append(outcome)
                 _tell(on_step, f"{affordance}: {learner} at {'all data' if ratio is None else f'1:{ratio}'}: F1 {outcome.f1:.3f}")
     return result
@@ -142,25 +146,40 @@ def _tell(on_step, message: str) -> None:
         on_step(message)
 
 
-def _run(examples: dict[str, RoomExamples], test_rooms: list[str], affordance: str, learner: str, fold: int,
-         ratio: int | None, params: dict, seed: int, sweep: bool = False) -> Outcome:
+@dataclass
+class _Split:
+    """One fold's rooms and the stacked examples its learners train and validate on."""
+
+    fold: int
+    test_rooms: list[str]
+    validation_rooms: list[str]
+    training: RoomExamples
+    validation: RoomExamples
+
+
+def _split(examples: dict[str, RoomExamples], test_rooms: list[str], affordance: str, fold: int, seed: int) -> _Split:
     train_names = [name for name in examples if name not in test_rooms]
     fit_names, validation_names = split_rooms(train_names, seed + fold, positives={n: examples[n].positives for n in train_names})
-    training, validation = stack(examples, fit_names), stack(examples, validation_names)
-    if ratio is not None:
-        training = _undersampled(training, ratio, np.random.default_rng([seed, fold, ratio]))
-    if sweep and learner == "undersample":  # in the imbalance test the plain SVM trains at the test's ratio
-        params = {**params, "ratio": None if ratio is None else float(ratio)}
+    training = stack(examples, fit_names)
     if training.positives == 0:
         raise ValueError(f"fold {fold + 1}: the training rooms {', '.join(fit_names)} hold no {affordance} label; use fewer folds or more rooms")
+    return _Split(fold, test_rooms, validation_names, training, stack(examples, validation_names))
+
+
+def _run(examples: dict[str, RoomExamples], split: _Split, affordance: str, learner: str, ratio: int | None,
+         params: dict, seed: int, sweep: bool = False) -> Outcome:
+    """Train one learner on the split (its training set already at `ratio`) and score the fold's test rooms."""
+    if sweep and learner == "undersample":  # in the imbalance test the plain SVM trains at the test's ratio
+        params = {**params, "ratio": None if ratio is None else float(ratio)}
+    training = split.training
     start = time.perf_counter()
-    weights, bias, threshold, report = fit(learner, training, validation, params, seed)
-    report = {**report, "validation_rooms": validation_names}
+    weights, bias, threshold, report = fit(learner, training, split.validation, params, seed)
+    report = {**report, "validation_rooms": split.validation_rooms}
     seconds = time.perf_counter() - start
     w = np.append(weights, bias)  # test rooms scored one by one: no copy of their features
-    scores = np.concatenate([decision(examples[name].X, w) for name in test_rooms])
-    scored = metrics(scores, np.concatenate([examples[name].y for name in test_rooms]), threshold)
-    return Outcome(affordance, learner, fold, ratio, scored["precision"], scored["recall"], scored["f1"], seconds,
+    scores = np.concatenate([decision(examples[name].X, w) for name in split.test_rooms])
+    scored = metrics(scores, np.concatenate([examples[name].y for name in split.test_rooms]), threshold)
+    return Outcome(affordance, learner, split.fold, ratio, scored["precision"], scored["recall"], scored["f1"], seconds,
                    (len(training.y) - training.positives) / training.positives, sweep, report)
 
 
@@ -230,10 +249,9 @@ def results_markdown(evaluation: Evaluation) -> str:
 
 
 def plot_imbalance(evaluation: Evaluation, path: Path) -> None:
-    import matplotlib
+    from ..plots import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     sweep = evaluation.sweep()
     affordances = list(dict.fromkeys(o.affordance for o in evaluation.outcomes))
@@ -247,19 +265,13 @@ def plot_imbalance(evaluation: Evaluation, path: Path) -> None:
         ax.set_title(affordance)
         ax.set_xlabel("negatives per positive in training (rightmost: all data)")
         ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("F1 on the test rooms")
-    axes[0][-1].legend(fontsize=8)
-    fig.suptitle("Imbalance test: F1 against the training imbalance (fold 1)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, axes, "F1 on the test rooms", "Imbalance test: F1 against the training imbalance (fold 1)", path)
 
 
 def plot_ssvm_iterations(evaluation: Evaluation, path: Path) -> None:
-    import matplotlib
+    from ..plots import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     runs = [o for o in evaluation.outcomes if o.learner == "ssvm" and o.fold == 0 and not o.sweep]
     fig, axes = plt.subplots(1, max(1, len(runs)), figsize=(5 * max(1, len(runs)), 4), squeeze=False, sharey=True)
@@ -274,9 +286,16 @@ def plot_ssvm_iterations(evaluation: Evaluation, path: Path) -> None:
         ax.grid(alpha=0.3)
     if not runs:
         axes[0][0].text(0.5, 0.5, "the structured SVM was not evaluated", ha="center", va="center")
-    axes[0][0].set_ylabel("F1")
+    _save(fig, axes, "F1", "Structured SVM: F1 per iteration (fold 1)", path)
+
+
+def _save(fig, axes, ylabel: str, title: str, path: Path) -> None:
+    """One row of panels: the y label on the first, the legend on the last, the title over all."""
+    from ..plots import pyplot
+
+    axes[0][0].set_ylabel(ylabel)
     axes[0][-1].legend(fontsize=8)
-    fig.suptitle("Structured SVM: F1 per iteration (fold 1)")
+    fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
+    pyplot().close(fig)
