@@ -196,7 +196,7 @@ def _map_room(cloud_path: Path, out: Path, model_files: list[Path], affordances:
     typer.echo(f"{cloud_path}: {len(scene.cloud):,} points; {scene.alignment.describe()}")
     with _progress(quiet) as progress:
         task = progress.add_task("affordance maps", total=len(models))
-        maps = map_affordances(scene, models, settings, on_done=lambda name: progress.advance(task))
+        maps = map_affordances(scene.fields, scene.layout, models, settings, on_map=lambda *_: progress.advance(task))
     for amap in maps.values():
         typer.echo(summary_line(amap))
     written = write_map_outputs(scene, maps, models, out, rrd)
@@ -220,6 +220,167 @@ def demo(
         save_cloud(cloud_path, example_room())
         _map_room(cloud_path, out, [], [], "auto", out / "map.rrd", quiet)
         typer.echo(f"open the recording with: rerun {out / 'map.rrd'}")
+
+
+SERVICES = ("assembler", "features", "inference")
+CONNECT_HELP = "zenoh endpoint of the router, e.g. tcp/192.168.1.10:7447 (repeatable)"
+ROBOT_HELP = "the robot's name: its keys are afford/@v1/<robot>/..."
+
+
+@app.command()
+def router(
+    listen: list[str] = typer.Option(["tcp/127.0.0.1:7447"], "--listen", help="endpoint to listen on (repeatable), e.g. tcp/0.0.0.0:7447"),
+) -> None:
+    """Run a Zenoh router for tests and single-host use (on a robot network: the eclipse/zenoh image)."""
+    with _user_errors():
+        from services.clients import run_router
+
+        run_router(listen)
+
+
+@app.command()
+def serve(
+    service: str = typer.Argument(..., help="assembler (scans to a map), features (map to voxel fields) or inference (fields to affordance maps)"),
+    connect: list[str] = typer.Option(..., "--connect", help=CONNECT_HELP),
+    robot: str = typer.Option(..., "--robot", help=ROBOT_HELP),
+    rrd: Optional[Path] = typer.Option(None, "--rrd", help="the service's Rerun recording (default: <service>.rrd here)"),
+    viewer: Optional[str] = typer.Option(None, "--viewer", help="also stream the recording to a Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy"),
+    listen: Optional[list[str]] = typer.Option(None, "--listen", help="also listen on this endpoint (repeatable)"),
+    model: Optional[list[Path]] = typer.Option(None, "--model", help="inference: a model file (repeatable); default: the shipped models"),
+) -> None:
+    """Run one service until SIGINT/SIGTERM. Settings (AFFORD_ASSEMBLER__*, AFFORD_SERVICE__*, ...) from the environment."""
+    if service not in SERVICES:
+        _fail(f"unknown service {service!r}; choose one of {', '.join(SERVICES)}")
+    with _user_errors():
+        from services.node import Node
+
+        from .features import FeatureLayout
+        from .outputs import choose_models, shipped_models
+        from .settings import Settings
+
+        settings = Settings()
+        models = []
+        if service == "inference":
+            models = choose_models(model or [], [], FeatureLayout.from_settings(settings.features, settings.voxel))
+        affordances = [m.affordance for m in models] or list(shipped_models())
+        node = Node(service, robot, connect, settings, rrd, viewer, affordances, listen)
+        if service == "assembler":
+            from services.assembler import serve as run
+        elif service == "features":
+            from services.features import serve as run
+        else:
+            from services.inference import serve as run
+
+            run = (lambda run_inference: lambda node: run_inference(node, models))(run)
+        run(node)
+
+
+@app.command()
+def publish(
+    source: Path = typer.Argument(..., help="a cloud file, or a folder of depth frames (7-Scenes layout) or of scan-NNNNNN.bin LiDAR scans"),
+    connect: list[str] = typer.Option(..., "--connect", help=CONNECT_HELP),
+    robot: str = typer.Option(..., "--robot", help=ROBOT_HELP),
+    as_map: bool = typer.Option(False, "--as-map", help="a cloud file is a finished room: align it and publish it on map/cloud"),
+    rate: float = typer.Option(10.0, "--rate", min=0, help="frames per second of a folder (0: as fast as the network takes them)"),
+    sensor: str = typer.Option("", "--sensor", help="the sensor's key chunk: scan/<sensor> (default camera or lidar)"),
+    first: int = typer.Option(0, "--first", min=0, help="first frame of a folder"),
+    frames: int = typer.Option(0, "--frames", min=0, help="at most this many frames (0: all)"),
+    step: int = typer.Option(1, "--step", min=1, help="every n-th frame"),
+    gravity: str = typer.Option("auto", "--gravity", help="--as-map: " + GRAVITY_HELP),
+    wait: float = typer.Option(30.0, "--wait", help="seconds to wait for a subscriber (the service) before giving up"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+) -> None:
+    """Publish a finished map, a single scan, or a recorded sequence of frames at a given rate."""
+    with _user_errors():
+        from services.clients import NoSubscriber, load_as_map, publish_map, publish_sequence, sequence_messages
+        from services.node import Keys, open_session
+
+        from .settings import Settings
+
+        keys = Keys(robot)
+        settings = Settings()
+        if source.is_dir():
+            from .sequence import read_sequence
+
+            sequence = read_sequence(source)
+            indices = list(range(first, len(sequence.frames), step))[: frames or None]
+            if not indices:
+                raise UserError(f"{source}: no frames from {first} (it has {len(sequence.frames)})")
+            session = open_session(connect, settings.service.mode)
+            try:
+                with _progress(quiet) as progress:
+                    task = progress.add_task(f"{sequence.kind} frames to {keys.scan(sensor or 'camera')}", total=len(indices))
+                    sent = publish_sequence(session, keys, sequence_messages(sequence, indices),
+                                            sensor or ("camera" if sequence.kind == "depth" else "lidar"), rate, wait,
+                                            on_frame=lambda _: progress.advance(task))
+            except NoSubscriber as error:
+                raise UserError(str(error)) from None
+            finally:
+                session.close()
+            typer.echo(f"published {sent} {sequence.kind} frames of {source} (afford watch --frames {sent} waits for the maps of all of them)")
+            return
+        if as_map:
+            cloud = load_as_map(source, gravity, settings)
+            session = open_session(connect, settings.service.mode)
+            try:
+                publish_map(session, Keys(robot), cloud, wait)
+            except NoSubscriber as error:
+                raise UserError(str(error)) from None
+            finally:
+                session.close()
+            typer.echo(f"published {source} as the map of robot {robot} ({len(cloud.data) // cloud.point_stride:,} points)")
+            return
+        from .messages import Scan, pack_points
+        from .scene import load_cloud
+
+        scan = Scan(frame_id=sensor or "sensor")
+        pack_points(scan, load_cloud(source).points)
+        session = open_session(connect, settings.service.mode)
+        try:
+            publish_sequence(session, keys, [(0, scan)], sensor or "sensor", 0, wait)
+        except NoSubscriber as error:
+            raise UserError(str(error)) from None
+        finally:
+            session.close()
+        typer.echo(f"published {source} as one scan of robot {robot} (--as-map publishes a finished room instead)")
+
+
+@app.command()
+def watch(
+    connect: list[str] = typer.Option(..., "--connect", help=CONNECT_HELP),
+    robot: str = typer.Option(..., "--robot", help=ROBOT_HELP),
+    timeout: float = typer.Option(300.0, "--timeout", min=0, help="give up (exit 1) after this many seconds"),
+    out: Optional[Path] = typer.Option(None, "--out", help="write each affordance map here as <affordance>.json (the format of afford map)"),
+    affordance: Optional[list[str]] = typer.Option(None, "--affordance", "-a", help="wait for this affordance (repeatable); default: every shipped model's"),
+    frames: int = typer.Option(0, "--frames", min=0, help="only maps built from at least this many scans (what afford publish printed)"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="print only the maps' summary"),
+) -> None:
+    """Print what the services of a robot publish; exit 0 once every affordance's map has arrived."""
+    with _user_errors():
+        from services.clients import MapWatcher
+        from services.clients import watch as watch_keys
+        from services.node import Keys, open_session
+
+        from .outputs import shipped_models
+        from .settings import Settings
+
+        wanted = affordance or list(shipped_models())
+        watcher = MapWatcher(Keys(robot), wanted, frames, out, echo=(lambda line: None) if quiet else typer.echo)
+        session = open_session(connect, Settings().service.mode)
+        try:
+            arrived = watch_keys(session, Keys(robot), watcher, timeout)
+        finally:
+            session.close()
+        for name in sorted(watcher.received):
+            document = watcher.received[name]
+            typer.echo(f"{name:<18} {len(document['skeletons']):>3} places" + (f" -> {out / (name + '.json')}" if out else ""))
+        if not arrived:
+            _fail_with(1, f"timed out after {timeout:.0f} s waiting for {', '.join(watcher.missing)}")
+
+
+def _fail_with(code: int, message: str) -> None:
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(code)
 
 
 @app.command()

@@ -35,19 +35,26 @@ class AffordanceMap:
     joints: np.ndarray  # (k, 15, 3) placed joints of the skeletons
 
     def to_json(self, model_id: str, world_from_input: np.ndarray) -> dict:
-        def rows(values: np.ndarray) -> list[dict]:
-            keys = ("x", "y", "z", "theta", "score")
-            return [dict(zip(keys, (round(float(v), 4) for v in row))) for row in values]
+        return map_document(self.affordance, model_id, self.threshold, self.grid.as_dict(), self.skeletons, self.joints,
+                            self.positives, world_from_input)
 
-        skeletons = rows(self.skeletons)
-        for skeleton, joints in zip(skeletons, self.joints):
-            skeleton["joints"] = np.round(joints, 4).tolist()
-        return {
-            "format": FORMAT, "affordance": self.affordance, "model": model_id, "threshold": self.threshold,
-            "frame": "world: gravity-aligned, z up, floor at z = 0, metres",
-            "world_from_input": np.asarray(world_from_input, dtype=float).round(9).tolist(),
-            "grid": self.grid.as_dict(), "skeletons": skeletons, "positives": rows(self.positives),
-        }
+
+def map_document(affordance: str, model_id: str, threshold: float, grid: dict, skeletons: np.ndarray, joints: np.ndarray,
+                 positives: np.ndarray, world_from_input: np.ndarray) -> dict:
+    """The affordance-map/1 JSON document (what `afford map` writes and `afford watch` saves)."""
+    def rows(values: np.ndarray) -> list[dict]:
+        keys = ("x", "y", "z", "theta", "score")
+        return [dict(zip(keys, (round(float(v), 4) for v in row))) for row in values]
+
+    placed = rows(skeletons)
+    for skeleton, skeleton_joints in zip(placed, joints):
+        skeleton["joints"] = np.round(skeleton_joints, 4).tolist()
+    return {
+        "format": FORMAT, "affordance": affordance, "model": model_id, "threshold": float(threshold),
+        "frame": "world: gravity-aligned, z up, floor at z = 0, metres",
+        "world_from_input": np.asarray(world_from_input, dtype=float).round(9).tolist(),
+        "grid": grid, "skeletons": placed, "positives": rows(positives),
+    }
 
 
 def build_map(affordance: str, scores: np.ndarray, grid: PoseGrid, skeleton: Skeleton, threshold: float,

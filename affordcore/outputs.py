@@ -51,7 +51,7 @@ def thin_huge_cloud(cloud: Cloud, settings: MapSettings) -> tuple[Cloud, str | N
 def write_map_outputs(scene, maps: dict, models: list[AffordanceModel], out: Path, rrd: Path | None) -> list[Path]:
     """DIR/<affordance>.json and .png for every map, and the recording; returns the paths written."""
     from .plots import plot_map
-    from .recording import log_cloud, log_map, open_recording
+    from .recording import close_recording, log_cloud, log_map, open_recording
 
     out.mkdir(parents=True, exist_ok=True)
     ids = {model.affordance: model.id for model in models}
@@ -66,8 +66,7 @@ def write_map_outputs(scene, maps: dict, models: list[AffordanceModel], out: Pat
         log_cloud(recording, scene.cloud.points)
         for amap in maps.values():
             log_map(recording, amap)
-        recording.flush()
-        recording.disconnect()
+        close_recording(recording)
         written.append(rrd)
     return written
 

@@ -25,9 +25,12 @@ class PreparedScene:
     layout: FeatureLayout
 
     def pose_grid(self, skeleton: Skeleton, settings: Settings) -> PoseGrid:
-        return PoseGrid.over_footprint(
-            self.fields.footprint, skeleton.torso_height, self.fields.lattice.resolution, settings.grid
-        )
+        return pose_grid(self.fields, skeleton, settings)
+
+
+def pose_grid(fields: SceneFields, skeleton: Skeleton, settings: Settings) -> PoseGrid:
+    """The poses a skeleton is tried at over a room's floor footprint."""
+    return PoseGrid.over_footprint(fields.footprint, skeleton.torso_height, fields.lattice.resolution, settings.grid)
 
 
 def pose_grids_for_footprint(footprint: tuple[float, float, float, float], settings: Settings | None = None) -> dict[str, PoseGrid]:
@@ -63,22 +66,23 @@ def prepare_scene(cloud: Cloud, settings: Settings | None = None, gravity: str |
     return PreparedScene(world, alignment, fields, FeatureLayout.from_settings(settings.features, settings.voxel))
 
 
-def map_affordances(scene: PreparedScene, models: list, settings: Settings | None = None,
-                    on_done: Callable[[str], None] | None = None) -> dict:
-    """Every model's affordance map of the scene: {affordance: AffordanceMap}. Models must match the scene's
-    feature layout (a `ModelError` names the model otherwise); each places the skeleton it was trained with."""
+def map_affordances(fields: SceneFields, layout: FeatureLayout, models: list, settings: Settings | None = None,
+                    on_map: Callable[[str, object], None] | None = None) -> dict:
+    """Every model's affordance map of a room's fields: {affordance: AffordanceMap}; `on_map(affordance, map)`
+    hears of each as soon as it is done. Models must match the feature layout (a `ModelError` names the model
+    otherwise); each places the skeleton it was trained with."""
     from .inference import score_poses
     from .maps import build_map
 
     settings = settings or Settings()
     maps = {}
     for model in models:
-        model.check_layout(scene.layout, f"model {model.id}")
+        model.check_layout(layout, f"model {model.id}")
         skeleton = model.as_skeleton()
-        grid = scene.pose_grid(skeleton, settings)
-        scores = score_poses(scene.fields, skeleton, grid, scene.layout, model.weights, model.bias)
-        allowed = observed_floor(scene.fields, grid.x, grid.y, settings.map.floor_margin) if settings.map.floor_margin >= 0 else None
+        grid = pose_grid(fields, skeleton, settings)
+        scores = score_poses(fields, skeleton, grid, layout, model.weights, model.bias)
+        allowed = observed_floor(fields, grid.x, grid.y, settings.map.floor_margin) if settings.map.floor_margin >= 0 else None
         maps[model.affordance] = build_map(model.affordance, scores, grid, skeleton, model.threshold, settings.map.nms_radius, allowed)
-        if on_done:
-            on_done(model.affordance)
+        if on_map:
+            on_map(model.affordance, maps[model.affordance])
     return maps

@@ -60,6 +60,24 @@ class MapSettings(BaseModel):
     thin_voxel: float = Field(0.01, gt=0, description="voxel size the first thinning pass of a huge cloud uses (m); doubled until it fits")
 
 
+class AssemblerSettings(BaseModel):
+    min_range: float = Field(0.3, ge=0, description="scan points nearer than this to the sensor are dropped (m)")
+    max_range: float = Field(4.0, gt=0, description="scan points farther than this are dropped (m): a Kinect-class depth camera is noisy beyond 4 m")
+    voxel_size: float = Field(0.04, gt=0, description="KISS-ICP's local-map voxel (m); registration uses points thinned to 1.5x this")
+    pixel_step: int = Field(2, ge=1, description="every n-th depth pixel in each direction is back-projected (2: a quarter of a 640 x 480 frame)")
+    map_voxel: float = Field(0.02, gt=0, description="voxel of the global map the assembler keeps (m): one point per voxel, nothing forgotten")
+    keyframe_distance: float = Field(0.05, ge=0, description="a frame joins the global map when the sensor moved this far since the last one that did (m)")
+    keyframe_angle_deg: float = Field(5.0, ge=0, description="... or turned this far (degrees)")
+    publish_period: float = Field(2.0, ge=0, description="the map cloud is published at most this often (s), and once more after the last scan")
+
+
+class ServiceSettings(BaseModel):
+    mode: str = Field("peer", pattern="^(peer|client)$", description="zenoh mode of the services and clients: peer or client (a router is always needed for --connect)")
+    recording_id: str = Field("", description="Rerun recording id shared by every service so their .rrd files open as one recording; empty: afford-<robot>")
+    status_period: float = Field(5.0, gt=0, description="each service republishes its status this often (s)")
+    max_queue: int = Field(1000, ge=1, description="scans waiting for the assembler beyond this are refused on its error key, not dropped silently")
+
+
 class Settings(BaseSettings):
     """All tunables of affordmap. Defaults follow DESIGN.md (10 cm voxels and grid, 63 orientations)."""
 
@@ -71,6 +89,8 @@ class Settings(BaseSettings):
     features: FeatureSettings = FeatureSettings()
     gravity: GravitySettings = GravitySettings()
     map: MapSettings = MapSettings()
+    assembler: AssemblerSettings = AssemblerSettings()
+    service: ServiceSettings = ServiceSettings()
     skeleton_dirs: list[Path] = Field(
         default_factory=list,
         description="extra folders of skeleton files (<affordance>.json); a file here overrides the built-in one of the same name",

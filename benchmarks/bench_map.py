@@ -53,11 +53,11 @@ def one_run(cloud: Cloud, settings: Settings, models) -> dict[str, float]:
     seconds["voxel fields (occupancy, distance, normals)"] = time.perf_counter() - start
     clock = [time.perf_counter()]
 
-    def lap(affordance: str) -> None:  # map_affordances reports each affordance as it is done
+    def lap(affordance: str, _map) -> None:  # map_affordances reports each affordance as it is done
         seconds[f"score + map {affordance} (1.89 M poses)"] = time.perf_counter() - clock[0]
         clock[0] = time.perf_counter()
 
-    maps = map_affordances(scene, models, settings, on_done=lap)
+    maps = map_affordances(scene.fields, scene.layout, models, settings, on_map=lap)
     with tempfile.TemporaryDirectory() as out:
         start = time.perf_counter()
         write_map_outputs(scene, maps, models, Path(out), Path(out) / "map.rrd")

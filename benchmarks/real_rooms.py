@@ -46,7 +46,7 @@ def main() -> None:
         labels = load_labels(cloud_path.with_name(cloud_path.stem + ".labels.json"))
         scene = prepare_scene(load_cloud(cloud_path), settings, args.gravity)
         chosen = [models[name] for name in labels.affordances if name in models]
-        maps = map_affordances(scene, chosen, settings)
+        maps = map_affordances(scene.fields, scene.layout, chosen, settings)
         short = cloud_path.stem.split("_")[0]
         for model in chosen:
             amap = maps[model.affordance]

@@ -1,0 +1,305 @@
+"""Between numpy and the wire: the afford.v1 Protocol Buffers (schemas/afford/v1) and the arrays the library
+works on. No transport here; the services move the bytes.
+
+Every decoder checks what it is given and raises `MessageError` with a reason a person can act on (the
+services answer it on their error key and keep running).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .proto import geometry_pb2, maps_pb2, sensing_pb2, service_pb2
+
+Scan = sensing_pb2.Scan
+DepthFrame = sensing_pb2.DepthFrame
+Cloud = maps_pb2.Cloud
+SceneFieldsMessage = maps_pb2.SceneFields
+AffordanceMapMessage = maps_pb2.AffordanceMap
+Pose = geometry_pb2.Pose
+Status = service_pb2.Status
+Error = service_pb2.Error
+
+WORLD = "world"
+_Field = geometry_pb2.PackedElementField
+_NUMPY_TYPES = {
+    _Field.UINT8: "u1", _Field.INT8: "i1", _Field.UINT16: "<u2", _Field.INT16: "<i2",
+    _Field.UINT32: "<u4", _Field.INT32: "<i4", _Field.FLOAT32: "<f4", _Field.FLOAT64: "<f8",
+}
+
+
+class MessageError(ValueError):
+    """A message that cannot be used; the text says what is wrong with it."""
+
+
+def schema_name(message_or_class) -> str:
+    """The full protobuf name (afford.v1.Scan), carried as the schema of the zenoh encoding."""
+    return message_or_class.DESCRIPTOR.full_name
+
+
+def parse(message_class, payload: bytes):
+    """Decode bytes as `message_class`, or raise `MessageError` naming the schema."""
+    from google.protobuf.message import DecodeError
+
+    message = message_class()
+    try:
+        message.ParseFromString(payload)
+    except DecodeError as error:
+        raise MessageError(f"payload of {len(payload)} bytes is not a valid {schema_name(message_class)}: {error}") from None
+    return message
+
+
+# -- time and poses ------------------------------------------------------------------------------------------
+
+def stamp(message_timestamp, seconds: float | None = None) -> None:
+    """Set a google.protobuf.Timestamp to `seconds` since the epoch (now by default)."""
+    message_timestamp.FromNanoseconds(int(round((time.time() if seconds is None else seconds) * 1e9)))
+
+
+def seconds(message_timestamp) -> float:
+    return message_timestamp.ToNanoseconds() * 1e-9
+
+
+def set_pose(pose, matrix: np.ndarray, frame_id: str, child_frame_id: str, at: float | None = None) -> None:
+    """Fill a Pose from a 4 x 4 rigid transform (parent_from_child)."""
+    from scipy.spatial.transform import Rotation
+
+    matrix = np.asarray(matrix, dtype=np.float64)
+    stamp(pose.timestamp, at)
+    pose.frame_id, pose.child_frame_id = frame_id, child_frame_id
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in matrix[:3, 3])
+    x, y, z, w = Rotation.from_matrix(matrix[:3, :3]).as_quat()
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = float(x), float(y), float(z), float(w)
+
+
+def pose_matrix(pose) -> np.ndarray:
+    """The 4 x 4 transform of a Pose; an unset Pose is the identity."""
+    from scipy.spatial.transform import Rotation
+
+    q = pose.orientation
+    quaternion = np.array([q.x, q.y, q.z, q.w])
+    matrix = np.eye(4)
+    if not np.any(quaternion):
+        quaternion = np.array([0.0, 0.0, 0.0, 1.0])
+    norm = np.linalg.norm(quaternion)
+    if not np.isfinite(norm) or abs(norm - 1) > 1e-3:
+        raise MessageError(f"pose orientation is not a unit quaternion (norm {norm:.4g})")
+    matrix[:3, :3] = Rotation.from_quat(quaternion / norm).as_matrix()
+    matrix[:3, 3] = pose.position.x, pose.position.y, pose.position.z
+    if not np.isfinite(matrix).all():
+        raise MessageError("pose position is not finite")
+    return matrix
+
+
+# -- packed points -------------------------------------------------------------------------------------------
+
+def pack_points(message, points: np.ndarray, times: np.ndarray | None = None) -> None:
+    """Fill the fields/point_stride/data of a Scan or Cloud with float32 x, y, z (and t)."""
+    columns = [np.asarray(points, dtype="<f4")]
+    names = ["x", "y", "z"]
+    if times is not None:
+        columns.append(np.asarray(times, dtype="<f4").reshape(-1, 1))
+        names.append("t")
+    del message.fields[:]
+    for index, name in enumerate(names):
+        message.fields.add(name=name, offset=4 * index, type=_Field.FLOAT32)
+    message.point_stride = 4 * len(names)
+    message.data = np.ascontiguousarray(np.hstack(columns), dtype="<f4").tobytes()
+
+
+def unpack_points(message) -> tuple[np.ndarray, np.ndarray | None]:
+    """(points (N, 3) float64, per-point times t or None) of a Scan or Cloud; points with a non-finite
+    coordinate are dropped (organised clouds mark missing returns with NaN)."""
+    fields = {field.name: field for field in message.fields}
+    missing = [name for name in "xyz" if name not in fields]
+    if missing:
+        raise MessageError(f"points need fields x, y, z; missing {', '.join(missing)} (has {', '.join(fields) or 'none'})")
+    stride = message.point_stride
+    if stride == 0:
+        raise MessageError("point_stride is 0")
+    if len(message.data) % stride:
+        raise MessageError(f"data is {len(message.data)} bytes, not a whole number of {stride}-byte points")
+    dtype = {}
+    for name in ("x", "y", "z", "t"):
+        if name not in fields:
+            continue
+        field = fields[name]
+        if field.type not in _NUMPY_TYPES:
+            raise MessageError(f"field {name} has no numeric type")
+        numpy_type = np.dtype(_NUMPY_TYPES[field.type])
+        if field.offset + numpy_type.itemsize > stride:
+            raise MessageError(f"field {name} (offset {field.offset}, {numpy_type.itemsize} bytes) runs past the {stride}-byte point")
+        dtype[name] = (numpy_type, field.offset)
+    records = np.frombuffer(message.data, dtype=np.dtype({"names": list(dtype), "formats": [t for t, _ in dtype.values()],
+                                                          "offsets": [o for _, o in dtype.values()], "itemsize": stride}))
+    points = np.column_stack([records[name].astype(np.float64) for name in "xyz"]) if len(records) else np.empty((0, 3))
+    finite = np.isfinite(points).all(axis=1)
+    times = records["t"].astype(np.float64)[finite] if "t" in dtype else None
+    return points[finite], times
+
+
+# -- depth frames --------------------------------------------------------------------------------------------
+
+def depth_frame_message(depth: np.ndarray, intrinsics: np.ndarray, depth_scale: float = 0.001, frame_id: str = "camera",
+                        invalid_value: int = 65535, at: float | None = None) -> DepthFrame:
+    """A DepthFrame from a 16-bit depth image and a 3 x 3 pinhole matrix."""
+    depth = np.asarray(depth)
+    if depth.ndim != 2 or depth.dtype != np.uint16:
+        raise MessageError(f"a depth image must be 2-D uint16, got {depth.dtype} of shape {depth.shape}")
+    message = DepthFrame(frame_id=frame_id, width=depth.shape[1], height=depth.shape[0], depth=depth.astype("<u2").tobytes(),
+                         depth_scale=depth_scale, invalid_value=invalid_value)
+    message.intrinsics.fx, message.intrinsics.fy = float(intrinsics[0, 0]), float(intrinsics[1, 1])
+    message.intrinsics.cx, message.intrinsics.cy = float(intrinsics[0, 2]), float(intrinsics[1, 2])
+    stamp(message.timestamp, at)
+    return message
+
+
+def depth_points(message: DepthFrame, pixel_step: int = 1, min_range: float = 0.0, max_range: float = np.inf) -> np.ndarray:
+    """Back-project a DepthFrame to points (N, 3) in the camera frame (x right, y down, z forward), every
+    `pixel_step`-th pixel, keeping depths within [min_range, max_range]."""
+    width, height = message.width, message.height
+    if width == 0 or height == 0:
+        raise MessageError(f"depth image is {width} x {height}")
+    if len(message.depth) != 2 * width * height:
+        raise MessageError(f"depth holds {len(message.depth)} bytes; a {width} x {height} 16-bit image needs {2 * width * height}")
+    k = message.intrinsics
+    if not (k.fx > 0 and k.fy > 0) or not np.isfinite([k.fx, k.fy, k.cx, k.cy]).all():
+        raise MessageError(f"intrinsics fx={k.fx}, fy={k.fy} must be positive focal lengths in pixels")
+    if not message.depth_scale > 0:
+        raise MessageError(f"depth_scale must be positive metres per unit, got {message.depth_scale}")
+    raw = np.frombuffer(message.depth, dtype="<u2").reshape(height, width)[::pixel_step, ::pixel_step]
+    v, u = np.mgrid[0:height:pixel_step, 0:width:pixel_step]
+    valid = raw != 0
+    if message.invalid_value:
+        valid &= raw != message.invalid_value
+    z = raw[valid] * message.depth_scale
+    keep = (z >= min_range) & (z <= max_range)
+    z = z[keep]
+    u, v = u[valid][keep], v[valid][keep]
+    return np.column_stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z])
+
+
+# -- clouds, fields, maps ------------------------------------------------------------------------------------
+
+def cloud_message(points: np.ndarray, world_from_input: np.ndarray, source: str, frames: int = 0,
+                  at: float | None = None) -> Cloud:
+    message = Cloud(frame_id=WORLD, frames=frames, source=source)
+    pack_points(message, points)
+    set_pose(message.world_from_input, world_from_input, WORLD, "input", at)
+    stamp(message.timestamp, at)
+    return message
+
+
+def cloud_points(message: Cloud) -> np.ndarray:
+    """The world-frame points of a map Cloud; a cloud in another frame, or with no points, is refused."""
+    if message.frame_id != WORLD:
+        raise MessageError(f"map clouds must be in the {WORLD!r} frame (gravity-aligned, z up, floor at 0), not {message.frame_id!r}; "
+                           "`afford publish --as-map` aligns a file before sending it")
+    points, _ = unpack_points(message)
+    if len(points) < 100:
+        raise MessageError(f"the map has {len(points)} finite points; at least 100 are needed")
+    return points
+
+
+def fields_message(fields, cloud: Cloud, at: float | None = None) -> SceneFieldsMessage:
+    """SceneFields of the map `cloud` (whose frame, time and frame count it carries on)."""
+    lattice = fields.lattice
+    message = SceneFieldsMessage(
+        frame_id=WORLD,
+        occupancy=(fields.occupancy > 0).astype(np.uint8).tobytes(),
+        distance=np.ascontiguousarray(fields.distance, dtype="<f4").tobytes(),
+        normals=np.ascontiguousarray(fields.normals, dtype="<f4").tobytes(),
+    )
+    message.grid.origin.x, message.grid.origin.y, message.grid.origin.z = (float(v) for v in lattice.origin)
+    message.grid.resolution = lattice.resolution
+    message.grid.nx, message.grid.ny, message.grid.nz = lattice.shape
+    message.x_min, message.y_min, message.x_max, message.y_max = fields.footprint
+    _carry_source(message, cloud.world_from_input, cloud.timestamp, cloud.frames, at)
+    return message
+
+
+def scene_fields(message: SceneFieldsMessage):
+    """The `SceneFields` a message carries (arrays are read-only views of the payload)."""
+    from .fields import SceneFields, VoxelLattice
+
+    grid = message.grid
+    shape = (grid.nx, grid.ny, grid.nz)
+    n = int(np.prod(shape))
+    if n == 0 or not grid.resolution > 0:
+        raise MessageError(f"voxel grid {shape} at resolution {grid.resolution} is empty")
+    for name, itemsize in (("occupancy", 1), ("distance", 4), ("normals", 12)):
+        if len(getattr(message, name)) != n * itemsize:
+            raise MessageError(f"{name} holds {len(getattr(message, name))} bytes; a {shape} grid needs {n * itemsize}")
+    lattice = VoxelLattice(np.array([grid.origin.x, grid.origin.y, grid.origin.z]), grid.resolution, shape)
+    occupancy = np.frombuffer(message.occupancy, dtype=np.uint8).reshape(shape).astype(np.float32)
+    distance = np.frombuffer(message.distance, dtype="<f4").reshape(shape)
+    normals = np.frombuffer(message.normals, dtype="<f4").reshape(*shape, 3)
+    footprint = (message.x_min, message.y_min, message.x_max, message.y_max)
+    if not (footprint[2] >= footprint[0] and footprint[3] >= footprint[1]):
+        raise MessageError(f"empty floor footprint {footprint}")
+    return SceneFields(lattice, occupancy, distance, normals, footprint)
+
+
+def map_message(amap, model_id: str, fields: SceneFieldsMessage, at: float | None = None) -> AffordanceMapMessage:
+    """An AffordanceMap message of a map computed from `fields` (whose frame, cloud time and count it carries on)."""
+    grid = amap.grid.as_dict()
+    message = AffordanceMapMessage(
+        frame_id=WORLD, affordance=amap.affordance, model=model_id, threshold=amap.threshold,
+        positives=np.ascontiguousarray(amap.positives, dtype="<f4").tobytes(),
+        confidence=np.ascontiguousarray(amap.confidence, dtype="<f4").tobytes(),
+    )
+    spec = message.grid
+    spec.x0, spec.y0, spec.step, spec.nx, spec.ny = grid["x0"], grid["y0"], grid["step"], grid["nx"], grid["ny"]
+    spec.z.extend(grid["z"])
+    spec.theta_step, spec.n_theta = grid["theta_step"], grid["n_theta"]
+    for row, joints in zip(amap.skeletons, amap.joints):
+        message.skeletons.add(x=row[0], y=row[1], z=row[2], theta=row[3], score=row[4], joints=np.ravel(joints).tolist())
+    _carry_source(message, fields.world_from_input, fields.cloud_timestamp, fields.frames, at)
+    return message
+
+
+def _carry_source(message, world_from_input, cloud_timestamp, frames: int, at: float | None) -> None:
+    message.world_from_input.CopyFrom(world_from_input)
+    message.cloud_timestamp.CopyFrom(cloud_timestamp)
+    message.frames = frames
+    stamp(message.timestamp, at)
+
+
+def map_grid(message: AffordanceMapMessage):
+    """The PoseGrid a map message was scored on."""
+    from .grid import PoseGrid
+
+    spec = message.grid
+    x = spec.x0 + spec.step * np.arange(spec.nx)
+    y = spec.y0 + spec.step * np.arange(spec.ny)
+    return PoseGrid(x, y, np.array(spec.z), spec.theta_step * np.arange(spec.n_theta))
+
+
+def map_arrays(message: AffordanceMapMessage) -> dict[str, np.ndarray]:
+    """skeletons (k, 5), joints (k, 15, 3), positives (n, 5) and confidence (nx, ny) of a map message."""
+    spec = message.grid
+    if len(message.confidence) != 4 * spec.nx * spec.ny:
+        raise MessageError(f"confidence holds {len(message.confidence)} bytes; a {spec.nx} x {spec.ny} grid needs {4 * spec.nx * spec.ny}")
+    if len(message.positives) % 20:
+        raise MessageError(f"positives hold {len(message.positives)} bytes, not a whole number of 5-float rows")
+    rows = [(s.x, s.y, s.z, s.theta, s.score) for s in message.skeletons]
+    joints = [np.array(s.joints, dtype=np.float64) for s in message.skeletons]
+    if any(j.size % 3 for j in joints):
+        raise MessageError("a skeleton's joints are not (x, y, z) triples")
+    return {
+        "skeletons": np.array(rows, dtype=np.float64).reshape(-1, 5),
+        "joints": np.array([j.reshape(-1, 3) for j in joints]).reshape(len(rows), -1, 3),
+        "positives": np.frombuffer(message.positives, dtype="<f4").reshape(-1, 5).astype(np.float64),
+        "confidence": np.frombuffer(message.confidence, dtype="<f4").reshape(spec.nx, spec.ny),
+    }
+
+
+def map_document_of(message: AffordanceMapMessage) -> dict:
+    """The affordance-map/1 JSON document of a map message: what `afford map` writes for the same map."""
+    from .maps import map_document
+
+    arrays = map_arrays(message)
+    return map_document(message.affordance, message.model, message.threshold, map_grid(message).as_dict(),
+                        arrays["skeletons"], arrays["joints"], arrays["positives"], pose_matrix(message.world_from_input))

@@ -1,0 +1,139 @@
+import datetime
+
+from . import geometry_pb2 as _geometry_pb2
+from google.protobuf import timestamp_pb2 as _timestamp_pb2
+from google.protobuf.internal import containers as _containers
+from google.protobuf import descriptor as _descriptor
+from google.protobuf import message as _message
+from collections.abc import Iterable as _Iterable, Mapping as _Mapping
+from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
+
+DESCRIPTOR: _descriptor.FileDescriptor
+
+class Cloud(_message.Message):
+    __slots__ = ("timestamp", "frame_id", "fields", "point_stride", "data", "world_from_input", "frames", "source")
+    TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
+    FRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    FIELDS_FIELD_NUMBER: _ClassVar[int]
+    POINT_STRIDE_FIELD_NUMBER: _ClassVar[int]
+    DATA_FIELD_NUMBER: _ClassVar[int]
+    WORLD_FROM_INPUT_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_FIELD_NUMBER: _ClassVar[int]
+    SOURCE_FIELD_NUMBER: _ClassVar[int]
+    timestamp: _timestamp_pb2.Timestamp
+    frame_id: str
+    fields: _containers.RepeatedCompositeFieldContainer[_geometry_pb2.PackedElementField]
+    point_stride: int
+    data: bytes
+    world_from_input: _geometry_pb2.Pose
+    frames: int
+    source: str
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., fields: _Optional[_Iterable[_Union[_geometry_pb2.PackedElementField, _Mapping]]] = ..., point_stride: _Optional[int] = ..., data: _Optional[bytes] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., frames: _Optional[int] = ..., source: _Optional[str] = ...) -> None: ...
+
+class VoxelGrid(_message.Message):
+    __slots__ = ("origin", "resolution", "nx", "ny", "nz")
+    ORIGIN_FIELD_NUMBER: _ClassVar[int]
+    RESOLUTION_FIELD_NUMBER: _ClassVar[int]
+    NX_FIELD_NUMBER: _ClassVar[int]
+    NY_FIELD_NUMBER: _ClassVar[int]
+    NZ_FIELD_NUMBER: _ClassVar[int]
+    origin: _geometry_pb2.Vector3
+    resolution: float
+    nx: int
+    ny: int
+    nz: int
+    def __init__(self, origin: _Optional[_Union[_geometry_pb2.Vector3, _Mapping]] = ..., resolution: _Optional[float] = ..., nx: _Optional[int] = ..., ny: _Optional[int] = ..., nz: _Optional[int] = ...) -> None: ...
+
+class SceneFields(_message.Message):
+    __slots__ = ("timestamp", "frame_id", "grid", "occupancy", "distance", "normals", "x_min", "y_min", "x_max", "y_max", "world_from_input", "cloud_timestamp", "frames")
+    TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
+    FRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    GRID_FIELD_NUMBER: _ClassVar[int]
+    OCCUPANCY_FIELD_NUMBER: _ClassVar[int]
+    DISTANCE_FIELD_NUMBER: _ClassVar[int]
+    NORMALS_FIELD_NUMBER: _ClassVar[int]
+    X_MIN_FIELD_NUMBER: _ClassVar[int]
+    Y_MIN_FIELD_NUMBER: _ClassVar[int]
+    X_MAX_FIELD_NUMBER: _ClassVar[int]
+    Y_MAX_FIELD_NUMBER: _ClassVar[int]
+    WORLD_FROM_INPUT_FIELD_NUMBER: _ClassVar[int]
+    CLOUD_TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_FIELD_NUMBER: _ClassVar[int]
+    timestamp: _timestamp_pb2.Timestamp
+    frame_id: str
+    grid: VoxelGrid
+    occupancy: bytes
+    distance: bytes
+    normals: bytes
+    x_min: float
+    y_min: float
+    x_max: float
+    y_max: float
+    world_from_input: _geometry_pb2.Pose
+    cloud_timestamp: _timestamp_pb2.Timestamp
+    frames: int
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., grid: _Optional[_Union[VoxelGrid, _Mapping]] = ..., occupancy: _Optional[bytes] = ..., distance: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., x_min: _Optional[float] = ..., y_min: _Optional[float] = ..., x_max: _Optional[float] = ..., y_max: _Optional[float] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ...) -> None: ...
+
+class PoseGridSpec(_message.Message):
+    __slots__ = ("x0", "y0", "step", "nx", "ny", "z", "theta_step", "n_theta")
+    X0_FIELD_NUMBER: _ClassVar[int]
+    Y0_FIELD_NUMBER: _ClassVar[int]
+    STEP_FIELD_NUMBER: _ClassVar[int]
+    NX_FIELD_NUMBER: _ClassVar[int]
+    NY_FIELD_NUMBER: _ClassVar[int]
+    Z_FIELD_NUMBER: _ClassVar[int]
+    THETA_STEP_FIELD_NUMBER: _ClassVar[int]
+    N_THETA_FIELD_NUMBER: _ClassVar[int]
+    x0: float
+    y0: float
+    step: float
+    nx: int
+    ny: int
+    z: _containers.RepeatedScalarFieldContainer[float]
+    theta_step: float
+    n_theta: int
+    def __init__(self, x0: _Optional[float] = ..., y0: _Optional[float] = ..., step: _Optional[float] = ..., nx: _Optional[int] = ..., ny: _Optional[int] = ..., z: _Optional[_Iterable[float]] = ..., theta_step: _Optional[float] = ..., n_theta: _Optional[int] = ...) -> None: ...
+
+class PlacedSkeleton(_message.Message):
+    __slots__ = ("x", "y", "z", "theta", "score", "joints")
+    X_FIELD_NUMBER: _ClassVar[int]
+    Y_FIELD_NUMBER: _ClassVar[int]
+    Z_FIELD_NUMBER: _ClassVar[int]
+    THETA_FIELD_NUMBER: _ClassVar[int]
+    SCORE_FIELD_NUMBER: _ClassVar[int]
+    JOINTS_FIELD_NUMBER: _ClassVar[int]
+    x: float
+    y: float
+    z: float
+    theta: float
+    score: float
+    joints: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, x: _Optional[float] = ..., y: _Optional[float] = ..., z: _Optional[float] = ..., theta: _Optional[float] = ..., score: _Optional[float] = ..., joints: _Optional[_Iterable[float]] = ...) -> None: ...
+
+class AffordanceMap(_message.Message):
+    __slots__ = ("timestamp", "frame_id", "affordance", "model", "threshold", "grid", "skeletons", "positives", "confidence", "world_from_input", "cloud_timestamp", "frames")
+    TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
+    FRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    AFFORDANCE_FIELD_NUMBER: _ClassVar[int]
+    MODEL_FIELD_NUMBER: _ClassVar[int]
+    THRESHOLD_FIELD_NUMBER: _ClassVar[int]
+    GRID_FIELD_NUMBER: _ClassVar[int]
+    SKELETONS_FIELD_NUMBER: _ClassVar[int]
+    POSITIVES_FIELD_NUMBER: _ClassVar[int]
+    CONFIDENCE_FIELD_NUMBER: _ClassVar[int]
+    WORLD_FROM_INPUT_FIELD_NUMBER: _ClassVar[int]
+    CLOUD_TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_FIELD_NUMBER: _ClassVar[int]
+    timestamp: _timestamp_pb2.Timestamp
+    frame_id: str
+    affordance: str
+    model: str
+    threshold: float
+    grid: PoseGridSpec
+    skeletons: _containers.RepeatedCompositeFieldContainer[PlacedSkeleton]
+    positives: bytes
+    confidence: bytes
+    world_from_input: _geometry_pb2.Pose
+    cloud_timestamp: _timestamp_pb2.Timestamp
+    frames: int
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., affordance: _Optional[str] = ..., model: _Optional[str] = ..., threshold: _Optional[float] = ..., grid: _Optional[_Union[PoseGridSpec, _Mapping]] = ..., skeletons: _Optional[_Iterable[_Union[PlacedSkeleton, _Mapping]]] = ..., positives: _Optional[bytes] = ..., confidence: _Optional[bytes] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ...) -> None: ...

@@ -1,0 +1,70 @@
+"""Recorded sensor sequences on disk: a folder of depth frames in the 7-Scenes layout, or of LiDAR scans.
+
+7-Scenes layout (what `afford synth --sequences` writes too): ``frame-NNNNNN.depth.png`` (16-bit
+millimetres; 0, and 65535 in the 7-Scenes README, mean no measurement), ``camera-intrinsics.txt`` (3 x 3)
+and optionally ``frame-NNNNNN.pose.txt`` (4 x 4 camera-to-world ground truth). LiDAR: ``scan-NNNNNN.bin``
+(float32 x, y, z in the sensor frame) with optional ``scan-NNNNNN.pose.txt``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+DEPTH_SCALE = 0.001  # millimetres
+INVALID_DEPTH = 65535
+
+
+class SequenceError(ValueError):
+    """A folder that is not a usable sequence; the message names the folder and what is missing."""
+
+
+@dataclass
+class Sequence:
+    folder: Path
+    kind: str  # "depth" or "lidar"
+    frames: list[Path]
+    intrinsics: np.ndarray | None  # 3 x 3 for depth
+
+    def pose(self, index: int) -> np.ndarray | None:
+        """The frame's ground-truth pose (sensor to world), if the sequence has one."""
+        stem = self.frames[index].name.split(".")[0]
+        path = self.folder / f"{stem}.pose.txt"
+        return np.loadtxt(path).reshape(4, 4) if path.exists() else None
+
+    def depth(self, index: int) -> np.ndarray:
+        """The 16-bit depth image of a depth frame."""
+        from PIL import Image
+
+        image = np.asarray(Image.open(self.frames[index]))
+        if image.ndim != 2 or image.dtype not in (np.uint16, np.int32, np.uint32):
+            raise SequenceError(f"{self.frames[index]}: not a 16-bit depth image ({image.dtype}, shape {image.shape})")
+        return image.astype(np.uint16)
+
+    def scan(self, index: int) -> np.ndarray:
+        """The points (N, 3) of a LiDAR scan."""
+        data = np.fromfile(self.frames[index], dtype="<f4")
+        if data.size % 3:
+            raise SequenceError(f"{self.frames[index]}: {data.size} floats is not a whole number of x, y, z points")
+        return data.reshape(-1, 3).astype(np.float64)
+
+
+def read_sequence(folder: str | Path) -> Sequence:
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise SequenceError(f"{folder}: not a folder")
+    depth = sorted(folder.glob("frame-*.depth.png"))
+    scans = sorted(folder.glob("scan-*.bin"))
+    if depth:
+        intrinsics_path = folder / "camera-intrinsics.txt"
+        if not intrinsics_path.exists():
+            raise SequenceError(f"{folder}: depth frames without camera-intrinsics.txt (a 3 x 3 pinhole matrix)")
+        intrinsics = np.loadtxt(intrinsics_path)
+        if intrinsics.shape != (3, 3) or not intrinsics[0, 0] > 0:
+            raise SequenceError(f"{intrinsics_path}: expected a 3 x 3 pinhole matrix with fx > 0")
+        return Sequence(folder, "depth", depth, intrinsics)
+    if scans:
+        return Sequence(folder, "lidar", scans, None)
+    raise SequenceError(f"{folder}: no frame-NNNNNN.depth.png (7-Scenes layout) or scan-NNNNNN.bin files")

@@ -1,0 +1,200 @@
+"""The router and the two clients: `afford router`, `afford publish` (a cloud file, a depth-frame folder or a
+scan folder onto the robot's keys) and `afford watch` (print what the services publish, save the maps)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from affordcore import messages
+
+from .node import Keys, encoding_of, open_session, schema_of
+
+
+def run_router(listen: list[str], stop: threading.Event | None = None) -> None:
+    """A zenoh router on `listen` until SIGINT/SIGTERM (zenohd is not on pip or apt; docker uses eclipse/zenoh)."""
+    stop = stop or threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    session = open_session([], mode="router", listen=listen)
+    print(f"router listening on {', '.join(listen)}", flush=True)
+    try:
+        stop.wait()
+    finally:
+        session.close()
+
+
+# -- publish -------------------------------------------------------------------------------------------------
+
+class NoSubscriber(RuntimeError):
+    """Nobody listens on the key a client was about to publish on."""
+
+
+def _publisher(session, key: str, message_class, wait: float):
+    """A BLOCK publisher on `key`, once something subscribes to it (samples put before that are lost)."""
+    import zenoh
+
+    publisher = session.declare_publisher(key, encoding=encoding_of(message_class), congestion_control=zenoh.CongestionControl.BLOCK)
+    deadline = time.monotonic() + wait
+    while not publisher.matching_status.matching:
+        if time.monotonic() > deadline:
+            publisher.undeclare()
+            raise NoSubscriber(f"nothing subscribes to {key} after {wait:.0f} s: is the service for robot "
+                               f"{key.split('/')[2]!r} running and connected to the same router?")
+        time.sleep(0.05)
+    return publisher
+
+
+def publish_map(session, keys: Keys, cloud: messages.Cloud, wait: float) -> None:
+    publisher = _publisher(session, keys.cloud, messages.Cloud, wait)
+    publisher.put(cloud.SerializeToString())
+    publisher.undeclare()
+
+
+def publish_sequence(session, keys: Keys, frames, sensor: str, rate: float, wait: float,
+                     on_frame: Callable[[int], None] | None = None) -> int:
+    """Publish (index, message) pairs on scan/<sensor> at `rate` Hz (0: as fast as the network takes them);
+    each message is stamped when it is sent. Returns how many were sent."""
+    publisher = None
+    period = 1.0 / rate if rate > 0 else 0.0
+    sent, start = 0, time.monotonic()
+    try:
+        for index, message in frames:
+            if publisher is None:
+                publisher = _publisher(session, keys.scan(sensor), type(message), wait)
+                start = time.monotonic()
+            delay = start + sent * period - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            messages.stamp(message.timestamp)
+            publisher.put(message.SerializeToString(), encoding=encoding_of(type(message)))
+            sent += 1
+            if on_frame:
+                on_frame(index)
+    finally:
+        if publisher is not None:
+            publisher.undeclare()
+    return sent
+
+
+def sequence_messages(sequence, indices):
+    """(index, DepthFrame or Scan) for each frame of an affordcore.sequence.Sequence."""
+    from affordcore.sequence import DEPTH_SCALE, INVALID_DEPTH
+
+    for index in indices:
+        if sequence.kind == "depth":
+            yield index, messages.depth_frame_message(sequence.depth(index), sequence.intrinsics, DEPTH_SCALE,
+                                                      frame_id="camera", invalid_value=INVALID_DEPTH)
+        else:
+            scan = messages.Scan(frame_id="lidar")
+            messages.pack_points(scan, sequence.scan(index))
+            yield index, scan
+
+
+# -- watch ---------------------------------------------------------------------------------------------------
+
+def describe(key: str, schema: str, payload: bytes) -> str:
+    """One line about a publication, for people watching the robot's keys."""
+    classes = {messages.schema_name(c): c for c in (messages.Scan, messages.DepthFrame, messages.Cloud, messages.Pose,
+                                                     messages.SceneFieldsMessage, messages.AffordanceMapMessage,
+                                                     messages.Status, messages.Error)}
+    if schema not in classes:
+        return f"{key}: {len(payload):,} bytes ({schema or 'no schema'})"
+    try:
+        message = messages.parse(classes[schema], payload)
+    except messages.MessageError as error:
+        return f"{key}: {error}"
+    name = classes[schema].DESCRIPTOR.name
+    if name == "Status":
+        state = messages.Status.State.Name(message.state)
+        return f"{key}: {state} {message.detail} (taken {message.accepted}, rejected {message.rejected}, published {message.published})"
+    if name == "Error":
+        return f"{key}: REJECTED {message.key}: {message.reason}"
+    if name == "AffordanceMap":
+        best = f", best {message.skeletons[0].score:.2f}" if message.skeletons else ""
+        return f"{key}: {len(message.skeletons)} places, {len(message.positives) // 20:,} poses above the threshold{best} ({message.frames} frames)"
+    if name == "SceneFields":
+        return f"{key}: fields {message.grid.nx} x {message.grid.ny} x {message.grid.nz} at {message.grid.resolution} m ({message.frames} frames)"
+    if name == "Cloud":
+        return f"{key}: map of {len(message.data) // max(message.point_stride, 1):,} points from {message.source} ({message.frames} frames)"
+    if name == "Pose":
+        p = message.position
+        return f"{key}: sensor at ({p.x:.2f}, {p.y:.2f}, {p.z:.2f}) in {message.frame_id}"
+    return f"{key}: {name} of {len(payload):,} bytes"
+
+
+class MapWatcher:
+    """Collects the affordance maps of one robot; `done` once every wanted affordance has a map of at least
+    `min_frames` scans."""
+
+    def __init__(self, keys: Keys, affordances: list[str], min_frames: int, out: Path | None,
+                 echo: Callable[[str], None] = print):
+        self.keys, self.wanted, self.min_frames, self.out, self.echo = keys, set(affordances), min_frames, out, echo
+        self.received: dict[str, dict] = {}
+        self.done = threading.Event()
+        self._lock = threading.Lock()
+
+    def on_sample(self, sample) -> None:
+        key, schema, payload = str(sample.key_expr), schema_of(sample), sample.payload.to_bytes()
+        self.echo(describe(key, schema, payload))
+        if schema == messages.schema_name(messages.AffordanceMapMessage):
+            self._take_map(payload)
+
+    def _take_map(self, payload: bytes) -> None:
+        try:
+            message = messages.parse(messages.AffordanceMapMessage, payload)
+            document = messages.map_document_of(message)
+        except messages.MessageError as error:
+            self.echo(f"unreadable map: {error}")
+            return
+        if message.frames < self.min_frames:
+            return
+        with self._lock:
+            self.received[message.affordance] = document
+            if self.out is not None:
+                self.out.mkdir(parents=True, exist_ok=True)
+                (self.out / f"{message.affordance}.json").write_text(json.dumps(document) + "\n")
+            if self.wanted <= set(self.received):
+                self.done.set()
+
+    @property
+    def missing(self) -> list[str]:
+        return sorted(self.wanted - set(self.received))
+
+
+def watch(session, keys: Keys, watcher: MapWatcher, timeout: float) -> bool:
+    """Print everything under the robot's keys and collect maps until `watcher` is done or `timeout` passes.
+    Maps published before the watch began are fetched with a get (a late joiner catches up)."""
+    subscriber = session.declare_subscriber(keys.key("**"), watcher.on_sample)
+    alive = session.liveliness().declare_subscriber(
+        keys.key("status", "*"), lambda s: watcher.echo(f"{s.key_expr}: service {'joined' if s.kind.name == 'PUT' else 'left'}"),
+        history=True)
+    try:
+        for reply in session.get(keys.key("affordance", "*"), timeout=min(timeout, 5.0)):
+            if reply.ok is not None:
+                watcher.on_sample(reply.ok)
+        return watcher.done.wait(timeout)
+    finally:
+        alive.undeclare()
+        subscriber.undeclare()
+
+
+def load_as_map(path: Path, gravity: str, settings) -> messages.Cloud:
+    """A finished room scan from a file, gravity-aligned here so map/cloud always holds world-frame points."""
+    from affordcore.gravity import align_to_gravity
+    from affordcore.outputs import thin_huge_cloud
+    from affordcore.pipeline import parse_gravity
+    from affordcore.scene import load_cloud
+
+    cloud, warning = thin_huge_cloud(load_cloud(path), settings.map)
+    if warning:
+        print(f"warning: {warning}", flush=True)
+    alignment = align_to_gravity(cloud.points, parse_gravity(gravity), settings.gravity)
+    world = cloud.transformed(alignment.world_from_input)
+    return messages.cloud_message(world.points.astype(np.float32), alignment.world_from_input, source=path.name)

@@ -1,0 +1,47 @@
+"""Model inference: fields in, affordance/<name> out, one AffordanceMap per model (the shipped models unless
+others are configured). Scoring and maps are affordcore.inference's and affordcore.maps'."""
+
+from __future__ import annotations
+
+from affordcore import messages
+from affordcore.features import FeatureLayout
+from affordcore.pipeline import map_affordances
+from affordcore.recording import log_map, set_time
+
+from .node import Inbound, Inbox, Node
+
+SERVICE = "inference"
+
+
+class InferenceService:
+    def __init__(self, node: Node, models: list):
+        self.node, self.models = node, models
+        self.layout = FeatureLayout.from_settings(node.settings.features, node.settings.voxel)
+        self.inbox = Inbox(latest_only=True, limit=1)
+        node.subscribe(node.keys.fields, self.inbox)
+        for model in models:
+            node.answer_latest(node.keys.affordance(model.affordance))
+
+    def run(self) -> None:
+        self.node.run(self.inbox, self.handle)
+
+    def handle(self, item: Inbound) -> None:
+        message = self.node.decode(item, messages.SceneFieldsMessage)
+        fields = messages.scene_fields(message)
+        if abs(fields.lattice.resolution - self.node.settings.voxel.resolution) > 1e-9:
+            raise messages.MessageError(f"fields at {fields.lattice.resolution} m voxels; the models here need "
+                                        f"{self.node.settings.voxel.resolution} m (AFFORD_VOXEL__RESOLUTION of the features service)")
+        self.node.publish_status(messages.Status.BUSY, f"mapping {len(self.models)} affordances")
+        set_time(self.node.recording, messages.seconds(message.cloud_timestamp))
+        ids = {model.affordance: model.id for model in self.models}
+
+        def publish(affordance: str, amap) -> None:
+            self.node.publish(self.node.keys.affordance(affordance), messages.map_message(amap, ids[affordance], message))
+            log_map(self.node.recording, amap)
+
+        map_affordances(fields, self.layout, self.models, self.node.settings, on_map=publish)
+        self.node.publish_status(messages.Status.READY, f"published {len(self.models)} maps of a {message.frames}-frame map")
+
+
+def serve(node: Node, models: list) -> None:
+    InferenceService(node, models).run()

@@ -1,0 +1,282 @@
+"""What every service shares: the robot's key space, the zenoh session, status and errors, latest-output
+queryables, a work loop fed from zenoh callbacks, its Rerun recording, and a clean stop on SIGINT/SIGTERM.
+
+Zenoh calls the subscriber callbacks on its own threads; they only put samples in an inbox. One worker (the
+main thread) takes them out and does the work, so a slow input never stalls the network, the recording is
+written from one thread, and a bad input is answered on the error key while the service goes on.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import signal
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from affordcore import messages
+from affordcore.settings import Settings
+
+PREFIX = "afford/@v1"
+
+
+def version() -> str:
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as package_version
+
+    try:
+        return package_version("affordmap")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+@dataclass(frozen=True)
+class Keys:
+    """The key space of one robot (DESIGN.md, "Processes and key space")."""
+
+    robot: str
+
+    def __post_init__(self) -> None:
+        if not self.robot or any(c in self.robot for c in "/*$?#@ "):
+            raise ValueError(f"robot name {self.robot!r} must be one non-empty key chunk (no / * $ ? # @ or spaces)")
+
+    def key(self, *chunks: str) -> str:
+        return "/".join((PREFIX, self.robot, *chunks))
+
+    scans = property(lambda self: self.key("scan", "**"))
+    cloud = property(lambda self: self.key("map", "cloud"))
+    pose = property(lambda self: self.key("map", "pose"))
+    fields = property(lambda self: self.key("fields"))
+
+    def scan(self, sensor: str) -> str:
+        return self.key("scan", sensor)
+
+    def affordance(self, name: str) -> str:
+        return self.key("affordance", name)
+
+    def status(self, service: str) -> str:
+        return self.key("status", service)
+
+    def error(self, service: str) -> str:
+        return self.key("error", service)
+
+
+def zenoh_config(endpoints: list[str], mode: str = "peer", listen: list[str] | None = None):
+    """A zenoh config with explicit endpoints and no multicast scouting (robots share networks; tests share
+    a machine): a service talks to the router it is told about and to nothing it happens to hear."""
+    import zenoh
+
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps(mode))
+    config.insert_json5("connect/endpoints", json.dumps(list(endpoints)))
+    if listen:
+        config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    return config
+
+
+def open_session(endpoints: list[str], mode: str = "peer", listen: list[str] | None = None):
+    import zenoh
+
+    zenoh.init_log_from_env_or("error")
+    return zenoh.open(zenoh_config(endpoints, mode, listen))
+
+
+def encoding_of(message_class):
+    """application/protobuf with the message's full name as schema (what every publication carries)."""
+    import zenoh
+
+    return zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(messages.schema_name(message_class))
+
+
+def put(session, key: str, message) -> None:
+    """Publish a message with its schema, congestion control BLOCK: zenoh's default (DROP) loses
+    multi-megabyte samples under load."""
+    import zenoh
+
+    session.put(key, message.SerializeToString(), encoding=encoding_of(type(message)),
+                congestion_control=zenoh.CongestionControl.BLOCK)
+
+
+def schema_of(sample) -> str:
+    """The schema named in a sample's encoding ('' when it carries none)."""
+    text = str(sample.encoding)
+    return text.split(";", 1)[1] if text.startswith("application/protobuf;") else ""
+
+
+@dataclass
+class Inbound:
+    key: str
+    schema: str
+    encoding: str
+    payload: bytes
+    arrived: float
+
+
+class Inbox:
+    """Samples waiting for the worker. `latest_only` keeps just the newest (a map superseded before it was
+    worked on is not worth the work); otherwise first in, first out, up to `limit`."""
+
+    def __init__(self, latest_only: bool, limit: int):
+        self.latest_only = latest_only
+        self._queue: queue.Queue = queue.Queue(maxsize=0 if latest_only else limit)
+        self._lock = threading.Lock()
+
+    def offer(self, item: Inbound) -> bool:
+        """False when the inbox is full (the caller reports it; nothing is dropped silently)."""
+        with self._lock:
+            if self.latest_only:
+                while not self._queue.empty():
+                    self._queue.get_nowait()
+            try:
+                self._queue.put_nowait(item)
+            except queue.Full:
+                return False
+        return True
+
+    def take(self, timeout: float) -> Inbound | None:
+        try:
+            return self._queue.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    def __len__(self) -> int:
+        return self._queue.qsize()
+
+
+class Node:
+    """One service process: `service` is its name (assembler, features, inference)."""
+
+    def __init__(self, service: str, robot: str, endpoints: list[str], settings: Settings | None = None,
+                 rrd: Path | None = None, viewer: str | None = None, affordances: list[str] | None = None,
+                 listen: list[str] | None = None):
+        from affordcore.recording import open_recording
+
+        self.service, self.keys = service, Keys(robot)
+        self.settings = settings or Settings()
+        self.stop_event = threading.Event()
+        self.counts = {"accepted": 0, "rejected": 0, "published": 0}
+        self.last_seconds = 0.0
+        self.latest: dict[str, tuple[bytes, object]] = {}  # key: (payload, encoding) answered on get
+        self._declared: list = []
+        self._lock = threading.Lock()
+        recording_id = self.settings.service.recording_id or f"afford-{robot}"
+        self.recording = open_recording(rrd or Path(f"{service}.rrd"), affordances or [], recording_id, viewer)
+        self.session = open_session(endpoints, self.settings.service.mode, listen)
+        self._declared.append(self.session.liveliness().declare_token(self.keys.status(service)))
+        self.answer_latest(self.keys.status(service))
+
+    # -- inputs ------------------------------------------------------------------------------------------------
+
+    def subscribe(self, key: str, inbox: Inbox) -> None:
+        def on_sample(sample) -> None:
+            item = Inbound(str(sample.key_expr), schema_of(sample), str(sample.encoding), sample.payload.to_bytes(), time.time())
+            if not inbox.offer(item):
+                self.reject(item, f"{self.service} is {len(inbox)} inputs behind (AFFORD_SERVICE__MAX_QUEUE); this one was not taken")
+
+        self._declared.append(self.session.declare_subscriber(key, on_sample))
+
+    def decode(self, item: Inbound, *message_classes):
+        """The message of the class the sample's schema names, among `message_classes`, or MessageError."""
+        names = {messages.schema_name(cls): cls for cls in message_classes}
+        if item.schema not in names:
+            raise messages.MessageError(f"expected encoding application/protobuf with schema {' or '.join(names)}, got {item.encoding!r}")
+        return messages.parse(names[item.schema], item.payload)
+
+    def reject(self, item: Inbound, reason: str) -> None:
+        """Answer a bad input on error/<service>; the service keeps running."""
+        error = messages.Error(service=self.service, key=item.key, encoding=item.encoding, payload_bytes=len(item.payload), reason=reason)
+        messages.stamp(error.timestamp)
+        with self._lock:
+            self.counts["rejected"] += 1
+        put(self.session, self.keys.error(self.service), error)
+        print(f"[{self.service}] rejected {item.key}: {reason}", flush=True)
+        self.publish_status(messages.Status.READY, f"rejected an input: {reason}")
+
+    # -- outputs -----------------------------------------------------------------------------------------------
+
+    def answer_latest(self, key: str) -> None:
+        """A queryable on `key` that replies with the latest output published there, if any."""
+        def on_query(query) -> None:
+            with self._lock:
+                latest = self.latest.get(key)
+            if latest is not None:
+                query.reply(key, latest[0], encoding=latest[1])
+
+        self._declared.append(self.session.declare_queryable(key, on_query))
+
+    def publish(self, key: str, message, count: bool = True) -> None:
+        payload = message.SerializeToString()
+        encoding = encoding_of(type(message))
+        with self._lock:
+            self.latest[key] = (payload, encoding)
+            if count:
+                self.counts["published"] += 1
+        import zenoh
+
+        self.session.put(key, payload, encoding=encoding, congestion_control=zenoh.CongestionControl.BLOCK)
+
+    def publish_status(self, state: int, detail: str) -> None:
+        with self._lock:
+            status = messages.Status(service=self.service, robot=self.keys.robot, state=state, detail=detail,
+                                     last_seconds=self.last_seconds, version=version(), **self.counts)
+        messages.stamp(status.timestamp)
+        self.publish(self.keys.status(self.service), status, count=False)
+
+    # -- the work loop -----------------------------------------------------------------------------------------
+
+    def run(self, inbox: Inbox, handle: Callable[[Inbound], None], idle: Callable[[], None] | None = None) -> None:
+        """Take inputs until SIGINT/SIGTERM: `handle` each (a ValueError rejects it), `idle` when none came
+        for a moment. Then close everything, the recording last."""
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: self.stop_event.set())
+        self.publish_status(messages.Status.READY, "waiting for input")
+        print(f"[{self.service}] ready: robot {self.keys.robot}, keys {PREFIX}/{self.keys.robot}/...", flush=True)
+        last_status = time.monotonic()
+        try:
+            while not self.stop_event.is_set():
+                item = inbox.take(timeout=0.2)
+                if item is not None:
+                    self._handle(item, handle)
+                elif idle is not None:
+                    idle()
+                if time.monotonic() - last_status > self.settings.service.status_period:
+                    self.publish_status(messages.Status.READY, f"{len(inbox)} inputs waiting")
+                    last_status = time.monotonic()
+        finally:
+            self.close()
+
+    def _handle(self, item: Inbound, handle: Callable[[Inbound], None]) -> None:
+        with self._lock:
+            self.counts["accepted"] += 1
+        started = time.perf_counter()
+        try:
+            handle(item)
+        except (ValueError, MemoryError) as error:  # MessageError, CloudError, ModelError, no floor, ...
+            with self._lock:
+                self.counts["accepted"] -= 1
+            self.reject(item, str(error))
+            return
+        self.last_seconds = time.perf_counter() - started
+
+    def close(self) -> None:
+        from affordcore.recording import close_recording
+
+        try:
+            self.publish_status(messages.Status.STOPPING, "shutting down")
+        except Exception:  # the session may already be gone; closing the recording matters more
+            pass
+        for entity in reversed(self._declared):
+            try:
+                entity.undeclare()
+            except Exception:
+                pass
+        self.session.close()
+        warning = close_recording(self.recording)
+        if warning:
+            print(f"[{self.service}] {warning}", flush=True)
+        print(f"[{self.service}] stopped: {self.counts['accepted']} inputs taken, {self.counts['rejected']} rejected, "
+              f"{self.counts['published']} outputs published", flush=True)

