@@ -259,6 +259,10 @@ def serve(
         from .settings import Settings
 
         settings = Settings()
+        if service != "assembler":
+            import os
+
+            os.nice(settings.service.downstream_nice)
         models = []
         if service == "inference":
             models = choose_models(model or [], [], FeatureLayout.from_settings(settings.features, settings.voxel))
@@ -288,6 +292,7 @@ def publish(
     step: int = typer.Option(1, "--step", min=1, help="every n-th frame"),
     gravity: str = typer.Option("auto", "--gravity", help="--as-map: " + GRAVITY_HELP),
     wait: float = typer.Option(30.0, "--wait", help="seconds to wait for a subscriber (the service) before giving up"),
+    imu: bool = typer.Option(True, "--imu/--no-imu", help="a folder with gravity-direction.txt and poses: send the gravity direction an IMU would read with each frame"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
     """Publish a finished map, a single scan, or a recorded sequence of frames at a given rate."""
@@ -310,7 +315,7 @@ def publish(
             try:
                 with _progress(quiet) as progress:
                     task = progress.add_task(f"{sequence.kind} frames to {keys.scan(sensor or 'camera')}", total=len(indices))
-                    sent = publish_sequence(session, keys, sequence_messages(sequence, indices),
+                    sent = publish_sequence(session, keys, sequence_messages(sequence, indices, imu),
                                             sensor or ("camera" if sequence.kind == "depth" else "lidar"), rate, wait,
                                             on_frame=lambda _: progress.advance(task))
             except NoSubscriber as error:

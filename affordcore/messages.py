@@ -12,6 +12,7 @@ import time
 import numpy as np
 
 from .proto import geometry_pb2, maps_pb2, sensing_pb2, service_pb2
+from .skeleton import JOINTS
 
 Scan = sensing_pb2.Scan
 DepthFrame = sensing_pb2.DepthFrame
@@ -91,6 +92,21 @@ def pose_matrix(pose) -> np.ndarray:
     if not np.isfinite(matrix).all():
         raise MessageError("pose position is not finite")
     return matrix
+
+
+def set_vector(vector, values) -> None:
+    vector.x, vector.y, vector.z = (float(v) for v in values)
+
+
+def gravity_of(message) -> np.ndarray | None:
+    """The unit gravity direction a Scan or DepthFrame carries, or None."""
+    if not message.HasField("gravity"):
+        return None
+    g = np.array([message.gravity.x, message.gravity.y, message.gravity.z])
+    norm = np.linalg.norm(g)
+    if not np.isfinite(norm) or norm < 1e-6:
+        raise MessageError(f"gravity {g.tolist()} is not a direction")
+    return g / norm
 
 
 # -- packed points -------------------------------------------------------------------------------------------
@@ -272,8 +288,9 @@ def map_grid(message: AffordanceMapMessage):
     from .grid import PoseGrid
 
     spec = message.grid
-    x = spec.x0 + spec.step * np.arange(spec.nx)
-    y = spec.y0 + spec.step * np.arange(spec.ny)
+    step = spec.step if np.isfinite(spec.step) else 0.0  # a single position has no step
+    x = spec.x0 + step * np.arange(spec.nx)
+    y = spec.y0 + step * np.arange(spec.ny)
     return PoseGrid(x, y, np.array(spec.z), spec.theta_step * np.arange(spec.n_theta))
 
 
@@ -286,11 +303,11 @@ def map_arrays(message: AffordanceMapMessage) -> dict[str, np.ndarray]:
         raise MessageError(f"positives hold {len(message.positives)} bytes, not a whole number of 5-float rows")
     rows = [(s.x, s.y, s.z, s.theta, s.score) for s in message.skeletons]
     joints = [np.array(s.joints, dtype=np.float64) for s in message.skeletons]
-    if any(j.size % 3 for j in joints):
-        raise MessageError("a skeleton's joints are not (x, y, z) triples")
+    if any(j.size != 3 * len(JOINTS) for j in joints):
+        raise MessageError(f"a skeleton's joints are not {len(JOINTS)} (x, y, z) triples")
     return {
         "skeletons": np.array(rows, dtype=np.float64).reshape(-1, 5),
-        "joints": np.array([j.reshape(-1, 3) for j in joints]).reshape(len(rows), -1, 3),
+        "joints": np.array(joints).reshape(len(rows), len(JOINTS), 3),
         "positives": np.frombuffer(message.positives, dtype="<f4").reshape(-1, 5).astype(np.float64),
         "confidence": np.frombuffer(message.confidence, dtype="<f4").reshape(spec.nx, spec.ny),
     }

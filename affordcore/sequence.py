@@ -2,7 +2,8 @@
 
 7-Scenes layout (what `afford synth --sequences` writes too): ``frame-NNNNNN.depth.png`` (16-bit
 millimetres; 0, and 65535 in the 7-Scenes README, mean no measurement), ``camera-intrinsics.txt`` (3 x 3)
-and optionally ``frame-NNNNNN.pose.txt`` (4 x 4 camera-to-world ground truth). LiDAR: ``scan-NNNNNN.bin``
+and optionally ``frame-NNNNNN.pose.txt`` (4 x 4 camera-to-world ground truth) and ``gravity-direction.txt``
+(gravity, "down", in the world frame). LiDAR: ``scan-NNNNNN.bin``
 (float32 x, y, z in the sensor frame) with optional ``scan-NNNNNN.pose.txt``.
 """
 
@@ -34,6 +35,16 @@ class Sequence:
         path = self.folder / f"{stem}.pose.txt"
         return np.loadtxt(path).reshape(4, 4) if path.exists() else None
 
+    def gravity(self, index: int) -> np.ndarray | None:
+        """Gravity's direction in the sensor frame at a frame, what an accelerometer at rest would give: the
+        world's gravity-direction.txt turned by the frame's pose. None without both files."""
+        path = self.folder / "gravity-direction.txt"
+        pose = self.pose(index)
+        if pose is None or not path.exists():
+            return None
+        down = np.loadtxt(path).reshape(3)
+        return pose[:3, :3].T @ (down / np.linalg.norm(down))
+
     def depth(self, index: int) -> np.ndarray:
         """The 16-bit depth image of a depth frame."""
         from PIL import Image
@@ -45,10 +56,10 @@ class Sequence:
 
     def scan(self, index: int) -> np.ndarray:
         """The points (N, 3) of a LiDAR scan."""
-        data = np.fromfile(self.frames[index], dtype="<f4")
-        if data.size % 3:
-            raise SequenceError(f"{self.frames[index]}: {data.size} floats is not a whole number of x, y, z points")
-        return data.reshape(-1, 3).astype(np.float64)
+        size = self.frames[index].stat().st_size
+        if size % 12:
+            raise SequenceError(f"{self.frames[index]}: {size} bytes is not a whole number of float32 x, y, z points (12 bytes each)")
+        return np.fromfile(self.frames[index], dtype="<f4").reshape(-1, 3).astype(np.float64)
 
 
 def read_sequence(folder: str | Path) -> Sequence:
@@ -61,7 +72,10 @@ def read_sequence(folder: str | Path) -> Sequence:
         intrinsics_path = folder / "camera-intrinsics.txt"
         if not intrinsics_path.exists():
             raise SequenceError(f"{folder}: depth frames without camera-intrinsics.txt (a 3 x 3 pinhole matrix)")
-        intrinsics = np.loadtxt(intrinsics_path)
+        try:
+            intrinsics = np.loadtxt(intrinsics_path)
+        except ValueError as error:
+            raise SequenceError(f"{intrinsics_path}: not a 3 x 3 matrix of numbers ({error})") from None
         if intrinsics.shape != (3, 3) or not intrinsics[0, 0] > 0:
             raise SequenceError(f"{intrinsics_path}: expected a 3 x 3 pinhole matrix with fx > 0")
         return Sequence(folder, "depth", depth, intrinsics)

@@ -76,6 +76,7 @@ class ServiceSettings(BaseModel):
     recording_id: str = Field("", description="Rerun recording id shared by every service so their .rrd files open as one recording; empty: afford-<robot>")
     status_period: float = Field(5.0, gt=0, description="each service republishes its status this often (s)")
     max_queue: int = Field(1000, ge=1, description="scans waiting for the assembler beyond this are refused on its error key, not dropped silently")
+    downstream_nice: int = Field(10, ge=0, le=19, description="features and inference run this much nicer than the assembler, so scan assembly keeps up with the sensor on a shared CPU")
 
 
 class Settings(BaseSettings):

@@ -4,7 +4,6 @@ scan folder onto the robot's keys) and `afford watch` (print what the services p
 from __future__ import annotations
 
 import json
-import signal
 import threading
 import time
 from collections.abc import Callable
@@ -14,14 +13,13 @@ import numpy as np
 
 from affordcore import messages
 
-from .node import Keys, encoding_of, open_session, schema_of
+from .node import Keys, encoding_of, open_session, schema_of, stop_on_signals
 
 
 def run_router(listen: list[str], stop: threading.Event | None = None) -> None:
     """A zenoh router on `listen` until SIGINT/SIGTERM (zenohd is not on pip or apt; docker uses eclipse/zenoh)."""
     stop = stop or threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop_on_signals(stop)
     session = open_session([], mode="router", listen=listen)
     print(f"router listening on {', '.join(listen)}", flush=True)
     try:
@@ -83,18 +81,22 @@ def publish_sequence(session, keys: Keys, frames, sensor: str, rate: float, wait
     return sent
 
 
-def sequence_messages(sequence, indices):
-    """(index, DepthFrame or Scan) for each frame of an affordcore.sequence.Sequence."""
+def sequence_messages(sequence, indices, with_gravity: bool = True):
+    """(index, DepthFrame or Scan) for each frame of an affordcore.sequence.Sequence, with the gravity
+    direction an IMU would report when the folder has gravity-direction.txt and poses."""
     from affordcore.sequence import DEPTH_SCALE, INVALID_DEPTH
 
     for index in indices:
         if sequence.kind == "depth":
-            yield index, messages.depth_frame_message(sequence.depth(index), sequence.intrinsics, DEPTH_SCALE,
-                                                      frame_id="camera", invalid_value=INVALID_DEPTH)
+            message = messages.depth_frame_message(sequence.depth(index), sequence.intrinsics, DEPTH_SCALE,
+                                                   frame_id="camera", invalid_value=INVALID_DEPTH)
         else:
-            scan = messages.Scan(frame_id="lidar")
-            messages.pack_points(scan, sequence.scan(index))
-            yield index, scan
+            message = messages.Scan(frame_id="lidar")
+            messages.pack_points(message, sequence.scan(index))
+        gravity = sequence.gravity(index) if with_gravity else None
+        if gravity is not None:
+            messages.set_vector(message.gravity, gravity)
+        yield index, message
 
 
 # -- watch ---------------------------------------------------------------------------------------------------
@@ -172,9 +174,12 @@ def watch(session, keys: Keys, watcher: MapWatcher, timeout: float) -> bool:
     """Print everything under the robot's keys and collect maps until `watcher` is done or `timeout` passes.
     Maps published before the watch began are fetched with a get (a late joiner catches up)."""
     subscriber = session.declare_subscriber(keys.key("**"), watcher.on_sample)
-    alive = session.liveliness().declare_subscriber(
-        keys.key("status", "*"), lambda s: watcher.echo(f"{s.key_expr}: service {'joined' if s.kind.name == 'PUT' else 'left'}"),
-        history=True)
+    import zenoh
+
+    def on_liveliness(sample) -> None:
+        watcher.echo(f"{sample.key_expr}: service {'joined' if sample.kind == zenoh.SampleKind.PUT else 'left'}")
+
+    alive = session.liveliness().declare_subscriber(keys.key("status", "*"), on_liveliness, history=True)
     try:
         for reply in session.get(keys.key("affordance", "*"), timeout=min(timeout, 5.0)):
             if reply.ok is not None:

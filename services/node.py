@@ -75,6 +75,8 @@ def zenoh_config(endpoints: list[str], mode: str = "peer", listen: list[str] | N
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(list(listen)))
     config.insert_json5("scouting/multicast/enabled", "false")
+    if mode != "router":  # keep trying while the router is not up yet (services may start first)
+        config.insert_json5("connect/exit_on_failure", "false")
     return config
 
 
@@ -105,6 +107,14 @@ def schema_of(sample) -> str:
     """The schema named in a sample's encoding ('' when it carries none)."""
     text = str(sample.encoding)
     return text.split(";", 1)[1] if text.startswith("application/protobuf;") else ""
+
+
+def stop_on_signals(stop: threading.Event) -> None:
+    """SIGINT and SIGTERM set `stop` (only the main thread may install handlers; a service run in a thread,
+    as in the tests, is stopped through its event)."""
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.set())
 
 
 @dataclass
@@ -166,8 +176,11 @@ class Node:
         recording_id = self.settings.service.recording_id or f"afford-{robot}"
         self.recording = open_recording(rrd or Path(f"{service}.rrd"), affordances or [], recording_id, viewer)
         self.session = open_session(endpoints, self.settings.service.mode, listen)
+        self.state, self.detail = messages.Status.STARTING, "starting"
         self._declared.append(self.session.liveliness().declare_token(self.keys.status(service)))
-        self.answer_latest(self.keys.status(service))
+        self._declared.append(self.session.declare_queryable(
+            self.keys.status(service), lambda query: query.reply(self.keys.status(service), self._status().SerializeToString(),
+                                                                 encoding=encoding_of(messages.Status))))
 
     # -- inputs ------------------------------------------------------------------------------------------------
 
@@ -219,20 +232,25 @@ class Node:
 
         self.session.put(key, payload, encoding=encoding, congestion_control=zenoh.CongestionControl.BLOCK)
 
-    def publish_status(self, state: int, detail: str) -> None:
+    def _status(self) -> messages.Status:
+        """The service's status now (a get on its status key answers this, not the last one published)."""
         with self._lock:
-            status = messages.Status(service=self.service, robot=self.keys.robot, state=state, detail=detail,
+            status = messages.Status(service=self.service, robot=self.keys.robot, state=self.state, detail=self.detail,
                                      last_seconds=self.last_seconds, version=version(), **self.counts)
         messages.stamp(status.timestamp)
-        self.publish(self.keys.status(self.service), status, count=False)
+        return status
+
+    def publish_status(self, state: int, detail: str) -> None:
+        with self._lock:
+            self.state, self.detail = state, detail
+        put(self.session, self.keys.status(self.service), self._status())
 
     # -- the work loop -----------------------------------------------------------------------------------------
 
     def run(self, inbox: Inbox, handle: Callable[[Inbound], None], idle: Callable[[], None] | None = None) -> None:
         """Take inputs until SIGINT/SIGTERM: `handle` each (a ValueError rejects it), `idle` when none came
         for a moment. Then close everything, the recording last."""
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: self.stop_event.set())
+        stop_on_signals(self.stop_event)
         self.publish_status(messages.Status.READY, "waiting for input")
         print(f"[{self.service}] ready: robot {self.keys.robot}, keys {PREFIX}/{self.keys.robot}/...", flush=True)
         last_status = time.monotonic()

@@ -26,7 +26,7 @@ from . import geometry_pb2 as afford_dot_v1_dot_geometry__pb2
 from google.protobuf import timestamp_pb2 as google_dot_protobuf_dot_timestamp__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x17\x61\x66\x66ord/v1/sensing.proto\x12\tafford.v1\x1a\x18\x61\x66\x66ord/v1/geometry.proto\x1a\x1fgoogle/protobuf/timestamp.proto\"\xd3\x01\n\x04Scan\x12-\n\ttimestamp\x18\x01 \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x10\n\x08\x66rame_id\x18\x02 \x01(\t\x12-\n\x06\x66ields\x18\x03 \x03(\x0b\x32\x1d.afford.v1.PackedElementField\x12\x14\n\x0cpoint_stride\x18\x04 \x01(\r\x12\x0c\n\x04\x64\x61ta\x18\x05 \x01(\x0c\x12(\n\npose_guess\x18\x06 \x01(\x0b\x32\x0f.afford.v1.PoseH\x00\x88\x01\x01\x42\r\n\x0b_pose_guess\"B\n\x10\x43\x61meraIntrinsics\x12\n\n\x02\x66x\x18\x01 \x01(\x01\x12\n\n\x02\x66y\x18\x02 \x01(\x01\x12\n\n\x02\x63x\x18\x03 \x01(\x01\x12\n\n\x02\x63y\x18\x04 \x01(\x01\"\x91\x02\n\nDepthFrame\x12-\n\ttimestamp\x18\x01 \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x10\n\x08\x66rame_id\x18\x02 \x01(\t\x12\r\n\x05width\x18\x03 \x01(\r\x12\x0e\n\x06height\x18\x04 \x01(\r\x12\r\n\x05\x64\x65pth\x18\x05 \x01(\x0c\x12\x13\n\x0b\x64\x65pth_scale\x18\x06 \x01(\x01\x12\x15\n\rinvalid_value\x18\x07 \x01(\r\x12/\n\nintrinsics\x18\x08 \x01(\x0b\x32\x1b.afford.v1.CameraIntrinsics\x12(\n\npose_guess\x18\t \x01(\x0b\x32\x0f.afford.v1.PoseH\x00\x88\x01\x01\x42\r\n\x0b_pose_guessb\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x17\x61\x66\x66ord/v1/sensing.proto\x12\tafford.v1\x1a\x18\x61\x66\x66ord/v1/geometry.proto\x1a\x1fgoogle/protobuf/timestamp.proto\"\x89\x02\n\x04Scan\x12-\n\ttimestamp\x18\x01 \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x10\n\x08\x66rame_id\x18\x02 \x01(\t\x12-\n\x06\x66ields\x18\x03 \x03(\x0b\x32\x1d.afford.v1.PackedElementField\x12\x14\n\x0cpoint_stride\x18\x04 \x01(\r\x12\x0c\n\x04\x64\x61ta\x18\x05 \x01(\x0c\x12(\n\npose_guess\x18\x06 \x01(\x0b\x32\x0f.afford.v1.PoseH\x00\x88\x01\x01\x12(\n\x07gravity\x18\x07 \x01(\x0b\x32\x12.afford.v1.Vector3H\x01\x88\x01\x01\x42\r\n\x0b_pose_guessB\n\n\x08_gravity\"B\n\x10\x43\x61meraIntrinsics\x12\n\n\x02\x66x\x18\x01 \x01(\x01\x12\n\n\x02\x66y\x18\x02 \x01(\x01\x12\n\n\x02\x63x\x18\x03 \x01(\x01\x12\n\n\x02\x63y\x18\x04 \x01(\x01\"\xc7\x02\n\nDepthFrame\x12-\n\ttimestamp\x18\x01 \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x10\n\x08\x66rame_id\x18\x02 \x01(\t\x12\r\n\x05width\x18\x03 \x01(\r\x12\x0e\n\x06height\x18\x04 \x01(\r\x12\r\n\x05\x64\x65pth\x18\x05 \x01(\x0c\x12\x13\n\x0b\x64\x65pth_scale\x18\x06 \x01(\x01\x12\x15\n\rinvalid_value\x18\x07 \x01(\r\x12/\n\nintrinsics\x18\x08 \x01(\x0b\x32\x1b.afford.v1.CameraIntrinsics\x12(\n\npose_guess\x18\t \x01(\x0b\x32\x0f.afford.v1.PoseH\x00\x88\x01\x01\x12(\n\x07gravity\x18\n \x01(\x0b\x32\x12.afford.v1.Vector3H\x01\x88\x01\x01\x42\r\n\x0b_pose_guessB\n\n\x08_gravityb\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -34,9 +34,9 @@ _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'afford.v1.sensing_pb2', _gl
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
   _globals['_SCAN']._serialized_start=98
-  _globals['_SCAN']._serialized_end=309
-  _globals['_CAMERAINTRINSICS']._serialized_start=311
-  _globals['_CAMERAINTRINSICS']._serialized_end=377
-  _globals['_DEPTHFRAME']._serialized_start=380
-  _globals['_DEPTHFRAME']._serialized_end=653
+  _globals['_SCAN']._serialized_end=363
+  _globals['_CAMERAINTRINSICS']._serialized_start=365
+  _globals['_CAMERAINTRINSICS']._serialized_end=431
+  _globals['_DEPTHFRAME']._serialized_start=434
+  _globals['_DEPTHFRAME']._serialized_end=761
 # @@protoc_insertion_point(module_scope)

@@ -11,20 +11,22 @@ from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 DESCRIPTOR: _descriptor.FileDescriptor
 
 class Scan(_message.Message):
-    __slots__ = ("timestamp", "frame_id", "fields", "point_stride", "data", "pose_guess")
+    __slots__ = ("timestamp", "frame_id", "fields", "point_stride", "data", "pose_guess", "gravity")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
     FIELDS_FIELD_NUMBER: _ClassVar[int]
     POINT_STRIDE_FIELD_NUMBER: _ClassVar[int]
     DATA_FIELD_NUMBER: _ClassVar[int]
     POSE_GUESS_FIELD_NUMBER: _ClassVar[int]
+    GRAVITY_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     frame_id: str
     fields: _containers.RepeatedCompositeFieldContainer[_geometry_pb2.PackedElementField]
     point_stride: int
     data: bytes
     pose_guess: _geometry_pb2.Pose
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., fields: _Optional[_Iterable[_Union[_geometry_pb2.PackedElementField, _Mapping]]] = ..., point_stride: _Optional[int] = ..., data: _Optional[bytes] = ..., pose_guess: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ...) -> None: ...
+    gravity: _geometry_pb2.Vector3
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., fields: _Optional[_Iterable[_Union[_geometry_pb2.PackedElementField, _Mapping]]] = ..., point_stride: _Optional[int] = ..., data: _Optional[bytes] = ..., pose_guess: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., gravity: _Optional[_Union[_geometry_pb2.Vector3, _Mapping]] = ...) -> None: ...
 
 class CameraIntrinsics(_message.Message):
     __slots__ = ("fx", "fy", "cx", "cy")
@@ -39,7 +41,7 @@ class CameraIntrinsics(_message.Message):
     def __init__(self, fx: _Optional[float] = ..., fy: _Optional[float] = ..., cx: _Optional[float] = ..., cy: _Optional[float] = ...) -> None: ...
 
 class DepthFrame(_message.Message):
-    __slots__ = ("timestamp", "frame_id", "width", "height", "depth", "depth_scale", "invalid_value", "intrinsics", "pose_guess")
+    __slots__ = ("timestamp", "frame_id", "width", "height", "depth", "depth_scale", "invalid_value", "intrinsics", "pose_guess", "gravity")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
     WIDTH_FIELD_NUMBER: _ClassVar[int]
@@ -49,6 +51,7 @@ class DepthFrame(_message.Message):
     INVALID_VALUE_FIELD_NUMBER: _ClassVar[int]
     INTRINSICS_FIELD_NUMBER: _ClassVar[int]
     POSE_GUESS_FIELD_NUMBER: _ClassVar[int]
+    GRAVITY_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     frame_id: str
     width: int
@@ -58,4 +61,5 @@ class DepthFrame(_message.Message):
     invalid_value: int
     intrinsics: CameraIntrinsics
     pose_guess: _geometry_pb2.Pose
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., depth: _Optional[bytes] = ..., depth_scale: _Optional[float] = ..., invalid_value: _Optional[int] = ..., intrinsics: _Optional[_Union[CameraIntrinsics, _Mapping]] = ..., pose_guess: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ...) -> None: ...
+    gravity: _geometry_pb2.Vector3
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., depth: _Optional[bytes] = ..., depth_scale: _Optional[float] = ..., invalid_value: _Optional[int] = ..., intrinsics: _Optional[_Union[CameraIntrinsics, _Mapping]] = ..., pose_guess: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., gravity: _Optional[_Union[_geometry_pb2.Vector3, _Mapping]] = ...) -> None: ...

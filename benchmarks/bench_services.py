@@ -1,0 +1,110 @@
+"""Latency of the services: from the last scan published to the map, the fields and every affordance map built
+from all the scans, with the router and the three services as separate processes on this machine.
+
+    .venv/bin/python benchmarks/bench_services.py [--frames 100] [--step 3] [--rate 30] [--repeats 3]
+
+Streams the real 7-Scenes kitchen frames (../shared) when present, else a generated living room's. Each
+repeat starts a fresh stack. Prints per-stage latency medians and the assembler's own frame rate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from affordcore import messages  # noqa: E402
+from affordcore.outputs import shipped_models  # noqa: E402
+from affordcore.sequence import read_sequence  # noqa: E402
+from services.clients import publish_sequence, sequence_messages  # noqa: E402
+from services.launch import Stack  # noqa: E402
+from services.node import Keys, open_session, schema_of  # noqa: E402
+
+KITCHEN = ROOT.parent / "shared" / "data" / "sequences" / "7scenes_redkitchen_frames_000000-000299"
+
+
+def generated_sequence(folder: Path, frames: int) -> Path:
+    import numpy as np
+
+    from affordcore.synth.dataset import write_sequence
+    from affordcore.synth.rooms import generate_room
+
+    rng = np.random.default_rng(3)
+    write_sequence(generate_room("living", rng, "bench"), rng, folder, "depth", frames)
+    return folder
+
+
+class Arrivals:
+    """When the first output built from all `frames` scans arrived on each key."""
+
+    def __init__(self, frames: int, affordances: list[str]):
+        self.frames, self.wanted = frames, {f"affordance/{name}" for name in affordances} | {"map/cloud", "fields"}
+        self.at: dict[str, float] = {}
+        self.done = threading.Event()
+
+    def on_sample(self, sample) -> None:
+        now = time.monotonic()
+        key = str(sample.key_expr).split("/", 3)[3]
+        classes = {"map/cloud": messages.Cloud, "fields": messages.SceneFieldsMessage}
+        cls = classes.get(key, messages.AffordanceMapMessage if key.startswith("affordance/") else None)
+        if cls is None or key in self.at or schema_of(sample) != messages.schema_name(cls):
+            return
+        if messages.parse(cls, sample.payload.to_bytes()).frames >= self.frames:
+            self.at[key] = now
+            if self.wanted <= set(self.at):
+                self.done.set()
+
+
+def one_run(folder: Path, indices: list[int], rate: float, workdir: Path) -> dict[str, float]:
+    sequence = read_sequence(folder)
+    affordances = list(shipped_models())
+    arrivals = Arrivals(len(indices), affordances)
+    with Stack(workdir) as stack:
+        keys = Keys(stack.robot)
+        session = open_session([stack.endpoint])
+        subscriber = session.declare_subscriber(keys.key("**"), arrivals.on_sample)
+        try:
+            start = time.monotonic()
+            publish_sequence(session, keys, sequence_messages(sequence, indices), "camera", rate, wait=30)
+            last_scan = time.monotonic()
+            if not arrivals.done.wait(600):
+                raise RuntimeError(f"outputs missing after 600 s: {sorted(arrivals.wanted - set(arrivals.at))}\n{stack.logs()}")
+        finally:
+            subscriber.undeclare()
+            session.close()
+    result = {key: at - last_scan for key, at in arrivals.at.items()}
+    result["publishing (s)"] = last_scan - start
+    result["every map"] = max(v for k, v in result.items() if k.startswith("affordance/"))
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--frames", type=int, default=100)
+    parser.add_argument("--step", type=int, default=3)
+    parser.add_argument("--rate", type=float, default=30.0)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = KITCHEN if KITCHEN.is_dir() else generated_sequence(Path(tmp) / "seq", args.frames * args.step)
+        indices = list(range(0, len(read_sequence(folder).frames), args.step))[: args.frames]
+        runs = [one_run(folder, indices, args.rate, Path(tmp) / f"run{k}") for k in range(args.repeats)]
+    source = "7-Scenes redkitchen (real)" if folder == KITCHEN else "generated living room"
+    print(f"\n{source}: {len(indices)} frames (every {args.step}th) at {args.rate:g} Hz, {args.repeats} runs, "
+          f"{os.cpu_count()} cores; services as processes on one machine\n")
+    print(f"| from the last scan published to ... | median (s) | runs (s) |\n|---|---:|---|")
+    for key in runs[0]:
+        values = [run[key] for run in runs]
+        print(f"| {key} | {statistics.median(values):.2f} | {', '.join(f'{v:.2f}' for v in values)} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,108 @@
+"""End to end, as on a robot: a router and the three services as processes on free loopback ports, depth frames
+streamed with `afford publish`, the maps awaited with `afford watch`; then every recording must verify and
+hold the entities its service logs."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from affordcore.recording import recorded_entities
+from services.launch import Stack, afford_command
+
+from conftest import SHARED_DATA, needs_shared
+
+pytestmark = pytest.mark.slow
+AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")
+KITCHEN = SHARED_DATA / "sequences" / "7scenes_redkitchen_frames_000000-000299"
+ENTITIES = {
+    "assembler": {"/world/odom", "/world/odom/sensor", "/world/odom/sensor/scan", "/world/odom/trajectory", "/world/cloud"},
+    "features": {"/world/cloud", "/world/fields/occupied", "/world/fields/normals"},
+    "inference": {f"/world/{name}/{part}" for name in AFFORDANCES for part in ("confidence", "skeletons", "places")},
+}
+
+
+@pytest.fixture(scope="module")
+def generated_sequence(tmp_path_factory) -> Path:
+    """A generated living room seen by a virtual Kinect along a hand-held path (40 frames)."""
+    from affordcore.synth.dataset import write_sequence
+    from affordcore.synth.rooms import generate_room
+
+    rng = np.random.default_rng(3)
+    room = generate_room("living", rng, "living-e2e")
+    folder = tmp_path_factory.mktemp("sequence") / "living-e2e.sequence"
+    write_sequence(room, rng, folder, "depth", frames=40)
+    return folder
+
+
+def _afford(*args: str, timeout: float) -> subprocess.CompletedProcess:
+    return subprocess.run(afford_command() + list(args), capture_output=True, text=True, timeout=timeout)
+
+
+def _stream_and_watch(stack: Stack, frames_folder: Path, out: Path, publish_args: list[str], frames: int) -> str:
+    watch = subprocess.Popen(afford_command() + ["watch", "--connect", stack.endpoint, "--robot", stack.robot, "--frames", str(frames),
+                                                 "--timeout", "300", "--out", str(out)],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    published = _afford("publish", str(frames_folder), "--connect", stack.endpoint, "--robot", stack.robot, "-q", *publish_args, timeout=300)
+    assert published.returncode == 0, published.stderr + stack.logs()
+    assert f"published {frames} depth frames" in published.stdout
+    output, _ = watch.communicate(timeout=360)
+    assert watch.returncode == 0, output[-3000:] + stack.logs()
+    return output
+
+
+def _check_recordings(folder: Path) -> None:
+    for service, entities in ENTITIES.items():
+        rrd = folder / f"{service}.rrd"
+        verify = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
+        assert verify.returncode == 0, f"{rrd}: {verify.stdout}{verify.stderr}"
+        missing = entities - recorded_entities(rrd)
+        assert not missing, f"{service}.rrd lacks {sorted(missing)}"
+
+
+def _check_maps(out: Path, frames: int, watched: str) -> dict:
+    documents = {}
+    for name in AFFORDANCES:
+        document = json.loads((out / f"{name}.json").read_text())
+        assert document["format"] == "affordance-map/1" and document["affordance"] == name
+        world_from_input = np.array(document["world_from_input"])
+        assert np.allclose(world_from_input[:3, :3] @ world_from_input[:3, :3].T, np.eye(3), atol=1e-6)
+        for skeleton in document["skeletons"]:
+            assert np.array(skeleton["joints"]).shape == (15, 3)
+        documents[name] = document
+    assert f"({frames} frames)" in watched, "the map, fields and maps of every frame must have been published"
+    for key in ("map/cloud: map of", "fields: fields", "map/pose: sensor at"):
+        assert key in watched, f"watch never saw {key}"
+    return documents
+
+
+def test_generated_depth_frames_become_affordance_maps_through_the_three_services(generated_sequence, tmp_path):
+    stack = Stack(tmp_path / "run").start()
+    try:
+        watched = _stream_and_watch(stack, generated_sequence, tmp_path / "maps", ["--rate", "30"], frames=40)
+    finally:
+        codes = stack.stop()
+    assert codes == {"assembler": 0, "features": 0, "inference": 0, "router": 0}, stack.logs()
+    documents = _check_maps(tmp_path / "maps", 40, watched)
+    assert sum(len(d["skeletons"]) for d in documents.values()) > 0, "a living room with sofas and no place at all"
+    _check_recordings(tmp_path / "run")
+    assert "0 rejected" in (tmp_path / "run" / "assembler.log").read_text()
+
+
+@needs_shared
+def test_the_real_kitchen_frames_become_affordance_maps_through_the_three_services(tmp_path):
+    stack = Stack(tmp_path / "run").start()
+    try:
+        watched = _stream_and_watch(stack, KITCHEN, tmp_path / "maps", ["--rate", "30", "--step", "3"], frames=100)
+    finally:
+        codes = stack.stop()
+    assert codes == {"assembler": 0, "features": 0, "inference": 0, "router": 0}, stack.logs()
+    documents = _check_maps(tmp_path / "maps", 100, watched)
+    standing = documents["standing-working"]["skeletons"]
+    assert standing, "the kitchen's counters offer standing work"
+    _check_recordings(tmp_path / "run")

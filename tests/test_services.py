@@ -1,0 +1,193 @@
+"""The services over a real Zenoh router on loopback: bad input is answered on the error key while the service
+keeps going, latest outputs are served to a late `get`, liveliness and status are there, and a stop closes
+the recording. Services run in threads here (fast); tests/test_end_to_end.py runs them as processes."""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from affordcore import messages
+from affordcore.recording import recorded_entities
+from affordcore.settings import Settings
+from services.clients import _publisher
+from services.launch import free_port
+from services.node import Keys, Node, encoding_of, open_session
+
+ROBOT = "testbot"
+KEYS = Keys(ROBOT)
+
+
+@pytest.fixture
+def router():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = open_session([], mode="router", listen=[endpoint])
+    yield endpoint
+    session.close()
+
+
+@pytest.fixture
+def client(router):
+    session = open_session([router])
+    yield session
+    session.close()
+
+
+class Running:
+    """A service in a thread, stopped (and its recording closed) at the end."""
+
+    def __init__(self, service_class, name: str, endpoint: str, rrd: Path, *args):
+        self.node = Node(name, ROBOT, [endpoint], Settings(), rrd, affordances=["sitting-relaxing"])
+        self.service = service_class(self.node, *args)
+        self.thread = threading.Thread(target=self.service.run, daemon=True)
+        self.thread.start()
+
+    def stop(self) -> None:
+        self.node.stop_event.set()
+        self.thread.join(30)
+        assert not self.thread.is_alive(), "the service did not stop"
+
+
+def _listen(session, key: str) -> queue.Queue:
+    inbox: queue.Queue = queue.Queue()
+    session.declare_subscriber(key, lambda sample: inbox.put((str(sample.encoding), sample.payload.to_bytes())))
+    return inbox
+
+
+def _send(session, key: str, payload: bytes, message_class) -> None:
+    publisher = _publisher(session, key, message_class, wait=10)
+    publisher.put(payload)
+    publisher.undeclare()
+
+
+def _next(inbox: queue.Queue, message_class, timeout: float = 30):
+    encoding, payload = inbox.get(timeout=timeout)
+    assert encoding == f"application/protobuf;{messages.schema_name(message_class)}"
+    return messages.parse(message_class, payload)
+
+
+def _alive(session) -> list[str]:
+    return [str(r.ok.key_expr) for r in session.liveliness().get(KEYS.key("status", "*"), timeout=2) if r.ok is not None]
+
+
+def _eventually(condition, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.2)
+    return True
+
+
+def _box_room_scan(rng: np.random.Generator, n: int = 20_000) -> np.ndarray:
+    """Points of a 4 x 3 x 2.5 m room (floor, two walls) and a 0.45 m high seat box, in a z-up frame."""
+    floor = np.column_stack([rng.uniform(0, 4, n), rng.uniform(0, 3, n), np.zeros(n)])
+    wall_x = np.column_stack([np.zeros(n // 2), rng.uniform(0, 3, n // 2), rng.uniform(0, 2.5, n // 2)])
+    wall_y = np.column_stack([rng.uniform(0, 4, n // 2), np.zeros(n // 2), rng.uniform(0, 2.5, n // 2)])
+    seat = np.column_stack([rng.uniform(1, 2, n // 4), rng.uniform(1, 1.6, n // 4), np.full(n // 4, 0.45)])
+    return np.vstack([floor, wall_x, wall_y, seat])
+
+
+def test_the_assembler_rejects_bad_scans_with_a_reason_and_keeps_registering(router, client, tmp_path):
+    from services.assembler import AssemblerService
+
+    errors = _listen(client, KEYS.error("assembler"))
+    poses = _listen(client, KEYS.pose)
+    running = Running(AssemblerService, "assembler", router, tmp_path / "assembler.rrd")
+    try:
+        _send(client, KEYS.scan("cam"), b"\x08\x96\x01 not protobuf at all", messages.Scan)
+        error = _next(errors, messages.Error)
+        assert error.service == "assembler" and error.key == KEYS.scan("cam")
+        assert "not a valid afford.v1.Scan" in error.reason
+
+        wrong_size = messages.DepthFrame(width=640, height=480, depth=b"\x00" * 100, depth_scale=0.001)
+        wrong_size.intrinsics.fx = wrong_size.intrinsics.fy = 585
+        _send(client, KEYS.scan("cam"), wrong_size.SerializeToString(), messages.DepthFrame)
+        assert "depth holds 100 bytes" in _next(errors, messages.Error).reason
+
+        client.put(KEYS.scan("cam"), b"{}", encoding=encoding_of(messages.Status))  # a message of another schema
+        assert "expected encoding application/protobuf with schema afford.v1.Scan or afford.v1.DepthFrame" in _next(errors, messages.Error).reason
+
+        rng = np.random.default_rng(0)
+        room = _box_room_scan(rng) - [2.0, 1.5, 1.2]  # the sensor in the middle of the room
+        for k in range(3):
+            scan = messages.Scan(frame_id="lidar")
+            messages.pack_points(scan, room + [0.02 * k, 0, 0])
+            _send(client, KEYS.scan("cam"), scan.SerializeToString(), messages.Scan)
+            pose = _next(poses, messages.Pose)
+        moved = messages.pose_matrix(pose)[:3, 3]
+        assert moved[0] == pytest.approx(-0.04, abs=0.01), "three scans 2 cm apart: the sensor moved 4 cm against x"
+        assert errors.empty()
+
+        replies = list(client.get(KEYS.status("assembler"), timeout=5))
+        status = messages.parse(messages.Status, replies[0].ok.payload.to_bytes())
+        assert (status.accepted, status.rejected) == (3, 3)
+    finally:
+        running.stop()
+
+
+def test_features_serve_the_latest_fields_to_a_late_get_and_refuse_unaligned_maps(router, client, tmp_path):
+    from services.features import FeaturesService
+
+    errors = _listen(client, KEYS.error("features"))
+    running = Running(FeaturesService, "features", router, tmp_path / "features.rrd")
+    try:
+        assert not list(client.get(KEYS.fields, timeout=2)), "no fields before any map"
+        unaligned = messages.cloud_message(_box_room_scan(np.random.default_rng(1)), np.eye(4), "file")
+        unaligned.frame_id = "camera"
+        _send(client, KEYS.cloud, unaligned.SerializeToString(), messages.Cloud)
+        assert "map clouds must be in the 'world' frame" in _next(errors, messages.Error).reason
+
+        cloud = messages.cloud_message(_box_room_scan(np.random.default_rng(2)), np.eye(4), "file", frames=7)
+        _send(client, KEYS.cloud, cloud.SerializeToString(), messages.Cloud)
+        deadline = time.monotonic() + 60
+        replies = []
+        while not replies and time.monotonic() < deadline:
+            replies = [r.ok for r in client.get(KEYS.fields, timeout=2) if r.ok is not None]
+            time.sleep(0.2)
+        assert replies, "the fields never arrived"
+        fields_message = messages.parse(messages.SceneFieldsMessage, replies[0].payload.to_bytes())
+        fields = messages.scene_fields(fields_message)
+        assert fields_message.frames == 7
+        assert fields.footprint == pytest.approx((0, 0, 4, 3), abs=0.01)
+        seat = fields.lattice.voxel_of(np.array([[1.5, 1.3, 0.45]]))[0]
+        assert fields.occupancy[tuple(seat)] == 1 and fields.distance[tuple(seat)] == 0
+
+        assert _eventually(lambda: _alive(client) == [KEYS.status("features")]), _alive(client)
+    finally:
+        running.stop()
+    assert _eventually(lambda: _alive(client) == []), "the liveliness token outlived the service"
+    assert {"/world/cloud", "/world/fields/occupied", "/world/fields/normals"} <= recorded_entities(tmp_path / "features.rrd")
+
+
+def test_inference_refuses_fields_at_another_resolution(router, client, tmp_path):
+    from affordcore.features import FeatureLayout
+    from affordcore.fields import compute_fields
+    from affordcore.outputs import choose_models
+    from affordcore.settings import VoxelSettings
+    from services.inference import InferenceService
+
+    settings = Settings()
+    models = choose_models([], ["sitting-relaxing"], FeatureLayout.from_settings(settings.features, settings.voxel))
+    errors = _listen(client, KEYS.error("inference"))
+    running = Running(InferenceService, "inference", router, tmp_path / "inference.rrd", models)
+    try:
+        points = _box_room_scan(np.random.default_rng(3))
+        coarse = compute_fields(points, VoxelSettings(resolution=0.2))
+        message = messages.fields_message(coarse, messages.cloud_message(points, np.eye(4), "file"))
+        _send(client, KEYS.fields, message.SerializeToString(), messages.SceneFieldsMessage)
+        assert "fields at 0.2 m voxels" in _next(errors, messages.Error).reason
+    finally:
+        running.stop()
+
+
+def test_a_robot_name_must_be_one_key_chunk():
+    for bad in ("", "a/b", "r*", "@x", "two words"):
+        with pytest.raises(ValueError, match="one non-empty key chunk"):
+            Keys(bad)
+    assert Keys("r2").affordance("sitting-relaxing") == "afford/@v1/r2/affordance/sitting-relaxing"
