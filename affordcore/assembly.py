@@ -42,17 +42,21 @@ class Assembler:
         self.trajectory = Trajectory()
         self._last_keyframe: np.ndarray | None = None
         self._last_guess: np.ndarray | None = None
-        self.registered_points = np.empty((0, 3))  # the last frame as KISS-ICP registered it (thinned, sensor frame)
+        self.registered_points = np.empty((0, 3))
+        self._gravity_sum = np.zeros(3)  # gravity directions reported with the frames, in the odometry frame  # the last frame as KISS-ICP registered it (thinned, sensor frame)
 
     @property
     def frames(self) -> int:
         return len(self.trajectory.poses)
 
-    def register(self, points: np.ndarray, stamp: float, pose_guess: np.ndarray | None = None) -> np.ndarray:
+    def register(self, points: np.ndarray, stamp: float, pose_guess: np.ndarray | None = None,
+                 gravity: np.ndarray | None = None) -> np.ndarray:
         """Register one frame (points in the sensor frame); returns the sensor's pose, odom_from_sensor.
 
         `pose_guess` (world_from_sensor from the robot's own odometry) replaces KISS-ICP's constant-velocity
-        prediction by the guessed motion since the previous frame."""
+        prediction by the guessed motion since the previous frame. `gravity` (its direction in the sensor
+        frame, from an IMU) is averaged in the odometry frame and used by `aligned_map` instead of a floor search
+        over candidate axes, which fails when a hand-held camera has seen little floor."""
         points = np.asarray(points, dtype=np.float64)
         ranges = np.linalg.norm(points, axis=1)
         points = points[(ranges >= self.settings.min_range) & (ranges <= self.settings.max_range)]
@@ -63,6 +67,8 @@ class Assembler:
         self._last_guess = pose_guess
         _, self.registered_points = self.odometry.register_frame(points, np.zeros(len(points)))
         pose = self.odometry.last_pose.copy()
+        if gravity is not None:
+            self._gravity_sum += pose[:3, :3] @ (gravity / np.linalg.norm(gravity))
         self.trajectory.stamps.append(stamp)
         self.trajectory.poses.append(pose)
         if self._is_keyframe(pose):
@@ -86,7 +92,8 @@ class Assembler:
         from .gravity import align_to_gravity
 
         points = self.map_points()
-        alignment = align_to_gravity(points, "auto", gravity or GravitySettings())
+        known = self._gravity_sum if np.linalg.norm(self._gravity_sum) > 0 else "auto"
+        alignment = align_to_gravity(points, known, gravity or GravitySettings())
         transform = alignment.world_from_input
         return points @ transform[:3, :3].T + transform[:3, 3], transform
 

@@ -25,6 +25,7 @@ _HORIZONTAL_COS = 0.9  # a surface whose normal is within ~25 deg of up counts a
 _FURNITURE_TOP = 1.3  # horizontal surfaces up to this height count for a floor's score (m)
 _REFITS = 10  # least-squares refits of the RANSAC plane, at most
 _JUDGES = 20_000  # points that rank RANSAC hypotheses
+_DESCENTS = 3  # at most this many times a floor is looked for under a plane with points below it
 
 AXES = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0), "+z": (0, 0, 1), "-z": (0, 0, -1)}
 
@@ -100,7 +101,7 @@ def align_to_gravity(
     up = -down / np.linalg.norm(down)
     # Trust the given direction; only the floor's height comes from the cloud.
     strict = settings.model_copy(update={"max_tilt_deg": min(settings.max_tilt_deg, 10.0)})
-    candidate = _find_floor(sample, up, "given", strict, normals=None)
+    candidate = _find_floor(sample, up, "given", strict, normals=None, descend=True)
     if not candidate.valid:
         raise NoFloorError(f"no floor found under the given gravity {down.round(4).tolist()}: {candidate.reason}")
     on_floor = np.abs(sample @ candidate.normal - candidate.offset) < settings.ransac_threshold
@@ -130,7 +131,7 @@ def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
 
 def _find_floor(
     sample: np.ndarray, up: np.ndarray, axis: str, settings: GravitySettings,
-    normals: tuple[np.ndarray, np.ndarray] | None,
+    normals: tuple[np.ndarray, np.ndarray] | None, descend: bool = False,
 ) -> FloorCandidate:
     heights = sample @ up
     band = sample[heights <= np.quantile(heights, settings.lowest_fraction)]
@@ -140,6 +141,19 @@ def _find_floor(
         return FloorCandidate(axis, False, f"no plane within {settings.max_tilt_deg:g} deg of {axis} among the lowest points")
     normal, inliers = plane
     offset = float(np.median(band[inliers] @ normal))
+    for _ in range(_DESCENTS if descend else 0):
+        # A room seen by a few frames can show more seat and table tops than floor: when the biggest plane
+        # has points under it, look for the lowest plane among those. Only under a known gravity: on a wrong
+        # candidate axis the points under a wall are what tells it is a wall.
+        lower = band[band @ normal - offset < -_BELOW_MARGIN]
+        if np.mean(sample @ normal - offset < -_BELOW_MARGIN) <= settings.max_below_fraction or len(lower) < 100:
+            break
+        plane = _ransac_plane(lower, up, settings, rng)
+        if plane is None:
+            break
+        band = lower
+        normal, inliers = plane
+        offset = float(np.median(band[inliers] @ normal))
     tilt = float(np.degrees(np.arccos(np.clip(normal @ up, -1, 1))))
     area = _area(band[inliers], normal)
     height = sample @ normal - offset

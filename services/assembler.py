@@ -39,7 +39,7 @@ class AssemblerService:
         points = self._points(message)
         guess = messages.pose_matrix(message.pose_guess) if message.HasField("pose_guess") else None
         at = messages.seconds(message.timestamp) or item.arrived
-        pose = self.assembler.register(points, at, guess)
+        pose = self.assembler.register(points, at, guess, messages.gravity_of(message))
         self.last_scan, self.pending, self.last_stamp = time.monotonic(), True, message.timestamp
 
         pose_message = messages.Pose()

@@ -191,6 +191,19 @@ def test_given_gravity_z_up_shifted(room):
     check_room_recovered(room, apply(alignment.world_from_input, cloud))
 
 
+def test_given_gravity_finds_a_floor_that_shows_less_than_the_furniture_on_it():
+    """A few frames of a furnished room: a 1.2 m^2 floor patch under a big sofa seat and a table top. The
+    biggest low plane is the seat; with gravity known, the floor under it is what is found."""
+    rng = np.random.default_rng(5)
+    floor = np.column_stack([rng.uniform(0, 1.2, 3000), rng.uniform(0, 1.0, 3000), rng.normal(0, 0.004, 3000)])
+    seat = np.column_stack([rng.uniform(0, 2.5, 20000), rng.uniform(1.0, 2.0, 20000), np.full(20000, 0.45)])
+    table = np.column_stack([rng.uniform(0, 2.5, 20000), rng.uniform(2.0, 3.0, 20000), np.full(20000, 0.74)])
+    wall = np.column_stack([np.zeros(20000), rng.uniform(0, 3, 20000), rng.uniform(0, 2.5, 20000)])
+    cloud = np.vstack([floor, seat, table, wall]) + [0.0, 0.0, 1.4]
+    alignment = align_to_gravity(cloud, gravity=[0.0, 0.0, -1.0])
+    assert abs(alignment.floor_offset - 1.4) < 0.01, "the floor, not the seat 0.45 m above it"
+
+
 def test_given_gravity_of_a_rotated_cloud(room):
     rotation = CAM @ axis_angle([1, 1, 0], 12.0)
     input_from_world = rigid(rotation, [0.3, 0.9, 2.0])
