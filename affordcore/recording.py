@@ -35,6 +35,7 @@ def open_recording(path: str | Path, affordances: list[str], recording_id: str |
     (rerun+http://HOST:9876/proxy), to that viewer too. The file never waits for the viewer."""
     import rerun as rr
 
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     recording = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id)
     sinks = [rr.FileSink(str(path))] + ([rr.GrpcSink(viewer)] if viewer else [])
     recording.set_sinks(*sinks, default_blueprint=blueprint(affordances))

@@ -56,13 +56,17 @@ def _stream_and_watch(stack: Stack, frames_folder: Path, out: Path, publish_args
     return output
 
 
-def _check_recordings(folder: Path) -> None:
+def _check_recordings(folder: Path, recording_id: str) -> None:
+    from rerun.chunk import RrdReader
+
     for service, entities in ENTITIES.items():
         rrd = folder / f"{service}.rrd"
         verify = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
         assert verify.returncode == 0, f"{rrd}: {verify.stdout}{verify.stderr}"
         missing = entities - recorded_entities(rrd)
         assert not missing, f"{service}.rrd lacks {sorted(missing)}"
+        # one recording id across the processes: the viewer opens the three files as one recording
+        assert [(e.application_id, e.recording_id) for e in RrdReader(str(rrd)).recordings()] == [("affordmap", recording_id)]
 
 
 def _check_maps(out: Path, frames: int, watched: str) -> dict:
@@ -82,7 +86,7 @@ def _check_maps(out: Path, frames: int, watched: str) -> dict:
 
 
 def test_generated_depth_frames_become_affordance_maps_through_the_three_services(generated_sequence, tmp_path):
-    stack = Stack(tmp_path / "run").start()
+    stack = Stack(tmp_path / "run", env={"AFFORD_SERVICE__RECORDING_ID": "e2e-generated"}).start()
     try:
         watched = _stream_and_watch(stack, generated_sequence, tmp_path / "maps", ["--rate", "30"], frames=40)
     finally:
@@ -90,7 +94,7 @@ def test_generated_depth_frames_become_affordance_maps_through_the_three_service
     assert codes == {"assembler": 0, "features": 0, "inference": 0, "router": 0}, stack.logs()
     documents = _check_maps(tmp_path / "maps", 40, watched)
     assert sum(len(d["skeletons"]) for d in documents.values()) > 0, "a living room with sofas and no place at all"
-    _check_recordings(tmp_path / "run")
+    _check_recordings(tmp_path / "run", "e2e-generated")
     assert "0 rejected" in (tmp_path / "run" / "assembler.log").read_text()
 
 
@@ -105,4 +109,4 @@ def test_the_real_kitchen_frames_become_affordance_maps_through_the_three_servic
     documents = _check_maps(tmp_path / "maps", 100, watched)
     standing = documents["standing-working"]["skeletons"]
     assert standing, "the kitchen's counters offer standing work"
-    _check_recordings(tmp_path / "run")
+    _check_recordings(tmp_path / "run", f"afford-{stack.robot}")
