@@ -269,14 +269,17 @@ def serve(
         affordances = [m.affordance for m in models] or list(shipped_models())
         node = Node(service, robot, connect, settings, rrd, viewer, affordances, listen)
         if service == "assembler":
-            from services.assembler import serve as run
-        elif service == "features":
-            from services.features import serve as run
-        else:
-            from services.inference import serve as run
+            from services.assembler import AssemblerService
 
-            run = (lambda run_inference: lambda node: run_inference(node, models))(run)
-        run(node)
+            AssemblerService(node).run()
+        elif service == "features":
+            from services.features import FeaturesService
+
+            FeaturesService(node).run()
+        else:
+            from services.inference import InferenceService
+
+            InferenceService(node, models).run()
 
 
 @app.command()

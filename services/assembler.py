@@ -77,7 +77,3 @@ class AssemblerService:
         log_trajectory(self.node.recording, self.assembler.trajectory.positions, world_from_odom)
         log_cloud(self.node.recording, points)
         self.node.publish_status(messages.Status.READY, f"published the map of {self.assembler.frames} frames, {len(points):,} points")
-
-
-def serve(node: Node) -> None:
-    AssemblerService(node).run()

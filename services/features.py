@@ -34,7 +34,3 @@ class FeaturesService:
         log_cloud(self.node.recording, points)
         log_fields(self.node.recording, fields)
         self.node.publish_status(messages.Status.READY, f"published fields {fields.lattice.shape} of a {cloud.frames}-frame map")
-
-
-def serve(node: Node) -> None:
-    FeaturesService(node).run()

@@ -41,7 +41,3 @@ class InferenceService:
 
         map_affordances(fields, self.layout, self.models, self.node.settings, on_map=publish)
         self.node.publish_status(messages.Status.READY, f"published {len(self.models)} maps of a {message.frames}-frame map")
-
-
-def serve(node: Node, models: list) -> None:
-    InferenceService(node, models).run()
