@@ -191,3 +191,20 @@ def test_a_robot_name_must_be_one_key_chunk():
         with pytest.raises(ValueError, match="one non-empty key chunk"):
             Keys(bad)
     assert Keys("r2").affordance("sitting-relaxing") == "afford/@v1/r2/affordance/sitting-relaxing"
+
+
+@pytest.mark.slow  # the gRPC sink gives up on the absent viewer after about 10 s
+def test_a_recording_whose_viewer_is_absent_still_writes_the_whole_file(tmp_path):
+    import subprocess
+    import sys
+
+    from affordcore.recording import close_recording, log_cloud, open_recording
+
+    rrd = tmp_path / "sub" / "with-viewer.rrd"
+    recording = open_recording(rrd, ["sitting-relaxing"], "absent-viewer", viewer=f"rerun+http://127.0.0.1:{free_port()}/proxy")
+    log_cloud(recording, np.random.default_rng(0).uniform(0, 3, (5000, 3)))
+    warning = close_recording(recording, timeout=1.0)
+    assert warning is not None and "viewer unreachable" in warning
+    verify = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
+    assert verify.returncode == 0, verify.stderr
+    assert "/world/cloud" in recorded_entities(rrd)
