@@ -98,7 +98,7 @@ def main() -> None:
         indices = list(range(0, len(read_sequence(folder).frames), args.step))[: args.frames]
         runs = [one_run(folder, indices, args.rate, Path(tmp) / f"run{k}") for k in range(args.repeats)]
     source = "7-Scenes redkitchen (real)" if folder == KITCHEN else "generated living room"
-    print(f"\n{source}: {len(indices)} frames (every {args.step}th) at {args.rate:g} Hz, {args.repeats} runs, "
+    print(f"\n{source}: {len(indices)} frames (every {args.step} of the sequence) at {args.rate:g} Hz, {args.repeats} runs, "
           f"{os.cpu_count()} cores; services as processes on one machine\n")
     print(f"| from the last scan published to ... | median (s) | runs (s) |\n|---|---:|---|")
     for key in runs[0]:
