@@ -5,6 +5,10 @@ the assembler keeps a second voxel map, one point per ``map_voxel``, that never 
 keyframes (the sensor moved or turned enough since the last one), which keeps the cost of a frame close to
 bare KISS-ICP's. The odometry frame is the first sensor frame; `aligned_map` brings the map to the world
 frame (gravity-aligned, z up, floor at 0) with the same alignment `afford map` uses.
+
+Depth frames are best thinned by `depth_block_points` (each block of pixels becomes the mean of its measured
+depths) rather than by taking every n-th pixel: on the 7-Scenes kitchen that cut the mean / worst position
+error from 4.3 / 9.9 cm to 3.8 / 7.8 cm at the same cost (benchmarks/bench_assembler.py).
 """
 
 from __future__ import annotations
@@ -42,8 +46,9 @@ class Assembler:
         self.trajectory = Trajectory()
         self._last_keyframe: np.ndarray | None = None
         self._last_guess: np.ndarray | None = None
-        self.registered_points = np.empty((0, 3))
-        self._gravity_sum = np.zeros(3)  # gravity directions reported with the frames, in the odometry frame  # the last frame as KISS-ICP registered it (thinned, sensor frame)
+        self.registered_points = np.empty((0, 3))  # the last frame as KISS-ICP registered it (thinned, sensor frame)
+        self._gravity_sum = np.zeros(3)  # gravity directions reported with the frames, in the odometry frame
+        self.keyframes = 0  # frames that joined the global map
 
     @property
     def frames(self) -> int:
@@ -74,6 +79,7 @@ class Assembler:
         if self._is_keyframe(pose):
             self.global_map.update(points, pose)
             self._last_keyframe = pose
+            self.keyframes += 1
         return pose
 
     def _is_keyframe(self, pose: np.ndarray) -> bool:
@@ -96,6 +102,45 @@ class Assembler:
         alignment = align_to_gravity(points, known, gravity or GravitySettings())
         transform = alignment.world_from_input
         return points @ transform[:3, :3].T + transform[:3, 3], transform
+
+
+def depth_block_points(depth: np.ndarray, intrinsics: np.ndarray, pixel_step: int = 2, min_range: float = 0.0,
+                       max_range: float = np.inf, depth_scale: float = 0.001, invalid_value: int = 65535) -> np.ndarray:
+    """Back-project a depth image (H, W; 0 and `invalid_value` mean no measurement) to points (N, 3) in the camera
+    frame (x right, y down, z forward), one per `pixel_step` x `pixel_step` block of pixels: the mean depth of the
+    block's measured pixels, on the ray through the block's centre. Blocks with no measurement, or whose mean
+    is outside [min_range, max_range], give no point; a partial block at the right or bottom edge is left out.
+    `pixel_step` 1 is every measured pixel, as it is.
+
+    Why the mean and not every n-th pixel: Kinect-class depth comes in disparity steps (1 to 2.5 cm at 2 to
+    3 m) with noise of the same size, and averaging n x n pixels smooths both, the way the sensor's own
+    correlation window would at a lower resolution. It keeps the mean of a block that straddles a depth edge
+    (a point between foreground and background, like the sensor's own flying pixels): dropping those blocks
+    was measured, and lost most of the gain (on the real kitchen and on generated rooms alike)."""
+    depth = np.asarray(depth)
+    if depth.ndim != 2:
+        raise ValueError(f"a depth image must be 2-D, got shape {depth.shape}")
+    step = int(pixel_step)
+    if step < 1:
+        raise ValueError(f"pixel_step must be at least 1, got {pixel_step}")
+    rows, columns = depth.shape[0] // step, depth.shape[1] // step
+    depth = depth[:rows * step, :columns * step]
+    measured = depth != 0
+    if invalid_value:
+        measured &= depth != invalid_value
+    values = np.where(measured, depth, 0)
+    total, count = np.zeros((rows, columns)), np.zeros((rows, columns), dtype=np.int32)
+    for row in range(step):  # strided sums: 5x faster than summing a (rows, step, columns, step) view
+        for column in range(step):
+            total += values[row::step, column::step]
+            count += measured[row::step, column::step]
+    z = np.divide(total, count, out=np.zeros_like(total), where=count > 0) * depth_scale
+    keep = (count > 0) & (z >= min_range) & (z <= max_range)
+    v, u = np.nonzero(keep)
+    z = z[keep]
+    centre = (step - 1) / 2
+    fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
+    return np.column_stack([(u * step + centre - cx) / fx * z, (v * step + centre - cy) / fy * z, z])
 
 
 def trajectory_errors(estimated: list[np.ndarray], truth: list[np.ndarray]) -> dict[str, float]:

@@ -1,27 +1,28 @@
 """Scan assembly on real depth frames: what the assembler costs over bare KISS-ICP, and how far its trajectory
 is from the ground truth.
 
-Microsoft 7-Scenes redkitchen, frames 0 to 299 (Kinect v1, 640 x 480; ../shared/data/sequences/...). Every
-frame is decoded and back-projected before anything is timed (`depth_frame_message` and `depth_points`, the
-path a DepthFrame takes through the assembler service, with the assembler's pixel step and range limits).
+Microsoft 7-Scenes redkitchen, frames 0 to 299 (Kinect v1, 640 x 480, a 2.11 m hand-held path; in
+../shared/data/sequences/). Every frame is decoded and back-projected before anything is timed: by
+`depth_block_points` with the assembler's pixel step and range (the mean of each 2 x 2 block of pixels), and,
+for the rows that say so, by `messages.depth_points` (every 2nd pixel, what the service does today).
 
 Cost, side by side in one run on the same points: bare KISS-ICP (`KissICP(KISSConfig)` with the assembler's
-range and voxel, `register_frame` only) against `Assembler.register` (the same registration, plus the depth-edge
-filter's equivalent nothing -- points are already made -- the global map and the keyframes). Each repeat runs
-both over every frame, in alternating order; the table has the median ms per frame of each repeat, then the
-median over the repeats, and the ratio assembler / bare. `Assembler.aligned_map()` (the gravity alignment
-done at each map publication) is timed on the final map.
+range and voxel, deskew off, `register_frame` only) against `Assembler.register` (the same registration, plus
+the global map and the keyframes; the frames' gravity passed as an IMU would). Each repeat runs both over every
+frame, in alternating order; the table has the median ms per frame of each repeat, then the median over the
+repeats, and the median of the per-repeat ratios. `Assembler.aligned_map()` (done at each map publication) is
+timed on the final map, with the frames' gravity (a floor search along it) and without (a search over the
+candidate axes, what a sensor without an IMU gets).
 
-Trajectory error against the 7-Scenes ground truth (KinectFusion), positions anchored at the first frame:
-bare KISS-ICP with KISSConfig defaults except deskew off and max_range 4 m (voxel 0.04 m, max_range / 100 as
-kiss_icp's load_config derives it; min_range 0), on every 2nd pixel, and the assembler with its defaults.
-The ground truth jumps 3.5 cm and 1.6 degrees between frames 121 and 122, a step the depth frames do not show
-(with the ground-truth step, point-to-plane ICP puts 64 % of frame 122 within 2 cm of frame 121; with its own
-7 mm step, 99 %; every other step of the sequence scores alike both ways). No odometry follows that jump, so
-every error after frame 121 carries it: a second table scores the two halves separately, each anchored at its
-own first frame.
+Trajectory error against the 7-Scenes ground truth (KinectFusion), positions anchored at the first frame.
+"KISSConfig defaults" is bare KISS-ICP with deskew off and max_range 4 m, everything else as KISSConfig has it
+(min_range 0; voxel 0.04 m, the max_range / 100 kiss_icp's load_config derives), on every 2nd pixel. The
+ground truth jumps 3.5 cm and 1.6 degrees between frames 121 and 122, a step the depth frames do not show
+(point-to-plane ICP of frame 122 onto 121: 64 % of the points within 2 cm with the ground truth's step, 98.5 %
+with its own 7 mm one; every other step of the sequence scores alike both ways), so every error after frame
+121 carries it: a second table scores the two halves separately, each anchored at its own first frame.
 
-    .venv/bin/python benchmarks/bench_assembler.py               # about 4 minutes on 2 cores
+    .venv/bin/python benchmarks/bench_assembler.py               # about 5 minutes on 2 cores
     .venv/bin/python benchmarks/bench_assembler.py --frames 100 --repeats 1
 """
 
@@ -38,43 +39,41 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from affordcore.assembly import Assembler, drop_depth_edges, trajectory_errors  # noqa: E402
+from affordcore.assembly import Assembler, depth_block_points, trajectory_errors  # noqa: E402
+from affordcore.gravity import align_to_gravity  # noqa: E402
 from affordcore.messages import depth_frame_message, depth_points  # noqa: E402
 from affordcore.sequence import INVALID_DEPTH, read_sequence  # noqa: E402
-from affordcore.settings import AssemblerSettings  # noqa: E402
+from affordcore.settings import AssemblerSettings, GravitySettings  # noqa: E402
 
 SEQUENCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "sequences" / "7scenes_redkitchen_frames_000000-000299"
 GROUND_TRUTH_JUMP = 122  # the first frame after the ground truth's unsupported 3.5 cm step (see above)
 
 
-def load_frames(folder: Path, frames: int, settings: AssemblerSettings) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
-    """(points with the assembler's settings, points of every 2nd pixel within 0-4 m for bare KISS-ICP with its
-    defaults, ground-truth poses) of the first `frames` frames."""
+def load_frames(folder: Path, frames: int, settings: AssemblerSettings) -> dict:
+    """The first `frames` frames: block-mean points with the assembler's settings, every-2nd-pixel points with
+    its range (and with KISS-ICP's default 0-4 m), the gravity an IMU would report, and the ground-truth poses."""
     sequence = read_sequence(folder)
-    ours, kiss_defaults, truth = [], [], []
+    loaded = {"blocks": [], "pixels": [], "pixels 0-4 m": [], "gravity": [], "truth": []}
     for index in range(min(frames, len(sequence.frames))):
         depth = sequence.depth(index)
+        loaded["blocks"].append(depth_block_points(depth, sequence.intrinsics, settings.pixel_step, settings.min_range,
+                                                   settings.max_range, invalid_value=INVALID_DEPTH))
         message = depth_frame_message(depth, sequence.intrinsics, invalid_value=INVALID_DEPTH)
-        kiss_defaults.append(depth_points(message, 2, 0.0, 4.0))
-        if settings.depth_edge > 0:
-            message = depth_frame_message(drop_depth_edges(depth, settings.depth_edge), sequence.intrinsics, invalid_value=INVALID_DEPTH)
-        ours.append(depth_points(message, settings.pixel_step, settings.min_range, settings.max_range))
-        truth.append(sequence.pose(index))
-    return ours, kiss_defaults, truth
+        loaded["pixels"].append(depth_points(message, settings.pixel_step, settings.min_range, settings.max_range))
+        loaded["pixels 0-4 m"].append(depth_points(message, 2, 0.0, 4.0))
+        loaded["gravity"].append(sequence.gravity(index))
+        loaded["truth"].append(sequence.pose(index))
+    return loaded
 
 
-def bare_kiss(max_range: float, min_range: float, voxel_size: float):
+def run_bare(points: list[np.ndarray], max_range: float, min_range: float, voxel_size: float) -> tuple[list[np.ndarray], list[float]]:
     from kiss_icp.config import KISSConfig
     from kiss_icp.kiss_icp import KissICP
 
     config = KISSConfig()
     config.data.max_range, config.data.min_range, config.data.deskew = max_range, min_range, False
     config.mapping.voxel_size = voxel_size
-    return KissICP(config)
-
-
-def run_bare(points: list[np.ndarray], max_range: float, min_range: float, voxel_size: float) -> tuple[list[np.ndarray], list[float]]:
-    odometry = bare_kiss(max_range, min_range, voxel_size)
+    odometry = KissICP(config)
     poses, seconds = [], []
     for frame in points:
         start = time.perf_counter()
@@ -84,12 +83,12 @@ def run_bare(points: list[np.ndarray], max_range: float, min_range: float, voxel
     return poses, seconds
 
 
-def run_assembler(points: list[np.ndarray], settings: AssemblerSettings) -> tuple[list[np.ndarray], list[float], Assembler]:
+def run_assembler(points: list[np.ndarray], gravity: list, settings: AssemblerSettings) -> tuple[list[np.ndarray], list[float], Assembler]:
     assembler = Assembler(settings)
     poses, seconds = [], []
-    for index, frame in enumerate(points):
+    for index, (frame, down) in enumerate(zip(points, gravity)):
         start = time.perf_counter()
-        poses.append(assembler.register(frame, index / 30))
+        poses.append(assembler.register(frame, index / 30, gravity=down))
         seconds.append(time.perf_counter() - start)
     return poses, seconds, assembler
 
@@ -104,12 +103,12 @@ def split_row(name: str, poses: list[np.ndarray], truth: list[np.ndarray]) -> st
     cells = []
     for low, high in ((0, GROUND_TRUTH_JUMP), (GROUND_TRUTH_JUMP, len(truth))):
         if high - low < 2:
-            cells.append("| - | - | -")
+            cells.append("- | - | -")
             continue
         anchor = np.linalg.inv(poses[low])
         e = trajectory_errors([anchor @ pose for pose in poses[low:high]], truth[low:high])
-        cells.append(f"| {100 * e['mean_m']:.1f} | {100 * e['worst_m']:.1f} | {e['final_rotation_deg']:.2f}")
-    return f"| {name} " + " ".join(cells) + " |"
+        cells.append(f"{100 * e['mean_m']:.1f} | {100 * e['worst_m']:.1f} | {e['final_rotation_deg']:.2f}")
+    return f"| {name} | " + " | ".join(cells) + " |"
 
 
 def main() -> None:
@@ -121,8 +120,9 @@ def main() -> None:
         print(f"skipped: the 7-Scenes redkitchen frames are not at {SEQUENCE} (see ../shared/data/README.md)")
         return
     settings = AssemblerSettings()
-    points, kiss_default_points, truth = load_frames(SEQUENCE, args.frames, settings)
-    import kiss_icp  # noqa: F401  (import cost is nobody's frame time)
+    frames = load_frames(SEQUENCE, args.frames, settings)
+    points, truth = frames["blocks"], frames["truth"]
+    import kiss_icp.kiss_icp  # noqa: F401  (import cost is nobody's frame time)
 
     loaded_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     bare_ms, ours_ms, ratio, cpu = [], [], [], []
@@ -133,46 +133,54 @@ def main() -> None:
             if which == "bare":
                 runs["bare"] = run_bare(points, settings.max_range, settings.min_range, settings.voxel_size)
             else:
-                runs["ours"] = run_assembler(points, settings)
+                runs["ours"] = run_assembler(points, frames["gravity"], settings)
         cpu.append((time.process_time() - cpu_start) / (time.perf_counter() - wall_start))
         bare_ms.append(1000 * statistics.median(runs["bare"][1]))
         ours_ms.append(1000 * statistics.median(runs["ours"][1]))
         ratio.append(ours_ms[-1] / bare_ms[-1])
         if repeat == 0:
             bare_poses, ours_poses, assembler = runs["bare"][0], runs["ours"][0], runs["ours"][2]
-    aligned = []
+    with_gravity, auto = [], []
     for _ in range(args.repeats):
         start = time.perf_counter()
         map_points, _ = assembler.aligned_map()
-        aligned.append(time.perf_counter() - start)
+        with_gravity.append(time.perf_counter() - start)
+        start = time.perf_counter()
+        try:
+            align_to_gravity(assembler.map_points(), "auto", GravitySettings())  # aligned_map without an IMU
+        except ValueError:
+            pass
+        auto.append(time.perf_counter() - start)
 
     print(f"7-Scenes redkitchen, {len(points)} frames, {statistics.mean(len(p) for p in points):,.0f} points a frame "
-          f"(every {settings.pixel_step}. pixel, {settings.min_range:g}-{settings.max_range:g} m), {os.cpu_count()} cores, "
-          f"{args.repeats} repeats, cpu/wall {min(cpu):.2f}-{max(cpu):.2f} (2.0 would be both cores busy)")
-    print(f"assembler defaults: {settings.model_dump()}\n")
-    print("| per frame (median over frames, then over repeats) | ms |\n|---|---:|")
+          f"({settings.pixel_step} x {settings.pixel_step} block means, {settings.min_range:g}-{settings.max_range:g} m), "
+          f"{os.cpu_count()} cores, {args.repeats} repeats, cpu/wall {min(cpu):.2f}-{max(cpu):.2f} (2.0 would be both cores busy)")
+    print(f"assembler defaults: {', '.join(f'{k} {v:g}' for k, v in settings.model_dump().items())}\n")
+    print("| per frame (median over the frames, then over the repeats) | ms |\n|---|---:|")
     print(f"| bare KISS-ICP (voxel {settings.voxel_size:g} m, register_frame) | {statistics.median(bare_ms):.1f} |")
     print(f"| Assembler.register (KISS-ICP + global map + keyframes) | {statistics.median(ours_ms):.1f} |")
     print(f"| ratio assembler / bare | {statistics.median(ratio):.2f} |")
-    print(f"| Assembler.aligned_map() at the end ({len(map_points):,} points, {assembler.keyframes} keyframes) | "
-          f"{1000 * statistics.median(aligned):.0f} |")
+    print(f"| Assembler.aligned_map() at the end, gravity from the frames ({len(map_points):,} points, "
+          f"{assembler.keyframes} keyframes of {assembler.frames} frames) | {1000 * statistics.median(with_gravity):.0f} |")
+    print(f"| the same alignment without gravity (floor search over the candidate axes) | {1000 * statistics.median(auto):.0f} |")
     print(f"\npeak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:,.0f} MB (the whole process; "
           f"{loaded_mb:,.0f} MB once the frames were loaded)\n")
 
-    default_poses, default_seconds = run_bare(kiss_default_points, 4.0, 0.0, 0.04)
-    names = {
-        "bare KISS-ICP, KISSConfig defaults (deskew off, max_range 4, voxel 0.04)": (default_poses, default_seconds),
-        f"bare KISS-ICP at the assembler's settings (voxel {settings.voxel_size:g})": (bare_poses, None),
-        "assembler, defaults": (ours_poses, None),
-    }
+    default_poses, default_seconds = run_bare(frames["pixels 0-4 m"], 4.0, 0.0, 0.04)
+    pixel_poses, pixel_seconds, _ = run_assembler(frames["pixels"], frames["gravity"], settings)
+    rows = [
+        ("bare KISS-ICP, KISSConfig defaults, every 2nd pixel", default_poses, 1000 * statistics.median(default_seconds)),
+        (f"bare KISS-ICP, voxel {settings.voxel_size:g}, block means", bare_poses, statistics.median(bare_ms)),
+        ("assembler defaults, every 2nd pixel (messages.depth_points)", pixel_poses, 1000 * statistics.median(pixel_seconds)),
+        ("assembler defaults, block means (depth_block_points)", ours_poses, statistics.median(ours_ms)),
+    ]
     print("| trajectory | frames | path (m) | mean (cm) | worst (cm) | final rotation (deg) | ms/frame |\n|---|---:|---:|---:|---:|---:|---:|")
-    for name, (poses, seconds) in names.items():
-        ms = 1000 * statistics.median(seconds) if seconds else (statistics.median(bare_ms) if poses is bare_poses else statistics.median(ours_ms))
+    for name, poses, ms in rows:
         print(error_row(name, poses, truth, ms))
-    print(f"\nThe same trajectories, the ground truth split at its jump (frames 0-{GROUND_TRUTH_JUMP - 1} and "
-          f"{GROUND_TRUTH_JUMP}-{len(truth) - 1}, each anchored at its first frame):")
+    print(f"\nThe same trajectories, the ground truth split at its jump: frames 0-{min(GROUND_TRUTH_JUMP, len(truth)) - 1} "
+          f"and {GROUND_TRUTH_JUMP}-{len(truth) - 1}, each anchored at its own first frame")
     print("| trajectory | mean (cm) | worst (cm) | final rot. (deg) | mean (cm) | worst (cm) | final rot. (deg) |\n|---|---:|---:|---:|---:|---:|---:|")
-    for name, (poses, _) in names.items():
+    for name, poses, _ in rows:
         print(split_row(name, poses, truth))
 
 
