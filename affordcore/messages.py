@@ -172,9 +172,8 @@ def depth_frame_message(depth: np.ndarray, intrinsics: np.ndarray, depth_scale: 
     return message
 
 
-def depth_points(message: DepthFrame, pixel_step: int = 1, min_range: float = 0.0, max_range: float = np.inf) -> np.ndarray:
-    """Back-project a DepthFrame to points (N, 3) in the camera frame (x right, y down, z forward), every
-    `pixel_step`-th pixel, keeping depths within [min_range, max_range]."""
+def depth_image(message: DepthFrame) -> tuple[np.ndarray, np.ndarray]:
+    """(16-bit depth image (H, W), 3 x 3 pinhole matrix) of a DepthFrame, checked."""
     width, height = message.width, message.height
     if width == 0 or height == 0:
         raise MessageError(f"depth image is {width} x {height}")
@@ -185,8 +184,17 @@ def depth_points(message: DepthFrame, pixel_step: int = 1, min_range: float = 0.
         raise MessageError(f"intrinsics fx={k.fx}, fy={k.fy} must be positive focal lengths in pixels")
     if not message.depth_scale > 0:
         raise MessageError(f"depth_scale must be positive metres per unit, got {message.depth_scale}")
-    raw = np.frombuffer(message.depth, dtype="<u2").reshape(height, width)[::pixel_step, ::pixel_step]
-    v, u = np.mgrid[0:height:pixel_step, 0:width:pixel_step]
+    intrinsics = np.array([[k.fx, 0, k.cx], [0, k.fy, k.cy], [0, 0, 1.0]])
+    return np.frombuffer(message.depth, dtype="<u2").reshape(height, width), intrinsics
+
+
+def depth_points(message: DepthFrame, pixel_step: int = 1, min_range: float = 0.0, max_range: float = np.inf) -> np.ndarray:
+    """Back-project a DepthFrame to points (N, 3) in the camera frame (x right, y down, z forward), every
+    `pixel_step`-th pixel, keeping depths within [min_range, max_range]. (The assembler averages blocks of
+    pixels instead: affordcore.assembly.depth_block_points.)"""
+    image, intrinsics = depth_image(message)
+    raw = image[::pixel_step, ::pixel_step]
+    v, u = np.mgrid[0:message.height:pixel_step, 0:message.width:pixel_step]
     valid = raw != 0
     if message.invalid_value:
         valid &= raw != message.invalid_value
@@ -194,7 +202,8 @@ def depth_points(message: DepthFrame, pixel_step: int = 1, min_range: float = 0.
     keep = (z >= min_range) & (z <= max_range)
     z = z[keep]
     u, v = u[valid][keep], v[valid][keep]
-    return np.column_stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z])
+    fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
+    return np.column_stack([(u - cx) / fx * z, (v - cy) / fy * z, z])
 
 
 # -- clouds, fields, maps ------------------------------------------------------------------------------------
