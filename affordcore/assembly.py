@@ -6,9 +6,8 @@ keyframes (the sensor moved or turned enough since the last one), which keeps th
 bare KISS-ICP's. The odometry frame is the first sensor frame; `aligned_map` brings the map to the world
 frame (gravity-aligned, z up, floor at 0) with the same alignment `afford map` uses.
 
-Depth frames are best thinned by `depth_block_points` (each block of pixels becomes the mean of its measured
-depths) rather than by taking every n-th pixel: on the 7-Scenes kitchen that cut the mean / worst position
-error from 4.3 / 9.9 cm to 3.8 / 7.8 cm at the same cost (benchmarks/bench_assembler.py).
+Frames arrive as `SensorFrame`s, whatever message brought them (affordwire.sensors decodes them); depth images
+are back-projected by `affordcore.depth.back_project`.
 """
 
 from __future__ import annotations
@@ -17,7 +16,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .settings import AssemblerSettings, GravitySettings
+from .depth import DepthImage, back_project
+from .settings import AssemblerSettings, Settings
+
+
+@dataclass
+class SensorFrame:
+    """One frame as the assembler takes it, whatever message brought it (affordwire.sensors decodes them)."""
+
+    frame_id: str
+    stamp: float  # seconds since the epoch; 0 when the message did not say
+    points: np.ndarray | None = None  # (N, 3) in the sensor frame ...
+    depth: DepthImage | None = None  # ... or a depth image to back-project
+    gravity: np.ndarray | None = None  # unit direction of gravity (down) in the sensor frame, from an IMU
+    pose_guess: np.ndarray | None = None  # world_from_sensor from the robot's own odometry
 
 
 @dataclass
@@ -53,6 +65,14 @@ class Assembler:
     @property
     def frames(self) -> int:
         return len(self.trajectory.poses)
+
+    def add(self, frame: SensorFrame, stamp: float) -> np.ndarray:
+        """Register a sensor frame (depth images back-projected as block means); returns odom_from_sensor."""
+        points = frame.points
+        if frame.depth is not None:
+            settings = self.settings
+            points = back_project(frame.depth, settings.pixel_step, settings.min_range, settings.max_range)
+        return self.register(points, stamp, frame.pose_guess, frame.gravity)
 
     def register(self, points: np.ndarray, stamp: float, pose_guess: np.ndarray | None = None,
                  gravity: np.ndarray | None = None) -> np.ndarray:
@@ -93,54 +113,16 @@ class Assembler:
         """The global map in the odometry frame (the first sensor frame)."""
         return self.global_map.point_cloud() if self.frames else np.empty((0, 3))
 
-    def aligned_map(self, gravity: GravitySettings | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(map points in the world frame, world_from_odom). Raises ValueError when no floor is found yet."""
-        from .gravity import align_to_gravity
+    def aligned_map(self, settings: Settings | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(map points in the world frame, world_from_odom), by the same path as every other cloud
+        (`pipeline.to_world`), with gravity from the frames when they carried it. Raises ValueError when no
+        floor is found yet."""
+        from .pipeline import to_world
+        from .scene import Cloud
 
-        points = self.map_points()
         known = self._gravity_sum if np.linalg.norm(self._gravity_sum) > 0 else "auto"
-        alignment = align_to_gravity(points, known, gravity or GravitySettings())
-        transform = alignment.world_from_input
-        return points @ transform[:3, :3].T + transform[:3, 3], transform
-
-
-def depth_block_points(depth: np.ndarray, intrinsics: np.ndarray, pixel_step: int = 2, min_range: float = 0.0,
-                       max_range: float = np.inf, depth_scale: float = 0.001, invalid_value: int = 65535) -> np.ndarray:
-    """Back-project a depth image (H, W; 0 and `invalid_value` mean no measurement) to points (N, 3) in the camera
-    frame (x right, y down, z forward), one per `pixel_step` x `pixel_step` block of pixels: the mean depth of the
-    block's measured pixels, on the ray through the block's centre. Blocks with no measurement, or whose mean
-    is outside [min_range, max_range], give no point; a partial block at the right or bottom edge is left out.
-    `pixel_step` 1 is every measured pixel, as it is.
-
-    Why the mean and not every n-th pixel: Kinect-class depth comes in disparity steps (1 to 2.5 cm at 2 to
-    3 m) with noise of the same size, and averaging n x n pixels smooths both, the way the sensor's own
-    correlation window would at a lower resolution. It keeps the mean of a block that straddles a depth edge
-    (a point between foreground and background, like the sensor's own flying pixels): dropping those blocks
-    was measured, and lost most of the gain (on the real kitchen and on generated rooms alike)."""
-    depth = np.asarray(depth)
-    if depth.ndim != 2:
-        raise ValueError(f"a depth image must be 2-D, got shape {depth.shape}")
-    step = int(pixel_step)
-    if step < 1:
-        raise ValueError(f"pixel_step must be at least 1, got {pixel_step}")
-    rows, columns = depth.shape[0] // step, depth.shape[1] // step
-    depth = depth[:rows * step, :columns * step]
-    measured = depth != 0
-    if invalid_value:
-        measured &= depth != invalid_value
-    values = np.where(measured, depth, 0)
-    total, count = np.zeros((rows, columns)), np.zeros((rows, columns), dtype=np.int32)
-    for row in range(step):  # strided sums: 5x faster than summing a (rows, step, columns, step) view
-        for column in range(step):
-            total += values[row::step, column::step]
-            count += measured[row::step, column::step]
-    z = np.divide(total, count, out=np.zeros_like(total), where=count > 0) * depth_scale
-    keep = (count > 0) & (z >= min_range) & (z <= max_range)
-    v, u = np.nonzero(keep)
-    z = z[keep]
-    centre = (step - 1) / 2
-    fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
-    return np.column_stack([(u * step + centre - cx) / fx * z, (v * step + centre - cy) / fy * z, z])
+        world = to_world(Cloud(self.map_points(), source="assembler map"), settings, known)
+        return world.cloud.points, world.alignment.world_from_input
 
 
 def trajectory_errors(estimated: list[np.ndarray], truth: list[np.ndarray]) -> dict[str, float]:

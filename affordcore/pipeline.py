@@ -1,10 +1,12 @@
-"""From a cloud to what every affordance is scored on (the aligned cloud, its voxel fields, pose grids), and to
-the affordance maps."""
+"""The walk of a cloud: any cloud -> the world frame (`to_world`: thinned when huge, gravity-aligned) -> its voxel
+fields (`prepare_scene`) -> every model's scores and maps (`map_affordances`). `afford map`, `afford publish
+--as-map`, the assembler and the features service all take this one path."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -12,15 +14,20 @@ from .features import FeatureLayout
 from .fields import SceneFields, compute_fields, observed_floor
 from .gravity import Alignment, align_to_gravity
 from .grid import PoseGrid
-from .scene import Cloud
+from .scene import Cloud, thin_huge_cloud
 from .settings import Settings
 from .skeleton import Skeleton
 
 
 @dataclass
-class PreparedScene:
-    cloud: Cloud  # in the world frame
-    alignment: Alignment
+class WorldCloud:
+    cloud: Cloud  # in the world frame: z up, floor at z = 0
+    alignment: Alignment  # how it got there (world_from_input and the evidence)
+    warnings: list[str]  # what was done to it that a person should hear of (thinning)
+
+
+@dataclass
+class PreparedScene(WorldCloud):
     fields: SceneFields
     layout: FeatureLayout
 
@@ -58,12 +65,22 @@ def parse_gravity(text: str) -> str | np.ndarray:
     return vector
 
 
-def prepare_scene(cloud: Cloud, settings: Settings | None = None, gravity: str | np.ndarray = "auto") -> PreparedScene:
+def to_world(cloud: Cloud, settings: Settings | None = None, gravity: str | np.ndarray = "auto") -> WorldCloud:
+    """Any cloud in the world frame: thinned when over `map.max_points`, then gravity-aligned (`gravity`: "auto",
+    "none" or the direction of gravity in the cloud's frame). Raises `NoFloorError` when no floor is found."""
     settings = settings or Settings()
+    cloud, warning = thin_huge_cloud(cloud, settings.map.max_points, settings.map.thin_voxel)
     alignment = align_to_gravity(cloud.points, gravity, settings.gravity)
-    world = cloud.transformed(alignment.world_from_input)
-    fields = compute_fields(world.points, settings.voxel, settings.normals)
-    return PreparedScene(world, alignment, fields, FeatureLayout.from_settings(settings.features, settings.voxel))
+    return WorldCloud(cloud.transformed(alignment.world_from_input), alignment, [warning] if warning else [])
+
+
+def prepare_scene(cloud: Cloud, settings: Settings | None = None, gravity: str | np.ndarray = "auto") -> PreparedScene:
+    """`to_world`, then the voxel fields every affordance is scored on."""
+    settings = settings or Settings()
+    world = to_world(cloud, settings, gravity)
+    fields = compute_fields(world.cloud.points, settings.voxel, settings.normals)
+    return PreparedScene(world.cloud, world.alignment, world.warnings, fields,
+                         FeatureLayout.from_settings(settings.features, settings.voxel))
 
 
 def map_affordances(fields: SceneFields, layout: FeatureLayout, models: list, settings: Settings | None = None,
@@ -86,3 +103,35 @@ def map_affordances(fields: SceneFields, layout: FeatureLayout, models: list, se
         if on_map:
             on_map(model.affordance, maps[model.affordance])
     return maps
+
+
+def stream_features(scene: PreparedScene, skeleton: Skeleton, settings: Settings, out: Path | None = None,
+                    on_rows: Callable[[int], None] | None = None) -> tuple[int, int]:
+    """Every grid pose's features for one skeleton, chunk by chunk (never the whole matrix in memory), written
+    as a (poses x features) float32 .npy at `out` when given; `on_rows(n)` hears of each chunk. Returns
+    (poses, features)."""
+    from .features import iter_features
+
+    grid = scene.pose_grid(skeleton, settings)
+    layout = scene.layout
+    matrix = open_feature_matrix(out, grid.size, layout.n_features) if out else None
+    for chunk in iter_features(scene.fields, skeleton, grid, layout, settings.features.chunk_mb, reuse_buffer=True):
+        if matrix is not None:
+            matrix[chunk.start:chunk.stop] = chunk.values
+        if on_rows:
+            on_rows(chunk.stop - chunk.start)
+    if matrix is not None:
+        matrix.flush()
+    return grid.size, layout.n_features
+
+
+def open_feature_matrix(path: Path, rows: int, columns: int) -> np.ndarray:
+    """A float32 .npy memory map for a feature matrix, refused up front when the disk cannot hold it."""
+    import shutil
+
+    needed = rows * columns * 4
+    free = shutil.disk_usage(path.parent.resolve()).free
+    if needed > free:
+        raise OSError(f"{path}: the feature matrix needs {needed / 2**30:.1f} GiB and the disk has "
+                      f"{free / 2**30:.1f} GiB free")
+    return np.lib.format.open_memmap(path, mode="w+", dtype=np.float32, shape=(rows, columns))

@@ -1,4 +1,5 @@
-"""Figures a person reads faster than numbers (matplotlib, no screen needed)."""
+"""Every figure the project draws (matplotlib on the Agg backend, no screen needed): fields, maps, labels,
+skeletons and the evaluation's curves."""
 
 from __future__ import annotations
 
@@ -7,6 +8,9 @@ from pathlib import Path
 import numpy as np
 
 from .fields import SceneFields
+from .grid import PoseGrid
+from .labels import GroundTruth, LabelSet, affordance_colours
+from .skeleton import BONE_ENDS, BONES, Skeleton, skeleton_files
 
 
 def pyplot():
@@ -94,3 +98,175 @@ def plot_map(points: np.ndarray, amap, path: str | Path, cell: float = 0.05, lab
     figure.savefig(path, dpi=110)
     plt.close(figure)
     return Path(path)
+
+
+def plot_labels(
+    points: np.ndarray,
+    labels: LabelSet,
+    path: str | Path,
+    grid: PoseGrid | None = None,
+    ground_truth: dict[str, GroundTruth] | None = None,
+    max_points: int = 200_000,
+) -> Path:
+    """Top view of a room: the cloud coloured by height, each label as its segment or point in its
+    affordance's colour with arrows along ``facing``, unlabelled regions hatched, and optionally the grid's
+    footprint (dashed) and the (x, y) cells that are positive at some theta (shaded)."""
+    plt = pyplot()
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch, Polygon
+
+    ground_truth = ground_truth or {}
+    points = np.asarray(points, dtype=np.float64)
+    if len(points) > max_points:
+        points = points[np.random.default_rng(0).choice(len(points), max_points, replace=False)]
+    points = points[np.argsort(points[:, 2])]  # higher points drawn last: what a view from above sees
+    # the built-in types take part so that an affordance has the same colour in every room's plot
+    colours = affordance_colours(set(labels.affordances) | set(ground_truth) | set(skeleton_files()))
+
+    span = np.ptp(points[:, :2], axis=0) if len(points) else np.ones(2)
+    scale = 10 / max(span.max(), 1.0)
+    figure, axis = plt.subplots(figsize=(max(7.0, span[0] * scale + 2.5), max(5.0, span[1] * scale + 2.5)),
+                                layout="constrained")
+    shown = axis.scatter(points[:, 0], points[:, 1], c=points[:, 2], s=0.4, cmap="Greys", vmin=-0.8,
+                         vmax=max(2.0, float(np.percentile(points[:, 2], 99))) if len(points) else 2.0,
+                         linewidths=0, rasterized=True)
+    figure.colorbar(shown, ax=axis, shrink=0.7, label="height of the point (m)")
+    handles = []
+    for name, truth in sorted(ground_truth.items()):
+        cells = truth.positive.any(axis=0)
+        if not cells.any():
+            continue
+        image = np.zeros((*cells.shape, 4))
+        image[cells] = (*colours[name][:3], 0.45)
+        axis.imshow(image.transpose(1, 0, 2), origin="lower", interpolation="nearest", zorder=2,
+                    extent=_extent(truth.grid))
+        handles.append(Patch(color=colours[name], alpha=0.45,
+                             label=f"{name}: positive cells ({truth.counts()[0]:,} poses)"))
+    if grid is not None:
+        x0, x1, y0, y1 = _extent(grid)
+        axis.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="tab:cyan", ls="--", lw=1))
+        handles.append(Line2D([], [], color="tab:cyan", ls="--", label="pose grid footprint"))
+    for region in labels.unlabelled_regions:
+        axis.add_patch(Polygon(region.polygon, fill=False, hatch="///", ec="dimgray", lw=1, zorder=3))
+    if labels.unlabelled_regions:
+        handles.append(Patch(fill=False, hatch="///", ec="dimgray", label="unlabelled region (not scored)"))
+    arrow = 0.35
+    for label in labels.labels:
+        colour = colours[label.affordance]
+        if label.at is not None:
+            bases = np.array([label.at])
+            axis.plot(*label.at, "o", ms=8, color=colour, mec="black", mew=0.8, zorder=5)
+        else:
+            ends = np.array([label.start, label.end])
+            axis.plot(*ends.T, "-", lw=4, color=colour, solid_capstyle="round", zorder=5)
+            axis.plot(*ends.T, "-", lw=0.8, color="black", zorder=5)
+            bases = ends[0] + np.linspace(0, 1, 3)[:, None] * (ends[1] - ends[0])
+        for base in bases:
+            axis.annotate("", base + arrow * np.array([np.cos(label.facing), np.sin(label.facing)]), base,
+                          arrowprops=dict(arrowstyle="-|>", color=colour, lw=2, mutation_scale=14), zorder=6)
+    for name in labels.affordances:
+        count = len(labels.of(name))
+        handles.append(Line2D([], [], color=colours[name], lw=4, marker="o", mec="black",
+                              label=f"{name}: {count} label{'s' * (count != 1)} (arrows: facing)"))
+    figure.legend(handles=handles, loc="outside lower center", ncol=2, fontsize=9, frameon=False)
+    axis.set_aspect("equal")
+    axis.margins(0.03)
+    axis.set_xlabel("x (m)")
+    axis.set_ylabel("y (m)")
+    axis.grid(alpha=0.25)
+    axis.set_title(f"{labels.scene}\n{labels.cloud}: labels over the cloud seen from above", fontsize=10)
+    path = Path(path)
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+    return path
+
+
+def _extent(grid: PoseGrid) -> tuple[float, float, float, float]:
+    """(x0, x1, y0, y1): the outer edges of the grid's cells."""
+    half = (grid.step if np.isfinite(grid.step) else 0.1) / 2
+    return (grid.x[0] - half, grid.x[-1] + half, grid.y[0] - half, grid.y[-1] + half)
+
+
+def plot_skeletons(skeletons: list[Skeleton], path: str | Path, members: dict[str, np.ndarray] | None = None,
+                   max_members: int = 150) -> Path:
+    """One row per skeleton: front (y-z, seen from the front) and side (x-z, seen from its right) views standing
+    on the floor, left bones blue and right red, and faintly up to ``max_members`` frames of its cluster (each
+    with its own proportions, at the model's torso height). One PNG."""
+    plt = pyplot()
+    from matplotlib.collections import LineCollection
+
+    def segments(joints: np.ndarray, h: int, lift: float) -> np.ndarray:
+        placed = joints[..., [h, 2]] + [0.0, lift]
+        return np.stack([placed[..., BONE_ENDS[:, 0], :], placed[..., BONE_ENDS[:, 1], :]], axis=-2).reshape(-1, 2, 2)
+
+    colours = ["tab:blue" if "L_" in a + b else "tab:red" if "R_" in a + b else "k" for a, b in BONES]
+    figure, axes = plt.subplots(len(skeletons), 2, figsize=(7.5, 4.2 * len(skeletons)), squeeze=False,
+                                constrained_layout=True)
+    for row, skeleton in zip(axes, skeletons):
+        crowd = (members or {}).get(skeleton.affordance, np.empty((0, 15, 3)))
+        shown = crowd[np.unique(np.linspace(0, len(crowd) - 1, max_members).astype(int))] if len(crowd) else crowd
+        note = f"\n(grey: {len(shown)} of the cluster's {len(crowd)} frames)" if len(crowd) else ""
+        for axis, (h, view) in zip(row, [(1, "front, y-z"), (0, "side, x-z")]):
+            lift = skeleton.torso_height
+            axis.add_collection(LineCollection(segments(shown, h, lift), colors="0.5", lw=0.5, alpha=0.08))
+            axis.add_collection(LineCollection(segments(skeleton.joints, h, lift), colors=colours, lw=2.5))
+            axis.plot(skeleton.joints[:, h], skeleton.joints[:, 2] + skeleton.torso_height, "o", color="k", ms=3)
+            axis.axhline(0.0, color="saddlebrown", lw=2)
+            axis.set(xlim=(-0.7, 0.7) if h else (-0.5, 0.9), ylim=(-0.05, 1.9), aspect="equal",
+                     xlabel=f"{'xy'[h]} (m)", ylabel="z (m), floor at 0")
+            axis.set_title(f"{skeleton.affordance} ({view}){note}", fontsize=9)
+            axis.grid(alpha=0.3)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return path
+
+
+def plot_imbalance(evaluation, path: Path) -> None:
+    """F1 on the test rooms against the training imbalance, per affordance and learner (an `Evaluation`)."""
+    plt = pyplot()
+
+    sweep = evaluation.sweep()
+    affordances = list(dict.fromkeys(o.affordance for o in evaluation.outcomes))
+    fig, axes = plt.subplots(1, len(affordances), figsize=(5 * len(affordances), 4), squeeze=False, sharey=True)
+    for ax, affordance in zip(axes[0], affordances):
+        runs = [o for o in sweep if o.affordance == affordance]
+        for learner in dict.fromkeys(o.learner for o in runs):
+            points = sorted((o.train_ratio, o.f1) for o in runs if o.learner == learner)
+            ax.plot(*zip(*points), marker="o", label=learner)
+        ax.set_xscale("log", base=2)
+        ax.set_title(affordance)
+        ax.set_xlabel("negatives per positive in training (rightmost: all data)")
+        ax.grid(alpha=0.3)
+    _save(fig, axes, "F1 on the test rooms", "Imbalance test: F1 against the training imbalance (fold 1)", path)
+
+
+def plot_ssvm_iterations(evaluation, path: Path) -> None:
+    """The structured SVM's training and validation F1 per cutting-plane iteration (an `Evaluation`)."""
+    plt = pyplot()
+
+    runs = [o for o in evaluation.outcomes if o.learner == "ssvm" and o.fold == 0 and not o.sweep]
+    fig, axes = plt.subplots(1, max(1, len(runs)), figsize=(5 * max(1, len(runs)), 4), squeeze=False, sharey=True)
+    for ax, run in zip(axes[0], runs):
+        train_f1, validation_f1 = run.report["train_f1"], run.report["validation_f1"]
+        steps = np.arange(1, len(train_f1) + 1)
+        ax.plot(steps, train_f1, label="training rooms")
+        ax.plot(steps, validation_f1, label="validation rooms")
+        ax.axvline(run.report["best_iteration"], color="grey", ls="--", label="kept (best on validation)")
+        ax.set_title(run.affordance)
+        ax.set_xlabel("cutting-plane iteration")
+        ax.grid(alpha=0.3)
+    if not runs:
+        axes[0][0].text(0.5, 0.5, "the structured SVM was not evaluated", ha="center", va="center")
+    _save(fig, axes, "F1", "Structured SVM: F1 per iteration (fold 1)", path)
+
+
+def _save(fig, axes, ylabel: str, title: str, path: Path) -> None:
+    """One row of panels: the y label on the first, the legend on the last, the title over all."""
+    axes[0][0].set_ylabel(ylabel)
+    axes[0][-1].legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    pyplot().close(fig)

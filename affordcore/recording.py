@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .skeleton import BONES, JOINTS
+from .skeleton import BONE_ENDS, JOINTS
 
 APPLICATION_ID = "affordmap"
 
@@ -88,8 +88,7 @@ def log_map(recording, amap) -> None:
     cells = np.column_stack([grid.x[ix], grid.y[iy], np.full(len(ix), 0.02)])
     recording.log(f"world/{amap.affordance}/confidence", rr.Points3D(cells, colors=colors, radii=grid.step / 2,
                                                                        labels=[f"{v:.2f}" for v in values]))
-    bones = [(JOINTS.index(a), JOINTS.index(b)) for a, b in BONES]
-    strips = [joints[[i, j]] for joints in amap.joints for i, j in bones]
+    strips = [joints[ends] for joints in amap.joints for ends in BONE_ENDS]
     recording.log(f"world/{amap.affordance}/skeletons", rr.LineStrips3D(strips, radii=0.015, colors=[220, 40, 60]))
     torsos = amap.joints[:, JOINTS.index("TORSO")] if len(amap.joints) else np.empty((0, 3))
     recording.log(f"world/{amap.affordance}/places", rr.Points3D(torsos, radii=0.04, colors=[220, 40, 60],

@@ -252,3 +252,18 @@ def save_cloud(path: str | os.PathLike, cloud: Cloud) -> None:
             raise CloudError(f"{path}: could not write the cloud")
     else:
         raise CloudError(f"{path}: can only write .ply, .pcd or .npy")
+
+
+def thin_huge_cloud(cloud: Cloud, max_points: int, first_voxel: float) -> tuple[Cloud, str | None]:
+    """A cloud over `max_points` is voxel-thinned (at `first_voxel`, doubled until it fits), so that a dense
+    scan cannot exhaust memory; returns the cloud and a warning that says what was done (None if nothing)."""
+    if len(cloud) <= max_points:
+        return cloud, None
+    voxel = first_voxel
+    points, colors = voxel_thin(cloud.points, voxel, cloud.colors)
+    while len(points) > max_points:
+        voxel *= 2
+        points, colors = voxel_thin(cloud.points, voxel, cloud.colors)
+    warning = (f"{cloud.source}: {len(cloud):,} points is over the {max_points:,} limit; thinned to {len(points):,} "
+               f"at {voxel * 100:.0f} mm voxels (AFFORD_MAP__MAX_POINTS raises the limit)")
+    return Cloud(points, colors, cloud.source, cloud.dropped_nonfinite, list(cloud.notes)), warning

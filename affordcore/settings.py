@@ -71,14 +71,6 @@ class AssemblerSettings(BaseModel):
     publish_period: float = Field(2.0, ge=0, description="the map cloud is published at most this often (s), and once more after the last scan")
 
 
-class ServiceSettings(BaseModel):
-    mode: str = Field("peer", pattern="^(peer|client)$", description="zenoh mode of the services and clients: peer or client (a router is always needed for --connect)")
-    recording_id: str = Field("", description="Rerun recording id shared by every service so their .rrd files open as one recording; empty: afford-<robot>")
-    status_period: float = Field(5.0, gt=0, description="each service republishes its status this often (s)")
-    max_queue: int = Field(1000, ge=1, description="scans waiting for the assembler beyond this are refused on its error key, not dropped silently")
-    downstream_nice: int = Field(10, ge=0, le=19, description="features and inference run this much nicer than the assembler, so scan assembly keeps up with the sensor on a shared CPU")
-
-
 class Settings(BaseSettings):
     """All tunables of affordmap. Defaults follow DESIGN.md (10 cm voxels and grid, 63 orientations)."""
 
@@ -91,7 +83,6 @@ class Settings(BaseSettings):
     gravity: GravitySettings = GravitySettings()
     map: MapSettings = MapSettings()
     assembler: AssemblerSettings = AssemblerSettings()
-    service: ServiceSettings = ServiceSettings()
     skeleton_dirs: list[Path] = Field(
         default_factory=list,
         description="extra folders of skeleton files (<affordance>.json); a file here overrides the built-in one of the same name",
@@ -108,8 +99,8 @@ class Settings(BaseSettings):
         return self
 
 
-def describe_defaults() -> list[tuple[str, str, str]]:
-    """(environment variable, default, description) for every setting."""
+def describe_defaults(settings_class: type[BaseModel] = Settings) -> list[tuple[str, str, str]]:
+    """(environment variable, default, description) for every setting of `settings_class`."""
     rows: list[tuple[str, str, str]] = []
 
     def walk(model: type[BaseModel], prefix: str) -> None:
@@ -121,5 +112,5 @@ def describe_defaults() -> list[tuple[str, str, str]]:
             default = field.default_factory() if field.default_factory else field.default
             rows.append((f"{prefix}{name.upper()}", repr(default), field.description or ""))
 
-    walk(Settings, "AFFORD_")
+    walk(settings_class, "AFFORD_")
     return rows

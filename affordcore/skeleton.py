@@ -23,6 +23,8 @@ BONES = (
     ("NECK", "R_SHOULDER"), ("R_SHOULDER", "R_ELBOW"), ("R_ELBOW", "R_HAND"), ("TORSO", "L_HIP"), ("L_HIP", "L_KNEE"),
     ("L_KNEE", "L_FOOT"), ("TORSO", "R_HIP"), ("R_HIP", "R_KNEE"), ("R_KNEE", "R_FOOT"), ("L_HIP", "R_HIP"),
 )
+BONE_ENDS = np.array([[JOINTS.index(a), JOINTS.index(b)] for a, b in BONES])  # (bones, 2) joint indices
+
 FORMAT = "affordance-skeleton/1"
 BUILTIN_DIR = Path(__file__).parent / "data" / "skeletons"
 _FLOOR_SLACK = 0.05  # a joint may dip this far under the floor (ankle markers sit a little above it)

@@ -3,7 +3,7 @@
 The recipe is data (``affordcore/data/skeleton_sources.json``): per affordance, the trial (posture) and actions
 of MSR DailyActivity3D whose frames describe it, and optionally the height its hands must reach. The data set is
 read in place (research-use terms: never copied). ``derive`` returns the models and the numbers behind them;
-``write_skeleton`` and ``plot_skeletons`` turn them into the package's files and a figure. See docs/skeletons.md.
+``write_skeleton`` turns them into the package's files (``plots.plot_skeletons`` draws them). See docs/skeletons.md.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .skeleton import BONES, FORMAT, JOINTS, Skeleton, rotation_z
+from .skeleton import BONE_ENDS, BONES, FORMAT, JOINTS, Skeleton, rotation_z
 
 SOURCES = Path(__file__).parent / "data" / "skeleton_sources.json"
 SOURCES_FORMAT = "affordance-skeleton-sources/1"
@@ -27,8 +27,6 @@ TWIST_DEG = 45.0  # hip and shoulder left-right axes within this angle of each o
 MIN_SHARE = 0.10  # a recipe's "choose" rule only considers clusters holding at least this share of its frames
 
 _J = {name: i for i, name in enumerate(JOINTS)}
-_BONE_A = np.array([_J[a] for a, _ in BONES])
-_BONE_B = np.array([_J[b] for _, b in BONES])
 _PAIRS = [  # (left bone, right bone) indices into BONES
     (BONES.index(bone), BONES.index(tuple(j.replace("L_", "R_") for j in bone)))
     for bone in BONES if any(j.startswith("L_") for j in bone) and "R_HIP" not in bone
@@ -177,7 +175,7 @@ def leg_angles(joints: np.ndarray) -> dict[str, np.ndarray]:
 
 def bone_lengths(joints: np.ndarray) -> np.ndarray:
     """(n, 15, 3) -> (n, len(BONES)) metres."""
-    return np.linalg.norm(joints[:, _BONE_A] - joints[:, _BONE_B], axis=-1)
+    return np.linalg.norm(joints[:, BONE_ENDS[:, 0]] - joints[:, BONE_ENDS[:, 1]], axis=-1)
 
 
 def filter_masks(frames: Frames, trials: dict) -> dict[str, np.ndarray]:
@@ -390,42 +388,4 @@ def write_skeleton(skeleton: Skeleton, folder: str | Path) -> Path:
     path = Path(folder) / f"{skeleton.affordance}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(skeleton_json(skeleton))
-    return path
-
-
-def plot_skeletons(skeletons: list[Skeleton], path: str | Path, members: dict[str, np.ndarray] | None = None,
-                   max_members: int = 150) -> Path:
-    """One row per skeleton: front (y-z, seen from the front) and side (x-z, seen from its right) views standing
-    on the floor, left bones blue and right red, and faintly up to ``max_members`` frames of its cluster (each
-    with its own proportions, at the model's torso height). One PNG."""
-    from .plots import pyplot
-
-    plt = pyplot()
-    from matplotlib.collections import LineCollection
-
-    def segments(joints: np.ndarray, h: int, lift: float) -> np.ndarray:
-        placed = joints[..., [h, 2]] + [0.0, lift]
-        return np.stack([placed[..., _BONE_A, :], placed[..., _BONE_B, :]], axis=-2).reshape(-1, 2, 2)
-
-    colours = ["tab:blue" if "L_" in a + b else "tab:red" if "R_" in a + b else "k" for a, b in BONES]
-    figure, axes = plt.subplots(len(skeletons), 2, figsize=(7.5, 4.2 * len(skeletons)), squeeze=False,
-                                constrained_layout=True)
-    for row, skeleton in zip(axes, skeletons):
-        crowd = (members or {}).get(skeleton.affordance, np.empty((0, 15, 3)))
-        shown = crowd[np.unique(np.linspace(0, len(crowd) - 1, max_members).astype(int))] if len(crowd) else crowd
-        note = f"\n(grey: {len(shown)} of the cluster's {len(crowd)} frames)" if len(crowd) else ""
-        for axis, (h, view) in zip(row, [(1, "front, y-z"), (0, "side, x-z")]):
-            lift = skeleton.torso_height
-            axis.add_collection(LineCollection(segments(shown, h, lift), colors="0.5", lw=0.5, alpha=0.08))
-            axis.add_collection(LineCollection(segments(skeleton.joints, h, lift), colors=colours, lw=2.5))
-            axis.plot(skeleton.joints[:, h], skeleton.joints[:, 2] + skeleton.torso_height, "o", color="k", ms=3)
-            axis.axhline(0.0, color="saddlebrown", lw=2)
-            axis.set(xlim=(-0.7, 0.7) if h else (-0.5, 0.9), ylim=(-0.05, 1.9), aspect="equal",
-                     xlabel=f"{'xy'[h]} (m)", ylabel="z (m), floor at 0")
-            axis.set_title(f"{skeleton.affordance} ({view}){note}", fontsize=9)
-            axis.grid(alpha=0.3)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
     return path

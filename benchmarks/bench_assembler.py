@@ -41,7 +41,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from affordcore.assembly import Assembler, depth_block_points, trajectory_errors  # noqa: E402
 from affordcore.gravity import align_to_gravity  # noqa: E402
-from affordcore.messages import depth_frame_message, depth_points  # noqa: E402
+from affordwire.messages import depth_frame_message, depth_points  # noqa: E402
 from affordcore.sequence import INVALID_DEPTH, read_sequence  # noqa: E402
 from affordcore.settings import AssemblerSettings, GravitySettings  # noqa: E402
 

@@ -31,7 +31,8 @@ from affordcore.features import iter_features  # noqa: E402
 from affordcore.gravity import align_to_gravity  # noqa: E402
 from affordcore.inference import score_poses  # noqa: E402
 from affordcore.learn.model import load_model  # noqa: E402
-from affordcore.outputs import shipped_models, write_map_outputs  # noqa: E402
+from affordcore.learn.model import shipped_models  # noqa: E402
+from affordcore.outputs import write_map_outputs  # noqa: E402
 from affordcore.pipeline import map_affordances, prepare_scene  # noqa: E402
 from affordcore.scene import Cloud  # noqa: E402
 from affordcore.settings import Settings  # noqa: E402

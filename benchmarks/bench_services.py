@@ -21,12 +21,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from affordcore import messages  # noqa: E402
-from affordcore.outputs import shipped_models  # noqa: E402
+from affordwire import messages  # noqa: E402
+from affordcore.learn.model import shipped_models  # noqa: E402
 from affordcore.sequence import read_sequence  # noqa: E402
 from services.clients import publish_sequence, sequence_messages  # noqa: E402
 from services.launch import Stack  # noqa: E402
-from services.node import Keys, open_session, schema_of  # noqa: E402
+from services.transport import Keys, open_session, schema_of  # noqa: E402
 
 KITCHEN = ROOT.parent / "shared" / "data" / "sequences" / "7scenes_redkitchen_frames_000000-000299"
 
@@ -53,7 +53,7 @@ class Arrivals:
     def on_sample(self, sample) -> None:
         now = time.monotonic()
         key = str(sample.key_expr).split("/", 3)[3]
-        classes = {"map/cloud": messages.Cloud, "fields": messages.SceneFieldsMessage}
+        classes = {"map/cloud": messages.CloudMessage, "fields": messages.SceneFieldsMessage}
         cls = classes.get(key, messages.AffordanceMapMessage if key.startswith("affordance/") else None)
         if cls is None or key in self.at or schema_of(sample) != messages.schema_name(cls):
             return

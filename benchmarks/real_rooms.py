@@ -20,7 +20,7 @@ from affordcore.labels import ground_truth, load_labels, match_places
 from affordcore.learn.baselines import tune_threshold
 from affordcore.learn.model import load_model
 from affordcore.learn.train import metrics
-from affordcore.outputs import shipped_models
+from affordcore.learn.model import shipped_models
 from affordcore.pipeline import map_affordances, prepare_scene
 from affordcore.plots import plot_map
 from affordcore.scene import load_cloud

@@ -1,10 +1,10 @@
-"""Generate the Python message classes in affordcore/proto/ from schemas/afford/v1/*.proto.
+"""Generate the Python message classes in affordwire/proto/ from schemas/afford/v1/*.proto.
 
-    python schemas/generate.py            # rewrite affordcore/proto/*_pb2.py(i)
+    python schemas/generate.py            # rewrite affordwire/proto/*_pb2.py(i)
     python schemas/generate.py --check    # exit 1 if the checked-in code is stale (what the tests run)
 
 Needs grpcio-tools (a test dependency), which bundles protoc. The generated modules import each other as
-``afford.v1.<name>_pb2``; they are rewritten to relative imports so they live inside the affordcore package.
+``afford.v1.<name>_pb2``; they are rewritten to relative imports so they live inside the affordwire package.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 SCHEMAS = ROOT / "schemas"
-PACKAGE = ROOT / "affordcore" / "proto"
+PACKAGE = ROOT / "affordwire" / "proto"
 _ABSOLUTE_IMPORT = re.compile(r"^from afford\.v1 import (\w+_pb2)", re.MULTILINE)
 
 
@@ -36,7 +36,7 @@ def generate() -> dict[str, str]:
 
 
 def stale(files: dict[str, str]) -> list[str]:
-    """Names of generated files that differ from (or are missing in, or are extra in) affordcore/proto."""
+    """Names of generated files that differ from (or are missing in, or are extra in) affordwire/proto."""
     present = {path.name for path in PACKAGE.glob("*_pb2.py*")}
     differ = [name for name, text in files.items() if not (PACKAGE / name).exists() or (PACKAGE / name).read_text() != text]
     return sorted(differ + list(present - set(files)))

@@ -6,14 +6,15 @@ from __future__ import annotations
 import json
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
-from affordcore import messages
+from affordwire import messages
 
-from .node import Keys, encoding_of, open_session, schema_of, stop_on_signals
+from .transport import Keys, declare_publisher, encoding_of, open_session, schema_of, stop_on_signals
 
 
 def run_router(listen: list[str], stop: threading.Event | None = None) -> None:
@@ -34,11 +35,19 @@ class NoSubscriber(RuntimeError):
     """Nobody listens on the key a client was about to publish on."""
 
 
-def _publisher(session, key: str, message_class, wait: float):
-    """A BLOCK publisher on `key`, once something subscribes to it (samples put before that are lost)."""
-    import zenoh
+@contextmanager
+def connected(endpoints: list[str], mode: str) -> Iterator:
+    """A zenoh session to the router(s) at `endpoints`, closed on leaving."""
+    session = open_session(endpoints, mode)
+    try:
+        yield session
+    finally:
+        session.close()
 
-    publisher = session.declare_publisher(key, encoding=encoding_of(message_class), congestion_control=zenoh.CongestionControl.BLOCK)
+
+def _publisher(session, key: str, message_class, wait: float):
+    """A publisher on `key`, once something subscribes to it (samples put before that are lost)."""
+    publisher = declare_publisher(session, key, message_class)
     deadline = time.monotonic() + wait
     while not publisher.matching_status.matching:
         if time.monotonic() > deadline:
@@ -49,8 +58,9 @@ def _publisher(session, key: str, message_class, wait: float):
     return publisher
 
 
-def publish_map(session, keys: Keys, cloud: messages.Cloud, wait: float) -> None:
-    publisher = _publisher(session, keys.cloud, messages.Cloud, wait)
+def publish_map(session, keys: Keys, cloud: messages.CloudMessage, wait: float) -> None:
+    """A finished room on map/cloud, once the features service listens."""
+    publisher = _publisher(session, keys.cloud, messages.CloudMessage, wait)
     publisher.put(cloud.SerializeToString())
     publisher.undeclare()
 
@@ -103,9 +113,7 @@ def sequence_messages(sequence, indices, with_gravity: bool = True):
 
 def describe(key: str, schema: str, payload: bytes) -> str:
     """One line about a publication, for people watching the robot's keys."""
-    classes = {messages.schema_name(c): c for c in (messages.Scan, messages.DepthFrame, messages.Cloud, messages.Pose,
-                                                     messages.SceneFieldsMessage, messages.AffordanceMapMessage,
-                                                     messages.Status, messages.Error)}
+    classes = messages.MESSAGE_CLASSES
     if schema not in classes:
         return f"{key}: {len(payload):,} bytes ({schema or 'no schema'})"
     try:
@@ -190,16 +198,38 @@ def watch(session, keys: Keys, watcher: MapWatcher, timeout: float) -> bool:
         subscriber.undeclare()
 
 
-def load_as_map(path: Path, gravity: str, settings) -> messages.Cloud:
-    """A finished room scan from a file, gravity-aligned here so map/cloud always holds world-frame points."""
-    from affordcore.gravity import align_to_gravity
-    from affordcore.outputs import thin_huge_cloud
-    from affordcore.pipeline import parse_gravity
+def load_as_map(path: Path, gravity: str, settings) -> tuple[messages.CloudMessage, list[str]]:
+    """A finished room scan from a file, brought to the world frame by the library's one path (thinned when
+    huge, gravity-aligned), so map/cloud always holds world-frame points; and the warnings to show."""
+    from affordcore.pipeline import parse_gravity, to_world
     from affordcore.scene import load_cloud
 
-    cloud, warning = thin_huge_cloud(load_cloud(path), settings.map)
-    if warning:
-        print(f"warning: {warning}", flush=True)
-    alignment = align_to_gravity(cloud.points, parse_gravity(gravity), settings.gravity)
-    world = cloud.transformed(alignment.world_from_input)
-    return messages.cloud_message(world.points.astype(np.float32), alignment.world_from_input, source=path.name)
+    world = to_world(load_cloud(path), settings, parse_gravity(gravity))
+    points = world.cloud.points.astype(np.float32)
+    return messages.cloud_message(points, world.alignment.world_from_input, source=path.name), world.warnings
+
+
+def scan_message(path: Path, sensor: str) -> messages.Scan:
+    """One cloud file as a single Scan (points in the sensor frame)."""
+    from affordcore.scene import load_cloud
+
+    scan = messages.Scan(frame_id=sensor)
+    messages.pack_points(scan, load_cloud(path).points)
+    return scan
+
+
+def folder_frames(folder: Path, first: int, frames: int, step: int, imu: bool):
+    """(sequence, its frames to publish as (index, message) pairs, how many) of a recorded folder."""
+    from affordcore.sequence import read_sequence
+
+    sequence = read_sequence(folder)
+    indices = list(range(first, len(sequence.frames), step))[: frames or None]
+    if not indices:
+        raise ValueError(f"{folder}: no frames from {first} (it has {len(sequence.frames)})")
+    return sequence, sequence_messages(sequence, indices, imu), len(indices)
+
+
+def watch_maps(endpoints: list[str], mode: str, keys: Keys, watcher: MapWatcher, timeout: float) -> bool:
+    """`watch` over a session of its own."""
+    with connected(endpoints, mode) as session:
+        return watch(session, keys, watcher, timeout)

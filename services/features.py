@@ -1,15 +1,14 @@
 """Feature extraction: map/cloud in, fields out (occupancy, distance transform and normals of the room, which
-every affordance's scores are read from). The fields are affordcore.fields'."""
+every affordance's scores are read from), by affordcore.pipeline's one path from a cloud to its fields."""
 
 from __future__ import annotations
 
-from affordcore import messages
-from affordcore.fields import compute_fields
+from affordcore.pipeline import prepare_scene
 from affordcore.recording import log_cloud, log_fields, set_time
+from affordcore.scene import Cloud
+from affordwire import messages
 
 from .node import Inbound, Inbox, Node
-
-SERVICE = "features"
 
 
 class FeaturesService:
@@ -23,14 +22,14 @@ class FeaturesService:
         self.node.run(self.inbox, self.handle)
 
     def handle(self, item: Inbound) -> None:
-        cloud = self.node.decode(item, messages.Cloud)
+        cloud = self.node.decode(item, messages.CloudMessage)
         points = messages.cloud_points(cloud)
         self.node.publish_status(messages.Status.BUSY, f"computing the fields of {len(points):,} points")
-        settings = self.node.settings
-        fields = compute_fields(points, settings.voxel, settings.normals)
-        message = messages.fields_message(fields, cloud)
+        scene = prepare_scene(Cloud(points, source=item.key), self.node.settings, gravity="none")  # already world
+        message = messages.fields_message(scene.fields, cloud)
         self.node.publish(self.node.keys.fields, message)
         set_time(self.node.recording, messages.seconds(cloud.timestamp))
-        log_cloud(self.node.recording, points)
-        log_fields(self.node.recording, fields)
-        self.node.publish_status(messages.Status.READY, f"published fields {fields.lattice.shape} of a {cloud.frames}-frame map")
+        log_cloud(self.node.recording, scene.cloud.points)
+        log_fields(self.node.recording, scene.fields)
+        self.node.publish_status(messages.Status.READY,
+                                 f"published fields {scene.fields.lattice.shape} of a {cloud.frames}-frame map")

@@ -1,25 +1,22 @@
 """Model inference: fields in, affordance/<name> out, one AffordanceMap per model (the shipped models unless
-others are configured). Scoring and maps are affordcore.inference's and affordcore.maps'."""
+others are configured). Scoring and maps are affordcore.pipeline's `map_affordances`."""
 
 from __future__ import annotations
 
-from affordcore import messages
 from affordcore.features import FeatureLayout
 from affordcore.pipeline import map_affordances
 from affordcore.recording import log_map, set_time
+from affordwire import messages
 
 from .node import Inbound, Inbox, Node
 
-SERVICE = "inference"
-
-
 class InferenceService:
-    def __init__(self, node: Node, models: list):
-        self.node, self.models = node, models
+    def __init__(self, node: Node):
+        self.node, self.models = node, node.models
         self.layout = FeatureLayout.from_settings(node.settings.features, node.settings.voxel)
         self.inbox = Inbox(latest_only=True, limit=1)
         node.subscribe(node.keys.fields, self.inbox)
-        for model in models:
+        for model in self.models:
             node.answer_latest(node.keys.affordance(model.affordance))
 
     def run(self) -> None:

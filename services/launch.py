@@ -1,6 +1,7 @@
-"""A router and the three services as child processes on one host: what the end-to-end test, the latency
-benchmark and a person trying the services on a laptop need. On robots, run each `afford serve` on its own
-(or docker/compose.yaml)."""
+"""A router and the registered services as child processes on one host: what the end-to-end test, the latency
+benchmark and a person trying the services on a laptop need. Each child makes the call `afford router` and
+`afford serve` make (`run_router`, `run_service`). On robots, run each `afford serve` on its own (or
+docker/compose.yaml)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-SERVICES = ("assembler", "features", "inference")
+from .registry import SERVICES
 
 
 def free_port() -> int:
@@ -21,9 +22,12 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
-def afford_command() -> list[str]:
-    """`afford` of the running interpreter (works without the venv's bin on PATH)."""
-    return [sys.executable, "-c", "from affordcore.cli import app; app()"]
+def python_call(target: str, *args, **kwargs) -> list[str]:
+    """The command line of a child process that calls `module:function(*args, **kwargs)` with this interpreter
+    (arguments as their repr: strings, numbers, lists)."""
+    module, function = target.split(":")
+    call = ", ".join([*map(repr, args), *(f"{key}={value!r}" for key, value in kwargs.items())])
+    return [sys.executable, "-c", f"from {module} import {function}; {function}({call})"]
 
 
 class Stack:
@@ -32,28 +36,28 @@ class Stack:
     `start()` returns once every service has declared its liveliness token; `stop()` sends SIGTERM (the
     services close their recordings) and returns the exit codes."""
 
-    def __init__(self, folder: Path, robot: str = "robot1", env: dict[str, str] | None = None, services=SERVICES):
+    def __init__(self, folder: Path, robot: str = "robot1", env: dict[str, str] | None = None, services=tuple(SERVICES)):
         self.folder, self.robot, self.services = Path(folder), robot, tuple(services)
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self.processes: dict[str, subprocess.Popen] = {}
 
-    def _spawn(self, name: str, args: list[str]) -> None:
+    def _spawn(self, name: str, command: list[str]) -> None:
         self.folder.mkdir(parents=True, exist_ok=True)
-        log = open(self.folder / f"{name}.log", "w")
-        self.processes[name] = subprocess.Popen(afford_command() + args, stdout=log, stderr=subprocess.STDOUT, env=self.env)
+        with open(self.folder / f"{name}.log", "w") as log:  # the child keeps its own descriptor
+            self.processes[name] = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=self.env)
 
     def start(self, timeout: float = 60.0) -> "Stack":
-        self._spawn("router", ["router", "--listen", self.endpoint])
+        self._spawn("router", python_call("services.clients:run_router", [self.endpoint]))
         for service in self.services:
-            self._spawn(service, ["serve", service, "--connect", self.endpoint, "--robot", self.robot,
-                                  "--rrd", str(self.folder / f"{service}.rrd")])
+            self._spawn(service, python_call("services.registry:run_service", service, self.robot, [self.endpoint],
+                                             rrd=str(self.folder / f"{service}.rrd")))
         self.wait_ready(timeout)
         return self
 
     def wait_ready(self, timeout: float) -> None:
         """Until every service's liveliness token is seen through the router."""
-        from .node import Keys, open_session
+        from .transport import Keys, open_session
 
         keys = Keys(self.robot)
         session = open_session([self.endpoint])

@@ -8,113 +8,16 @@ written from one thread, and a bad input is answered on the error key while the 
 
 from __future__ import annotations
 
-import json
 import queue
-import signal
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from affordcore import messages
-from affordcore.settings import Settings
-
-PREFIX = "afford/@v1"
-
-
-def version() -> str:
-    from importlib.metadata import PackageNotFoundError
-    from importlib.metadata import version as package_version
-
-    try:
-        return package_version("affordmap")
-    except PackageNotFoundError:
-        return "unknown"
-
-
-@dataclass(frozen=True)
-class Keys:
-    """The key space of one robot (DESIGN.md, "Processes and key space")."""
-
-    robot: str
-
-    def __post_init__(self) -> None:
-        if not self.robot or any(c in self.robot for c in "/*$?#@ "):
-            raise ValueError(f"robot name {self.robot!r} must be one non-empty key chunk (no / * $ ? # @ or spaces)")
-
-    def key(self, *chunks: str) -> str:
-        return "/".join((PREFIX, self.robot, *chunks))
-
-    scans = property(lambda self: self.key("scan", "**"))
-    cloud = property(lambda self: self.key("map", "cloud"))
-    pose = property(lambda self: self.key("map", "pose"))
-    fields = property(lambda self: self.key("fields"))
-
-    def scan(self, sensor: str) -> str:
-        return self.key("scan", sensor)
-
-    def affordance(self, name: str) -> str:
-        return self.key("affordance", name)
-
-    def status(self, service: str) -> str:
-        return self.key("status", service)
-
-    def error(self, service: str) -> str:
-        return self.key("error", service)
-
-
-def zenoh_config(endpoints: list[str], mode: str = "peer", listen: list[str] | None = None):
-    """A zenoh config with explicit endpoints and no multicast scouting (robots share networks; tests share
-    a machine): a service talks to the router it is told about and to nothing it happens to hear."""
-    import zenoh
-
-    config = zenoh.Config()
-    config.insert_json5("mode", json.dumps(mode))
-    config.insert_json5("connect/endpoints", json.dumps(list(endpoints)))
-    if listen:
-        config.insert_json5("listen/endpoints", json.dumps(list(listen)))
-    config.insert_json5("scouting/multicast/enabled", "false")
-    if mode != "router":  # keep trying while the router is not up yet (services may start first)
-        config.insert_json5("connect/exit_on_failure", "false")
-    return config
-
-
-def open_session(endpoints: list[str], mode: str = "peer", listen: list[str] | None = None):
-    import zenoh
-
-    zenoh.init_log_from_env_or("error")
-    return zenoh.open(zenoh_config(endpoints, mode, listen))
-
-
-def encoding_of(message_class):
-    """application/protobuf with the message's full name as schema (what every publication carries)."""
-    import zenoh
-
-    return zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(messages.schema_name(message_class))
-
-
-def put(session, key: str, message) -> None:
-    """Publish a message with its schema, congestion control BLOCK: zenoh's default (DROP) loses
-    multi-megabyte samples under load."""
-    import zenoh
-
-    session.put(key, message.SerializeToString(), encoding=encoding_of(type(message)),
-                congestion_control=zenoh.CongestionControl.BLOCK)
-
-
-def schema_of(sample) -> str:
-    """The schema named in a sample's encoding ('' when it carries none)."""
-    text = str(sample.encoding)
-    return text.split(";", 1)[1] if text.startswith("application/protobuf;") else ""
-
-
-def stop_on_signals(stop: threading.Event) -> None:
-    """SIGINT and SIGTERM set `stop` (only the main thread may install handlers; a service run in a thread,
-    as in the tests, is stopped through its event)."""
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: stop.set())
+from affordwire import messages
+from .settings import ServiceSettings
+from .transport import PREFIX, Keys, encoding_of, open_session, put, put_message, schema_of, stop_on_signals, version
 
 
 @dataclass
@@ -160,13 +63,14 @@ class Inbox:
 class Node:
     """One service process: `service` is its name (assembler, features, inference)."""
 
-    def __init__(self, service: str, robot: str, endpoints: list[str], settings: Settings | None = None,
-                 rrd: Path | None = None, viewer: str | None = None, affordances: list[str] | None = None,
+    def __init__(self, service: str, robot: str, endpoints: list[str], settings: ServiceSettings | None = None,
+                 rrd: Path | None = None, viewer: str | None = None, models: list | None = None,
                  listen: list[str] | None = None):
         from affordcore.recording import open_recording
 
         self.service, self.keys = service, Keys(robot)
-        self.settings = settings or Settings()
+        self.settings = settings or ServiceSettings()
+        self.models = list(models or [])  # the robot's affordance models: inference scores with them
         self.stop_event = threading.Event()
         self.counts = {"accepted": 0, "rejected": 0, "published": 0}
         self.last_seconds = 0.0
@@ -174,7 +78,8 @@ class Node:
         self._declared: list = []
         self._lock = threading.Lock()
         recording_id = self.settings.service.recording_id or f"afford-{robot}"
-        self.recording = open_recording(rrd or Path(f"{service}.rrd"), affordances or [], recording_id, viewer)
+        affordances = [model.affordance for model in self.models]
+        self.recording = open_recording(rrd or Path(f"{service}.rrd"), affordances, recording_id, viewer)
         self.session = open_session(endpoints, self.settings.service.mode, listen)
         self.state, self.detail = messages.Status.STARTING, "starting"
         self._declared.append(self.session.liveliness().declare_token(self.keys.status(service)))
@@ -205,7 +110,7 @@ class Node:
         messages.stamp(error.timestamp)
         with self._lock:
             self.counts["rejected"] += 1
-        put(self.session, self.keys.error(self.service), error)
+        put_message(self.session, self.keys.error(self.service), error)
         print(f"[{self.service}] rejected {item.key}: {reason}", flush=True)
         self.publish_status(messages.Status.READY, f"rejected an input: {reason}")
 
@@ -228,9 +133,7 @@ class Node:
             self.latest[key] = (payload, encoding)
             if count:
                 self.counts["published"] += 1
-        import zenoh
-
-        self.session.put(key, payload, encoding=encoding, congestion_control=zenoh.CongestionControl.BLOCK)
+        put(self.session, key, payload, encoding)
 
     def _status(self) -> messages.Status:
         """The service's status now (a get on its status key answers this, not the last one published)."""
@@ -243,7 +146,7 @@ class Node:
     def publish_status(self, state: int, detail: str) -> None:
         with self._lock:
             self.state, self.detail = state, detail
-        put(self.session, self.keys.status(self.service), self._status())
+        put_message(self.session, self.keys.status(self.service), self._status())
 
     # -- the work loop -----------------------------------------------------------------------------------------
 

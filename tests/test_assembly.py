@@ -7,8 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from affordcore import messages
-from affordcore.assembly import Assembler, depth_block_points, trajectory_errors
+from affordwire import messages
+from affordcore.assembly import Assembler, trajectory_errors
+from affordcore.depth import DepthImage, back_project
 from affordcore.example import box_surface_points
 from affordcore.settings import AssemblerSettings
 from affordcore.synth.scanner import DepthCamera, Raycaster, depth_frame, look_at
@@ -57,7 +58,7 @@ def room_frames():
         poses.append(look_at(eye, eye + [np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)]))
         depth, _ = depth_frame(raycaster, CAMERA, poses[-1], rng)
         millimetres = np.round(depth * 1000).astype(np.uint16)
-        frames.append(depth_block_points(millimetres, CAMERA.intrinsics, 2, 0.3, 4.0))
+        frames.append(back_project(DepthImage(millimetres, CAMERA.intrinsics), 2, 0.3, 4.0))
     return frames, poses
 
 
@@ -202,26 +203,27 @@ def test_depth_blocks_average_the_measured_pixels_on_the_block_centre_ray():
                       [3000, 3000, 1500, 1500, 500, 500, 7],
                       [3000, 3000, 1500, 9000, 500, 500, 7],
                       [9, 9, 9, 9, 9, 9, 9]], dtype=np.uint16)
-    points = depth_block_points(depth, K, pixel_step=2)
+    points = back_project(DepthImage(depth, K), pixel_step=2)
     # 2 x 3 whole blocks (the last row and column are a partial block); the top-right block has no measurement
     np.testing.assert_allclose(points[:, 2], [1.003, 2.0, 3.0, 3.375, 0.5])
     u = points[:, 0] / points[:, 2] * K[0, 0] + K[0, 2]
     v = points[:, 1] / points[:, 2] * K[1, 1] + K[1, 2]
     np.testing.assert_allclose(u, [0.5, 2.5, 0.5, 2.5, 4.5])
     np.testing.assert_allclose(v, [0.5, 0.5, 2.5, 2.5, 2.5])
-    np.testing.assert_allclose(depth_block_points(depth, K, 2, min_range=0.6, max_range=3.0)[:, 2], [1.003, 2.0, 3.0])
-    assert depth_block_points(np.zeros((4, 4), np.uint16), K, 2).shape == (0, 3)
+    np.testing.assert_allclose(back_project(DepthImage(depth, K), 2, min_range=0.6, max_range=3.0)[:, 2], [1.003, 2.0, 3.0])
+    assert back_project(DepthImage(np.zeros((4, 4), np.uint16), K), 2).shape == (0, 3)
     with pytest.raises(ValueError, match="pixel_step"):
-        depth_block_points(depth, K, 0)
+        back_project(DepthImage(depth, K), 0)
 
 
-def test_one_pixel_blocks_are_the_pixels_as_messages_back_project_them():
+def test_a_depth_frame_off_the_wire_back_projects_as_its_image():
     rng = np.random.default_rng(4)
     depth = rng.integers(300, 6000, size=(12, 10)).astype(np.uint16)
     depth[0, 0], depth[3, 4], depth[5, 6] = 0, 65535, 0
-    ours = depth_block_points(depth, K, 1, 0.5, 5.0)
-    theirs = messages.depth_points(messages.depth_frame_message(depth, K), 1, 0.5, 5.0)
-    np.testing.assert_allclose(ours, theirs)
+    frame = messages.parse(messages.DepthFrame, messages.depth_frame_message(depth, K).SerializeToString())
+    ours = back_project(DepthImage(depth, K), 2, 0.5, 5.0)
+    np.testing.assert_allclose(back_project(messages.depth_image(frame), 2, 0.5, 5.0), ours)
+    assert len(ours) == 6 * 5  # every 2 x 2 block holds a measurement
 
 
 # -- real frames --------------------------------------------------------------------------------------------
@@ -235,8 +237,8 @@ def test_the_defaults_on_the_first_100_real_kitchen_frames():
     assembler = Assembler(settings)
     estimated, truth = [], []
     for index in range(100):
-        points = depth_block_points(sequence.depth(index), sequence.intrinsics, settings.pixel_step, settings.min_range,
-                                    settings.max_range, invalid_value=INVALID_DEPTH)
+        image = DepthImage(sequence.depth(index), sequence.intrinsics, invalid_value=INVALID_DEPTH)
+        points = back_project(image, settings.pixel_step, settings.min_range, settings.max_range)
         estimated.append(assembler.register(points, index / 30))
         truth.append(sequence.pose(index))
     errors = trajectory_errors(estimated, truth)

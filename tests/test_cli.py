@@ -18,7 +18,7 @@ from affordcore.skeleton import all_skeletons, get_skeleton
 
 
 def afford(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "affordcore.cli", *args], capture_output=True, text=True, timeout=300, env=env)
+    return subprocess.run([sys.executable, "-m", "afford", *args], capture_output=True, text=True, timeout=300, env=env)
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +34,7 @@ def small_room(tmp_path_factory) -> str:
 
 
 def test_importing_the_cli_loads_no_heavy_library():
-    probe = "import sys, affordcore.cli; print([m for m in ('open3d', 'scipy', 'matplotlib', 'sklearn', 'zenoh', 'rerun') if m in sys.modules])"
+    probe = "import sys, afford.app; print([m for m in ('open3d', 'scipy', 'matplotlib', 'sklearn', 'zenoh', 'rerun') if m in sys.modules])"
     result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "[]"
 

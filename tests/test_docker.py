@@ -22,7 +22,8 @@ import pytest
 import typer.main
 from typer.testing import CliRunner
 
-from affordcore import cli
+from afford import app as cli
+from services.registry import SERVICES as REGISTERED
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCKERFILE = ROOT / "docker" / "Dockerfile"
@@ -30,7 +31,7 @@ COMPOSE = ROOT / "docker" / "compose.yaml"
 PYPROJECT = ROOT / "pyproject.toml"
 
 ROUTER = "router"
-SERVICES = ("assembler", "features", "inference")
+SERVICES = tuple(REGISTERED)
 VOLUME = "recordings"
 RECORDING_ID = "AFFORD_SERVICE__RECORDING_ID"
 APT_PINS = "DL3008"  # the one hadolint rule the Dockerfile may silence: unpinned apt package versions

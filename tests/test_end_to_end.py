@@ -13,9 +13,11 @@ import numpy as np
 import pytest
 
 from affordcore.recording import recorded_entities
-from services.launch import Stack, afford_command
+from services.launch import Stack
 
 from conftest import SHARED_DATA, needs_shared
+
+AFFORD = [sys.executable, "-m", "afford"]  # the command line of this interpreter, as a user runs it
 
 pytestmark = pytest.mark.slow
 AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")
@@ -41,11 +43,11 @@ def generated_sequence(tmp_path_factory) -> Path:
 
 
 def _afford(*args: str, timeout: float) -> subprocess.CompletedProcess:
-    return subprocess.run(afford_command() + list(args), capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(AFFORD + list(args), capture_output=True, text=True, timeout=timeout)
 
 
 def _stream_and_watch(stack: Stack, frames_folder: Path, out: Path, publish_args: list[str], frames: int) -> str:
-    watch = subprocess.Popen(afford_command() + ["watch", "--connect", stack.endpoint, "--robot", stack.robot, "--frames", str(frames),
+    watch = subprocess.Popen(AFFORD + ["watch", "--connect", stack.endpoint, "--robot", stack.robot, "--frames", str(frames),
                                                  "--timeout", "300", "--out", str(out)],
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     published = _afford("publish", str(frames_folder), "--connect", stack.endpoint, "--robot", stack.robot, "-q", *publish_args, timeout=300)

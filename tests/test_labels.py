@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from affordcore.grid import PoseGrid
+from affordcore.plots import plot_labels
 from affordcore.labels import (
     THETA_TOLERANCE, XY_TOLERANCE, ClassCount, Label, LabelError, LabelSet, UnlabelledRegion,
-    affordance_colours, class_counts, ground_truth, load_labels, match_places, plot_labels, save_labels,
+    affordance_colours, class_counts, ground_truth, load_labels, match_places, save_labels,
 )
 
 TWO_PI = 2 * math.pi

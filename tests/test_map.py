@@ -13,7 +13,8 @@ import pytest
 from affordcore.example import example_room
 from affordcore.features import FeatureLayout
 from affordcore.learn.model import load_model
-from affordcore.outputs import shipped_models, thin_huge_cloud
+from affordcore.learn.model import shipped_models
+from affordcore.scene import thin_huge_cloud
 from affordcore.recording import recorded_entities
 from affordcore.scene import Cloud, load_cloud, save_cloud
 from affordcore.settings import MapSettings, Settings
@@ -22,7 +23,7 @@ AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")
 
 
 def afford(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "affordcore.cli", *map(str, args)], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "afford", *map(str, args)], capture_output=True, text=True,
                           timeout=600, env={**os.environ, **(env or {})})
 
 
@@ -120,9 +121,9 @@ def test_bad_input_is_a_clear_error(case, message, example, tmp_path):
 
 def test_a_huge_cloud_is_thinned_with_a_warning():
     cloud = example_room()
-    thinned, warning = thin_huge_cloud(cloud, MapSettings(max_points=40_000))
+    thinned, warning = thin_huge_cloud(cloud, 40_000, MapSettings().thin_voxel)
     assert len(thinned) <= 40_000 and len(thinned) > 10_000 and "thinned" in warning
-    same, none = thin_huge_cloud(cloud, MapSettings())
+    same, none = thin_huge_cloud(cloud, MapSettings().max_points, MapSettings().thin_voxel)
     assert same is cloud and none is None
     # the thinned cloud keeps the room's extent
     np.testing.assert_allclose(thinned.points.min(axis=0), cloud.points.min(axis=0), atol=0.05)

@@ -1,4 +1,4 @@
-"""affordcore.messages: numpy arrays and library objects to the afford.v1 messages and back, and a `MessageError`
+"""affordwire.messages: numpy arrays and library objects to the afford.v1 messages and back, and a `MessageError`
 naming the problem for every message that cannot be used."""
 
 from __future__ import annotations
@@ -7,13 +7,19 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from affordcore import messages
+from affordcore.depth import back_project
+from affordwire import messages
 from affordcore.grid import PoseGrid
 from affordcore.maps import build_map
-from affordcore.messages import MessageError
+from affordwire.messages import MessageError
 from affordcore.skeleton import get_skeleton
 
 FIELD = messages._Field
+
+
+def back_project_message(frame, *args, **kwargs) -> np.ndarray:
+    """A DepthFrame's points, as the assembler gets them: the checked image, back-projected."""
+    return back_project(messages.depth_image(frame), *args, **kwargs)
 
 
 def _wire(message):
@@ -234,7 +240,7 @@ def test_a_known_pixel_back_projects_through_the_pinhole():
     depth[1, 3] = 1500  # v = 1, u = 3, 1.5 m
     depth[2, 0] = 65535  # no measurement (7-Scenes)
     frame = messages.depth_frame_message(depth, K)
-    points = messages.depth_points(_wire(frame))
+    points = back_project_message(_wire(frame))
     # x = (u - cx) / fx * d = (3 - 2.2) / 500 * 1.5; y = (v - cy) / fy * d = (1 - 1.7) / 400 * 1.5
     np.testing.assert_allclose(points, [[0.0024, -0.002625, 1.5]], atol=1e-12)
 
@@ -243,7 +249,7 @@ def test_every_valid_pixel_back_projects_to_its_own_ray():
     rng = np.random.default_rng(4)
     depth = rng.integers(300, 6000, size=(6, 7)).astype(np.uint16)
     depth[0, 0], depth[3, 4], depth[5, 6] = 0, 65535, 0
-    points = messages.depth_points(messages.depth_frame_message(depth, K))
+    points = back_project_message(messages.depth_frame_message(depth, K))
     assert len(points) == 6 * 7 - 3
     u = points[:, 0] / points[:, 2] * K[0, 0] + K[0, 2]
     v = points[:, 1] / points[:, 2] * K[1, 1] + K[1, 2]
@@ -251,31 +257,38 @@ def test_every_valid_pixel_back_projects_to_its_own_ray():
     np.testing.assert_allclose(v, np.rint(v), atol=1e-9)
     ui, vi = np.rint(u).astype(int), np.rint(v).astype(int)
     np.testing.assert_allclose(points[:, 2], depth[vi, ui] * 0.001)
-    # every other pixel in each direction: the pixels with even u and v, and no others
-    half = messages.depth_points(messages.depth_frame_message(depth, K), pixel_step=2)
-    u2 = np.rint(half[:, 0] / half[:, 2] * K[0, 0] + K[0, 2]).astype(int)
-    v2 = np.rint(half[:, 1] / half[:, 2] * K[1, 1] + K[1, 2]).astype(int)
-    assert len(half) == 3 * 4 - 1 and np.all(u2 % 2 == 0) and np.all(v2 % 2 == 0)  # (0, 0) is missing
-    np.testing.assert_allclose(half[:, 2], depth[v2, u2] * 0.001)
+    # 2 x 2 blocks: one point per whole block (the last column is left out), at the mean of its measured depths
+    half = back_project_message(messages.depth_frame_message(depth, K), pixel_step=2)
+    u2 = half[:, 0] / half[:, 2] * K[0, 0] + K[0, 2]
+    v2 = half[:, 1] / half[:, 2] * K[1, 1] + K[1, 2]
+    assert len(half) == 3 * 3
+    np.testing.assert_allclose(u2 % 2, 0.5, atol=1e-9)  # on the ray through the block's centre
+    np.testing.assert_allclose(v2 % 2, 0.5, atol=1e-9)
+    block = depth[:6, :6].reshape(3, 2, 3, 2).astype(float)
+    measured = block != 0
+    measured &= block != 65535
+    means = (block * measured).sum(axis=(1, 3)) / measured.sum(axis=(1, 3))
+    rows, columns = np.floor(v2 / 2).astype(int), np.floor(u2 / 2).astype(int)
+    np.testing.assert_allclose(half[:, 2], means[rows, columns] * 0.001)
 
 
 def test_depth_scale_and_range_limits():
     depth = np.array([[500, 1000, 3000, 8000]], dtype=np.uint16)
     frame = messages.depth_frame_message(depth, K)
-    np.testing.assert_allclose(messages.depth_points(frame)[:, 2], [0.5, 1.0, 3.0, 8.0])
-    np.testing.assert_allclose(messages.depth_points(frame, min_range=0.8, max_range=4.0)[:, 2], [1.0, 3.0])
-    np.testing.assert_allclose(messages.depth_points(frame, min_range=1.0, max_range=3.0)[:, 2], [1.0, 3.0])  # inclusive
-    assert messages.depth_points(frame, min_range=9.0).shape == (0, 3)
+    np.testing.assert_allclose(back_project_message(frame)[:, 2], [0.5, 1.0, 3.0, 8.0])
+    np.testing.assert_allclose(back_project_message(frame, min_range=0.8, max_range=4.0)[:, 2], [1.0, 3.0])
+    np.testing.assert_allclose(back_project_message(frame, min_range=1.0, max_range=3.0)[:, 2], [1.0, 3.0])  # inclusive
+    assert back_project_message(frame, min_range=9.0).shape == (0, 3)
     frame.depth_scale = 0.0002  # e.g. a sensor counting fifths of a millimetre
-    np.testing.assert_allclose(messages.depth_points(frame)[:, 2], [0.1, 0.2, 0.6, 1.6])
+    np.testing.assert_allclose(back_project_message(frame)[:, 2], [0.1, 0.2, 0.6, 1.6])
 
 
 def test_zero_and_the_invalid_value_mean_no_measurement():
     depth = np.array([[0, 65535, 1000], [4000, 0, 65535]], dtype=np.uint16)
     frame = messages.depth_frame_message(depth, K)
-    np.testing.assert_allclose(messages.depth_points(frame)[:, 2], [1.0, 4.0])
+    np.testing.assert_allclose(back_project_message(frame)[:, 2], [1.0, 4.0])
     frame.invalid_value = 4000  # another sensor's marker: now 65535 is a (far) reading and 4000 is not
-    np.testing.assert_allclose(messages.depth_points(frame)[:, 2], [65.535, 1.0, 65.535])
+    np.testing.assert_allclose(back_project_message(frame)[:, 2], [65.535, 1.0, 65.535])
 
 
 def _frame(**changes):
@@ -302,7 +315,7 @@ def _frame(**changes):
         "scale negative"])
 def test_unusable_depth_frames_are_refused(changes, reason):
     with pytest.raises(MessageError, match=reason):
-        messages.depth_points(_wire(_frame(**changes)))
+        back_project_message(_wire(_frame(**changes)))
 
 
 # -- clouds --------------------------------------------------------------------------------------------------------
@@ -423,7 +436,7 @@ def _assert_documents_match(got, expected, path="document"):
 def real_map():
     """A real map of the built-in example room (thinly sampled to be quick) by the shipped sitting-relaxing model."""
     from affordcore.example import example_room
-    from affordcore.outputs import choose_models
+    from affordcore.learn.model import choose_models
     from affordcore.pipeline import map_affordances, prepare_scene
     from affordcore.settings import Settings
 

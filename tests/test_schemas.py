@@ -11,11 +11,11 @@ from pathlib import Path
 
 import pytest
 
-from affordcore.proto import geometry_pb2, maps_pb2, sensing_pb2, service_pb2
+from affordwire.proto import geometry_pb2, maps_pb2, sensing_pb2, service_pb2
 
 ROOT = Path(__file__).resolve().parents[1]
 PROTOS = ROOT / "schemas" / "afford" / "v1"
-GENERATED = ROOT / "affordcore" / "proto"
+GENERATED = ROOT / "affordwire" / "proto"
 MODULES = {"geometry": geometry_pb2, "maps": maps_pb2, "sensing": sensing_pb2, "service": service_pb2}
 
 F = geometry_pb2.Pose.DESCRIPTOR.fields_by_name["frame_id"]  # any field: for the type constants
@@ -50,7 +50,7 @@ def test_checked_in_code_is_what_protoc_generates_now(generator, generated):
 
 
 def test_generated_modules_import_each_other_relatively(generated):
-    """protoc writes `from afford.v1 import x_pb2`; the generator rewrites it so the code lives in affordcore.proto."""
+    """protoc writes `from afford.v1 import x_pb2`; the generator rewrites it so the code lives in affordwire.proto."""
     for name, text in generated.items():
         assert "from afford.v1 import" not in text, name
     assert re.search(r"^from \. import geometry_pb2", generated["maps_pb2.py"], re.MULTILINE)
@@ -59,7 +59,7 @@ def test_generated_modules_import_each_other_relatively(generated):
 
 @pytest.fixture
 def proto_copy(generator, tmp_path, monkeypatch) -> Path:
-    """A copy of affordcore/proto that the generator checks against instead of the real one."""
+    """A copy of affordwire/proto that the generator checks against instead of the real one."""
     copy = tmp_path / "proto"
     shutil.copytree(GENERATED, copy, ignore=shutil.ignore_patterns("__pycache__"))
     monkeypatch.setattr(generator, "PACKAGE", copy)

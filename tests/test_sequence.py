@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from affordcore import messages
+from affordcore.depth import back_project
+from affordwire import messages
 from affordcore.sequence import DEPTH_SCALE, INVALID_DEPTH, SequenceError, read_sequence
 from conftest import SHARED_DATA
 
@@ -66,7 +67,7 @@ def test_a_sequence_frame_becomes_a_depth_frame_message(tmp_path):
     sequence = read_sequence(tmp_path / "seq")
     frame = messages.depth_frame_message(sequence.depth(0), sequence.intrinsics, depth_scale=DEPTH_SCALE,
                                          invalid_value=INVALID_DEPTH)
-    points = messages.depth_points(frame)
+    points = back_project(messages.depth_image(frame))
     valid = (images[0] != 0) & (images[0] != INVALID_DEPTH)
     assert len(points) == valid.sum() == 12 * 16 - 4
     np.testing.assert_allclose(np.sort(points[:, 2]), np.sort(images[0][valid] * 0.001))
@@ -188,7 +189,7 @@ def test_the_real_frame_0_back_projects_within_the_kinect_range(seven_scenes):
     depth = seven_scenes.depth(0)
     assert depth.dtype == np.uint16 and depth.shape == (480, 640)
     frame = messages.depth_frame_message(depth, seven_scenes.intrinsics, DEPTH_SCALE, invalid_value=INVALID_DEPTH)
-    points = messages.depth_points(frame)
+    points = back_project(messages.depth_image(frame))
     valid = (depth != 0) & (depth != INVALID_DEPTH)
     assert len(points) == valid.sum() > 0.5 * depth.size
     assert points[:, 2].min() >= 0.3 and points[:, 2].max() <= 5.0

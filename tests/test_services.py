@@ -12,12 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from affordcore import messages
+from affordwire import messages
 from affordcore.recording import recorded_entities
-from affordcore.settings import Settings
+from affordcore.features import FeatureLayout
+from affordcore.learn.model import choose_models
+from services.settings import ServiceSettings
 from services.clients import _publisher
 from services.launch import free_port
-from services.node import Keys, Node, encoding_of, open_session
+from services.node import Node
+from services.transport import Keys, encoding_of, open_session
 
 ROBOT = "testbot"
 KEYS = Keys(ROBOT)
@@ -41,9 +44,11 @@ def client(router):
 class Running:
     """A service in a thread, stopped (and its recording closed) at the end."""
 
-    def __init__(self, service_class, name: str, endpoint: str, rrd: Path, *args):
-        self.node = Node(name, ROBOT, [endpoint], Settings(), rrd, affordances=["sitting-relaxing"])
-        self.service = service_class(self.node, *args)
+    def __init__(self, service_class, name: str, endpoint: str, rrd: Path, settings: ServiceSettings | None = None):
+        settings = settings or ServiceSettings()
+        models = choose_models([], ["sitting-relaxing"], FeatureLayout.from_settings(settings.features, settings.voxel))
+        self.node = Node(name, ROBOT, [endpoint], settings, rrd, models=models)
+        self.service = service_class(self.node)
         self.thread = threading.Thread(target=self.service.run, daemon=True)
         self.thread.start()
 
@@ -140,11 +145,11 @@ def test_features_serve_the_latest_fields_to_a_late_get_and_refuse_unaligned_map
         assert not list(client.get(KEYS.fields, timeout=2)), "no fields before any map"
         unaligned = messages.cloud_message(_box_room_scan(np.random.default_rng(1)), np.eye(4), "file")
         unaligned.frame_id = "camera"
-        _send(client, KEYS.cloud, unaligned.SerializeToString(), messages.Cloud)
+        _send(client, KEYS.cloud, unaligned.SerializeToString(), messages.CloudMessage)
         assert "map clouds must be in the 'world' frame" in _next(errors, messages.Error).reason
 
         cloud = messages.cloud_message(_box_room_scan(np.random.default_rng(2)), np.eye(4), "file", frames=7)
-        _send(client, KEYS.cloud, cloud.SerializeToString(), messages.Cloud)
+        _send(client, KEYS.cloud, cloud.SerializeToString(), messages.CloudMessage)
         deadline = time.monotonic() + 60
         replies = []
         while not replies and time.monotonic() < deadline:
@@ -166,16 +171,12 @@ def test_features_serve_the_latest_fields_to_a_late_get_and_refuse_unaligned_map
 
 
 def test_inference_refuses_fields_at_another_resolution(router, client, tmp_path):
-    from affordcore.features import FeatureLayout
     from affordcore.fields import compute_fields
-    from affordcore.outputs import choose_models
     from affordcore.settings import VoxelSettings
     from services.inference import InferenceService
 
-    settings = Settings()
-    models = choose_models([], ["sitting-relaxing"], FeatureLayout.from_settings(settings.features, settings.voxel))
     errors = _listen(client, KEYS.error("inference"))
-    running = Running(InferenceService, "inference", router, tmp_path / "inference.rrd", models)
+    running = Running(InferenceService, "inference", router, tmp_path / "inference.rrd")
     try:
         points = _box_room_scan(np.random.default_rng(3))
         coarse = compute_fields(points, VoxelSettings(resolution=0.2))

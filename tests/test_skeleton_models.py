@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from affordcore.cli import app
+from afford.app import app
 from affordcore.skeleton import BUILTIN_DIR, JOINTS, rotation_z
 from affordcore.skeleton_models import (
     Frames, bone_lengths, canonicalise, derive, filter_masks, kinect_to_zup, leg_angles, load_frames, load_sources, reach,

@@ -171,7 +171,7 @@ def test_depth_noise_grows_with_range_as_the_kinect_model_says():
 # ---------------------------------------------------------------- data sets
 
 def _synth(out, seed, *extra):
-    return subprocess.run([sys.executable, "-m", "affordcore.cli", "synth", "--rooms", "2", "--seed", str(seed), "--out", str(out),
+    return subprocess.run([sys.executable, "-m", "afford", "synth", "--rooms", "2", "--seed", str(seed), "--out", str(out),
                            "--kinds", "office,workshop", "--quiet", *extra], capture_output=True, text=True, timeout=600)
 
 

@@ -12,7 +12,8 @@ import pytest
 
 from affordcore.learn.model import load_model
 from affordcore.learn.evaluate import deal_folds, evaluate, write_outputs
-from affordcore.learn.train import LEARNERS, split_rooms, train
+from affordcore.learn.learners import LEARNERS
+from affordcore.learn.train import split_rooms, train
 from affordcore.settings import FeatureSettings, GridSettings, Settings
 
 SMALL = {"AFFORD_FEATURES__CELL_SIZE": "0.5", "AFFORD_GRID__N_THETA": "8", "AFFORD_GRID__THETA_STEP": "0.785398"}
@@ -21,7 +22,7 @@ SMALL = {"AFFORD_FEATURES__CELL_SIZE": "0.5", "AFFORD_GRID__N_THETA": "8", "AFFO
 @pytest.fixture(scope="module")
 def data_set(tmp_path_factory):
     folder = tmp_path_factory.mktemp("rooms")
-    result = subprocess.run([sys.executable, "-m", "affordcore.cli", "synth", "--rooms", "3", "--seed", "11", "--out", str(folder),
+    result = subprocess.run([sys.executable, "-m", "afford", "synth", "--rooms", "3", "--seed", "11", "--out", str(folder),
                              "--kinds", "workshop", "--scanner", "uniform", "--quiet"], capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
     return folder
@@ -55,7 +56,7 @@ def test_split_is_by_room_and_seeded():
 def test_afford_train_writes_a_model(data_set, tmp_path):
     out = tmp_path / "model.json"
     env = {**os.environ, **SMALL}
-    result = subprocess.run([sys.executable, "-m", "affordcore.cli", "train", "--data", str(data_set), "--affordance",
+    result = subprocess.run([sys.executable, "-m", "afford", "train", "--data", str(data_set), "--affordance",
                              _affordance(data_set), "--learner", "linear-tuned", "--out", str(out), "--quiet"],
                             capture_output=True, text=True, timeout=600, env=env)
     assert result.returncode == 0, result.stderr
@@ -111,7 +112,7 @@ def test_evaluate_runs_every_learner_per_fold_and_the_imbalance_test(data_set, t
 
 def test_evaluate_rejects_bad_ratios_and_learners(data_set, tmp_path):
     for option, value, message in (("--ratios", "1,x", "'x' is not a whole number"), ("--learners", "svm", "unknown learner")):
-        result = subprocess.run([sys.executable, "-m", "affordcore.cli", "evaluate", "--data", str(data_set), "--out", str(tmp_path),
+        result = subprocess.run([sys.executable, "-m", "afford", "evaluate", "--data", str(data_set), "--out", str(tmp_path),
                                  option, value, "--quiet"], capture_output=True, text=True, timeout=120, env={**os.environ, **SMALL})
         assert result.returncode == 2 and message in result.stderr, result.stderr
 

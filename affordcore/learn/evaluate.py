@@ -27,7 +27,8 @@ from ..settings import Settings
 from .baselines import undersampled_indices
 from .examples import RoomExamples, data_set_rooms, room_examples
 from .ssvm import decision
-from .train import LEARNERS, fit, metrics, split_rooms, stack
+from .learners import LEARNERS
+from .train import fit, metrics, split_rooms, stack
 
 SWEEP_RATIOS: tuple[int | None, ...] = (*(2**k for k in range(12)), None)  # 1:1 ... 1:2048, then all data
 
@@ -195,6 +196,8 @@ def write_outputs(evaluation: Evaluation, out: str | Path) -> list[Path]:
     paths = [out / "results.json", out / "results.md", out / "imbalance.png", out / "ssvm_iterations.png"]
     paths[0].write_text(json.dumps(evaluation.to_json(), indent=1) + "\n")
     paths[1].write_text(results_markdown(evaluation))
+    from ..plots import plot_imbalance, plot_ssvm_iterations
+
     plot_imbalance(evaluation, paths[2])
     plot_ssvm_iterations(evaluation, paths[3])
     return paths
@@ -246,56 +249,3 @@ def results_markdown(evaluation: Evaluation) -> str:
                 lines.append(f"| {learner} | " + " | ".join(f"{by_ratio[r]:.2f}" if r in by_ratio else "" for r in ratios) + " |")
             lines.append("")
     return "\n".join(lines).rstrip() + "\n"
-
-
-def plot_imbalance(evaluation: Evaluation, path: Path) -> None:
-    from ..plots import pyplot
-
-    plt = pyplot()
-
-    sweep = evaluation.sweep()
-    affordances = list(dict.fromkeys(o.affordance for o in evaluation.outcomes))
-    fig, axes = plt.subplots(1, len(affordances), figsize=(5 * len(affordances), 4), squeeze=False, sharey=True)
-    for ax, affordance in zip(axes[0], affordances):
-        runs = [o for o in sweep if o.affordance == affordance]
-        for learner in dict.fromkeys(o.learner for o in runs):
-            points = sorted((o.train_ratio, o.f1) for o in runs if o.learner == learner)
-            ax.plot(*zip(*points), marker="o", label=learner)
-        ax.set_xscale("log", base=2)
-        ax.set_title(affordance)
-        ax.set_xlabel("negatives per positive in training (rightmost: all data)")
-        ax.grid(alpha=0.3)
-    _save(fig, axes, "F1 on the test rooms", "Imbalance test: F1 against the training imbalance (fold 1)", path)
-
-
-def plot_ssvm_iterations(evaluation: Evaluation, path: Path) -> None:
-    from ..plots import pyplot
-
-    plt = pyplot()
-
-    runs = [o for o in evaluation.outcomes if o.learner == "ssvm" and o.fold == 0 and not o.sweep]
-    fig, axes = plt.subplots(1, max(1, len(runs)), figsize=(5 * max(1, len(runs)), 4), squeeze=False, sharey=True)
-    for ax, run in zip(axes[0], runs):
-        train_f1, validation_f1 = run.report["train_f1"], run.report["validation_f1"]
-        steps = np.arange(1, len(train_f1) + 1)
-        ax.plot(steps, train_f1, label="training rooms")
-        ax.plot(steps, validation_f1, label="validation rooms")
-        ax.axvline(run.report["best_iteration"], color="grey", ls="--", label="kept (best on validation)")
-        ax.set_title(run.affordance)
-        ax.set_xlabel("cutting-plane iteration")
-        ax.grid(alpha=0.3)
-    if not runs:
-        axes[0][0].text(0.5, 0.5, "the structured SVM was not evaluated", ha="center", va="center")
-    _save(fig, axes, "F1", "Structured SVM: F1 per iteration (fold 1)", path)
-
-
-def _save(fig, axes, ylabel: str, title: str, path: Path) -> None:
-    """One row of panels: the y label on the first, the legend on the last, the title over all."""
-    from ..plots import pyplot
-
-    axes[0][0].set_ylabel(ylabel)
-    axes[0][-1].legend(fontsize=8)
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    pyplot().close(fig)

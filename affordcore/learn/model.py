@@ -1,4 +1,5 @@
-"""Model files: one linear classifier per affordance, versioned and self-describing (JSON).
+"""Model files: one linear classifier per affordance, versioned and self-describing (JSON), and the default
+models the package ships (`shipped_models`, `choose_models`).
 
 A model says what it was trained for and on: the affordance and its skeleton, the feature layout (with the
 fingerprint of `FeatureLayout.describe()`), the pose grid's resolution, the learner and its parameters, the
@@ -20,6 +21,7 @@ from ..jsonfile import read_json
 from ..skeleton import Skeleton
 
 FORMAT = "affordance-model/1"
+MODELS_DIR = Path(__file__).parents[1] / "data" / "models"  # the shipped default models, one per affordance
 
 
 class ModelError(ValueError):
@@ -91,3 +93,25 @@ def load_model(path: str | Path, layout: FeatureLayout | None = None) -> Afforda
 def _summary(layout: dict) -> str:
     return (f"v{layout.get('version')}, {layout.get('n_features')} features, {layout.get('cell_size')} m cells, "
             f"{layout.get('voxel_resolution')} m voxels")
+
+
+def shipped_models() -> dict[str, Path]:
+    """{affordance: model file} of the default models inside the package."""
+    return {path.name.removesuffix(".model.json"): path for path in sorted(MODELS_DIR.glob("*.model.json"))}
+
+
+def choose_models(model_files: list[Path], affordances: list[str], layout: FeatureLayout) -> list[AffordanceModel]:
+    """The given model files, else the shipped models of the named affordances, else every shipped model."""
+    if model_files:
+        models = [load_model(path, layout) for path in model_files]
+    else:
+        shipped = shipped_models()
+        unknown = [name for name in affordances if name not in shipped]
+        if unknown:
+            raise ModelError(f"no shipped model for {', '.join(unknown)}; shipped: {', '.join(shipped) or 'none'} "
+                             "(or pass --model FILE)")
+        models = [load_model(shipped[name], layout) for name in (affordances or list(shipped))]
+    wanted = [m for m in models if not affordances or m.affordance in affordances]
+    if not wanted:
+        raise ModelError(f"none of the models is for {', '.join(affordances)}")
+    return wanted

@@ -15,13 +15,11 @@ import numpy as np
 from ..features import FeatureLayout
 from ..settings import Settings
 from ..skeleton import get_skeleton
-from . import baselines
 from .examples import RoomExamples, data_set_rooms, room_examples
 from .f1_argmax import f1_loss
+from .learners import Fitted, get_learner
 from .model import AffordanceModel
-from .ssvm import SSVMSettings, decision, train_ssvm
-
-LEARNERS = ("ssvm", "undersample", "focused", "zsvm", "dcm", "linear-tuned")
+from .ssvm import decision
 
 
 def metrics(scores: np.ndarray, labels: np.ndarray, threshold: float) -> dict:
@@ -55,36 +53,14 @@ def split_rooms(names: list[str], seed: int, fraction: float = 0.25,
     return [n for n in names if n not in validation], validation
 
 
-def fit(learner: str, train: RoomExamples, validation: RoomExamples, params: dict, seed: int) -> tuple[np.ndarray, float, float, dict]:
-    """(weights, bias, threshold, what the learner reports) for one learner."""
-    rng = np.random.default_rng(seed)
-    X, y = train.X, train.y
-    if learner == "ssvm":
-        result = train_ssvm(X, y, SSVMSettings(**params), validation=(validation.X, validation.y))
-        best = result.best
-        weights = best.weights / len(y)  # in SVMperf's units (summed Psi): the same sign, scores of order one
-        return weights[:-1], float(weights[-1]), 0.0, {
-            "iterations": len(result.iterations), "best_iteration": best.number, "converged": result.converged,
-            "train_f1": [it.train_f1 for it in result.iterations], "validation_f1": [it.validation_f1 for it in result.iterations]}
-    if learner == "linear-tuned":
-        model = baselines.linear_tuned(X, y, params.get("C", 1.0))
-    elif learner == "undersample":
-        model = baselines.undersample(X, y, params.get("ratio", 1.0), rng, params.get("C", 1.0))
-    elif learner == "dcm":
-        model = baselines.different_costs(X, y, params.get("cost_ratio", float(np.sum(y <= 0) / max(1, np.sum(y > 0)))), params.get("C", 1.0))
-    elif learner == "focused":
-        model = baselines.focused_resampling(X, y, rng, params.get("C", 1.0))
-    elif learner == "zsvm":
-        model = baselines.zsvm(X, y, (validation.X, validation.y), rng, params.get("C", 1.0))
-    else:
-        raise ValueError(f"unknown learner {learner!r}; choose from {', '.join(LEARNERS)}")
-    return model.weights, model.bias, model.threshold, {}
+def fit(learner: str, train: RoomExamples, validation: RoomExamples, params: dict, seed: int) -> Fitted:
+    """(weights, bias, threshold, what the learner reports) of one registered learner."""
+    return get_learner(learner).fit(train, validation, params, np.random.default_rng(seed))
 
 
 def train(data: str | Path, affordance: str, learner: str, settings: Settings | None = None, params: dict | None = None,
           seed: int = 0, on_room: Callable[[str], None] | None = None) -> AffordanceModel:
-    if learner not in LEARNERS:
-        raise ValueError(f"unknown learner {learner!r}; choose from {', '.join(LEARNERS)}")
+    get_learner(learner)  # an unknown learner fails before the rooms are read
     settings = settings or Settings()
     layout = FeatureLayout.from_settings(settings.features, settings.voxel)
     rooms = data_set_rooms(data)

@@ -1,5 +1,7 @@
 """Between numpy and the wire: the afford.v1 Protocol Buffers (schemas/afford/v1) and the arrays the library
-works on. No transport here; the services move the bytes.
+works on. No transport here; the services move the bytes. The protobuf classes are named here as on the wire
+(Scan, DepthFrame, Pose, Status, Error), with a `Message` suffix where the library has a class of the same name
+(CloudMessage, SceneFieldsMessage, AffordanceMapMessage).
 
 Every decoder checks what it is given and raises `MessageError` with a reason a person can act on (the
 services answer it on their error key and keep running).
@@ -12,11 +14,12 @@ import time
 import numpy as np
 
 from .proto import geometry_pb2, maps_pb2, sensing_pb2, service_pb2
-from .skeleton import JOINTS
+from affordcore.depth import DepthImage
+from affordcore.skeleton import JOINTS
 
 Scan = sensing_pb2.Scan
 DepthFrame = sensing_pb2.DepthFrame
-Cloud = maps_pb2.Cloud
+CloudMessage = maps_pb2.Cloud
 SceneFieldsMessage = maps_pb2.SceneFields
 AffordanceMapMessage = maps_pb2.AffordanceMap
 Pose = geometry_pb2.Pose
@@ -29,6 +32,10 @@ _NUMPY_TYPES = {
     _Field.UINT8: "u1", _Field.INT8: "i1", _Field.UINT16: "<u2", _Field.INT16: "<i2",
     _Field.UINT32: "<u4", _Field.INT32: "<i4", _Field.FLOAT32: "<f4", _Field.FLOAT64: "<f8",
 }
+
+
+MESSAGE_CLASSES = {cls.DESCRIPTOR.full_name: cls for cls in (
+    Scan, DepthFrame, CloudMessage, Pose, SceneFieldsMessage, AffordanceMapMessage, Status, Error)}  # by schema name
 
 
 class MessageError(ValueError):
@@ -172,8 +179,8 @@ def depth_frame_message(depth: np.ndarray, intrinsics: np.ndarray, depth_scale: 
     return message
 
 
-def depth_image(message: DepthFrame) -> tuple[np.ndarray, np.ndarray]:
-    """(16-bit depth image (H, W), 3 x 3 pinhole matrix) of a DepthFrame, checked."""
+def depth_image(message: DepthFrame) -> DepthImage:
+    """The depth image a DepthFrame carries, checked (affordcore.depth.back_project turns it into points)."""
     width, height = message.width, message.height
     if width == 0 or height == 0:
         raise MessageError(f"depth image is {width} x {height}")
@@ -185,39 +192,22 @@ def depth_image(message: DepthFrame) -> tuple[np.ndarray, np.ndarray]:
     if not message.depth_scale > 0:
         raise MessageError(f"depth_scale must be positive metres per unit, got {message.depth_scale}")
     intrinsics = np.array([[k.fx, 0, k.cx], [0, k.fy, k.cy], [0, 0, 1.0]])
-    return np.frombuffer(message.depth, dtype="<u2").reshape(height, width), intrinsics
-
-
-def depth_points(message: DepthFrame, pixel_step: int = 1, min_range: float = 0.0, max_range: float = np.inf) -> np.ndarray:
-    """Back-project a DepthFrame to points (N, 3) in the camera frame (x right, y down, z forward), every
-    `pixel_step`-th pixel, keeping depths within [min_range, max_range]. (The assembler averages blocks of
-    pixels instead: affordcore.assembly.depth_block_points.)"""
-    image, intrinsics = depth_image(message)
-    raw = image[::pixel_step, ::pixel_step]
-    v, u = np.mgrid[0:message.height:pixel_step, 0:message.width:pixel_step]
-    valid = raw != 0
-    if message.invalid_value:
-        valid &= raw != message.invalid_value
-    z = raw[valid] * message.depth_scale
-    keep = (z >= min_range) & (z <= max_range)
-    z = z[keep]
-    u, v = u[valid][keep], v[valid][keep]
-    fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
-    return np.column_stack([(u - cx) / fx * z, (v - cy) / fy * z, z])
+    pixels = np.frombuffer(message.depth, dtype="<u2").reshape(height, width)
+    return DepthImage(pixels, intrinsics, message.depth_scale, message.invalid_value)
 
 
 # -- clouds, fields, maps ------------------------------------------------------------------------------------
 
 def cloud_message(points: np.ndarray, world_from_input: np.ndarray, source: str, frames: int = 0,
-                  at: float | None = None) -> Cloud:
-    message = Cloud(frame_id=WORLD, frames=frames, source=source)
+                  at: float | None = None) -> CloudMessage:
+    message = CloudMessage(frame_id=WORLD, frames=frames, source=source)
     pack_points(message, points)
     set_pose(message.world_from_input, world_from_input, WORLD, "input", at)
     stamp(message.timestamp, at)
     return message
 
 
-def cloud_points(message: Cloud) -> np.ndarray:
+def cloud_points(message: CloudMessage) -> np.ndarray:
     """The world-frame points of a map Cloud; a cloud in another frame, or with no points, is refused."""
     if message.frame_id != WORLD:
         raise MessageError(f"map clouds must be in the {WORLD!r} frame (gravity-aligned, z up, floor at 0), not {message.frame_id!r}; "
@@ -228,7 +218,7 @@ def cloud_points(message: Cloud) -> np.ndarray:
     return points
 
 
-def fields_message(fields, cloud: Cloud, at: float | None = None) -> SceneFieldsMessage:
+def fields_message(fields, cloud: CloudMessage, at: float | None = None) -> SceneFieldsMessage:
     """SceneFields of the map `cloud` (whose frame, time and frame count it carries on)."""
     lattice = fields.lattice
     message = SceneFieldsMessage(
@@ -247,7 +237,7 @@ def fields_message(fields, cloud: Cloud, at: float | None = None) -> SceneFields
 
 def scene_fields(message: SceneFieldsMessage):
     """The `SceneFields` a message carries (arrays are read-only views of the payload)."""
-    from .fields import SceneFields, VoxelLattice
+    from affordcore.fields import SceneFields, VoxelLattice
 
     grid = message.grid
     shape = (grid.nx, grid.ny, grid.nz)
@@ -294,7 +284,7 @@ def _carry_source(message, world_from_input, cloud_timestamp, frames: int, at: f
 
 def map_grid(message: AffordanceMapMessage):
     """The PoseGrid a map message was scored on."""
-    from .grid import PoseGrid
+    from affordcore.grid import PoseGrid
 
     spec = message.grid
     step = spec.step if np.isfinite(spec.step) else 0.0  # a single position has no step
@@ -324,7 +314,7 @@ def map_arrays(message: AffordanceMapMessage) -> dict[str, np.ndarray]:
 
 def map_document_of(message: AffordanceMapMessage) -> dict:
     """The affordance-map/1 JSON document of a map message: what `afford map` writes for the same map."""
-    from .maps import map_document
+    from affordcore.maps import map_document
 
     arrays = map_arrays(message)
     return map_document(message.affordance, message.model, message.threshold, map_grid(message).as_dict(),

@@ -1,0 +1,16 @@
+"""The `afford` app: the themes' commands in one typer app, grouped by theme in `--help`."""
+
+from __future__ import annotations
+
+import typer
+
+from . import config, learning, robot, room, skeletons
+
+app = typer.Typer(
+    help="affordmap: where people can sit, relax, work and stand in a 3D room, from its point cloud.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+for theme in (room, learning, skeletons, robot, config):
+    app.add_typer(theme.app)

@@ -1,0 +1,156 @@
+"""Learning commands: generate labelled rooms (`synth`), train one model (`train`), compare the learners
+(`evaluate`), and the shipped models (`models list | rebuild`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from affordcore.learn.learners import LEARNERS
+
+from .common import UserError, names, progress, user_errors
+
+app = typer.Typer()
+models_app = typer.Typer(help="The shipped default models, one per affordance type.", no_args_is_help=True)
+app.add_typer(models_app, name="models", rich_help_panel="Learning")
+PANEL = "Learning"
+DATA_HELP = "folder of <room>.ply + <room>.labels.json (afford synth writes one)"
+
+
+@app.command(rich_help_panel=PANEL)
+def synth(
+    rooms: int = typer.Option(..., "--rooms", min=1, help="how many rooms"),
+    seed: int = typer.Option(0, "--seed", help="same seed, same files"),
+    out: Path = typer.Option(..., "--out", help="folder for <room>.ply, <room>.labels.json and the summary"),
+    kinds: str = typer.Option("living,office,workshop", "--kinds",
+                              help="comma-separated: living, office, workshop, mixed"),
+    scanner: str = typer.Option("depth", "--scanner",
+                                help="depth (virtual Kinect, fused views) or uniform (surface samples)"),
+    sequences: bool = typer.Option(False, "--sequences",
+                                   help="also write a sensor sequence per room with ground-truth poses"),
+    sensor: str = typer.Option("depth", "--sensor", help="what sequences hold: depth frames (7-Scenes layout) or lidar scans"),
+    frames: int = typer.Option(300, "--frames", min=1, help="frames per sequence"),
+    workers: int = typer.Option(1, "--workers", min=1, help="rooms generated in parallel processes"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+) -> None:
+    """Generate labelled rooms: procedural furniture, a virtual depth scanner, exact labels, class counts."""
+    with user_errors():
+        from affordcore.synth.dataset import SynthOptions, summary_table, synthesize
+
+        options = SynthOptions(rooms, seed, tuple(names(kinds)), scanner, sequences, sensor, frames)
+        with progress(quiet) as bar:
+            task = bar.add_task("rooms", total=rooms)
+            summary = synthesize(options, out, workers, on_room_done=lambda report: bar.advance(task))
+        typer.echo(summary_table(summary), nl=False)
+        typer.echo(f"written to {out}/ (summary.json, summary.md, {rooms} rooms)")
+
+
+@app.command(rich_help_panel=PANEL)
+def train(
+    data: Path = typer.Option(..., "--data", help=DATA_HELP),
+    affordance: str = typer.Option(..., "--affordance", "-a", help="affordance type"),
+    learner: str = typer.Option("ssvm", "--learner", help=", ".join(LEARNERS)),
+    out: Path = typer.Option(..., "--out", help="model file to write (JSON)"),
+    C: Optional[float] = typer.Option(None, "--C", help="regularisation trade-off (learner's default when omitted)"),
+    seed: int = typer.Option(0, "--seed", help="seeds the room split and resampling"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+) -> None:
+    """Train one affordance's classifier on a data set (rooms split into training and validation by room)."""
+    with user_errors():
+        from affordcore.learn.examples import data_set_rooms
+        from affordcore.learn.train import train as train_model
+        from affordcore.settings import Settings
+
+        rooms = data_set_rooms(data)
+        with progress(quiet) as bar:
+            task = bar.add_task("rooms", total=len(rooms))
+            model = train_model(data, affordance, learner, Settings(), {} if C is None else {"C": C}, seed,
+                                on_room=lambda name: bar.advance(task))
+        model.save(out)
+        v = model.validation
+        typer.echo(f"{affordance} / {learner}: validation rooms {', '.join(v['rooms'])}: precision "
+                   f"{v['precision']:.3f}, recall {v['recall']:.3f}, f1 {v['f1']:.3f} ({v['positives']} positive poses)")
+        typer.echo(f"model written to {out}")
+
+
+@app.command(rich_help_panel=PANEL)
+def evaluate(
+    data: Path = typer.Option(..., "--data", help=DATA_HELP),
+    folds: int = typer.Option(3, "--folds", min=2, help="k of the k-fold split over rooms"),
+    learners: str = typer.Option(",".join(LEARNERS), "--learners", help="comma-separated learners"),
+    affordances: Optional[str] = typer.Option(None, "--affordances",
+                                              help="comma-separated affordances (default: every built-in skeleton)"),
+    ratios: str = typer.Option("1,2,4,8,16,32,64,128,256,512,1024,2048,all", "--ratios",
+                               help="imbalance test: negatives per positive to train at, 'all' for every negative; "
+                                    "'none' skips the test"),
+    out: Path = typer.Option(..., "--out", help="folder for results.json, results.md and the plots"),
+    seed: int = typer.Option(0, "--seed", help="seeds the folds, the validation split and resampling"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+) -> None:
+    """Compare learners by k-fold over rooms: the paper's table, its imbalance test, the SSVM's iterations."""
+    with user_errors():
+        from affordcore.learn.evaluate import evaluate as run_evaluation
+        from affordcore.learn.evaluate import write_outputs
+        from affordcore.settings import Settings
+        from affordcore.skeleton import skeleton_files
+
+        settings = Settings()
+        chosen = names(learners)
+        kinds = names(affordances) if affordances else sorted(skeleton_files(settings.skeleton_dirs))
+        sweep = () if ratios.strip() == "none" else tuple(None if r == "all" else _ratio(r) for r in names(ratios))
+        # runs at a ratio other than "all" are per learner; "all" is fold 1 again, reused except by undersample
+        sweep_runs = sum(1 for r in sweep for name in chosen if r is not None or name == "undersample")
+        steps = len(kinds) * (folds * len(chosen) + sweep_runs)
+        with progress(quiet) as bar:
+            task = bar.add_task("evaluate", total=steps)
+
+            def step(message: str) -> None:
+                bar.update(task, description=message)
+                if ": features of " not in message:
+                    bar.advance(task)
+
+            evaluation = run_evaluation(data, kinds, chosen, folds, settings, seed, sweep, on_step=step)
+        paths = write_outputs(evaluation, out)
+        typer.echo(paths[1].read_text().split("\n## Imbalance")[0])
+        typer.echo("written: " + ", ".join(str(p) for p in paths))
+
+
+def _ratio(text: str) -> int:
+    if not text.isdigit() or int(text) < 1:
+        raise UserError(f"--ratios: {text!r} is not a whole number of negatives per positive (or 'all')")
+    return int(text)
+
+
+@models_app.command("list")
+def models_list() -> None:
+    """Every shipped model: learner, training data and validation metrics."""
+    with user_errors():
+        from affordcore.learn.model import load_model, shipped_models
+
+        for name, path in shipped_models().items():
+            model = load_model(path)
+            v = model.validation
+            typer.echo(f"{name:<18} {model.learner:<13} {model.id}  validation P/R/F1 {v.get('precision', 0):.2f}/"
+                       f"{v.get('recall', 0):.2f}/{v.get('f1', 0):.2f} on {', '.join(v.get('rooms', []))}")
+
+
+@models_app.command("rebuild")
+def models_rebuild(
+    learner: str = typer.Option("ssvm", "--learner", help="one learner for every affordance: " + ", ".join(LEARNERS)),
+    evaluation: Optional[Path] = typer.Option(None, "--evaluation",
+                                              help="an afford evaluate results.json: each affordance gets its best learner"),
+    rooms: int = typer.Option(12, "--rooms", min=2, help="generated rooms to train on"),
+    seed: int = typer.Option(1, "--seed", help="same seed, same models"),
+    out: Optional[Path] = typer.Option(None, "--out", help="folder for the model files (default: the package's own)"),
+    workers: int = typer.Option(2, "--workers", min=1, help="rooms generated in parallel"),
+) -> None:
+    """Retrain the default models from generated rooms, reproducibly."""
+    with user_errors():
+        from affordcore.learn.defaults import rebuild_default_models, winners
+        from affordcore.learn.model import MODELS_DIR
+
+        chosen = winners(evaluation) if evaluation else learner
+        written = rebuild_default_models(out or MODELS_DIR, chosen, rooms, seed, workers, on_step=typer.echo)
+        typer.echo("written: " + ", ".join(str(p) for p in written))

@@ -1,0 +1,154 @@
+"""Room commands: map a room (`map`, `demo`), and look at the steps on the way (`align`, `features`)."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from .common import GRAVITY_HELP, peak_rss_mb, progress, user_errors
+
+app = typer.Typer()
+PANEL = "Room"
+CLOUD_HELP = "point cloud: .ply .pcd .xyz .pts .txt .npy .bin"
+
+
+@app.command("map", rich_help_panel=PANEL)
+def map_command(
+    cloud: Path = typer.Argument(..., help=CLOUD_HELP),
+    out: Path = typer.Option(..., "--out", help="folder for <affordance>.json, <affordance>.png and the recording"),
+    model: Optional[list[Path]] = typer.Option(None, "--model",
+                                               help="a model file (repeatable); default: the shipped models"),
+    affordance: Optional[list[str]] = typer.Option(None, "--affordance", "-a",
+                                                   help="only this affordance (repeatable)"),
+    gravity: str = typer.Option("auto", "--gravity", help=GRAVITY_HELP),
+    rrd: Optional[Path] = typer.Option(None, "--rrd", help="the Rerun recording (default: OUT/map.rrd)"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+) -> None:
+    """Map where people can sit, relax, work and stand in a room: skeleton map, confidence map, positives."""
+    with user_errors():
+        map_room(cloud, out, model or [], affordance or [], gravity, rrd or out / "map.rrd", quiet)
+
+
+def map_room(cloud_path: Path, out: Path, model_files: list[Path], affordances: list[str], gravity: str, rrd: Path,
+             quiet: bool) -> list[Path]:
+    """load -> align -> fields -> score -> map -> write, each one call into the library."""
+    from affordcore.features import FeatureLayout
+    from affordcore.learn.model import choose_models
+    from affordcore.outputs import summary_line, write_map_outputs
+    from affordcore.pipeline import map_affordances, parse_gravity, prepare_scene
+    from affordcore.scene import load_cloud
+    from affordcore.settings import Settings
+
+    settings = Settings()
+    start = time.perf_counter()
+    models = choose_models(model_files, affordances, FeatureLayout.from_settings(settings.features, settings.voxel))
+    scene = prepare_scene(load_cloud(cloud_path), settings, parse_gravity(gravity))
+    for warning in scene.warnings:
+        typer.echo(f"warning: {warning}", err=True)
+    typer.echo(f"{cloud_path}: {len(scene.cloud):,} points; {scene.alignment.describe()}")
+    with progress(quiet) as bar:
+        task = bar.add_task("affordance maps", total=len(models))
+        maps = map_affordances(scene.fields, scene.layout, models, settings, on_map=lambda *_: bar.advance(task))
+    for amap in maps.values():
+        typer.echo(summary_line(amap))
+    written = write_map_outputs(scene, maps, models, out, rrd)
+    typer.echo(f"{time.perf_counter() - start:.1f} s, peak memory {peak_rss_mb():.0f} MB")
+    typer.echo("outputs: " + ", ".join(str(path) for path in written))
+    return written
+
+
+@app.command(rich_help_panel=PANEL)
+def demo(
+    out: Path = typer.Option(Path("afford-demo"), "--out", help="folder for the outputs"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+) -> None:
+    """Map the built-in example room with the shipped models and say where the outputs are."""
+    with user_errors():
+        from affordcore.example import example_room
+        from affordcore.scene import save_cloud
+
+        out.mkdir(parents=True, exist_ok=True)
+        cloud_path = out / "example-room.ply"
+        save_cloud(cloud_path, example_room())
+        map_room(cloud_path, out, [], [], "auto", out / "map.rrd", quiet)
+        typer.echo(f"open the recording with: rerun {out / 'map.rrd'}")
+
+
+@app.command(rich_help_panel=PANEL)
+def align(
+    cloud: Path = typer.Argument(..., help=CLOUD_HELP),
+    gravity: str = typer.Option("auto", help=GRAVITY_HELP),
+    out: Optional[Path] = typer.Option(None, "--out", help="write the aligned cloud (.ply, .pcd or .npy)"),
+    as_json: bool = typer.Option(False, "--json", help="print the alignment as JSON"),
+) -> None:
+    """Bring a cloud into the world frame (z up, floor at z = 0) and say what was done."""
+    with user_errors():
+        from affordcore.pipeline import parse_gravity, to_world
+        from affordcore.scene import load_cloud, save_cloud
+        from affordcore.settings import Settings
+
+        loaded = load_cloud(cloud)
+        world = to_world(loaded, Settings(), parse_gravity(gravity))
+        alignment = world.alignment
+        for warning in world.warnings:
+            typer.echo(f"warning: {warning}", err=True)
+        if out:
+            save_cloud(out, world.cloud)
+        if as_json:
+            typer.echo(json.dumps({"cloud": str(cloud), "points": len(loaded),
+                                   "dropped_nonfinite": loaded.dropped_nonfinite, **alignment.as_dict()}))
+            return
+        typer.echo(f"{cloud}: {len(loaded)} points" + (f" ({'; '.join(loaded.notes)})" if loaded.notes else ""))
+        typer.echo(alignment.describe())
+        for candidate in alignment.candidates:
+            chosen = candidate.valid and candidate.axis == alignment.up_axis
+            typer.echo(f"  candidate up {candidate.axis}: {'chosen' if chosen else candidate.reason}"
+                       f" (horizontal-surface score {candidate.score:.3f})")
+        if out:
+            typer.echo(f"aligned cloud written to {out}")
+
+
+@app.command(rich_help_panel=PANEL)
+def features(
+    cloud: Path = typer.Argument(..., help=CLOUD_HELP),
+    affordance: str = typer.Option(..., "--affordance", "-a", help="affordance type (see `afford skeletons list`)"),
+    as_json: bool = typer.Option(False, "--json", help="print one JSON object: poses, features, seconds, peak_rss_mb"),
+    gravity: str = typer.Option("auto", help=GRAVITY_HELP),
+    out: Optional[Path] = typer.Option(None, "--out",
+                                       help="also write the (poses x features) float32 matrix as .npy"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+) -> None:
+    """Compute every grid pose's features for one affordance (distance, collision, normal cube)."""
+    with user_errors():
+        from affordcore.pipeline import parse_gravity, prepare_scene, stream_features
+        from affordcore.scene import load_cloud
+        from affordcore.settings import Settings
+        from affordcore.skeleton import get_skeleton
+
+        start = time.perf_counter()
+        settings = Settings()
+        skeleton = get_skeleton(affordance, settings.skeleton_dirs)
+        scene = prepare_scene(load_cloud(cloud), settings, parse_gravity(gravity))
+        prepared = time.perf_counter()
+        with progress(quiet) as bar:
+            task = bar.add_task(f"features {affordance}", total=scene.pose_grid(skeleton, settings).size)
+            poses, n_features = stream_features(scene, skeleton, settings, out, on_rows=lambda n: bar.advance(task, n))
+        done = time.perf_counter()
+        total, feature_seconds = done - start, done - prepared
+        report = {"poses": poses, "features": n_features, "seconds": round(total, 3),
+                  "peak_rss_mb": round(peak_rss_mb(), 1)}
+        if as_json:
+            typer.echo(json.dumps(report))
+            return
+        typer.echo(f"{cloud}: {len(scene.cloud)} points; {scene.alignment.describe()}")
+        typer.echo(
+            f"{affordance}: {poses} poses x {n_features} features in {total:.2f} s (load, align, fields "
+            f"{prepared - start:.2f} s; features {feature_seconds:.2f} s, {poses / feature_seconds:,.0f} poses/s); "
+            f"peak memory {report['peak_rss_mb']:.0f} MB"
+        )
+        if out:
+            typer.echo(f"feature matrix written to {out}")

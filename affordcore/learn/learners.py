@@ -1,0 +1,93 @@
+"""The learners, registered once: training (`train.fit`), the evaluation, the command line and the docs read this
+table. A new learner is a fit function and one line here (and its tests). Nothing heavy is imported until a
+learner fits, so the command line can list them instantly."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from .examples import RoomExamples
+
+Fitted = tuple["np.ndarray", float, float, dict]  # weights, bias, threshold, what the learner reports
+
+
+@dataclass(frozen=True)
+class Learner:
+    name: str
+    summary: str  # one line for --help and the docs
+    fit: Callable[[RoomExamples, RoomExamples, dict, np.random.Generator], Fitted]  # train, validation, params, rng
+
+
+def _ssvm(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> Fitted:
+    from .ssvm import SSVMSettings, train_ssvm
+
+    result = train_ssvm(train.X, train.y, SSVMSettings(**params), validation=(validation.X, validation.y))
+    best = result.best
+    weights = best.weights / len(train.y)  # in SVMperf's units (summed Psi): the same sign, scores of order one
+    return weights[:-1], float(weights[-1]), 0.0, {
+        "iterations": len(result.iterations), "best_iteration": best.number, "converged": result.converged,
+        "train_f1": [it.train_f1 for it in result.iterations],
+        "validation_f1": [it.validation_f1 for it in result.iterations]}
+
+
+def _baseline(make: Callable) -> Callable[..., Fitted]:
+    """A scikit-learn baseline as a fit function: `make(train, validation, params, rng)` returns a LinearModel."""
+    def fit(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> Fitted:
+        model = make(train, validation, params, rng)
+        return model.weights, model.bias, model.threshold, {}
+
+    return fit
+
+
+def _undersample(train, validation, params, rng):
+    from .baselines import undersample
+
+    return undersample(train.X, train.y, params.get("ratio", 1.0), rng, params.get("C", 1.0))
+
+
+def _focused(train, validation, params, rng):
+    from .baselines import focused_resampling
+
+    return focused_resampling(train.X, train.y, rng, params.get("C", 1.0))
+
+
+def _zsvm(train, validation, params, rng):
+    from .baselines import zsvm
+
+    return zsvm(train.X, train.y, (validation.X, validation.y), rng, params.get("C", 1.0))
+
+
+def _different_costs(train, validation, params, rng):
+    from .baselines import different_costs
+
+    positives = int((train.y > 0).sum())
+    cost_ratio = params.get("cost_ratio", (len(train.y) - positives) / max(1, positives))
+    return different_costs(train.X, train.y, cost_ratio, params.get("C", 1.0))
+
+
+def _linear_tuned(train, validation, params, rng):
+    from .baselines import linear_tuned
+
+    return linear_tuned(train.X, train.y, params.get("C", 1.0))
+
+
+LEARNERS: dict[str, Learner] = {learner.name: learner for learner in (
+    Learner("ssvm", "structured SVM optimising F1 with cutting planes (Joachims 2005)", _ssvm),
+    Learner("undersample", "linear SVM on randomly undersampled negatives", _baseline(_undersample)),
+    Learner("focused", "focused resampling near the boundary (Batuwita & Palade 2010)", _baseline(_focused)),
+    Learner("zsvm", "zSVM: positive support vectors weighted by z (Imam et al. 2006)", _baseline(_zsvm)),
+    Learner("dcm", "different cost model: C+ and C- by the class ratio", _baseline(_different_costs)),
+    Learner("linear-tuned", "linear SVM on all data, threshold tuned for F1 (the baseline to beat)",
+            _baseline(_linear_tuned)),
+)}
+
+
+def get_learner(name: str) -> Learner:
+    if name not in LEARNERS:
+        raise ValueError(f"unknown learner {name!r}; choose from {', '.join(LEARNERS)}")
+    return LEARNERS[name]

@@ -1,0 +1,49 @@
+"""The services, registered once: the command line (`afford serve`), the launcher, the docker files' test and
+the docs read this table. A new service is a module with a class built from a `Node`, and one line here."""
+
+from __future__ import annotations
+
+import importlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class ServiceSpec:
+    name: str
+    summary: str  # what it takes and gives, for --help and the docs
+    target: str  # "module:Class"; the class takes a Node
+    downstream: bool  # runs AFFORD_SERVICE__DOWNSTREAM_NICE nicer, so scan assembly keeps up with the sensor
+
+    def service_class(self) -> type:
+        module, name = self.target.split(":")
+        return getattr(importlib.import_module(module), name)
+
+
+SERVICES: dict[str, ServiceSpec] = {spec.name: spec for spec in (
+    ServiceSpec("assembler", "scans to a map (KISS-ICP)", "services.assembler:AssemblerService", downstream=False),
+    ServiceSpec("features", "map to voxel fields", "services.features:FeaturesService", downstream=True),
+    ServiceSpec("inference", "fields to affordance maps", "services.inference:InferenceService", downstream=True),
+)}
+
+
+def run_service(name: str, robot: str, endpoints: list[str], rrd: Path | None = None, viewer: str | None = None,
+                listen: list[str] | None = None, model_files: list[Path] | None = None) -> None:
+    """Run one registered service until SIGINT/SIGTERM, with the settings from the environment and the given
+    models (default: the shipped ones)."""
+    from affordcore.features import FeatureLayout
+    from affordcore.learn.model import choose_models
+
+    from .node import Node
+    from .settings import ServiceSettings
+
+    spec = SERVICES.get(name)
+    if spec is None:
+        raise ValueError(f"unknown service {name!r}; choose one of {', '.join(SERVICES)}")
+    settings = ServiceSettings()
+    if spec.downstream:
+        os.nice(settings.service.downstream_nice)
+    models = choose_models(model_files or [], [], FeatureLayout.from_settings(settings.features, settings.voxel))
+    node = Node(name, robot, endpoints, settings, rrd, viewer, models, listen)
+    spec.service_class()(node).run()

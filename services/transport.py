@@ -1,0 +1,121 @@
+"""The transport every service and client shares: the robot's key space, the zenoh session, encodings, and the
+one way anything is published (congestion control BLOCK)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import threading
+from dataclasses import dataclass
+
+from affordwire import messages
+
+PREFIX = "afford/@v1"
+
+
+def version() -> str:
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as package_version
+
+    try:
+        return package_version("affordmap")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+@dataclass(frozen=True)
+class Keys:
+    """The key space of one robot (DESIGN.md, "Processes and key space")."""
+
+    robot: str
+
+    def __post_init__(self) -> None:
+        if not self.robot or any(c in self.robot for c in "/*$?#@ "):
+            raise ValueError(f"robot name {self.robot!r} must be one non-empty key chunk (no / * $ ? # @ or spaces)")
+
+    def key(self, *chunks: str) -> str:
+        return "/".join((PREFIX, self.robot, *chunks))
+
+    scans = property(lambda self: self.key("scan", "**"))
+    cloud = property(lambda self: self.key("map", "cloud"))
+    pose = property(lambda self: self.key("map", "pose"))
+    fields = property(lambda self: self.key("fields"))
+
+    def scan(self, sensor: str) -> str:
+        return self.key("scan", sensor)
+
+    def affordance(self, name: str) -> str:
+        return self.key("affordance", name)
+
+    def status(self, service: str) -> str:
+        return self.key("status", service)
+
+    def error(self, service: str) -> str:
+        return self.key("error", service)
+
+
+def zenoh_config(endpoints: list[str], mode: str = "peer", listen: list[str] | None = None):
+    """A zenoh config with explicit endpoints and no multicast scouting (robots share networks; tests share
+    a machine): a service talks to the router it is told about and to nothing it happens to hear."""
+    import zenoh
+
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps(mode))
+    config.insert_json5("connect/endpoints", json.dumps(list(endpoints)))
+    if listen:
+        config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    if mode != "router":  # keep trying while the router is not up yet (services may start first)
+        config.insert_json5("connect/exit_on_failure", "false")
+    return config
+
+
+def open_session(endpoints: list[str], mode: str = "peer", listen: list[str] | None = None):
+    import zenoh
+
+    zenoh.init_log_from_env_or("error")
+    return zenoh.open(zenoh_config(endpoints, mode, listen))
+
+
+def encoding_of(message_class):
+    """application/protobuf with the message's full name as schema (what every publication carries)."""
+    import zenoh
+
+    return zenoh.Encoding.APPLICATION_PROTOBUF.with_schema(messages.schema_name(message_class))
+
+
+def _block():
+    """Congestion control BLOCK for every publication: zenoh's default (DROP) loses multi-megabyte samples
+    under load (DESIGN.md)."""
+    import zenoh
+
+    return zenoh.CongestionControl.BLOCK
+
+
+def put(session, key: str, payload: bytes, encoding) -> None:
+    """Publish bytes with their encoding (congestion control BLOCK)."""
+    session.put(key, payload, encoding=encoding, congestion_control=_block())
+
+
+def put_message(session, key: str, message) -> None:
+    """Publish a protobuf message with its schema (congestion control BLOCK)."""
+    put(session, key, message.SerializeToString(), encoding_of(type(message)))
+
+
+def declare_publisher(session, key: str, message_class):
+    """A publisher of `message_class` on `key` (congestion control BLOCK), for a stream of messages."""
+    return session.declare_publisher(key, encoding=encoding_of(message_class), congestion_control=_block())
+
+
+def schema_of(sample) -> str:
+    """The schema named in a sample's encoding ('' when it carries none)."""
+    text = str(sample.encoding)
+    return text.split(";", 1)[1] if text.startswith("application/protobuf;") else ""
+
+
+def stop_on_signals(stop: threading.Event) -> None:
+    """SIGINT and SIGTERM set `stop` (only the main thread may install handlers; a service run in a thread,
+    as in the tests, is stopped through its event)."""
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.set())
