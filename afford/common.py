@@ -8,8 +8,10 @@ from contextlib import contextmanager
 
 import typer
 
-GRAVITY_HELP = ("auto (find the floor), none (already z-up, floor at 0), or X,Y,Z: gravity's direction in the "
-                "cloud's frame")
+GRAVITY_HELP = (
+    "auto (find the floor), none (already z-up, floor at 0), or X,Y,Z: gravity's direction in the "
+    "cloud's frame"
+)
 CONNECT_HELP = "zenoh endpoint of the router, e.g. tcp/192.168.1.10:7447 (repeatable)"
 ROBOT_HELP = "the robot's name: its keys are afford/@v1/<robot>/..."
 
@@ -26,7 +28,9 @@ def user_errors() -> Iterator[None]:
     try:
         yield
     except ValidationError as error:
-        fail(f"invalid settings: {error.errors()[0].get('msg', error)} (check the AFFORD_* environment variables)")
+        fail(
+            f"invalid settings: {error.errors()[0].get('msg', error)} (check the AFFORD_* environment variables)"
+        )
     except (UserError, ValueError, OSError, MemoryError) as error:
         fail(str(error))
 
@@ -42,8 +46,13 @@ def progress(quiet: bool):
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     return Progress(
-        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-        console=Console(stderr=True), transient=True, disable=quiet,
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=Console(stderr=True),
+        transient=True,
+        disable=quiet,
     )
 
 

@@ -11,8 +11,9 @@ app = typer.Typer()
 
 @app.command(rich_help_panel="Settings")
 def config(
-    current: bool = typer.Option(False, "--current",
-                                 help="print the effective settings (defaults + AFFORD_* overrides) as JSON"),
+    current: bool = typer.Option(
+        False, "--current", help="print the effective settings (defaults + AFFORD_* overrides) as JSON"
+    ),
 ) -> None:
     """Print every setting's default and the environment variable that overrides it."""
     with user_errors():

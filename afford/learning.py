@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -24,13 +23,18 @@ def synth(
     rooms: int = typer.Option(..., "--rooms", min=1, help="how many rooms"),
     seed: int = typer.Option(0, "--seed", help="same seed, same files"),
     out: Path = typer.Option(..., "--out", help="folder for <room>.ply, <room>.labels.json and the summary"),
-    kinds: str = typer.Option("living,office,workshop", "--kinds",
-                              help="comma-separated: living, office, workshop, mixed"),
-    scanner: str = typer.Option("depth", "--scanner",
-                                help="depth (virtual Kinect, fused views) or uniform (surface samples)"),
-    sequences: bool = typer.Option(False, "--sequences",
-                                   help="also write a sensor sequence per room with ground-truth poses"),
-    sensor: str = typer.Option("depth", "--sensor", help="what sequences hold: depth frames (7-Scenes layout) or lidar scans"),
+    kinds: str = typer.Option(
+        "living,office,workshop", "--kinds", help="comma-separated: living, office, workshop, mixed"
+    ),
+    scanner: str = typer.Option(
+        "depth", "--scanner", help="depth (virtual Kinect, fused views) or uniform (surface samples)"
+    ),
+    sequences: bool = typer.Option(
+        False, "--sequences", help="also write a sensor sequence per room with ground-truth poses"
+    ),
+    sensor: str = typer.Option(
+        "depth", "--sensor", help="what sequences hold: depth frames (7-Scenes layout) or lidar scans"
+    ),
     frames: int = typer.Option(300, "--frames", min=1, help="frames per sequence"),
     workers: int = typer.Option(1, "--workers", min=1, help="rooms generated in parallel processes"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
@@ -53,7 +57,9 @@ def train(
     affordance: str = typer.Option(..., "--affordance", "-a", help="affordance type"),
     learner: str = typer.Option("ssvm", "--learner", help=", ".join(LEARNERS)),
     out: Path = typer.Option(..., "--out", help="model file to write (JSON)"),
-    C: Optional[float] = typer.Option(None, "--C", help="regularisation trade-off (learner's default when omitted)"),
+    C: float | None = typer.Option(
+        None, "--C", help="regularisation trade-off (learner's default when omitted)"
+    ),
     seed: int = typer.Option(0, "--seed", help="seeds the room split and resampling"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
@@ -66,12 +72,21 @@ def train(
         rooms = data_set_rooms(data)
         with progress(quiet) as bar:
             task = bar.add_task("rooms", total=len(rooms))
-            model = train_model(data, affordance, learner, Settings(), {} if C is None else {"C": C}, seed,
-                                on_room=lambda name: bar.advance(task))
+            model = train_model(
+                data,
+                affordance,
+                learner,
+                Settings(),
+                {} if C is None else {"C": C},
+                seed,
+                on_room=lambda name: bar.advance(task),
+            )
         model.save(out)
         v = model.validation
-        typer.echo(f"{affordance} / {learner}: validation rooms {', '.join(v['rooms'])}: precision "
-                   f"{v['precision']:.3f}, recall {v['recall']:.3f}, f1 {v['f1']:.3f} ({v['positives']} positive poses)")
+        typer.echo(
+            f"{affordance} / {learner}: validation rooms {', '.join(v['rooms'])}: precision "
+            f"{v['precision']:.3f}, recall {v['recall']:.3f}, f1 {v['f1']:.3f} ({v['positives']} positive poses)"
+        )
         typer.echo(f"model written to {out}")
 
 
@@ -80,11 +95,15 @@ def evaluate(
     data: Path = typer.Option(..., "--data", help=DATA_HELP),
     folds: int = typer.Option(3, "--folds", min=2, help="k of the k-fold split over rooms"),
     learners: str = typer.Option(",".join(LEARNERS), "--learners", help="comma-separated learners"),
-    affordances: Optional[str] = typer.Option(None, "--affordances",
-                                              help="comma-separated affordances (default: every built-in skeleton)"),
-    ratios: str = typer.Option("1,2,4,8,16,32,64,128,256,512,1024,2048,all", "--ratios",
-                               help="imbalance test: negatives per positive to train at, 'all' for every negative; "
-                                    "'none' skips the test"),
+    affordances: str | None = typer.Option(
+        None, "--affordances", help="comma-separated affordances (default: every built-in skeleton)"
+    ),
+    ratios: str = typer.Option(
+        "1,2,4,8,16,32,64,128,256,512,1024,2048,all",
+        "--ratios",
+        help="imbalance test: negatives per positive to train at, 'all' for every negative; "
+        "'none' skips the test",
+    ),
     out: Path = typer.Option(..., "--out", help="folder for results.json, results.md and the plots"),
     seed: int = typer.Option(0, "--seed", help="seeds the folds, the validation split and resampling"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
@@ -99,7 +118,11 @@ def evaluate(
         settings = Settings()
         chosen = names(learners)
         kinds = names(affordances) if affordances else sorted(skeleton_files(settings.skeleton_dirs))
-        sweep = () if ratios.strip() == "none" else tuple(None if r == "all" else _ratio(r) for r in names(ratios))
+        sweep = (
+            ()
+            if ratios.strip() == "none"
+            else tuple(None if r == "all" else _ratio(r) for r in names(ratios))
+        )
         # runs at a ratio other than "all" are per learner; "all" is fold 1 again, reused except by undersample
         sweep_runs = sum(1 for r in sweep for name in chosen if r is not None or name == "undersample")
         steps = len(kinds) * (folds * len(chosen) + sweep_runs)
@@ -132,18 +155,25 @@ def models_list() -> None:
         for name, path in shipped_models().items():
             model = load_model(path)
             v = model.validation
-            typer.echo(f"{name:<18} {model.learner:<13} {model.id}  validation P/R/F1 {v.get('precision', 0):.2f}/"
-                       f"{v.get('recall', 0):.2f}/{v.get('f1', 0):.2f} on {', '.join(v.get('rooms', []))}")
+            typer.echo(
+                f"{name:<18} {model.learner:<13} {model.id}  validation P/R/F1 {v.get('precision', 0):.2f}/"
+                f"{v.get('recall', 0):.2f}/{v.get('f1', 0):.2f} on {', '.join(v.get('rooms', []))}"
+            )
 
 
 @models_app.command("rebuild")
 def models_rebuild(
-    learner: str = typer.Option("ssvm", "--learner", help="one learner for every affordance: " + ", ".join(LEARNERS)),
-    evaluation: Optional[Path] = typer.Option(None, "--evaluation",
-                                              help="an afford evaluate results.json: each affordance gets its best learner"),
+    learner: str = typer.Option(
+        "ssvm", "--learner", help="one learner for every affordance: " + ", ".join(LEARNERS)
+    ),
+    evaluation: Path | None = typer.Option(
+        None, "--evaluation", help="an afford evaluate results.json: each affordance gets its best learner"
+    ),
     rooms: int = typer.Option(12, "--rooms", min=2, help="generated rooms to train on"),
     seed: int = typer.Option(1, "--seed", help="same seed, same models"),
-    out: Optional[Path] = typer.Option(None, "--out", help="folder for the model files (default: the package's own)"),
+    out: Path | None = typer.Option(
+        None, "--out", help="folder for the model files (default: the package's own)"
+    ),
     workers: int = typer.Option(2, "--workers", min=1, help="rooms generated in parallel"),
 ) -> None:
     """Retrain the default models from generated rooms, reproducibly."""

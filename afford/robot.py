@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -18,8 +17,9 @@ PANEL = "Robot"
 
 @app.command(rich_help_panel=PANEL)
 def router(
-    listen: list[str] = typer.Option(["tcp/127.0.0.1:7447"], "--listen",
-                                     help="endpoint to listen on (repeatable), e.g. tcp/0.0.0.0:7447"),
+    listen: list[str] = typer.Option(
+        ["tcp/127.0.0.1:7447"], "--listen", help="endpoint to listen on (repeatable), e.g. tcp/0.0.0.0:7447"
+    ),
 ) -> None:
     """Run a Zenoh router for tests and single-host use (on a robot network: the eclipse/zenoh image)."""
     with user_errors():
@@ -30,16 +30,25 @@ def router(
 
 @app.command(rich_help_panel=PANEL)
 def serve(
-    service: str = typer.Argument(..., help="; ".join(f"{spec.name} ({spec.summary})" for spec in SERVICES.values())),
+    service: str = typer.Argument(
+        ..., help="; ".join(f"{spec.name} ({spec.summary})" for spec in SERVICES.values())
+    ),
     connect: list[str] = typer.Option(..., "--connect", help=CONNECT_HELP),
     robot: str = typer.Option(..., "--robot", help=ROBOT_HELP),
-    rrd: Optional[Path] = typer.Option(None, "--rrd", help="the service's Rerun recording (default: <service>.rrd here)"),
-    viewer: Optional[str] = typer.Option(None, "--viewer",
-                                         help="also stream the recording to a Rerun viewer, e.g. "
-                                              "rerun+http://127.0.0.1:9876/proxy"),
-    listen: Optional[list[str]] = typer.Option(None, "--listen", help="also listen on this endpoint (repeatable)"),
-    model: Optional[list[Path]] = typer.Option(None, "--model",
-                                               help="inference: a model file (repeatable); default: the shipped models"),
+    rrd: Path | None = typer.Option(
+        None, "--rrd", help="the service's Rerun recording (default: <service>.rrd here)"
+    ),
+    viewer: str | None = typer.Option(
+        None,
+        "--viewer",
+        help="also stream the recording to a Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
+    ),
+    listen: list[str] | None = typer.Option(
+        None, "--listen", help="also listen on this endpoint (repeatable)"
+    ),
+    model: list[Path] | None = typer.Option(
+        None, "--model", help="inference: a model file (repeatable); default: the shipped models"
+    ),
 ) -> None:
     """Run one service until SIGINT/SIGTERM. Settings (AFFORD_ASSEMBLER__*, AFFORD_SERVICE__*, ...) from the
     environment."""
@@ -53,29 +62,47 @@ def serve(
 
 @app.command(rich_help_panel=PANEL)
 def publish(
-    source: Path = typer.Argument(..., help="a cloud file, or a folder of depth frames (7-Scenes layout) or of "
-                                            "scan-NNNNNN.bin LiDAR scans"),
+    source: Path = typer.Argument(
+        ...,
+        help="a cloud file, or a folder of depth frames (7-Scenes layout) or of scan-NNNNNN.bin LiDAR scans",
+    ),
     connect: list[str] = typer.Option(..., "--connect", help=CONNECT_HELP),
     robot: str = typer.Option(..., "--robot", help=ROBOT_HELP),
-    as_map: bool = typer.Option(False, "--as-map",
-                                help="a cloud file is a finished room: align it and publish it on map/cloud"),
-    rate: float = typer.Option(10.0, "--rate", min=0,
-                               help="frames per second of a folder (0: as fast as the network takes them)"),
-    sensor: str = typer.Option("", "--sensor", help="the sensor's key chunk: scan/<sensor> (default camera or lidar)"),
+    as_map: bool = typer.Option(
+        False, "--as-map", help="a cloud file is a finished room: align it and publish it on map/cloud"
+    ),
+    rate: float = typer.Option(
+        10.0, "--rate", min=0, help="frames per second of a folder (0: as fast as the network takes them)"
+    ),
+    sensor: str = typer.Option(
+        "", "--sensor", help="the sensor's key chunk: scan/<sensor> (default camera or lidar)"
+    ),
     first: int = typer.Option(0, "--first", min=0, help="first frame of a folder"),
     frames: int = typer.Option(0, "--frames", min=0, help="at most this many frames (0: all)"),
     step: int = typer.Option(1, "--step", min=1, help="every n-th frame"),
     gravity: str = typer.Option("auto", "--gravity", help="--as-map: " + GRAVITY_HELP),
-    wait: float = typer.Option(30.0, "--wait", help="seconds to wait for a subscriber (the service) before giving up"),
-    imu: bool = typer.Option(True, "--imu/--no-imu",
-                             help="a folder with gravity-direction.txt and poses: send the gravity direction an IMU "
-                                  "would read with each frame"),
+    wait: float = typer.Option(
+        30.0, "--wait", help="seconds to wait for a subscriber (the service) before giving up"
+    ),
+    imu: bool = typer.Option(
+        True,
+        "--imu/--no-imu",
+        help="a folder with gravity-direction.txt and poses: send the gravity direction an IMU "
+        "would read with each frame",
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
     """Publish a finished map, a single scan, or a recorded sequence of frames at a given rate."""
     with user_errors():
-        from services.clients import (NoSubscriber, connected, folder_frames, load_as_map, publish_map,
-                                      publish_sequence, scan_message)
+        from services.clients import (
+            NoSubscriber,
+            connected,
+            folder_frames,
+            load_as_map,
+            publish_map,
+            publish_sequence,
+            scan_message,
+        )
         from services.settings import ServiceSettings
         from services.transport import Keys
 
@@ -86,23 +113,30 @@ def publish(
                 sensor = sensor or ("camera" if sequence.kind == "depth" else "lidar")
                 with connected(connect, settings.service.mode) as session, progress(quiet) as bar:
                     task = bar.add_task(f"{sequence.kind} frames to {keys.scan(sensor)}", total=count)
-                    sent = publish_sequence(session, keys, messages, sensor, rate, wait,
-                                            on_frame=lambda _: bar.advance(task))
-                typer.echo(f"published {sent} {sequence.kind} frames of {source} "
-                           f"(afford watch --frames {sent} waits for the maps of all of them)")
+                    sent = publish_sequence(
+                        session, keys, messages, sensor, rate, wait, on_frame=lambda _: bar.advance(task)
+                    )
+                typer.echo(
+                    f"published {sent} {sequence.kind} frames of {source} "
+                    f"(afford watch --frames {sent} waits for the maps of all of them)"
+                )
             elif as_map:
                 cloud, warnings = load_as_map(source, gravity, settings)
                 for warning in warnings:
                     typer.echo(f"warning: {warning}", err=True)
                 with connected(connect, settings.service.mode) as session:
                     publish_map(session, keys, cloud, wait)
-                typer.echo(f"published {source} as the map of robot {robot} "
-                           f"({len(cloud.data) // cloud.point_stride:,} points)")
+                typer.echo(
+                    f"published {source} as the map of robot {robot} "
+                    f"({len(cloud.data) // cloud.point_stride:,} points)"
+                )
             else:
                 scan = scan_message(source, sensor or "sensor")
                 with connected(connect, settings.service.mode) as session:
                     publish_sequence(session, keys, [(0, scan)], sensor or "sensor", 0, wait)
-                typer.echo(f"published {source} as one scan of robot {robot} (--as-map publishes a finished room instead)")
+                typer.echo(
+                    f"published {source} as one scan of robot {robot} (--as-map publishes a finished room instead)"
+                )
         except NoSubscriber as error:
             raise UserError(str(error)) from None
 
@@ -112,12 +146,21 @@ def watch(
     connect: list[str] = typer.Option(..., "--connect", help=CONNECT_HELP),
     robot: str = typer.Option(..., "--robot", help=ROBOT_HELP),
     timeout: float = typer.Option(300.0, "--timeout", min=0, help="give up (exit 1) after this many seconds"),
-    out: Optional[Path] = typer.Option(None, "--out",
-                                       help="write each affordance map here as <affordance>.json (the format of afford map)"),
-    affordance: Optional[list[str]] = typer.Option(None, "--affordance", "-a",
-                                                   help="wait for this affordance (repeatable); default: every shipped model's"),
-    frames: int = typer.Option(0, "--frames", min=0,
-                               help="only maps built from at least this many scans (what afford publish printed)"),
+    out: Path | None = typer.Option(
+        None, "--out", help="write each affordance map here as <affordance>.json (the format of afford map)"
+    ),
+    affordance: list[str] | None = typer.Option(
+        None,
+        "--affordance",
+        "-a",
+        help="wait for this affordance (repeatable); default: every shipped model's",
+    ),
+    frames: int = typer.Option(
+        0,
+        "--frames",
+        min=0,
+        help="only maps built from at least this many scans (what afford publish printed)",
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="print only the maps' summary"),
 ) -> None:
     """Print what the services of a robot publish; exit 0 once every affordance's map has arrived."""
@@ -133,7 +176,9 @@ def watch(
         arrived = watch_maps(connect, ServiceSettings().service.mode, keys, watcher, timeout)
         for name in sorted(watcher.received):
             document = watcher.received[name]
-            typer.echo(f"{name:<18} {len(document['skeletons']):>3} places"
-                       + (f" -> {out / (name + '.json')}" if out else ""))
+            typer.echo(
+                f"{name:<18} {len(document['skeletons']):>3} places"
+                + (f" -> {out / (name + '.json')}" if out else "")
+            )
         if not arrived:
             fail(f"timed out after {timeout:.0f} s waiting for {', '.join(watcher.missing)}", code=1)

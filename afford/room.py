@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -19,13 +18,17 @@ CLOUD_HELP = "point cloud: .ply .pcd .xyz .pts .txt .npy .bin"
 @app.command("map", rich_help_panel=PANEL)
 def map_command(
     cloud: Path = typer.Argument(..., help=CLOUD_HELP),
-    out: Path = typer.Option(..., "--out", help="folder for <affordance>.json, <affordance>.png and the recording"),
-    model: Optional[list[Path]] = typer.Option(None, "--model",
-                                               help="a model file (repeatable); default: the shipped models"),
-    affordance: Optional[list[str]] = typer.Option(None, "--affordance", "-a",
-                                                   help="only this affordance (repeatable)"),
+    out: Path = typer.Option(
+        ..., "--out", help="folder for <affordance>.json, <affordance>.png and the recording"
+    ),
+    model: list[Path] | None = typer.Option(
+        None, "--model", help="a model file (repeatable); default: the shipped models"
+    ),
+    affordance: list[str] | None = typer.Option(
+        None, "--affordance", "-a", help="only this affordance (repeatable)"
+    ),
     gravity: str = typer.Option("auto", "--gravity", help=GRAVITY_HELP),
-    rrd: Optional[Path] = typer.Option(None, "--rrd", help="the Rerun recording (default: OUT/map.rrd)"),
+    rrd: Path | None = typer.Option(None, "--rrd", help="the Rerun recording (default: OUT/map.rrd)"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
     """Map where people can sit, relax, work and stand in a room: skeleton map, confidence map, positives."""
@@ -33,8 +36,15 @@ def map_command(
         map_room(cloud, out, model or [], affordance or [], gravity, rrd or out / "map.rrd", quiet)
 
 
-def map_room(cloud_path: Path, out: Path, model_files: list[Path], affordances: list[str], gravity: str, rrd: Path,
-             quiet: bool) -> list[Path]:
+def map_room(
+    cloud_path: Path,
+    out: Path,
+    model_files: list[Path],
+    affordances: list[str],
+    gravity: str,
+    rrd: Path,
+    quiet: bool,
+) -> list[Path]:
     """load -> align -> fields -> score -> map -> write, each one call into the library."""
     from affordcore.features import FeatureLayout
     from affordcore.learn.model import choose_models
@@ -45,14 +55,18 @@ def map_room(cloud_path: Path, out: Path, model_files: list[Path], affordances: 
 
     settings = Settings()
     start = time.perf_counter()
-    models = choose_models(model_files, affordances, FeatureLayout.from_settings(settings.features, settings.voxel))
+    models = choose_models(
+        model_files, affordances, FeatureLayout.from_settings(settings.features, settings.voxel)
+    )
     scene = prepare_scene(load_cloud(cloud_path), settings, parse_gravity(gravity))
     for warning in scene.warnings:
         typer.echo(f"warning: {warning}", err=True)
     typer.echo(f"{cloud_path}: {len(scene.cloud):,} points; {scene.alignment.describe()}")
     with progress(quiet) as bar:
         task = bar.add_task("affordance maps", total=len(models))
-        maps = map_affordances(scene.fields, scene.layout, models, settings, on_map=lambda *_: bar.advance(task))
+        maps = map_affordances(
+            scene.fields, scene.layout, models, settings, on_map=lambda *_: bar.advance(task)
+        )
     for amap in maps.values():
         typer.echo(summary_line(amap))
     written = write_map_outputs(scene, maps, models, out, rrd)
@@ -82,7 +96,7 @@ def demo(
 def align(
     cloud: Path = typer.Argument(..., help=CLOUD_HELP),
     gravity: str = typer.Option("auto", help=GRAVITY_HELP),
-    out: Optional[Path] = typer.Option(None, "--out", help="write the aligned cloud (.ply, .pcd or .npy)"),
+    out: Path | None = typer.Option(None, "--out", help="write the aligned cloud (.ply, .pcd or .npy)"),
     as_json: bool = typer.Option(False, "--json", help="print the alignment as JSON"),
 ) -> None:
     """Bring a cloud into the world frame (z up, floor at z = 0) and say what was done."""
@@ -99,15 +113,27 @@ def align(
         if out:
             save_cloud(out, world.cloud)
         if as_json:
-            typer.echo(json.dumps({"cloud": str(cloud), "points": len(loaded),
-                                   "dropped_nonfinite": loaded.dropped_nonfinite, **alignment.as_dict()}))
+            typer.echo(
+                json.dumps(
+                    {
+                        "cloud": str(cloud),
+                        "points": len(loaded),
+                        "dropped_nonfinite": loaded.dropped_nonfinite,
+                        **alignment.as_dict(),
+                    }
+                )
+            )
             return
-        typer.echo(f"{cloud}: {len(loaded)} points" + (f" ({'; '.join(loaded.notes)})" if loaded.notes else ""))
+        typer.echo(
+            f"{cloud}: {len(loaded)} points" + (f" ({'; '.join(loaded.notes)})" if loaded.notes else "")
+        )
         typer.echo(alignment.describe())
         for candidate in alignment.candidates:
             chosen = candidate.valid and candidate.axis == alignment.up_axis
-            typer.echo(f"  candidate up {candidate.axis}: {'chosen' if chosen else candidate.reason}"
-                       f" (horizontal-surface score {candidate.score:.3f})")
+            typer.echo(
+                f"  candidate up {candidate.axis}: {'chosen' if chosen else candidate.reason}"
+                f" (horizontal-surface score {candidate.score:.3f})"
+            )
         if out:
             typer.echo(f"aligned cloud written to {out}")
 
@@ -115,11 +141,16 @@ def align(
 @app.command(rich_help_panel=PANEL)
 def features(
     cloud: Path = typer.Argument(..., help=CLOUD_HELP),
-    affordance: str = typer.Option(..., "--affordance", "-a", help="affordance type (see `afford skeletons list`)"),
-    as_json: bool = typer.Option(False, "--json", help="print one JSON object: poses, features, seconds, peak_rss_mb"),
+    affordance: str = typer.Option(
+        ..., "--affordance", "-a", help="affordance type (see `afford skeletons list`)"
+    ),
+    as_json: bool = typer.Option(
+        False, "--json", help="print one JSON object: poses, features, seconds, peak_rss_mb"
+    ),
     gravity: str = typer.Option("auto", help=GRAVITY_HELP),
-    out: Optional[Path] = typer.Option(None, "--out",
-                                       help="also write the (poses x features) float32 matrix as .npy"),
+    out: Path | None = typer.Option(
+        None, "--out", help="also write the (poses x features) float32 matrix as .npy"
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
     """Compute every grid pose's features for one affordance (distance, collision, normal cube)."""
@@ -136,11 +167,17 @@ def features(
         prepared = time.perf_counter()
         with progress(quiet) as bar:
             task = bar.add_task(f"features {affordance}", total=scene.pose_grid(skeleton, settings).size)
-            poses, n_features = stream_features(scene, skeleton, settings, out, on_rows=lambda n: bar.advance(task, n))
+            poses, n_features = stream_features(
+                scene, skeleton, settings, out, on_rows=lambda n: bar.advance(task, n)
+            )
         done = time.perf_counter()
         total, feature_seconds = done - start, done - prepared
-        report = {"poses": poses, "features": n_features, "seconds": round(total, 3),
-                  "peak_rss_mb": round(peak_rss_mb(), 1)}
+        report = {
+            "poses": poses,
+            "features": n_features,
+            "seconds": round(total, 3),
+            "peak_rss_mb": round(peak_rss_mb(), 1),
+        }
         if as_json:
             typer.echo(json.dumps(report))
             return

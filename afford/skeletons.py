@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -30,8 +29,9 @@ def skeletons_list() -> None:
 @skeletons_app.command("show")
 def skeletons_show(
     out: Path = typer.Option(Path("skeletons.png"), "--out", help="PNG to write"),
-    affordance: Optional[list[str]] = typer.Option(None, "--affordance", "-a",
-                                                   help="only these (repeatable); default: all"),
+    affordance: list[str] | None = typer.Option(
+        None, "--affordance", "-a", help="only these (repeatable); default: all"
+    ),
 ) -> None:
     """Draw the skeletons (front and side views on the floor) as one PNG."""
     with user_errors():
@@ -40,17 +40,21 @@ def skeletons_show(
         from affordcore.skeleton import all_skeletons, get_skeleton
 
         folders = Settings().skeleton_dirs
-        skeletons = [get_skeleton(name, folders) for name in affordance] if affordance else all_skeletons(folders)
+        skeletons = (
+            [get_skeleton(name, folders) for name in affordance] if affordance else all_skeletons(folders)
+        )
         typer.echo(f"wrote {plot_skeletons(skeletons, out)}")
 
 
 @skeletons_app.command("derive")
 def skeletons_derive(
-    data: Optional[Path] = typer.Option(None, "--data",
-                                        help="MSR DailyActivity3D skeletons (.npz); default: ../shared/data/skeletons/..."),
-    out: Optional[Path] = typer.Option(None, "--out",
-                                       help="folder for <affordance>.json; default: the package's skeleton folder"),
-    png: Optional[Path] = typer.Option(None, "--png", help="also draw the models and their clusters (PNG)"),
+    data: Path | None = typer.Option(
+        None, "--data", help="MSR DailyActivity3D skeletons (.npz); default: ../shared/data/skeletons/..."
+    ),
+    out: Path | None = typer.Option(
+        None, "--out", help="folder for <affordance>.json; default: the package's skeleton folder"
+    ),
+    png: Path | None = typer.Option(None, "--png", help="also draw the models and their clusters (PNG)"),
 ) -> None:
     """Derive the skeleton files from real Kinect skeletons: filter, canonicalise, K-means, medoid, adult scale."""
     with user_errors():
@@ -60,7 +64,9 @@ def skeletons_derive(
 
         data = data or default_data_path()
         if not data.is_file():
-            raise UserError(f"{data}: skeleton data set not found (pass --data, see ../shared/data/README.md)")
+            raise UserError(
+                f"{data}: skeleton data set not found (pass --data, see ../shared/data/README.md)"
+            )
         result = derive(data)
         _print_derivation(result)
         for skeleton in result.skeletons:
@@ -77,14 +83,18 @@ def _print_derivation(result) -> None:
         label = name if name in ("loaded", "kept") else f"- {name}"
         typer.echo(f"{label:<22}" + "".join(f"{row[g]:>18,}" for g in groups))
     scale = result.scale
-    typer.echo(f"scale: standing head-to-foot span {scale['median_span']:.3f} m (median) -> {scale['target_span']:.3f} m "
-               f"(x{scale['factor']:.3f}; per subject x{scale['subject_min']:.3f} to x{scale['subject_max']:.3f}); "
-               f"body: median bone lengths of {scale['body_frames']} standing frames")
+    typer.echo(
+        f"scale: standing head-to-foot span {scale['median_span']:.3f} m (median) -> {scale['target_span']:.3f} m "
+        f"(x{scale['factor']:.3f}; per subject x{scale['subject_min']:.3f} to x{scale['subject_max']:.3f}); "
+        f"body: median bone lengths of {scale['body_frames']} standing frames"
+    )
     for skeleton in result.skeletons:
         info = result.clusters[skeleton.affordance]
         turns = info["forearm_turns"]
-        typer.echo(f"{skeleton.affordance}: {info['frames']} frames, K={info['k']} "
-                   f"(silhouette {info['silhouettes'][info['k']]:.3f}), sizes {info['sizes']}, chose cluster "
-                   f"{info['chosen']} ({info['sizes'][info['chosen']]} frames), medoid {info['medoid']}, "
-                   f"torso {skeleton.torso_height:.3f} m"
-                   + (f", forearms turned {turns[0]:.0f} and {turns[1]:.0f} degrees" if turns else ""))
+        typer.echo(
+            f"{skeleton.affordance}: {info['frames']} frames, K={info['k']} "
+            f"(silhouette {info['silhouettes'][info['k']]:.3f}), sizes {info['sizes']}, chose cluster "
+            f"{info['chosen']} ({info['sizes'][info['chosen']]} frames), medoid {info['medoid']}, "
+            f"torso {skeleton.torso_height:.3f} m"
+            + (f", forearms turned {turns[0]:.0f} and {turns[1]:.0f} degrees" if turns else "")
+        )

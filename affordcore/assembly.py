@@ -50,7 +50,11 @@ class Assembler:
 
         self.settings = settings = settings or AssemblerSettings()
         config = KISSConfig()
-        config.data.max_range, config.data.min_range, config.data.deskew = settings.max_range, settings.min_range, False
+        config.data.max_range, config.data.min_range, config.data.deskew = (
+            settings.max_range,
+            settings.min_range,
+            False,
+        )
         config.mapping.voxel_size = settings.voxel_size
         config.registration.max_num_threads = 0  # all cores
         self.odometry = KissICP(config)
@@ -58,7 +62,9 @@ class Assembler:
         self.trajectory = Trajectory()
         self._last_keyframe: np.ndarray | None = None
         self._last_guess: np.ndarray | None = None
-        self.registered_points = np.empty((0, 3))  # the last frame as KISS-ICP registered it (thinned, sensor frame)
+        self.registered_points = np.empty(
+            (0, 3)
+        )  # the last frame as KISS-ICP registered it (thinned, sensor frame)
         self._gravity_sum = np.zeros(3)  # gravity directions reported with the frames, in the odometry frame
         self.keyframes = 0  # frames that joined the global map
 
@@ -74,8 +80,13 @@ class Assembler:
             points = back_project(frame.depth, settings.pixel_step, settings.min_range, settings.max_range)
         return self.register(points, stamp, frame.pose_guess, frame.gravity)
 
-    def register(self, points: np.ndarray, stamp: float, pose_guess: np.ndarray | None = None,
-                 gravity: np.ndarray | None = None) -> np.ndarray:
+    def register(
+        self,
+        points: np.ndarray,
+        stamp: float,
+        pose_guess: np.ndarray | None = None,
+        gravity: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Register one frame (points in the sensor frame); returns the sensor's pose, odom_from_sensor.
 
         `pose_guess` (world_from_sensor from the robot's own odometry) replaces KISS-ICP's constant-velocity
@@ -86,7 +97,9 @@ class Assembler:
         ranges = np.linalg.norm(points, axis=1)
         points = points[(ranges >= self.settings.min_range) & (ranges <= self.settings.max_range)]
         if len(points) < 100:
-            raise ValueError(f"the frame has {len(points)} points within {self.settings.min_range}-{self.settings.max_range} m; at least 100 are needed")
+            raise ValueError(
+                f"the frame has {len(points)} points within {self.settings.min_range}-{self.settings.max_range} m; at least 100 are needed"
+            )
         if pose_guess is not None and self._last_guess is not None:
             self.odometry.last_delta = np.linalg.inv(self._last_guess) @ pose_guess
         self._last_guess = pose_guess
@@ -107,7 +120,10 @@ class Assembler:
             return True
         motion = np.linalg.inv(self._last_keyframe) @ pose
         angle = np.degrees(np.arccos(np.clip((np.trace(motion[:3, :3]) - 1) / 2, -1, 1)))
-        return np.linalg.norm(motion[:3, 3]) >= self.settings.keyframe_distance or angle >= self.settings.keyframe_angle_deg
+        return (
+            np.linalg.norm(motion[:3, 3]) >= self.settings.keyframe_distance
+            or angle >= self.settings.keyframe_angle_deg
+        )
 
     def map_points(self) -> np.ndarray:
         """The global map in the odometry frame (the first sensor frame)."""
@@ -134,5 +150,10 @@ def trajectory_errors(estimated: list[np.ndarray], truth: list[np.ndarray]) -> d
     final = anchored[-1, :3, :3].T @ truth[-1, :3, :3]
     rotation = np.degrees(np.arccos(np.clip((np.trace(final) - 1) / 2, -1, 1)))
     path = np.linalg.norm(np.diff(truth[:, :3, 3], axis=0), axis=1).sum()
-    return {"frames": len(truth), "mean_m": float(position.mean()), "worst_m": float(position.max()),
-            "final_rotation_deg": float(rotation), "path_m": float(path)}
+    return {
+        "frames": len(truth),
+        "mean_m": float(position.mean()),
+        "worst_m": float(position.max()),
+        "final_rotation_deg": float(rotation),
+        "path_m": float(path),
+    }

@@ -25,7 +25,9 @@ class DepthImage:
     invalid_value: int = 65535  # besides 0, the value that means no measurement (0: no other)
 
 
-def back_project(image: DepthImage, pixel_step: int = 1, min_range: float = 0.0, max_range: float = np.inf) -> np.ndarray:
+def back_project(
+    image: DepthImage, pixel_step: int = 1, min_range: float = 0.0, max_range: float = np.inf
+) -> np.ndarray:
     """Points (N, 3) in the camera frame, one per block with a measurement whose mean depth lies within
     [min_range, max_range]; a partial block at the right or bottom edge is left out."""
     depth = np.asarray(image.pixels)
@@ -36,7 +38,7 @@ def back_project(image: DepthImage, pixel_step: int = 1, min_range: float = 0.0,
     if step < 1:
         raise ValueError(f"pixel_step must be at least 1, got {pixel_step}")
     rows, columns = depth.shape[0] // step, depth.shape[1] // step
-    depth = depth[:rows * step, :columns * step]
+    depth = depth[: rows * step, : columns * step]
     measured = depth != 0
     if invalid_value:
         measured &= depth != invalid_value

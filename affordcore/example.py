@@ -60,7 +60,9 @@ def example_room(seed: int = 0, points_per_m2: float = 900.0, noise: float = 0.0
     return Cloud(cloud, np.concatenate(colors), source="built-in example room")
 
 
-def box_surface_points(low: np.ndarray, high: np.ndarray, points_per_m2: float, rng: np.random.Generator) -> np.ndarray:
+def box_surface_points(
+    low: np.ndarray, high: np.ndarray, points_per_m2: float, rng: np.random.Generator
+) -> np.ndarray:
     """Points spread uniformly over the six faces of an axis-aligned box."""
     size = high - low
     faces = []

@@ -53,7 +53,7 @@ class FeatureLayout:
             raise ValueError(f"cube_size {self.cube_size} is not a whole number of cells of {self.cell_size}")
 
     @classmethod
-    def from_settings(cls, features: FeatureSettings, voxel: VoxelSettings) -> "FeatureLayout":
+    def from_settings(cls, features: FeatureSettings, voxel: VoxelSettings) -> FeatureLayout:
         return cls(features.cube_size, features.cell_size, voxel.resolution)
 
     @property
@@ -90,7 +90,9 @@ class FeatureLayout:
 
     def names(self) -> list[str]:
         n = self.cells_per_axis
-        cells = [f"normal:{i},{j},{k}:{a}" for i in range(n) for j in range(n) for k in range(n) for a in "xyz"]
+        cells = [
+            f"normal:{i},{j},{k}:{a}" for i in range(n) for j in range(n) for k in range(n) for a in "xyz"
+        ]
         return [f"dist:{j}" for j in JOINTS] + [f"coll:{j}" for j in JOINTS] + cells
 
     def describe(self) -> dict:
@@ -167,7 +169,7 @@ def compute_features(
         )
     out = np.empty((grid.size, layout.n_features), dtype=np.float32)
     for chunk in iter_features(fields, skeleton, grid, layout, reuse_buffer=True):
-        out[chunk.start:chunk.stop] = chunk.values
+        out[chunk.start : chunk.stop] = chunk.values
     return out
 
 
@@ -193,7 +195,9 @@ class _SlabSampler:
         return {
             "distance": self._lerp_z(self.fields.distance, joint_heights),  # (X, Y, 15)
             "occupancy": self._lerp_z(self.fields.occupancy, joint_heights),  # (X, Y, 15)
-            "normals": self._cell_heights(self._lerp_z(self.fields.normals, sample_heights)),  # (X, Y, cells, 3)
+            "normals": self._cell_heights(
+                self._lerp_z(self.fields.normals, sample_heights)
+            ),  # (X, Y, cells, 3)
         }
 
     def _cell_heights(self, samples: np.ndarray) -> np.ndarray:
@@ -204,7 +208,7 @@ class _SlabSampler:
         x, y, n_s, _ = samples.shape
         return samples.reshape(x, y, n_s // per_cell, per_cell, 3).mean(axis=3)
 
-    def slab(self, level: dict, skeleton: Skeleton, theta: float) -> "_Slab":
+    def slab(self, level: dict, skeleton: Skeleton, theta: float) -> _Slab:
         rotation = rotation_z(theta)
         joint_xy = (skeleton.joints @ rotation.T)[:, :2]
         axis = self.layout.sample_positions()
@@ -251,7 +255,9 @@ class _Slab:
         self.joint_corners = [sampler.corners(*xy) for xy in joint_xy]
         self.sample_corners = [sampler.corners(*xy) for xy in sample_xy]
 
-    def _read_into(self, dest: np.ndarray, plane: np.ndarray, corners, rows: slice, accumulate: bool = False) -> None:
+    def _read_into(
+        self, dest: np.ndarray, plane: np.ndarray, corners, rows: slice, accumulate: bool = False
+    ) -> None:
         """dest (rows, ny, ...) = (or +=) the bilinear read of plane for these rows.
 
         Corners are summed in reused contiguous scratch arrays and written to the strided destination once:
@@ -262,7 +268,7 @@ class _Slab:
         total, term = self._scratch(shape, 0), self._scratch(shape, 1)
         for index, (cu, cv, weight) in enumerate(corners):
             u = cu + rows.start * s
-            view = plane[u:u + (n_rows - 1) * s + 1:s, cv:cv + (ny - 1) * s + 1:s]
+            view = plane[u : u + (n_rows - 1) * s + 1 : s, cv : cv + (ny - 1) * s + 1 : s]
             if index == 0:
                 np.multiply(view, np.float32(weight), out=total)
             else:
@@ -291,12 +297,14 @@ class _Slab:
         # Cells are averaged from per_cell x per_cell sample columns (z is averaged already, per level).
         n_s, per_cell, cells = layout.samples_per_axis, layout.samples_per_cell, layout.cells_per_axis
         width = cells * 3  # one column of cells: `cells` heights x 3 normal components
-        normal_block = out[:, :, 2 * n_joints:]
+        normal_block = out[:, :, 2 * n_joints :]
         for index, corners in enumerate(self.sample_corners):
             a, b = divmod(index, n_s)
             cell = (a // per_cell) * cells + b // per_cell
             first = a % per_cell == 0 and b % per_cell == 0
-            self._read_into(normal_block[:, :, cell * width:(cell + 1) * width], self.normals, corners, rows, not first)
+            self._read_into(
+                normal_block[:, :, cell * width : (cell + 1) * width], self.normals, corners, rows, not first
+            )
         if per_cell > 1:
             normal_block *= np.float32(1.0 / per_cell**2)
         return out.reshape(n_rows * ny, layout.n_features)

@@ -106,7 +106,9 @@ def estimate_normals(points: np.ndarray, settings: NormalSettings) -> tuple[np.n
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     if settings.downsample > 0:
         pcd = pcd.voxel_down_sample(settings.downsample)
-    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=settings.radius, max_nn=settings.max_neighbours))
+    pcd.estimate_normals(
+        o3d.geometry.KDTreeSearchParamHybrid(radius=settings.radius, max_nn=settings.max_neighbours)
+    )
     return np.asarray(pcd.points), np.asarray(pcd.normals)
 
 
@@ -116,14 +118,18 @@ def _flat_index(lattice: VoxelLattice, index: np.ndarray) -> np.ndarray:
     return np.ravel_multi_index(index.T, lattice.shape)
 
 
-def _normal_field(lattice: VoxelLattice, points: np.ndarray, normals: np.ndarray, centre: np.ndarray) -> np.ndarray:
+def _normal_field(
+    lattice: VoxelLattice, points: np.ndarray, normals: np.ndarray, centre: np.ndarray
+) -> np.ndarray:
     """Per voxel: the principal axis of sum(n n^T) over its points, oriented as the module docstring says."""
     flat = _flat_index(lattice, lattice.voxel_of(points))
     voxels, inverse = np.unique(flat, return_inverse=True)
     scatter = np.empty((len(voxels), 3, 3))
     for a in range(3):
         for b in range(a, 3):
-            scatter[:, a, b] = scatter[:, b, a] = np.bincount(inverse, normals[:, a] * normals[:, b], len(voxels))
+            scatter[:, a, b] = scatter[:, b, a] = np.bincount(
+                inverse, normals[:, a] * normals[:, b], len(voxels)
+            )
     _, vectors = np.linalg.eigh(scatter)
     axis = vectors[:, :, -1]  # eigenvector of the largest eigenvalue
     centres = lattice.centres(np.stack(np.unravel_index(voxels, lattice.shape), axis=1))
@@ -149,10 +155,10 @@ def observed_floor(fields: SceneFields, x: np.ndarray, y: np.ndarray, margin: fl
 
     lattice = fields.lattice
     k0 = int(round(-lattice.origin[2] / lattice.resolution))
-    seen = fields.occupancy[:, :, max(0, k0 - 1):k0 + 2].max(axis=2) > 0
+    seen = fields.occupancy[:, :, max(0, k0 - 1) : k0 + 2].max(axis=2) > 0
     reach = int(round(margin / lattice.resolution))
     if reach > 0:
-        dy, dx = np.mgrid[-reach:reach + 1, -reach:reach + 1]
+        dy, dx = np.mgrid[-reach : reach + 1, -reach : reach + 1]
         seen = ndimage.binary_dilation(seen, dx**2 + dy**2 <= reach**2)
     ix = np.clip(np.rint((x - lattice.origin[0]) / lattice.resolution).astype(int), 0, lattice.shape[0] - 1)
     iy = np.clip(np.rint((y - lattice.origin[1]) / lattice.resolution).astype(int), 0, lattice.shape[1] - 1)

@@ -27,7 +27,14 @@ _REFITS = 10  # least-squares refits of the RANSAC plane, at most
 _JUDGES = 20_000  # points that rank RANSAC hypotheses
 _DESCENTS = 3  # at most this many times a floor is looked for under a plane with points below it
 
-AXES = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0), "+z": (0, 0, 1), "-z": (0, 0, -1)}
+AXES = {
+    "+x": (1, 0, 0),
+    "-x": (-1, 0, 0),
+    "+y": (0, 1, 0),
+    "-y": (0, -1, 0),
+    "+z": (0, 0, 1),
+    "-z": (0, 0, -1),
+}
 
 
 class NoFloorError(ValueError):
@@ -103,10 +110,14 @@ def align_to_gravity(
     strict = settings.model_copy(update={"max_tilt_deg": min(settings.max_tilt_deg, 10.0)})
     candidate = _find_floor(sample, up, "given", strict, normals=None, descend=True)
     if not candidate.valid:
-        raise NoFloorError(f"no floor found under the given gravity {down.round(4).tolist()}: {candidate.reason}")
+        raise NoFloorError(
+            f"no floor found under the given gravity {down.round(4).tolist()}: {candidate.reason}"
+        )
     on_floor = np.abs(sample @ candidate.normal - candidate.offset) < settings.ransac_threshold
     offset = float(np.median(sample[on_floor] @ up))
-    return Alignment(_world_from(up, offset), "gravity", "given", candidate.tilt_deg, offset, candidate.area, [candidate])
+    return Alignment(
+        _world_from(up, offset), "gravity", "given", candidate.tilt_deg, offset, candidate.area, [candidate]
+    )
 
 
 def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
@@ -122,23 +133,37 @@ def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
     valid = [c for c in candidates if c.valid]
     if not valid:
         reasons = "; ".join(f"{c.axis}: {c.reason}" for c in candidates)
-        raise NoFloorError(f"no floor found ({reasons}). Give the gravity direction explicitly if the floor is not in view.")
+        raise NoFloorError(
+            f"no floor found ({reasons}). Give the gravity direction explicitly if the floor is not in view."
+        )
     best = max(valid, key=lambda c: c.score)
     return Alignment(
-        _world_from(best.normal, best.offset), "auto", best.axis, best.tilt_deg, best.offset, best.area, candidates
+        _world_from(best.normal, best.offset),
+        "auto",
+        best.axis,
+        best.tilt_deg,
+        best.offset,
+        best.area,
+        candidates,
     )
 
 
 def _find_floor(
-    sample: np.ndarray, up: np.ndarray, axis: str, settings: GravitySettings,
-    normals: tuple[np.ndarray, np.ndarray] | None, descend: bool = False,
+    sample: np.ndarray,
+    up: np.ndarray,
+    axis: str,
+    settings: GravitySettings,
+    normals: tuple[np.ndarray, np.ndarray] | None,
+    descend: bool = False,
 ) -> FloorCandidate:
     heights = sample @ up
     band = sample[heights <= np.quantile(heights, settings.lowest_fraction)]
     rng = np.random.default_rng(settings.seed)
     plane = _ransac_plane(band, up, settings, rng)
     if plane is None:
-        return FloorCandidate(axis, False, f"no plane within {settings.max_tilt_deg:g} deg of {axis} among the lowest points")
+        return FloorCandidate(
+            axis, False, f"no plane within {settings.max_tilt_deg:g} deg of {axis} among the lowest points"
+        )
     normal, inliers = plane
     offset = float(np.median(band[inliers] @ normal))
     for _ in range(_DESCENTS if descend else 0):
@@ -146,7 +171,10 @@ def _find_floor(
         # has points under it, look for the lowest plane among those. Only under a known gravity: on a wrong
         # candidate axis the points under a wall are what tells it is a wall.
         lower = band[band @ normal - offset < -_BELOW_MARGIN]
-        if np.mean(sample @ normal - offset < -_BELOW_MARGIN) <= settings.max_below_fraction or len(lower) < 100:
+        if (
+            np.mean(sample @ normal - offset < -_BELOW_MARGIN) <= settings.max_below_fraction
+            or len(lower) < 100
+        ):
             break
         plane = _ransac_plane(lower, up, settings, rng)
         if plane is None:
@@ -162,7 +190,10 @@ def _find_floor(
     if area < settings.min_floor_area:
         candidate.valid, candidate.reason = False, f"lowest plane covers only {area:.2f} m^2"
     elif below > settings.max_below_fraction:
-        candidate.valid, candidate.reason = False, f"{below:.1%} of the points lie under the lowest plane (a wall?)"
+        candidate.valid, candidate.reason = (
+            False,
+            f"{below:.1%} of the points lie under the lowest plane (a wall?)",
+        )
     if normals is not None:
         points, point_normals = normals
         horizontal = np.abs(point_normals @ normal) > _HORIZONTAL_COS
@@ -194,7 +225,7 @@ def _ransac_plane(
     judges = points if len(points) <= _JUDGES else points[rng.choice(len(points), _JUDGES, replace=False)]
     best_count, best = -1, 0
     for start in range(0, len(normals), 64):  # 64 planes x all points at a time bounds memory
-        distance = np.abs(judges @ normals[start:start + 64].T - offsets[start:start + 64])
+        distance = np.abs(judges @ normals[start : start + 64].T - offsets[start : start + 64])
         counts = (distance < settings.ransac_threshold).sum(axis=0)
         if counts.max() > best_count:
             best_count, best = int(counts.max()), start + int(counts.argmax())

@@ -38,7 +38,7 @@ class PoseGrid:
         torso_height: float,
         voxel_resolution: float,
         settings: GridSettings | None = None,
-    ) -> "PoseGrid":
+    ) -> PoseGrid:
         settings = settings or GridSettings()
         x_min, y_min, x_max, y_max = footprint
         if not (x_max >= x_min and y_max >= y_min):
@@ -74,8 +74,11 @@ class PoseGrid:
 
     def as_dict(self) -> dict:
         return {
-            "x0": float(self.x[0]), "y0": float(self.y[0]), "step": self.step,
-            "nx": len(self.x), "ny": len(self.y),
+            "x0": float(self.x[0]),
+            "y0": float(self.y[0]),
+            "step": self.step,
+            "nx": len(self.x),
+            "ny": len(self.y),
             "z": [round(float(v), 6) for v in self.z],
             "theta_step": float(self.theta[1] - self.theta[0]) if len(self.theta) > 1 else 0.0,
             "n_theta": len(self.theta),

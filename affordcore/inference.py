@@ -24,39 +24,68 @@ from .grid import PoseGrid
 from .skeleton import JOINTS, Skeleton, rotation_z
 
 
-def score_poses(fields: SceneFields, skeleton: Skeleton, grid: PoseGrid, layout: FeatureLayout,
-                weights: np.ndarray, bias: float) -> np.ndarray:
+def score_poses(
+    fields: SceneFields,
+    skeleton: Skeleton,
+    grid: PoseGrid,
+    layout: FeatureLayout,
+    weights: np.ndarray,
+    bias: float,
+) -> np.ndarray:
     """w . f + b of every pose, shaped like the grid (z, theta, x, y), float32."""
     weights = np.asarray(weights, dtype=np.float64)
     if weights.shape != (layout.n_features,):
-        raise ValueError(f"the model has {weights.shape[0]} weights; the feature layout has {layout.n_features} features")
+        raise ValueError(
+            f"the model has {weights.shape[0]} weights; the feature layout has {layout.n_features} features"
+        )
     sampler = _SlabSampler(fields, grid, layout)
     nz, nt, nx, ny = grid.shape
-    n_joints, cells, per_cell, n_s = len(JOINTS), layout.cells_per_axis, layout.samples_per_cell, layout.samples_per_axis
-    w_dist, w_coll = weights[:n_joints], weights[n_joints:2 * n_joints]
-    w_cube = weights[2 * n_joints:].reshape(cells * cells, cells, 3)  # (cell column i*cells+j, height k, axis)
+    n_joints, cells, per_cell, n_s = (
+        len(JOINTS),
+        layout.cells_per_axis,
+        layout.samples_per_cell,
+        layout.samples_per_axis,
+    )
+    w_dist, w_coll = weights[:n_joints], weights[n_joints : 2 * n_joints]
+    w_cube = weights[2 * n_joints :].reshape(
+        cells * cells, cells, 3
+    )  # (cell column i*cells+j, height k, axis)
     # which cell column each sample column (a, b) of the n_s x n_s sample lattice falls in
     a, b = np.divmod(np.arange(n_s * n_s), n_s)
     column_of_sample = (a // per_cell) * cells + b // per_cell
     scores = np.empty(grid.shape, dtype=np.float32)
     for iz in range(nz):
         level = sampler.level(grid.z[iz], skeleton)
-        joint_planes = level["distance"] * w_dist.astype(np.float32) + level["occupancy"] * w_coll.astype(np.float32)
-        joint_planes = np.ascontiguousarray(np.moveaxis(joint_planes, 2, 0))  # (joint, X, Y): contiguous reads
+        joint_planes = level["distance"] * w_dist.astype(np.float32) + level["occupancy"] * w_coll.astype(
+            np.float32
+        )
+        joint_planes = np.ascontiguousarray(
+            np.moveaxis(joint_planes, 2, 0)
+        )  # (joint, X, Y): contiguous reads
         n = level["normals"]  # (X, Y, cells in z, 3), world frame
         along = np.einsum("xykc,qkc->qxy", n[..., :2], w_cube[..., :2], optimize=True)  # w_x n_x + w_y n_y
-        across = np.einsum("xyk,qk->qxy", n[..., 1], w_cube[..., 0]) - np.einsum("xyk,qk->qxy", n[..., 0], w_cube[..., 1])
+        across = np.einsum("xyk,qk->qxy", n[..., 1], w_cube[..., 0]) - np.einsum(
+            "xyk,qk->qxy", n[..., 0], w_cube[..., 1]
+        )
         vertical = np.einsum("xyk,qk->qxy", n[..., 2], w_cube[..., 2])
         for it in range(nt):
             theta = float(grid.theta[it])
             cube_planes = (np.cos(theta) * along + np.sin(theta) * across + vertical).astype(np.float32)
             cube_planes *= np.float32(1.0 / per_cell**2)  # a cell's normal is the mean of its sample columns
-            scores[iz, it] = bias + _slab_scores(sampler, skeleton, theta, joint_planes, cube_planes, column_of_sample)
+            scores[iz, it] = bias + _slab_scores(
+                sampler, skeleton, theta, joint_planes, cube_planes, column_of_sample
+            )
     return scores
 
 
-def _slab_scores(sampler: _SlabSampler, skeleton: Skeleton, theta: float, joint_planes: np.ndarray,
-                 cube_planes: np.ndarray, column_of_sample: np.ndarray) -> np.ndarray:
+def _slab_scores(
+    sampler: _SlabSampler,
+    skeleton: Skeleton,
+    theta: float,
+    joint_planes: np.ndarray,
+    cube_planes: np.ndarray,
+    column_of_sample: np.ndarray,
+) -> np.ndarray:
     rotation = rotation_z(theta)
     joint_xy = (skeleton.joints @ rotation.T)[:, :2]
     axis = sampler.layout.sample_positions()
@@ -77,6 +106,10 @@ def _slab_scores(sampler: _SlabSampler, skeleton: Skeleton, theta: float, joint_
     term = np.empty_like(total)
     for (plane, cu, cv), weight in reads.items():
         field = joint_planes[plane] if plane < n_joints else cube_planes[plane - n_joints]
-        np.multiply(field[cu:cu + (nx - 1) * stride + 1:stride, cv:cv + (ny - 1) * stride + 1:stride], np.float32(weight), out=term)
+        np.multiply(
+            field[cu : cu + (nx - 1) * stride + 1 : stride, cv : cv + (ny - 1) * stride + 1 : stride],
+            np.float32(weight),
+            out=term,
+        )
         total += term
     return total

@@ -130,12 +130,21 @@ def load_labels(path: str | Path) -> LabelSet:
 def save_labels(path: str | Path, labels: LabelSet) -> Path:
     """Write a label file (validated first, so whatever is saved loads back equal)."""
     path = Path(path)
-    document: dict[str, Any] = {"format": labels.format, "scene": labels.scene, "cloud": labels.cloud,
-                                "frame": labels.frame, "labels": [], "unlabelled_regions": []}
+    document: dict[str, Any] = {
+        "format": labels.format,
+        "scene": labels.scene,
+        "cloud": labels.cloud,
+        "frame": labels.frame,
+        "labels": [],
+        "unlabelled_regions": [],
+    }
     for label in labels.labels:
         entry: dict[str, Any] = {"affordance": label.affordance}
-        entry.update({"at": list(label.at)} if label.at is not None else
-                     {"from": list(label.start), "to": list(label.end)})
+        entry.update(
+            {"at": list(label.at)}
+            if label.at is not None
+            else {"from": list(label.start), "to": list(label.end)}
+        )
         entry["facing"] = label.facing
         if label.note is not None:
             entry["note"] = label.note
@@ -193,17 +202,22 @@ def _parse(document: Any, name: str) -> LabelSet:
             raise fail(where, "must be an object")
         has_at, has_segment = "at" in entry, "from" in entry or "to" in entry
         if has_at == has_segment:
-            raise fail(where, "must have either 'at' (a point) or 'from' and 'to' (a segment)" +
-                       (", not both" if has_at else ""))
+            raise fail(
+                where,
+                "must have either 'at' (a point) or 'from' and 'to' (a segment)"
+                + (", not both" if has_at else ""),
+            )
         check_keys(entry, where, {"affordance", "facing"} | ({"at"} if has_at else {"from", "to"}), {"note"})
-        labels.append(Label(
-            affordance=text(entry, "affordance", f"{where}.affordance", non_empty=True),
-            facing=number(entry["facing"], f"{where}.facing"),
-            at=point(entry["at"], f"{where}.at") if has_at else None,
-            start=None if has_at else point(entry["from"], f"{where}.from"),
-            end=None if has_at else point(entry["to"], f"{where}.to"),
-            note=text(entry, "note", f"{where}.note") if "note" in entry else None,
-        ))
+        labels.append(
+            Label(
+                affordance=text(entry, "affordance", f"{where}.affordance", non_empty=True),
+                facing=number(entry["facing"], f"{where}.facing"),
+                at=point(entry["at"], f"{where}.at") if has_at else None,
+                start=None if has_at else point(entry["from"], f"{where}.from"),
+                end=None if has_at else point(entry["to"], f"{where}.to"),
+                note=text(entry, "note", f"{where}.note") if "note" in entry else None,
+            )
+        )
     regions = []
     for j, entry in enumerate(items(document.get("unlabelled_regions", []), "unlabelled_regions")):
         where = f"unlabelled_regions[{j}]"
@@ -213,13 +227,18 @@ def _parse(document: Any, name: str) -> LabelSet:
         polygon = items(entry["polygon"], f"{where}.polygon")
         if len(polygon) < 3:
             raise fail(f"{where}.polygon", f"must have at least 3 vertices, has {len(polygon)}")
-        regions.append(UnlabelledRegion(
-            tuple(point(p, f"{where}.polygon[{k}]") for k, p in enumerate(polygon)),
-            text(entry, "note", f"{where}.note") if "note" in entry else "",
-        ))
+        regions.append(
+            UnlabelledRegion(
+                tuple(point(p, f"{where}.polygon[{k}]") for k, p in enumerate(polygon)),
+                text(entry, "note", f"{where}.note") if "note" in entry else "",
+            )
+        )
     return LabelSet(
-        scene=text(document, "scene", "scene"), cloud=text(document, "cloud", "cloud"),
-        frame=text(document, "frame", "frame"), labels=tuple(labels), unlabelled_regions=tuple(regions),
+        scene=text(document, "scene", "scene"),
+        cloud=text(document, "cloud", "cloud"),
+        frame=text(document, "frame", "frame"),
+        labels=tuple(labels),
+        unlabelled_regions=tuple(regions),
     )
 
 
@@ -279,15 +298,17 @@ class ClassCount(NamedTuple):
     ratio: str  # "1:N" as in the paper's table (N = negatives // positives)
 
     @classmethod
-    def of(cls, positives: int, negatives: int) -> "ClassCount":
+    def of(cls, positives: int, negatives: int) -> ClassCount:
         return cls(positives, negatives, f"1:{negatives // positives:,}" if positives else "no positives")
 
 
 def class_counts(labels: LabelSet, grids: dict[str, PoseGrid], **tolerances: float) -> dict[str, ClassCount]:
     """Per affordance with a grid: positives, negatives and their ratio (sum the first two over rooms and
     call `ClassCount.of` for a data set's table)."""
-    return {name: ClassCount.of(*ground_truth(labels, name, grid, **tolerances).counts())
-            for name, grid in sorted(grids.items())}
+    return {
+        name: ClassCount.of(*ground_truth(labels, name, grid, **tolerances).counts())
+        for name, grid in sorted(grids.items())
+    }
 
 
 # ---------------------------------------------------------------------------------- place-level match
@@ -318,8 +339,11 @@ def match_places(
     chosen = labels.of(affordance)
     matches = np.zeros((len(chosen), len(skeletons)), dtype=bool)
     for i, label in enumerate(chosen):
-        matches[i] = ((label.distance(skeletons[:, :2]) <= xy_tolerance + _SLACK)
-                      & (angle_gap(skeletons[:, 2], label.facing) <= theta_tolerance + _SLACK) & ~ignored)
+        matches[i] = (
+            (label.distance(skeletons[:, :2]) <= xy_tolerance + _SLACK)
+            & (angle_gap(skeletons[:, 2], label.facing) <= theta_tolerance + _SLACK)
+            & ~ignored
+        )
     return PlaceMatch(chosen, matches.any(axis=1), ~matches.any(axis=0) & ~ignored, ignored)
 
 

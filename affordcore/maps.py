@@ -35,13 +35,30 @@ class AffordanceMap:
     joints: np.ndarray  # (k, 15, 3) placed joints of the skeletons
 
     def to_json(self, model_id: str, world_from_input: np.ndarray) -> dict:
-        return map_document(self.affordance, model_id, self.threshold, self.grid.as_dict(), self.skeletons, self.joints,
-                            self.positives, world_from_input)
+        return map_document(
+            self.affordance,
+            model_id,
+            self.threshold,
+            self.grid.as_dict(),
+            self.skeletons,
+            self.joints,
+            self.positives,
+            world_from_input,
+        )
 
 
-def map_document(affordance: str, model_id: str, threshold: float, grid: dict, skeletons: np.ndarray, joints: np.ndarray,
-                 positives: np.ndarray, world_from_input: np.ndarray) -> dict:
+def map_document(
+    affordance: str,
+    model_id: str,
+    threshold: float,
+    grid: dict,
+    skeletons: np.ndarray,
+    joints: np.ndarray,
+    positives: np.ndarray,
+    world_from_input: np.ndarray,
+) -> dict:
     """The affordance-map/1 JSON document (what `afford map` writes and `afford watch` saves)."""
+
     def rows(values: np.ndarray) -> list[dict]:
         keys = ("x", "y", "z", "theta", "score")
         return [dict(zip(keys, (round(float(v), 4) for v in row))) for row in values]
@@ -50,15 +67,27 @@ def map_document(affordance: str, model_id: str, threshold: float, grid: dict, s
     for skeleton, skeleton_joints in zip(placed, joints):
         skeleton["joints"] = np.round(skeleton_joints, 4).tolist()
     return {
-        "format": FORMAT, "affordance": affordance, "model": model_id, "threshold": float(threshold),
+        "format": FORMAT,
+        "affordance": affordance,
+        "model": model_id,
+        "threshold": float(threshold),
         "frame": "world: gravity-aligned, z up, floor at z = 0, metres",
         "world_from_input": np.asarray(world_from_input, dtype=float).round(9).tolist(),
-        "grid": grid, "skeletons": placed, "positives": rows(positives),
+        "grid": grid,
+        "skeletons": placed,
+        "positives": rows(positives),
     }
 
 
-def build_map(affordance: str, scores: np.ndarray, grid: PoseGrid, skeleton: Skeleton, threshold: float,
-              nms_radius: float = 0.45, allowed: np.ndarray | None = None) -> AffordanceMap:
+def build_map(
+    affordance: str,
+    scores: np.ndarray,
+    grid: PoseGrid,
+    skeleton: Skeleton,
+    threshold: float,
+    nms_radius: float = 0.45,
+    allowed: np.ndarray | None = None,
+) -> AffordanceMap:
     """The three outputs from the scores of every pose (shaped like the grid: z, theta, x, y); cells where
     `allowed` (nx, ny) is False hold no positive and no skeleton (their confidence is float32's lowest)."""
     if allowed is not None:
@@ -71,7 +100,9 @@ def build_map(affordance: str, scores: np.ndarray, grid: PoseGrid, skeleton: Ske
 
     above = np.flatnonzero(scores.ravel() > threshold)
     above = above[np.argsort(-scores.ravel()[above], kind="stable")]
-    positives = np.column_stack([grid.poses(above), scores.ravel()[above]]) if len(above) else np.empty((0, 5))
+    positives = (
+        np.column_stack([grid.poses(above), scores.ravel()[above]]) if len(above) else np.empty((0, 5))
+    )
 
     cells = np.argwhere(confidence > threshold)
     cells = cells[np.argsort(-confidence[cells[:, 0], cells[:, 1]], kind="stable")]
@@ -83,6 +114,25 @@ def build_map(affordance: str, scores: np.ndarray, grid: PoseGrid, skeleton: Ske
         alive &= np.hypot(*(xy - xy[first]).T) > nms_radius
     picked = cells[chosen]
     i, j = picked[:, 0], picked[:, 1]
-    skeletons = np.column_stack([grid.x[i], grid.y[j], best_z[i, j], best_theta[i, j], confidence[i, j]]) if len(picked) else np.empty((0, 5))
-    joints = place_joints(skeleton.joints, skeletons[:, :4]) if len(picked) else np.empty((0, len(skeleton.joints), 3))
-    return AffordanceMap(affordance, grid, float(threshold), scores, confidence, best_theta, best_z, positives, skeletons, joints)
+    skeletons = (
+        np.column_stack([grid.x[i], grid.y[j], best_z[i, j], best_theta[i, j], confidence[i, j]])
+        if len(picked)
+        else np.empty((0, 5))
+    )
+    joints = (
+        place_joints(skeleton.joints, skeletons[:, :4])
+        if len(picked)
+        else np.empty((0, len(skeleton.joints), 3))
+    )
+    return AffordanceMap(
+        affordance,
+        grid,
+        float(threshold),
+        scores,
+        confidence,
+        best_theta,
+        best_z,
+        positives,
+        skeletons,
+        joints,
+    )

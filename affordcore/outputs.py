@@ -9,7 +9,9 @@ from pathlib import Path
 from .learn.model import AffordanceModel
 
 
-def write_map_outputs(scene, maps: dict, models: list[AffordanceModel], out: Path, rrd: Path | None) -> list[Path]:
+def write_map_outputs(
+    scene, maps: dict, models: list[AffordanceModel], out: Path, rrd: Path | None
+) -> list[Path]:
     """DIR/<affordance>.json and .png for every map of a `PreparedScene`, and the recording; returns the paths."""
     from .plots import plot_map
     from .recording import close_recording, log_cloud, log_map, open_recording

@@ -37,16 +37,22 @@ class PreparedScene(WorldCloud):
 
 def pose_grid(fields: SceneFields, skeleton: Skeleton, settings: Settings) -> PoseGrid:
     """The poses a skeleton is tried at over a room's floor footprint."""
-    return PoseGrid.over_footprint(fields.footprint, skeleton.torso_height, fields.lattice.resolution, settings.grid)
+    return PoseGrid.over_footprint(
+        fields.footprint, skeleton.torso_height, fields.lattice.resolution, settings.grid
+    )
 
 
-def pose_grids_for_footprint(footprint: tuple[float, float, float, float], settings: Settings | None = None) -> dict[str, PoseGrid]:
+def pose_grids_for_footprint(
+    footprint: tuple[float, float, float, float], settings: Settings | None = None
+) -> dict[str, PoseGrid]:
     """One pose grid per affordance type (they differ in their torso heights) over a floor footprint."""
     from .skeleton import all_skeletons
 
     settings = settings or Settings()
     return {
-        skeleton.affordance: PoseGrid.over_footprint(footprint, skeleton.torso_height, settings.voxel.resolution, settings.grid)
+        skeleton.affordance: PoseGrid.over_footprint(
+            footprint, skeleton.torso_height, settings.voxel.resolution, settings.grid
+        )
         for skeleton in all_skeletons(settings.skeleton_dirs)
     }
 
@@ -65,7 +71,9 @@ def parse_gravity(text: str) -> str | np.ndarray:
     return vector
 
 
-def to_world(cloud: Cloud, settings: Settings | None = None, gravity: str | np.ndarray = "auto") -> WorldCloud:
+def to_world(
+    cloud: Cloud, settings: Settings | None = None, gravity: str | np.ndarray = "auto"
+) -> WorldCloud:
     """Any cloud in the world frame: thinned when over `map.max_points`, then gravity-aligned (`gravity`: "auto",
     "none" or the direction of gravity in the cloud's frame). Raises `NoFloorError` when no floor is found."""
     settings = settings or Settings()
@@ -74,17 +82,29 @@ def to_world(cloud: Cloud, settings: Settings | None = None, gravity: str | np.n
     return WorldCloud(cloud.transformed(alignment.world_from_input), alignment, [warning] if warning else [])
 
 
-def prepare_scene(cloud: Cloud, settings: Settings | None = None, gravity: str | np.ndarray = "auto") -> PreparedScene:
+def prepare_scene(
+    cloud: Cloud, settings: Settings | None = None, gravity: str | np.ndarray = "auto"
+) -> PreparedScene:
     """`to_world`, then the voxel fields every affordance is scored on."""
     settings = settings or Settings()
     world = to_world(cloud, settings, gravity)
     fields = compute_fields(world.cloud.points, settings.voxel, settings.normals)
-    return PreparedScene(world.cloud, world.alignment, world.warnings, fields,
-                         FeatureLayout.from_settings(settings.features, settings.voxel))
+    return PreparedScene(
+        world.cloud,
+        world.alignment,
+        world.warnings,
+        fields,
+        FeatureLayout.from_settings(settings.features, settings.voxel),
+    )
 
 
-def map_affordances(fields: SceneFields, layout: FeatureLayout, models: list, settings: Settings | None = None,
-                    on_map: Callable[[str, object], None] | None = None) -> dict:
+def map_affordances(
+    fields: SceneFields,
+    layout: FeatureLayout,
+    models: list,
+    settings: Settings | None = None,
+    on_map: Callable[[str, object], None] | None = None,
+) -> dict:
     """Every model's affordance map of a room's fields: {affordance: AffordanceMap}; `on_map(affordance, map)`
     hears of each as soon as it is done. Models must match the feature layout (a `ModelError` names the model
     otherwise); each places the skeleton it was trained with."""
@@ -98,15 +118,26 @@ def map_affordances(fields: SceneFields, layout: FeatureLayout, models: list, se
         skeleton = model.as_skeleton()
         grid = pose_grid(fields, skeleton, settings)
         scores = score_poses(fields, skeleton, grid, layout, model.weights, model.bias)
-        allowed = observed_floor(fields, grid.x, grid.y, settings.map.floor_margin) if settings.map.floor_margin >= 0 else None
-        maps[model.affordance] = build_map(model.affordance, scores, grid, skeleton, model.threshold, settings.map.nms_radius, allowed)
+        allowed = (
+            observed_floor(fields, grid.x, grid.y, settings.map.floor_margin)
+            if settings.map.floor_margin >= 0
+            else None
+        )
+        maps[model.affordance] = build_map(
+            model.affordance, scores, grid, skeleton, model.threshold, settings.map.nms_radius, allowed
+        )
         if on_map:
             on_map(model.affordance, maps[model.affordance])
     return maps
 
 
-def stream_features(scene: PreparedScene, skeleton: Skeleton, settings: Settings, out: Path | None = None,
-                    on_rows: Callable[[int], None] | None = None) -> tuple[int, int]:
+def stream_features(
+    scene: PreparedScene,
+    skeleton: Skeleton,
+    settings: Settings,
+    out: Path | None = None,
+    on_rows: Callable[[int], None] | None = None,
+) -> tuple[int, int]:
     """Every grid pose's features for one skeleton, chunk by chunk (never the whole matrix in memory), written
     as a (poses x features) float32 .npy at `out` when given; `on_rows(n)` hears of each chunk. Returns
     (poses, features)."""
@@ -115,9 +146,11 @@ def stream_features(scene: PreparedScene, skeleton: Skeleton, settings: Settings
     grid = scene.pose_grid(skeleton, settings)
     layout = scene.layout
     matrix = open_feature_matrix(out, grid.size, layout.n_features) if out else None
-    for chunk in iter_features(scene.fields, skeleton, grid, layout, settings.features.chunk_mb, reuse_buffer=True):
+    for chunk in iter_features(
+        scene.fields, skeleton, grid, layout, settings.features.chunk_mb, reuse_buffer=True
+    ):
         if matrix is not None:
-            matrix[chunk.start:chunk.stop] = chunk.values
+            matrix[chunk.start : chunk.stop] = chunk.values
         if on_rows:
             on_rows(chunk.stop - chunk.start)
     if matrix is not None:
@@ -132,6 +165,8 @@ def open_feature_matrix(path: Path, rows: int, columns: int) -> np.ndarray:
     needed = rows * columns * 4
     free = shutil.disk_usage(path.parent.resolve()).free
     if needed > free:
-        raise OSError(f"{path}: the feature matrix needs {needed / 2**30:.1f} GiB and the disk has "
-                      f"{free / 2**30:.1f} GiB free")
+        raise OSError(
+            f"{path}: the feature matrix needs {needed / 2**30:.1f} GiB and the disk has "
+            f"{free / 2**30:.1f} GiB free"
+        )
     return np.lib.format.open_memmap(path, mode="w+", dtype=np.float32, shape=(rows, columns))

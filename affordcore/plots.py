@@ -34,7 +34,12 @@ def plot_fields(fields: SceneFields, path: str | Path, slice_height: float = 0.4
     top = np.where(occupied.any(axis=2), z[np.argmax(np.where(occupied, z, -np.inf), axis=2)], np.nan)
     k = int(np.clip(round((slice_height - lattice.origin[2]) / lattice.resolution), 0, lattice.shape[2] - 1))
     half = lattice.resolution / 2
-    extent = (lattice.origin[0] - half, lattice.upper[0] + half, lattice.origin[1] - half, lattice.upper[1] + half)
+    extent = (
+        lattice.origin[0] - half,
+        lattice.upper[0] + half,
+        lattice.origin[1] - half,
+        lattice.upper[1] + half,
+    )
     x0, y0, x1, y1 = fields.footprint
 
     figure, axes = plt.subplots(1, 2, figsize=(12, 5.5), constrained_layout=True)
@@ -50,7 +55,9 @@ def plot_fields(fields: SceneFields, path: str | Path, slice_height: float = 0.4
         axis.set_ylabel("y (m)")
         axis.set_aspect("equal")
         figure.colorbar(shown, ax=axis, shrink=0.8)
-    figure.suptitle(f"voxel fields, {lattice.resolution * 100:.0f} cm voxels; dashed: floor footprint of the pose grid")
+    figure.suptitle(
+        f"voxel fields, {lattice.resolution * 100:.0f} cm voxels; dashed: floor footprint of the pose grid"
+    )
     path = Path(path)
     figure.savefig(path, dpi=110)
     plt.close(figure)
@@ -72,8 +79,15 @@ def plot_map(points: np.ndarray, amap, path: str | Path, cell: float = 0.05, lab
     order = np.argsort(points[:, 2])  # written lowest first, so each cell ends with its highest point
     top[index[order, 0], index[order, 1]] = points[order, 2]
     figure, ax = plt.subplots(figsize=(9, 9 * max(0.4, shape[1] / shape[0])), constrained_layout=True)
-    ax.imshow(top.T, origin="lower", extent=(low[0], low[0] + shape[0] * cell, low[1], low[1] + shape[1] * cell),
-              cmap="Greys", vmin=-0.5, vmax=2.5, interpolation="nearest")
+    ax.imshow(
+        top.T,
+        origin="lower",
+        extent=(low[0], low[0] + shape[0] * cell, low[1], low[1] + shape[1] * cell),
+        cmap="Greys",
+        vmin=-0.5,
+        vmax=2.5,
+        interpolation="nearest",
+    )
     confidence = amap.confidence.T  # rows y, columns x
     top = float(np.max(confidence))
     if top > amap.threshold:
@@ -82,19 +96,29 @@ def plot_map(points: np.ndarray, amap, path: str | Path, cell: float = 0.05, lab
         figure.colorbar(filled, ax=ax, shrink=0.7, label="decision value (above the model's threshold)")
     for x, y, _, theta, score in amap.skeletons:
         ax.plot(x, y, "o", color="crimson", ms=6)
-        ax.annotate("", (x + 0.35 * np.cos(theta), y + 0.35 * np.sin(theta)), (x, y),
-                    arrowprops={"arrowstyle": "->", "color": "crimson", "lw": 1.6})
+        ax.annotate(
+            "",
+            (x + 0.35 * np.cos(theta), y + 0.35 * np.sin(theta)),
+            (x, y),
+            arrowprops={"arrowstyle": "->", "color": "crimson", "lw": 1.6},
+        )
         ax.text(x, y - 0.18, f"{score:.2f}", color="crimson", fontsize=7, ha="center", va="top")
-    for label in (labels.of(amap.affordance) if labels is not None else []):
+    for label in labels.of(amap.affordance) if labels is not None else []:
         ends = np.array([label.at] if label.at is not None else [label.start, label.end])
         ax.plot(ends[:, 0], ends[:, 1], "-o", color="darkorange", lw=3, ms=4, alpha=0.8)
         middle = ends.mean(axis=0)
-        ax.annotate("", middle + 0.3 * np.array([np.cos(label.facing), np.sin(label.facing)]), middle,
-                    arrowprops={"arrowstyle": "->", "color": "darkorange", "lw": 1.6})
+        ax.annotate(
+            "",
+            middle + 0.3 * np.array([np.cos(label.facing), np.sin(label.facing)]),
+            middle,
+            arrowprops={"arrowstyle": "->", "color": "darkorange", "lw": 1.6},
+        )
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    ax.set_title(f"{amap.affordance}: {len(amap.skeletons)} places, {len(amap.positives):,} poses above the threshold")
+    ax.set_title(
+        f"{amap.affordance}: {len(amap.skeletons)} places, {len(amap.positives):,} poses above the threshold"
+    )
     figure.savefig(path, dpi=110)
     plt.close(figure)
     return Path(path)
@@ -125,11 +149,20 @@ def plot_labels(
 
     span = np.ptp(points[:, :2], axis=0) if len(points) else np.ones(2)
     scale = 10 / max(span.max(), 1.0)
-    figure, axis = plt.subplots(figsize=(max(7.0, span[0] * scale + 2.5), max(5.0, span[1] * scale + 2.5)),
-                                layout="constrained")
-    shown = axis.scatter(points[:, 0], points[:, 1], c=points[:, 2], s=0.4, cmap="Greys", vmin=-0.8,
-                         vmax=max(2.0, float(np.percentile(points[:, 2], 99))) if len(points) else 2.0,
-                         linewidths=0, rasterized=True)
+    figure, axis = plt.subplots(
+        figsize=(max(7.0, span[0] * scale + 2.5), max(5.0, span[1] * scale + 2.5)), layout="constrained"
+    )
+    shown = axis.scatter(
+        points[:, 0],
+        points[:, 1],
+        c=points[:, 2],
+        s=0.4,
+        cmap="Greys",
+        vmin=-0.8,
+        vmax=max(2.0, float(np.percentile(points[:, 2], 99))) if len(points) else 2.0,
+        linewidths=0,
+        rasterized=True,
+    )
     figure.colorbar(shown, ax=axis, shrink=0.7, label="height of the point (m)")
     handles = []
     for name, truth in sorted(ground_truth.items()):
@@ -138,10 +171,18 @@ def plot_labels(
             continue
         image = np.zeros((*cells.shape, 4))
         image[cells] = (*colours[name][:3], 0.45)
-        axis.imshow(image.transpose(1, 0, 2), origin="lower", interpolation="nearest", zorder=2,
-                    extent=_extent(truth.grid))
-        handles.append(Patch(color=colours[name], alpha=0.45,
-                             label=f"{name}: positive cells ({truth.counts()[0]:,} poses)"))
+        axis.imshow(
+            image.transpose(1, 0, 2),
+            origin="lower",
+            interpolation="nearest",
+            zorder=2,
+            extent=_extent(truth.grid),
+        )
+        handles.append(
+            Patch(
+                color=colours[name], alpha=0.45, label=f"{name}: positive cells ({truth.counts()[0]:,} poses)"
+            )
+        )
     if grid is not None:
         x0, x1, y0, y1 = _extent(grid)
         axis.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="tab:cyan", ls="--", lw=1))
@@ -162,12 +203,26 @@ def plot_labels(
             axis.plot(*ends.T, "-", lw=0.8, color="black", zorder=5)
             bases = ends[0] + np.linspace(0, 1, 3)[:, None] * (ends[1] - ends[0])
         for base in bases:
-            axis.annotate("", base + arrow * np.array([np.cos(label.facing), np.sin(label.facing)]), base,
-                          arrowprops=dict(arrowstyle="-|>", color=colour, lw=2, mutation_scale=14), zorder=6)
+            axis.annotate(
+                "",
+                base + arrow * np.array([np.cos(label.facing), np.sin(label.facing)]),
+                base,
+                arrowprops=dict(arrowstyle="-|>", color=colour, lw=2, mutation_scale=14),
+                zorder=6,
+            )
     for name in labels.affordances:
         count = len(labels.of(name))
-        handles.append(Line2D([], [], color=colours[name], lw=4, marker="o", mec="black",
-                              label=f"{name}: {count} label{'s' * (count != 1)} (arrows: facing)"))
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color=colours[name],
+                lw=4,
+                marker="o",
+                mec="black",
+                label=f"{name}: {count} label{'s' * (count != 1)} (arrows: facing)",
+            )
+        )
     figure.legend(handles=handles, loc="outside lower center", ncol=2, fontsize=9, frameon=False)
     axis.set_aspect("equal")
     axis.margins(0.03)
@@ -187,8 +242,12 @@ def _extent(grid: PoseGrid) -> tuple[float, float, float, float]:
     return (grid.x[0] - half, grid.x[-1] + half, grid.y[0] - half, grid.y[-1] + half)
 
 
-def plot_skeletons(skeletons: list[Skeleton], path: str | Path, members: dict[str, np.ndarray] | None = None,
-                   max_members: int = 150) -> Path:
+def plot_skeletons(
+    skeletons: list[Skeleton],
+    path: str | Path,
+    members: dict[str, np.ndarray] | None = None,
+    max_members: int = 150,
+) -> Path:
     """One row per skeleton: front (y-z, seen from the front) and side (x-z, seen from its right) views standing
     on the floor, left bones blue and right red, and faintly up to ``max_members`` frames of its cluster (each
     with its own proportions, at the model's torso height). One PNG."""
@@ -197,23 +256,35 @@ def plot_skeletons(skeletons: list[Skeleton], path: str | Path, members: dict[st
 
     def segments(joints: np.ndarray, h: int, lift: float) -> np.ndarray:
         placed = joints[..., [h, 2]] + [0.0, lift]
-        return np.stack([placed[..., BONE_ENDS[:, 0], :], placed[..., BONE_ENDS[:, 1], :]], axis=-2).reshape(-1, 2, 2)
+        return np.stack([placed[..., BONE_ENDS[:, 0], :], placed[..., BONE_ENDS[:, 1], :]], axis=-2).reshape(
+            -1, 2, 2
+        )
 
     colours = ["tab:blue" if "L_" in a + b else "tab:red" if "R_" in a + b else "k" for a, b in BONES]
-    figure, axes = plt.subplots(len(skeletons), 2, figsize=(7.5, 4.2 * len(skeletons)), squeeze=False,
-                                constrained_layout=True)
+    figure, axes = plt.subplots(
+        len(skeletons), 2, figsize=(7.5, 4.2 * len(skeletons)), squeeze=False, constrained_layout=True
+    )
     for row, skeleton in zip(axes, skeletons):
         crowd = (members or {}).get(skeleton.affordance, np.empty((0, 15, 3)))
-        shown = crowd[np.unique(np.linspace(0, len(crowd) - 1, max_members).astype(int))] if len(crowd) else crowd
+        shown = (
+            crowd[np.unique(np.linspace(0, len(crowd) - 1, max_members).astype(int))] if len(crowd) else crowd
+        )
         note = f"\n(grey: {len(shown)} of the cluster's {len(crowd)} frames)" if len(crowd) else ""
         for axis, (h, view) in zip(row, [(1, "front, y-z"), (0, "side, x-z")]):
             lift = skeleton.torso_height
             axis.add_collection(LineCollection(segments(shown, h, lift), colors="0.5", lw=0.5, alpha=0.08))
             axis.add_collection(LineCollection(segments(skeleton.joints, h, lift), colors=colours, lw=2.5))
-            axis.plot(skeleton.joints[:, h], skeleton.joints[:, 2] + skeleton.torso_height, "o", color="k", ms=3)
+            axis.plot(
+                skeleton.joints[:, h], skeleton.joints[:, 2] + skeleton.torso_height, "o", color="k", ms=3
+            )
             axis.axhline(0.0, color="saddlebrown", lw=2)
-            axis.set(xlim=(-0.7, 0.7) if h else (-0.5, 0.9), ylim=(-0.05, 1.9), aspect="equal",
-                     xlabel=f"{'xy'[h]} (m)", ylabel="z (m), floor at 0")
+            axis.set(
+                xlim=(-0.7, 0.7) if h else (-0.5, 0.9),
+                ylim=(-0.05, 1.9),
+                aspect="equal",
+                xlabel=f"{'xy'[h]} (m)",
+                ylabel="z (m), floor at 0",
+            )
             axis.set_title(f"{skeleton.affordance} ({view}){note}", fontsize=9)
             axis.grid(alpha=0.3)
     path = Path(path)
@@ -229,7 +300,9 @@ def plot_imbalance(evaluation, path: Path) -> None:
 
     sweep = evaluation.sweep()
     affordances = list(dict.fromkeys(o.affordance for o in evaluation.outcomes))
-    fig, axes = plt.subplots(1, len(affordances), figsize=(5 * len(affordances), 4), squeeze=False, sharey=True)
+    fig, axes = plt.subplots(
+        1, len(affordances), figsize=(5 * len(affordances), 4), squeeze=False, sharey=True
+    )
     for ax, affordance in zip(axes[0], affordances):
         runs = [o for o in sweep if o.affordance == affordance]
         for learner in dict.fromkeys(o.learner for o in runs):
@@ -239,7 +312,9 @@ def plot_imbalance(evaluation, path: Path) -> None:
         ax.set_title(affordance)
         ax.set_xlabel("negatives per positive in training (rightmost: all data)")
         ax.grid(alpha=0.3)
-    _save(fig, axes, "F1 on the test rooms", "Imbalance test: F1 against the training imbalance (fold 1)", path)
+    _save(
+        fig, axes, "F1 on the test rooms", "Imbalance test: F1 against the training imbalance (fold 1)", path
+    )
 
 
 def plot_ssvm_iterations(evaluation, path: Path) -> None:
@@ -247,7 +322,9 @@ def plot_ssvm_iterations(evaluation, path: Path) -> None:
     plt = pyplot()
 
     runs = [o for o in evaluation.outcomes if o.learner == "ssvm" and o.fold == 0 and not o.sweep]
-    fig, axes = plt.subplots(1, max(1, len(runs)), figsize=(5 * max(1, len(runs)), 4), squeeze=False, sharey=True)
+    fig, axes = plt.subplots(
+        1, max(1, len(runs)), figsize=(5 * max(1, len(runs)), 4), squeeze=False, sharey=True
+    )
     for ax, run in zip(axes[0], runs):
         train_f1, validation_f1 = run.report["train_f1"], run.report["validation_f1"]
         steps = np.arange(1, len(train_f1) + 1)

@@ -30,7 +30,9 @@ from .skeleton import BONE_ENDS, JOINTS
 APPLICATION_ID = "affordmap"
 
 
-def open_recording(path: str | Path, affordances: list[str], recording_id: str | None = None, viewer: str | None = None):
+def open_recording(
+    path: str | Path, affordances: list[str], recording_id: str | None = None, viewer: str | None = None
+):
     """A recording that streams to an .rrd file with the default blueprint and, given a viewer URL
     (rerun+http://HOST:9876/proxy), to that viewer too. The file never waits for the viewer."""
     import rerun as rr
@@ -62,7 +64,10 @@ def blueprint(affordances: list[str]):
     import rerun.blueprint as rrb
 
     views = [rrb.Spatial3DView(origin="world", name="room and every affordance")]
-    views += [rrb.Spatial3DView(origin="world", contents=["world/cloud", f"world/{name}/**"], name=name) for name in affordances]
+    views += [
+        rrb.Spatial3DView(origin="world", contents=["world/cloud", f"world/{name}/**"], name=name)
+        for name in affordances
+    ]
     return rrb.Blueprint(rrb.Tabs(*views), collapse_panels=True)
 
 
@@ -86,27 +91,49 @@ def log_map(recording, amap) -> None:
     span = max(float(values.max() - amap.threshold), 1e-9) if len(values) else 1.0
     colors = (matplotlib.colormaps["viridis"]((values - amap.threshold) / span)[:, :3] * 255).astype(np.uint8)
     cells = np.column_stack([grid.x[ix], grid.y[iy], np.full(len(ix), 0.02)])
-    recording.log(f"world/{amap.affordance}/confidence", rr.Points3D(cells, colors=colors, radii=grid.step / 2,
-                                                                       labels=[f"{v:.2f}" for v in values]))
+    recording.log(
+        f"world/{amap.affordance}/confidence",
+        rr.Points3D(cells, colors=colors, radii=grid.step / 2, labels=[f"{v:.2f}" for v in values]),
+    )
     strips = [joints[ends] for joints in amap.joints for ends in BONE_ENDS]
-    recording.log(f"world/{amap.affordance}/skeletons", rr.LineStrips3D(strips, radii=0.015, colors=[220, 40, 60]))
+    recording.log(
+        f"world/{amap.affordance}/skeletons", rr.LineStrips3D(strips, radii=0.015, colors=[220, 40, 60])
+    )
     torsos = amap.joints[:, JOINTS.index("TORSO")] if len(amap.joints) else np.empty((0, 3))
-    recording.log(f"world/{amap.affordance}/places", rr.Points3D(torsos, radii=0.04, colors=[220, 40, 60],
-                                                                 labels=[f"{score:.2f}" for score in amap.skeletons[:, 4]]))
+    recording.log(
+        f"world/{amap.affordance}/places",
+        rr.Points3D(
+            torsos,
+            radii=0.04,
+            colors=[220, 40, 60],
+            labels=[f"{score:.2f}" for score in amap.skeletons[:, 4]],
+        ),
+    )
 
 
 def log_scan(recording, points: np.ndarray, odom_from_sensor: np.ndarray) -> None:
     import rerun as rr
 
-    recording.log("world/odom/sensor", rr.Transform3D(translation=odom_from_sensor[:3, 3], mat3x3=odom_from_sensor[:3, :3]))
-    recording.log("world/odom/sensor/scan", rr.Points3D(np.asarray(points, dtype=np.float32), radii=0.01, colors=[70, 140, 230]))
+    recording.log(
+        "world/odom/sensor",
+        rr.Transform3D(translation=odom_from_sensor[:3, 3], mat3x3=odom_from_sensor[:3, :3]),
+    )
+    recording.log(
+        "world/odom/sensor/scan",
+        rr.Points3D(np.asarray(points, dtype=np.float32), radii=0.01, colors=[70, 140, 230]),
+    )
 
 
 def log_trajectory(recording, positions: np.ndarray, world_from_odom: np.ndarray) -> None:
     import rerun as rr
 
-    recording.log("world/odom", rr.Transform3D(translation=world_from_odom[:3, 3], mat3x3=world_from_odom[:3, :3]))
-    recording.log("world/odom/trajectory", rr.LineStrips3D([np.asarray(positions, dtype=np.float32)], radii=0.01, colors=[240, 160, 30]))
+    recording.log(
+        "world/odom", rr.Transform3D(translation=world_from_odom[:3, 3], mat3x3=world_from_odom[:3, :3])
+    )
+    recording.log(
+        "world/odom/trajectory",
+        rr.LineStrips3D([np.asarray(positions, dtype=np.float32)], radii=0.01, colors=[240, 160, 30]),
+    )
 
 
 def log_fields(recording, fields, max_normals: int = 20_000) -> None:
@@ -116,16 +143,26 @@ def log_fields(recording, fields, max_normals: int = 20_000) -> None:
     index = np.argwhere(fields.occupancy > 0)
     centres = fields.lattice.centres(index).astype(np.float32)
     heights = np.clip(centres[:, 2] / 2.5, 0, 1)
-    colors = (np.column_stack([0.3 + 0.5 * heights, 0.45 * np.ones_like(heights), 0.8 - 0.5 * heights]) * 255).astype(np.uint8)
-    recording.log("world/fields/occupied", rr.Points3D(centres, colors=colors, radii=fields.lattice.resolution / 3))
+    colors = (
+        np.column_stack([0.3 + 0.5 * heights, 0.45 * np.ones_like(heights), 0.8 - 0.5 * heights]) * 255
+    ).astype(np.uint8)
+    recording.log(
+        "world/fields/occupied", rr.Points3D(centres, colors=colors, radii=fields.lattice.resolution / 3)
+    )
     normals = fields.normals[tuple(index.T)]
     keep = np.flatnonzero(np.any(normals != 0, axis=1))[:: max(1, int(np.ceil(len(index) / max_normals)))]
-    recording.log("world/fields/normals", rr.Arrows3D(origins=centres[keep], vectors=normals[keep] * fields.lattice.resolution,
-                                                      colors=[120, 200, 120]))
+    recording.log(
+        "world/fields/normals",
+        rr.Arrows3D(
+            origins=centres[keep], vectors=normals[keep] * fields.lattice.resolution, colors=[120, 200, 120]
+        ),
+    )
 
 
 def recorded_entities(path: str | Path) -> set[str]:
     """Entity paths that hold data in an .rrd file (for tests and for people checking a recording)."""
     from rerun.chunk import RrdReader
 
-    return {str(chunk.entity_path) for chunk in RrdReader(str(path)).stream().to_chunks() if not chunk.is_empty}
+    return {
+        str(chunk.entity_path) for chunk in RrdReader(str(path)).stream().to_chunks() if not chunk.is_empty
+    }

@@ -45,7 +45,7 @@ class Cloud:
     def __len__(self) -> int:
         return len(self.points)
 
-    def transformed(self, transform: np.ndarray) -> "Cloud":
+    def transformed(self, transform: np.ndarray) -> Cloud:
         """The same cloud with a 4 x 4 rigid transform applied to its points."""
         points = self.points @ transform[:3, :3].T + transform[:3, 3]
         return Cloud(points, self.colors, self.source, self.dropped_nonfinite, list(self.notes))
@@ -65,10 +65,19 @@ def load_cloud(path: str | os.PathLike, bin_columns: int | None = None) -> Cloud
     if not os.access(path, os.R_OK):
         raise CloudError(f"{path}: not readable (permission denied)")
     suffix = path.suffix.lower()
-    readers = {".ply": _read_ply, ".pcd": _read_pcd, ".xyz": _read_text, ".pts": _read_text,
-               ".txt": _read_text, ".npy": _read_npy, ".bin": lambda p: _read_bin(p, bin_columns)}
+    readers = {
+        ".ply": _read_ply,
+        ".pcd": _read_pcd,
+        ".xyz": _read_text,
+        ".pts": _read_text,
+        ".txt": _read_text,
+        ".npy": _read_npy,
+        ".bin": lambda p: _read_bin(p, bin_columns),
+    }
     if suffix not in readers:
-        raise CloudError(f"{path}: unknown cloud format {suffix!r}; supported: {', '.join(SUPPORTED_SUFFIXES)}")
+        raise CloudError(
+            f"{path}: unknown cloud format {suffix!r}; supported: {', '.join(SUPPORTED_SUFFIXES)}"
+        )
     if path.stat().st_size == 0:
         raise CloudError(f"{path}: empty file")
     try:
@@ -119,7 +128,9 @@ def _read_pcd(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     pcd = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
     points = np.asarray(pcd.points)
     if len(points) == 0:
-        raise CloudError(f"{path}: no points could be read (the file is empty, truncated or not a point cloud)")
+        raise CloudError(
+            f"{path}: no points could be read (the file is empty, truncated or not a point cloud)"
+        )
     colors = np.asarray(pcd.colors, dtype=np.float32) if pcd.has_colors() else None
     return points, colors
 
@@ -154,7 +165,9 @@ def _read_npy(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         names = array.dtype.names
         if not {"x", "y", "z"} <= set(names):
             raise CloudError(f"{path}: structured array without x, y, z fields (has {', '.join(names)})")
-        columns = ["x", "y", "z"] + ([c for c in ("r", "g", "b") if c in names] if {"r", "g", "b"} <= set(names) else [])
+        columns = ["x", "y", "z"] + (
+            [c for c in ("r", "g", "b") if c in names] if {"r", "g", "b"} <= set(names) else []
+        )
         array = np.stack([array[c].astype(np.float64) for c in columns], axis=1)
     if array.ndim != 2 or array.shape[1] not in (3, 6):
         raise CloudError(f"{path}: expected an (N, 3) or (N, 6) array, got shape {array.shape}")
@@ -169,7 +182,9 @@ def _read_bin(path: Path, columns: int | None) -> tuple[np.ndarray, np.ndarray |
     if columns is None:
         columns = 6 if len(raw) % 6 == 0 and _looks_like_colors(raw.reshape(-1, 6)[:, 3:]) else 3
     if columns not in (3, 6):
-        raise CloudError(f"{path}: a .bin cloud has 3 (x y z) or 6 (x y z r g b) float32 columns, not {columns}")
+        raise CloudError(
+            f"{path}: a .bin cloud has 3 (x y z) or 6 (x y z r g b) float32 columns, not {columns}"
+        )
     if len(raw) % columns:
         raise CloudError(
             f"{path}: {path.stat().st_size} bytes is not a whole number of {columns}-float32 points"
@@ -197,13 +212,17 @@ def _split_columns(path: Path, table: np.ndarray) -> tuple[np.ndarray, np.ndarra
     elif n_columns == 4:  # x y z intensity: no colour
         return table[:, :3], None
     else:
-        raise CloudError(f"{path}: expected 3, 4, 6 or 7 columns (x y z [intensity] [r g b]), got {n_columns}")
+        raise CloudError(
+            f"{path}: expected 3, 4, 6 or 7 columns (x y z [intensity] [r g b]), got {n_columns}"
+        )
     finite_rgb = rgb[np.isfinite(rgb).all(axis=1)]
     scale = 255.0 if len(finite_rgb) and finite_rgb.max() > 1.0 else 1.0
     return table[:, :3], np.clip(rgb / scale, 0.0, 1.0).astype(np.float32)
 
 
-def voxel_thin(points: np.ndarray, voxel: float, colors: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+def voxel_thin(
+    points: np.ndarray, voxel: float, colors: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray | None]:
     """The mean point (and colour) of each occupied voxel, in a fixed order: an even spread whatever the scan
     density, and deterministic (unlike a hash map's order)."""
     keys = np.floor(points / voxel).astype(np.int64)
@@ -213,7 +232,10 @@ def voxel_thin(points: np.ndarray, voxel: float, colors: np.ndarray | None = Non
     _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
 
     def mean(values: np.ndarray) -> np.ndarray:
-        return np.stack([np.bincount(inverse, values[:, k]) for k in range(values.shape[1])], axis=1) / counts[:, None]
+        return (
+            np.stack([np.bincount(inverse, values[:, k]) for k in range(values.shape[1])], axis=1)
+            / counts[:, None]
+        )
 
     return mean(points), None if colors is None else mean(colors.astype(np.float64)).astype(np.float32)
 
@@ -264,6 +286,8 @@ def thin_huge_cloud(cloud: Cloud, max_points: int, first_voxel: float) -> tuple[
     while len(points) > max_points:
         voxel *= 2
         points, colors = voxel_thin(cloud.points, voxel, cloud.colors)
-    warning = (f"{cloud.source}: {len(cloud):,} points is over the {max_points:,} limit; thinned to {len(points):,} "
-               f"at {voxel * 100:.0f} mm voxels (AFFORD_MAP__MAX_POINTS raises the limit)")
+    warning = (
+        f"{cloud.source}: {len(cloud):,} points is over the {max_points:,} limit; thinned to {len(points):,} "
+        f"at {voxel * 100:.0f} mm voxels (AFFORD_MAP__MAX_POINTS raises the limit)"
+    )
     return Cloud(points, colors, cloud.source, cloud.dropped_nonfinite, list(cloud.notes)), warning

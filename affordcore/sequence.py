@@ -51,14 +51,18 @@ class Sequence:
 
         image = np.asarray(Image.open(self.frames[index]))
         if image.ndim != 2 or image.dtype not in (np.uint16, np.int32, np.uint32):
-            raise SequenceError(f"{self.frames[index]}: not a 16-bit depth image ({image.dtype}, shape {image.shape})")
+            raise SequenceError(
+                f"{self.frames[index]}: not a 16-bit depth image ({image.dtype}, shape {image.shape})"
+            )
         return image.astype(np.uint16)
 
     def scan(self, index: int) -> np.ndarray:
         """The points (N, 3) of a LiDAR scan."""
         size = self.frames[index].stat().st_size
         if size % 12:
-            raise SequenceError(f"{self.frames[index]}: {size} bytes is not a whole number of float32 x, y, z points (12 bytes each)")
+            raise SequenceError(
+                f"{self.frames[index]}: {size} bytes is not a whole number of float32 x, y, z points (12 bytes each)"
+            )
         return np.fromfile(self.frames[index], dtype="<f4").reshape(-1, 3).astype(np.float64)
 
 
@@ -71,7 +75,9 @@ def read_sequence(folder: str | Path) -> Sequence:
     if depth:
         intrinsics_path = folder / "camera-intrinsics.txt"
         if not intrinsics_path.exists():
-            raise SequenceError(f"{folder}: depth frames without camera-intrinsics.txt (a 3 x 3 pinhole matrix)")
+            raise SequenceError(
+                f"{folder}: depth frames without camera-intrinsics.txt (a 3 x 3 pinhole matrix)"
+            )
         try:
             intrinsics = np.loadtxt(intrinsics_path)
         except ValueError as error:

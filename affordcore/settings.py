@@ -14,28 +14,50 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
 class VoxelSettings(BaseModel):
-    resolution: float = Field(0.10, gt=0, description="voxel edge of the occupancy, distance and normal fields (m)")
-    margin: float = Field(1.0, ge=0, description="empty space kept around the cloud so placed skeletons stay inside the fields (m)")
-    min_height: float = Field(2.2, gt=0, description="the fields reach at least this high above the floor (m), even over a low scan")
+    resolution: float = Field(
+        0.10, gt=0, description="voxel edge of the occupancy, distance and normal fields (m)"
+    )
+    margin: float = Field(
+        1.0,
+        ge=0,
+        description="empty space kept around the cloud so placed skeletons stay inside the fields (m)",
+    )
+    min_height: float = Field(
+        2.2, gt=0, description="the fields reach at least this high above the floor (m), even over a low scan"
+    )
 
 
 class NormalSettings(BaseModel):
-    downsample: float = Field(0.025, ge=0, description="voxel size the cloud is thinned to before normals are estimated (m); 0 keeps every point")
+    downsample: float = Field(
+        0.025,
+        ge=0,
+        description="voxel size the cloud is thinned to before normals are estimated (m); 0 keeps every point",
+    )
     radius: float = Field(0.10, gt=0, description="neighbourhood radius for normal estimation (m)")
     max_neighbours: int = Field(30, ge=3, description="at most this many neighbours per normal")
 
 
 class GridSettings(BaseModel):
-    step: float = Field(0.10, gt=0, description="x, y spacing of the pose grid (m); a whole multiple of the voxel resolution")
+    step: float = Field(
+        0.10, gt=0, description="x, y spacing of the pose grid (m); a whole multiple of the voxel resolution"
+    )
     theta_step: float = Field(0.1, gt=0, description="orientation spacing (rad)")
     n_theta: int = Field(63, ge=1, description="number of orientations, theta = k * theta_step")
-    z_levels_each_side: int = Field(1, ge=0, description="torso heights tried one voxel apart above and below the skeleton's own")
+    z_levels_each_side: int = Field(
+        1, ge=0, description="torso heights tried one voxel apart above and below the skeleton's own"
+    )
 
 
 class FeatureSettings(BaseModel):
     cube_size: float = Field(1.0, gt=0, description="edge of the normal cube around the torso (m)")
-    cell_size: float = Field(0.25, gt=0, description="edge of one normal-cube cell (m): 0.25 gives 222 features; the paper's 0.10 gives 3030, 15.7 GB per 1.3 million training poses")
-    chunk_mb: float = Field(256.0, gt=0, description="feature rows are produced in chunks of at most this many MB")
+    cell_size: float = Field(
+        0.25,
+        gt=0,
+        description="edge of one normal-cube cell (m): 0.25 gives 222 features; the paper's 0.10 gives 3030, 15.7 GB per 1.3 million training poses",
+    )
+    chunk_mb: float = Field(
+        256.0, gt=0, description="feature rows are produced in chunks of at most this many MB"
+    )
 
 
 class GravitySettings(BaseModel):
@@ -43,32 +65,85 @@ class GravitySettings(BaseModel):
         default_factory=lambda: ["+z", "+y", "-y"],
         description="input-frame axes that may point up, tried by the automatic alignment: z-up scans, y-up scans, camera frames (y down)",
     )
-    max_tilt_deg: float = Field(35.0, gt=0, le=90, description="a floor may lean at most this far from its candidate axis (a camera pitched down)")
-    lowest_fraction: float = Field(0.25, gt=0, le=1, description="the floor is searched among this lowest fraction of points along a candidate axis")
+    max_tilt_deg: float = Field(
+        35.0,
+        gt=0,
+        le=90,
+        description="a floor may lean at most this far from its candidate axis (a camera pitched down)",
+    )
+    lowest_fraction: float = Field(
+        0.25,
+        gt=0,
+        le=1,
+        description="the floor is searched among this lowest fraction of points along a candidate axis",
+    )
     ransac_threshold: float = Field(0.03, gt=0, description="plane inlier distance (m)")
     ransac_iterations: int = Field(1000, ge=10)
     min_floor_area: float = Field(1.0, gt=0, description="a floor must cover at least this much area (m^2)")
-    max_below_fraction: float = Field(0.02, ge=0, le=1, description="at most this fraction of points may lie more than 5 cm under a floor")
-    sample_voxel: float = Field(0.03, gt=0, description="the cloud is thinned to this voxel size for the search (m)")
+    max_below_fraction: float = Field(
+        0.02, ge=0, le=1, description="at most this fraction of points may lie more than 5 cm under a floor"
+    )
+    sample_voxel: float = Field(
+        0.03, gt=0, description="the cloud is thinned to this voxel size for the search (m)"
+    )
     seed: int = 0
 
 
 class MapSettings(BaseModel):
-    nms_radius: float = Field(0.45, gt=0, description="one skeleton per place: cells within this distance of a better one are suppressed (m)")
-    floor_margin: float = Field(0.3, description="only cells within this distance of scanned floor are mapped (m); negative: map every cell")
-    max_points: int = Field(5_000_000, ge=1000, description="a larger cloud is thinned (with a warning) to about this many points")
-    thin_voxel: float = Field(0.01, gt=0, description="voxel size the first thinning pass of a huge cloud uses (m); doubled until it fits")
+    nms_radius: float = Field(
+        0.45,
+        gt=0,
+        description="one skeleton per place: cells within this distance of a better one are suppressed (m)",
+    )
+    floor_margin: float = Field(
+        0.3,
+        description="only cells within this distance of scanned floor are mapped (m); negative: map every cell",
+    )
+    max_points: int = Field(
+        5_000_000, ge=1000, description="a larger cloud is thinned (with a warning) to about this many points"
+    )
+    thin_voxel: float = Field(
+        0.01,
+        gt=0,
+        description="voxel size the first thinning pass of a huge cloud uses (m); doubled until it fits",
+    )
 
 
 class AssemblerSettings(BaseModel):
-    min_range: float = Field(0.3, ge=0, description="scan points nearer than this to the sensor are dropped (m)")
-    max_range: float = Field(4.0, gt=0, description="scan points farther than this are dropped (m): a Kinect-class depth camera is noisy beyond 4 m")
-    voxel_size: float = Field(0.05, gt=0, description="KISS-ICP's local-map voxel (m): frames join its map thinned to half this and register thinned to 1.5x this. 5 cm (rather than 4 cm, KISS-ICP's max_range / 100) sits above Kinect-class depth steps and noise (1 to 2.5 cm at 2 to 3 m): on the 7-Scenes kitchen 4.3 / 9.9 cm mean / worst error against 5.2 / 11.4, at half the time")
-    pixel_step: int = Field(2, ge=1, description="every n-th depth pixel in each direction is back-projected (2: a quarter of a 640 x 480 frame)")
-    map_voxel: float = Field(0.02, gt=0, description="voxel of the global map the assembler keeps (m): one point per voxel, nothing forgotten")
-    keyframe_distance: float = Field(0.05, ge=0, description="a frame joins the global map when the sensor moved this far since the last one that did (m)")
+    min_range: float = Field(
+        0.3, ge=0, description="scan points nearer than this to the sensor are dropped (m)"
+    )
+    max_range: float = Field(
+        4.0,
+        gt=0,
+        description="scan points farther than this are dropped (m): a Kinect-class depth camera is noisy beyond 4 m",
+    )
+    voxel_size: float = Field(
+        0.05,
+        gt=0,
+        description="KISS-ICP's local-map voxel (m): frames join its map thinned to half this and register thinned to 1.5x this. 5 cm (rather than 4 cm, KISS-ICP's max_range / 100) sits above Kinect-class depth steps and noise (1 to 2.5 cm at 2 to 3 m): on the 7-Scenes kitchen 4.3 / 9.9 cm mean / worst error against 5.2 / 11.4, at half the time",
+    )
+    pixel_step: int = Field(
+        2,
+        ge=1,
+        description="every n-th depth pixel in each direction is back-projected (2: a quarter of a 640 x 480 frame)",
+    )
+    map_voxel: float = Field(
+        0.02,
+        gt=0,
+        description="voxel of the global map the assembler keeps (m): one point per voxel, nothing forgotten",
+    )
+    keyframe_distance: float = Field(
+        0.05,
+        ge=0,
+        description="a frame joins the global map when the sensor moved this far since the last one that did (m)",
+    )
     keyframe_angle_deg: float = Field(5.0, ge=0, description="... or turned this far (degrees)")
-    publish_period: float = Field(2.0, ge=0, description="the map cloud is published at most this often (s), and once more after the last scan")
+    publish_period: float = Field(
+        2.0,
+        ge=0,
+        description="the map cloud is published at most this often (s), and once more after the last scan",
+    )
 
 
 class Settings(BaseSettings):
@@ -89,7 +164,7 @@ class Settings(BaseSettings):
     )
 
     @model_validator(mode="after")
-    def _grid_on_voxel_lattice(self) -> "Settings":
+    def _grid_on_voxel_lattice(self) -> Settings:
         ratio = self.grid.step / self.voxel.resolution
         if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
             raise ValueError(

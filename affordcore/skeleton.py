@@ -15,13 +15,38 @@ import numpy as np
 from .jsonfile import read_json
 
 JOINTS = (
-    "HEAD", "NECK", "TORSO", "L_SHOULDER", "L_ELBOW", "R_SHOULDER", "R_ELBOW",
-    "L_HIP", "L_KNEE", "R_HIP", "R_KNEE", "L_HAND", "R_HAND", "L_FOOT", "R_FOOT",
+    "HEAD",
+    "NECK",
+    "TORSO",
+    "L_SHOULDER",
+    "L_ELBOW",
+    "R_SHOULDER",
+    "R_ELBOW",
+    "L_HIP",
+    "L_KNEE",
+    "R_HIP",
+    "R_KNEE",
+    "L_HAND",
+    "R_HAND",
+    "L_FOOT",
+    "R_FOOT",
 )  # OpenNI / CAD-60 order (DESIGN.md)
 BONES = (
-    ("HEAD", "NECK"), ("NECK", "TORSO"), ("NECK", "L_SHOULDER"), ("L_SHOULDER", "L_ELBOW"), ("L_ELBOW", "L_HAND"),
-    ("NECK", "R_SHOULDER"), ("R_SHOULDER", "R_ELBOW"), ("R_ELBOW", "R_HAND"), ("TORSO", "L_HIP"), ("L_HIP", "L_KNEE"),
-    ("L_KNEE", "L_FOOT"), ("TORSO", "R_HIP"), ("R_HIP", "R_KNEE"), ("R_KNEE", "R_FOOT"), ("L_HIP", "R_HIP"),
+    ("HEAD", "NECK"),
+    ("NECK", "TORSO"),
+    ("NECK", "L_SHOULDER"),
+    ("L_SHOULDER", "L_ELBOW"),
+    ("L_ELBOW", "L_HAND"),
+    ("NECK", "R_SHOULDER"),
+    ("R_SHOULDER", "R_ELBOW"),
+    ("R_ELBOW", "R_HAND"),
+    ("TORSO", "L_HIP"),
+    ("L_HIP", "L_KNEE"),
+    ("L_KNEE", "L_FOOT"),
+    ("TORSO", "R_HIP"),
+    ("R_HIP", "R_KNEE"),
+    ("R_KNEE", "R_FOOT"),
+    ("L_HIP", "R_HIP"),
 )
 BONE_ENDS = np.array([[JOINTS.index(a), JOINTS.index(b)] for a, b in BONES])  # (bones, 2) joint indices
 
@@ -51,7 +76,9 @@ def rotation_z(theta: np.ndarray | float) -> np.ndarray:
     """R_z(theta), shape (..., 3, 3)."""
     c, s = np.cos(theta), np.sin(theta)
     zero, one = np.zeros_like(c), np.ones_like(c)
-    return np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)], -2)
+    return np.stack(
+        [np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), np.stack([zero, zero, one], -1)], -2
+    )
 
 
 def place_joints(joints: np.ndarray, poses: np.ndarray) -> np.ndarray:
@@ -74,7 +101,9 @@ def load_skeleton(path: str | Path) -> Skeleton:
     joints = document.get("joints")
     if not isinstance(joints, dict) or set(joints) != set(JOINTS):
         have = sorted(joints) if isinstance(joints, dict) else joints
-        raise SkeletonError(f"{path}: 'joints' must map exactly the 15 joints {', '.join(JOINTS)}; got {have}")
+        raise SkeletonError(
+            f"{path}: 'joints' must map exactly the 15 joints {', '.join(JOINTS)}; got {have}"
+        )
     try:
         array = np.array([joints[j] for j in JOINTS], dtype=np.float64)
     except (TypeError, ValueError) as error:
@@ -82,7 +111,9 @@ def load_skeleton(path: str | Path) -> Skeleton:
     if array.shape != (15, 3) or not np.isfinite(array).all():
         raise SkeletonError(f"{path}: every joint must be 3 finite numbers")
     if np.linalg.norm(array[JOINTS.index("TORSO")]) > 1e-6:
-        raise SkeletonError(f"{path}: 'TORSO' must be at the origin of the skeleton frame, is at {array[2].tolist()}")
+        raise SkeletonError(
+            f"{path}: 'TORSO' must be at the origin of the skeleton frame, is at {array[2].tolist()}"
+        )
     torso_height = document.get("torso_height")
     if not isinstance(torso_height, (int, float)) or not torso_height > 0:
         raise SkeletonError(f"{path}: 'torso_height' must be a positive number of metres")
@@ -111,7 +142,9 @@ def get_skeleton(name: str, extra_dirs: list[Path] | tuple[Path, ...] = ()) -> S
         raise SkeletonError(f"unknown affordance {name!r}; known: {', '.join(sorted(files)) or 'none'}")
     skeleton = load_skeleton(files[name])
     if skeleton.affordance != name:
-        raise SkeletonError(f"{files[name]}: file name says {name!r} but 'affordance' says {skeleton.affordance!r}")
+        raise SkeletonError(
+            f"{files[name]}: file name says {name!r} but 'affordance' says {skeleton.affordance!r}"
+        )
     return skeleton
 
 

@@ -29,7 +29,8 @@ MIN_SHARE = 0.10  # a recipe's "choose" rule only considers clusters holding at 
 _J = {name: i for i, name in enumerate(JOINTS)}
 _PAIRS = [  # (left bone, right bone) indices into BONES
     (BONES.index(bone), BONES.index(tuple(j.replace("L_", "R_") for j in bone)))
-    for bone in BONES if any(j.startswith("L_") for j in bone) and "R_HIP" not in bone
+    for bone in BONES
+    if any(j.startswith("L_") for j in bone) and "R_HIP" not in bone
 ]
 
 
@@ -113,7 +114,9 @@ def load_frames(path: str | Path, actions: set[str], trials: set[str]) -> Frames
         meta = data["meta"]
         rows = [r for r in meta if r["action"] in actions and f"e{r['trial']:02d}" in trials]
         if not rows:
-            raise ValueError(f"{path}: no sequences with actions {sorted(actions)} in trials {sorted(trials)}")
+            raise ValueError(
+                f"{path}: no sequences with actions {sorted(actions)} in trials {sorted(trials)}"
+            )
         joints = [data[f"{r['key']}_j15"].astype(np.float64) for r in rows]
     lengths = [len(j) for j in joints]
 
@@ -121,9 +124,13 @@ def load_frames(path: str | Path, actions: set[str], trials: set[str]) -> Frames
         return np.repeat(np.array(values), lengths)
 
     return Frames(
-        np.concatenate(joints), repeat([r["key"] for r in rows]), np.concatenate([np.arange(n) for n in lengths]),
-        repeat([r["action"] for r in rows]), repeat([int(r["subject"]) for r in rows]),
-        repeat([f"e{r['trial']:02d}" for r in rows]), np.ones(sum(lengths)),
+        np.concatenate(joints),
+        repeat([r["key"] for r in rows]),
+        np.concatenate([np.arange(n) for n in lengths]),
+        repeat([r["action"] for r in rows]),
+        repeat([int(r["subject"]) for r in rows]),
+        repeat([f"e{r['trial']:02d}" for r in rows]),
+        np.ones(sum(lengths)),
     )
 
 
@@ -162,12 +169,16 @@ def leg_angles(joints: np.ndarray) -> dict[str, np.ndarray]:
     signed in the sagittal plane (positive = knee forward, over 90 = knee above hip); 'knee' the inner angle
     hip-knee-foot (180 = straight); 'hip' the angle between the trunk (torso to neck) and the thigh (180 =
     standing straight, 90 = seated upright)."""
+
     def side(s):
         hip, knee, foot = (joints[:, _J[f"{s}_{j}"]] for j in ("HIP", "KNEE", "FOOT"))
         thigh = knee - hip
         trunk = joints[:, _J["NECK"]] - joints[:, _J["TORSO"]]
-        return {"thigh": np.degrees(np.arctan2(thigh[:, 0], -thigh[:, 2])),
-                "knee": _angle_deg(hip - knee, foot - knee), "hip": _angle_deg(trunk, thigh)}
+        return {
+            "thigh": np.degrees(np.arctan2(thigh[:, 0], -thigh[:, 2])),
+            "knee": _angle_deg(hip - knee, foot - knee),
+            "hip": _angle_deg(trunk, thigh),
+        }
 
     left, right = side("L"), side("R")
     return {name: np.stack([left[name], right[name]], axis=1) for name in left}
@@ -193,7 +204,9 @@ def filter_masks(frames: Frames, trials: dict) -> dict[str, np.ndarray]:
         left, right = np.array(_PAIRS).T
         pair_ratio = lengths[:, left] / lengths[:, right]
         twist = _angle_deg(*_plan_axes(joints))
-        symmetric = ((pair_ratio <= SYMMETRY) & (pair_ratio >= 1 / SYMMETRY)).all(axis=1) & (twist <= TWIST_DEG)
+        symmetric = ((pair_ratio <= SYMMETRY) & (pair_ratio >= 1 / SYMMETRY)).all(axis=1) & (
+            twist <= TWIST_DEG
+        )
         angles = leg_angles(canonicalise(joints))
     posture = np.zeros(len(frames), dtype=bool)
     for trial, bands in trials.items():
@@ -202,7 +215,12 @@ def filter_masks(frames: Frames, trials: dict) -> dict[str, np.ndarray]:
             low, high = bands[f"{name}_deg"]
             ok &= ((values >= low) & (values <= high)).all(axis=1)
         posture |= ok
-    return {"missing joints": complete, "bone lengths": bones, "left/right symmetry": symmetric, "leg angles": posture}
+    return {
+        "missing joints": complete,
+        "bone lengths": bones,
+        "left/right symmetry": symmetric,
+        "leg angles": posture,
+    }
 
 
 def subject_scales(frames: Frames, spec: dict) -> tuple[dict[int, float], float, float]:
@@ -215,7 +233,9 @@ def subject_scales(frames: Frames, spec: dict) -> tuple[dict[int, float], float,
     missing = sorted(set(frames.subject.tolist()) - set(standing.subject.tolist()))
     if missing:
         raise ValueError(f"subjects {missing} have no {spec['trial']} frames left to scale them by")
-    scales = {int(s): target / float(np.median(span[standing.subject == s])) for s in np.unique(frames.subject)}
+    scales = {
+        int(s): target / float(np.median(span[standing.subject == s])) for s in np.unique(frames.subject)
+    }
     return scales, target, float(np.median(span))
 
 
@@ -259,7 +279,7 @@ def choose_cluster(centres: np.ndarray, sizes: np.ndarray, recipe: dict, foot_cl
     if "hands_height" in recipe:
         score = np.abs(hands_height(centres, foot_clearance) - recipe["hands_height"])
     elif "choose" in recipe:
-        (order, measure), = recipe["choose"].items()
+        ((order, measure),) = recipe["choose"].items()
         score = MEASURES[measure](centres) * {"lowest": 1, "highest": -1}[order]
     else:
         return int(np.argmax(sizes))
@@ -298,7 +318,9 @@ def reach(joints: np.ndarray, height: float) -> tuple[np.ndarray, list[float]]:
         forearm = joints[hand] - elbow
         length, drop = float(np.linalg.norm(forearm)), height - elbow[2]
         if abs(drop) > length:
-            raise ValueError(f"the {side} hand cannot reach {height:+.2f} m from its elbow at {elbow[2]:+.2f} m")
+            raise ValueError(
+                f"the {side} hand cannot reach {height:+.2f} m from its elbow at {elbow[2]:+.2f} m"
+            )
         heading = _unit(forearm[:2]) if forearm[0] > 1e-6 else np.array([1.0, 0.0])
         out[hand] = elbow + np.append(heading * np.sqrt(length**2 - drop**2), drop)
         turns.append(float(_angle_deg(forearm, out[hand] - elbow)))
@@ -335,15 +357,26 @@ def _model(name: str, recipe: dict, group: Frames, body: np.ndarray, sources: di
     if "hands_height" in recipe:
         before = hands_height(joints, clearance)
         joints, turns = reach(joints, recipe["hands_height"] - torso_height)
-        adapted = (f"; the cluster with its hands closest to {recipe['hands_height']:.2f} m (the medoid's at "
-                   f"{before:.2f} m), adapted: forearms turned about the elbows by {turns[0]:.0f} and {turns[1]:.0f} "
-                   f"degrees (left, right) to put both hands at {recipe['hands_height']:.2f} m, bone lengths kept")
+        adapted = (
+            f"; the cluster with its hands closest to {recipe['hands_height']:.2f} m (the medoid's at "
+            f"{before:.2f} m), adapted: forearms turned about the elbows by {turns[0]:.0f} and {turns[1]:.0f} "
+            f"degrees (left, right) to put both hands at {recipe['hands_height']:.2f} m, bone lengths kept"
+        )
     frame = f"frame {group.index[pick]} of {group.sequence[pick]}"
-    source = (f"{sources['dataset']}, trial {recipe['trial']} ({', '.join(recipe['actions'])}): the pose (bone "
-              f"directions) of {frame}, the medoid of K-means cluster {chosen} ({sizes[chosen]} of {len(group)} "
-              f"filtered frames; K={fit.n_clusters} by silhouette), on {body_note}{adapted}")
-    info = {"frames": len(group), "k": fit.n_clusters, "silhouettes": scores, "sizes": sizes.tolist(),
-            "chosen": chosen, "medoid": frame, "forearm_turns": turns}
+    source = (
+        f"{sources['dataset']}, trial {recipe['trial']} ({', '.join(recipe['actions'])}): the pose (bone "
+        f"directions) of {frame}, the medoid of K-means cluster {chosen} ({sizes[chosen]} of {len(group)} "
+        f"filtered frames; K={fit.n_clusters} by silhouette), on {body_note}{adapted}"
+    )
+    info = {
+        "frames": len(group),
+        "k": fit.n_clusters,
+        "silhouettes": scores,
+        "sizes": sizes.tolist(),
+        "chosen": chosen,
+        "medoid": frame,
+        "forearm_turns": turns,
+    }
     skeleton = Skeleton(name, joints, float(torso_height), recipe["description"], source)
     return skeleton, info, group.joints[fit.labels_ == chosen]
 
@@ -352,20 +385,30 @@ def derive(data_path: str | Path | None = None, sources: dict | None = None) -> 
     """Derive one skeleton per affordance of the recipe from the real frames (deterministic)."""
     sources = sources or load_sources()
     recipes, spec = sources["affordances"], sources["scale"]
-    frames = load_frames(data_path or default_data_path(sources),
-                         {a for r in recipes.values() for a in r["actions"]}, set(sources["trials"]))
+    frames = load_frames(
+        data_path or default_data_path(sources),
+        {a for r in recipes.values() for a in r["actions"]},
+        set(sources["trials"]),
+    )
     frames, table = filter_frames(frames.with_joints(kinect_to_zup(frames.joints)), sources)
     frames = frames.with_joints(canonicalise(frames.joints))
     scales, target, median_span = subject_scales(frames, spec)
     frames = frames.with_scale(np.array([scales[s] for s in frames.subject.tolist()]))
     standing = frames.trial == spec["trial"]
     body = body_lengths(frames.joints[standing])
-    scale = {"target_span": target, "median_span": median_span, "factor": target / median_span,
-             "subject_min": min(scales.values()), "subject_max": max(scales.values()),
-             "body_frames": int(standing.sum())}
-    body_note = (f"a {spec['stature']:.2f} m adult body (median bone lengths of the {scale['body_frames']} filtered "
-                 f"{spec['trial']} frames, each subject scaled to a head-to-foot span of {target:.2f} m: "
-                 f"x{scale['subject_min']:.3f} to x{scale['subject_max']:.3f}, x{scale['factor']:.3f} at the median)")
+    scale = {
+        "target_span": target,
+        "median_span": median_span,
+        "factor": target / median_span,
+        "subject_min": min(scales.values()),
+        "subject_max": max(scales.values()),
+        "body_frames": int(standing.sum()),
+    }
+    body_note = (
+        f"a {spec['stature']:.2f} m adult body (median bone lengths of the {scale['body_frames']} filtered "
+        f"{spec['trial']} frames, each subject scaled to a head-to-foot span of {target:.2f} m: "
+        f"x{scale['subject_min']:.3f} to x{scale['subject_max']:.3f}, x{scale['factor']:.3f} at the median)"
+    )
 
     skeletons, clusters, members = [], {}, {}
     for name, recipe in recipes.items():
@@ -377,10 +420,18 @@ def derive(data_path: str | Path | None = None, sources: dict | None = None) -> 
 
 def skeleton_json(skeleton: Skeleton) -> str:
     """The file text of one skeleton, one joint per line, millimetre rounding."""
-    header = {"format": FORMAT, "affordance": skeleton.affordance, "description": skeleton.description,
-              "frame": FRAME, "torso_height": round(skeleton.torso_height, 3), "source": skeleton.source}
-    rows = [f'  "{name}": [{", ".join(f"{round(v, 3) + 0.0:.3f}" for v in xyz)}]'
-            for name, xyz in zip(JOINTS, skeleton.joints)]
+    header = {
+        "format": FORMAT,
+        "affordance": skeleton.affordance,
+        "description": skeleton.description,
+        "frame": FRAME,
+        "torso_height": round(skeleton.torso_height, 3),
+        "source": skeleton.source,
+    }
+    rows = [
+        f'  "{name}": [{", ".join(f"{round(v, 3) + 0.0:.3f}" for v in xyz)}]'
+        for name, xyz in zip(JOINTS, skeleton.joints)
+    ]
     return json.dumps(header, indent=1)[:-2] + ',\n "joints": {\n' + ",\n".join(rows) + "\n }\n}\n"
 
 

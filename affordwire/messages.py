@@ -13,9 +13,10 @@ import time
 
 import numpy as np
 
-from .proto import geometry_pb2, maps_pb2, sensing_pb2, service_pb2
 from affordcore.depth import DepthImage
 from affordcore.skeleton import JOINTS
+
+from .proto import geometry_pb2, maps_pb2, sensing_pb2, service_pb2
 
 Scan = sensing_pb2.Scan
 DepthFrame = sensing_pb2.DepthFrame
@@ -29,13 +30,21 @@ Error = service_pb2.Error
 WORLD = "world"
 _Field = geometry_pb2.PackedElementField
 _NUMPY_TYPES = {
-    _Field.UINT8: "u1", _Field.INT8: "i1", _Field.UINT16: "<u2", _Field.INT16: "<i2",
-    _Field.UINT32: "<u4", _Field.INT32: "<i4", _Field.FLOAT32: "<f4", _Field.FLOAT64: "<f8",
+    _Field.UINT8: "u1",
+    _Field.INT8: "i1",
+    _Field.UINT16: "<u2",
+    _Field.INT16: "<i2",
+    _Field.UINT32: "<u4",
+    _Field.INT32: "<i4",
+    _Field.FLOAT32: "<f4",
+    _Field.FLOAT64: "<f8",
 }
 
 
-MESSAGE_CLASSES = {cls.DESCRIPTOR.full_name: cls for cls in (
-    Scan, DepthFrame, CloudMessage, Pose, SceneFieldsMessage, AffordanceMapMessage, Status, Error)}  # by schema name
+MESSAGE_CLASSES = {
+    cls.DESCRIPTOR.full_name: cls
+    for cls in (Scan, DepthFrame, CloudMessage, Pose, SceneFieldsMessage, AffordanceMapMessage, Status, Error)
+}  # by schema name
 
 
 class MessageError(ValueError):
@@ -55,11 +64,14 @@ def parse(message_class, payload: bytes):
     try:
         message.ParseFromString(payload)
     except DecodeError as error:
-        raise MessageError(f"payload of {len(payload)} bytes is not a valid {schema_name(message_class)}: {error}") from None
+        raise MessageError(
+            f"payload of {len(payload)} bytes is not a valid {schema_name(message_class)}: {error}"
+        ) from None
     return message
 
 
 # -- time and poses ------------------------------------------------------------------------------------------
+
 
 def stamp(message_timestamp, seconds: float | None = None) -> None:
     """Set a google.protobuf.Timestamp to `seconds` since the epoch (now by default)."""
@@ -79,7 +91,12 @@ def set_pose(pose, matrix: np.ndarray, frame_id: str, child_frame_id: str, at: f
     pose.frame_id, pose.child_frame_id = frame_id, child_frame_id
     pose.position.x, pose.position.y, pose.position.z = (float(v) for v in matrix[:3, 3])
     x, y, z, w = Rotation.from_matrix(matrix[:3, :3]).as_quat()
-    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = float(x), float(y), float(z), float(w)
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (
+        float(x),
+        float(y),
+        float(z),
+        float(w),
+    )
 
 
 def pose_matrix(pose) -> np.ndarray:
@@ -118,6 +135,7 @@ def gravity_of(message) -> np.ndarray | None:
 
 # -- packed points -------------------------------------------------------------------------------------------
 
+
 def pack_points(message, points: np.ndarray, times: np.ndarray | None = None) -> None:
     """Fill the fields/point_stride/data of a Scan or Cloud with float32 x, y, z (and t)."""
     columns = [np.asarray(points, dtype="<f4")]
@@ -138,7 +156,9 @@ def unpack_points(message) -> tuple[np.ndarray, np.ndarray | None]:
     fields = {field.name: field for field in message.fields}
     missing = [name for name in "xyz" if name not in fields]
     if missing:
-        raise MessageError(f"points need fields x, y, z; missing {', '.join(missing)} (has {', '.join(fields) or 'none'})")
+        raise MessageError(
+            f"points need fields x, y, z; missing {', '.join(missing)} (has {', '.join(fields) or 'none'})"
+        )
     stride = message.point_stride
     if stride == 0:
         raise MessageError("point_stride is 0")
@@ -153,11 +173,26 @@ def unpack_points(message) -> tuple[np.ndarray, np.ndarray | None]:
             raise MessageError(f"field {name} has no numeric type")
         numpy_type = np.dtype(_NUMPY_TYPES[field.type])
         if field.offset + numpy_type.itemsize > stride:
-            raise MessageError(f"field {name} (offset {field.offset}, {numpy_type.itemsize} bytes) runs past the {stride}-byte point")
+            raise MessageError(
+                f"field {name} (offset {field.offset}, {numpy_type.itemsize} bytes) runs past the {stride}-byte point"
+            )
         dtype[name] = (numpy_type, field.offset)
-    records = np.frombuffer(message.data, dtype=np.dtype({"names": list(dtype), "formats": [t for t, _ in dtype.values()],
-                                                          "offsets": [o for _, o in dtype.values()], "itemsize": stride}))
-    points = np.column_stack([records[name].astype(np.float64) for name in "xyz"]) if len(records) else np.empty((0, 3))
+    records = np.frombuffer(
+        message.data,
+        dtype=np.dtype(
+            {
+                "names": list(dtype),
+                "formats": [t for t, _ in dtype.values()],
+                "offsets": [o for _, o in dtype.values()],
+                "itemsize": stride,
+            }
+        ),
+    )
+    points = (
+        np.column_stack([records[name].astype(np.float64) for name in "xyz"])
+        if len(records)
+        else np.empty((0, 3))
+    )
     finite = np.isfinite(points).all(axis=1)
     times = records["t"].astype(np.float64)[finite] if "t" in dtype else None
     return points[finite], times
@@ -165,14 +200,27 @@ def unpack_points(message) -> tuple[np.ndarray, np.ndarray | None]:
 
 # -- depth frames --------------------------------------------------------------------------------------------
 
-def depth_frame_message(depth: np.ndarray, intrinsics: np.ndarray, depth_scale: float = 0.001, frame_id: str = "camera",
-                        invalid_value: int = 65535, at: float | None = None) -> DepthFrame:
+
+def depth_frame_message(
+    depth: np.ndarray,
+    intrinsics: np.ndarray,
+    depth_scale: float = 0.001,
+    frame_id: str = "camera",
+    invalid_value: int = 65535,
+    at: float | None = None,
+) -> DepthFrame:
     """A DepthFrame from a 16-bit depth image and a 3 x 3 pinhole matrix."""
     depth = np.asarray(depth)
     if depth.ndim != 2 or depth.dtype != np.uint16:
         raise MessageError(f"a depth image must be 2-D uint16, got {depth.dtype} of shape {depth.shape}")
-    message = DepthFrame(frame_id=frame_id, width=depth.shape[1], height=depth.shape[0], depth=depth.astype("<u2").tobytes(),
-                         depth_scale=depth_scale, invalid_value=invalid_value)
+    message = DepthFrame(
+        frame_id=frame_id,
+        width=depth.shape[1],
+        height=depth.shape[0],
+        depth=depth.astype("<u2").tobytes(),
+        depth_scale=depth_scale,
+        invalid_value=invalid_value,
+    )
     message.intrinsics.fx, message.intrinsics.fy = float(intrinsics[0, 0]), float(intrinsics[1, 1])
     message.intrinsics.cx, message.intrinsics.cy = float(intrinsics[0, 2]), float(intrinsics[1, 2])
     stamp(message.timestamp, at)
@@ -185,7 +233,9 @@ def depth_image(message: DepthFrame) -> DepthImage:
     if width == 0 or height == 0:
         raise MessageError(f"depth image is {width} x {height}")
     if len(message.depth) != 2 * width * height:
-        raise MessageError(f"depth holds {len(message.depth)} bytes; a {width} x {height} 16-bit image needs {2 * width * height}")
+        raise MessageError(
+            f"depth holds {len(message.depth)} bytes; a {width} x {height} 16-bit image needs {2 * width * height}"
+        )
     k = message.intrinsics
     if not (k.fx > 0 and k.fy > 0) or not np.isfinite([k.fx, k.fy, k.cx, k.cy]).all():
         raise MessageError(f"intrinsics fx={k.fx}, fy={k.fy} must be positive focal lengths in pixels")
@@ -198,8 +248,10 @@ def depth_image(message: DepthFrame) -> DepthImage:
 
 # -- clouds, fields, maps ------------------------------------------------------------------------------------
 
-def cloud_message(points: np.ndarray, world_from_input: np.ndarray, source: str, frames: int = 0,
-                  at: float | None = None) -> CloudMessage:
+
+def cloud_message(
+    points: np.ndarray, world_from_input: np.ndarray, source: str, frames: int = 0, at: float | None = None
+) -> CloudMessage:
     message = CloudMessage(frame_id=WORLD, frames=frames, source=source)
     pack_points(message, points)
     set_pose(message.world_from_input, world_from_input, WORLD, "input", at)
@@ -210,8 +262,10 @@ def cloud_message(points: np.ndarray, world_from_input: np.ndarray, source: str,
 def cloud_points(message: CloudMessage) -> np.ndarray:
     """The world-frame points of a map Cloud; a cloud in another frame, or with no points, is refused."""
     if message.frame_id != WORLD:
-        raise MessageError(f"map clouds must be in the {WORLD!r} frame (gravity-aligned, z up, floor at 0), not {message.frame_id!r}; "
-                           "`afford publish --as-map` aligns a file before sending it")
+        raise MessageError(
+            f"map clouds must be in the {WORLD!r} frame (gravity-aligned, z up, floor at 0), not {message.frame_id!r}; "
+            "`afford publish --as-map` aligns a file before sending it"
+        )
     points, _ = unpack_points(message)
     if len(points) < 100:
         raise MessageError(f"the map has {len(points)} finite points; at least 100 are needed")
@@ -246,7 +300,9 @@ def scene_fields(message: SceneFieldsMessage):
         raise MessageError(f"voxel grid {shape} at resolution {grid.resolution} is empty")
     for name, itemsize in (("occupancy", 1), ("distance", 4), ("normals", 12)):
         if len(getattr(message, name)) != n * itemsize:
-            raise MessageError(f"{name} holds {len(getattr(message, name))} bytes; a {shape} grid needs {n * itemsize}")
+            raise MessageError(
+                f"{name} holds {len(getattr(message, name))} bytes; a {shape} grid needs {n * itemsize}"
+            )
     lattice = VoxelLattice(np.array([grid.origin.x, grid.origin.y, grid.origin.z]), grid.resolution, shape)
     occupancy = np.frombuffer(message.occupancy, dtype=np.uint8).reshape(shape).astype(np.float32)
     distance = np.frombuffer(message.distance, dtype="<f4").reshape(shape)
@@ -257,20 +313,33 @@ def scene_fields(message: SceneFieldsMessage):
     return SceneFields(lattice, occupancy, distance, normals, footprint)
 
 
-def map_message(amap, model_id: str, fields: SceneFieldsMessage, at: float | None = None) -> AffordanceMapMessage:
+def map_message(
+    amap, model_id: str, fields: SceneFieldsMessage, at: float | None = None
+) -> AffordanceMapMessage:
     """An AffordanceMap message of a map computed from `fields` (whose frame, cloud time and count it carries on)."""
     grid = amap.grid.as_dict()
     message = AffordanceMapMessage(
-        frame_id=WORLD, affordance=amap.affordance, model=model_id, threshold=amap.threshold,
+        frame_id=WORLD,
+        affordance=amap.affordance,
+        model=model_id,
+        threshold=amap.threshold,
         positives=np.ascontiguousarray(amap.positives, dtype="<f4").tobytes(),
         confidence=np.ascontiguousarray(amap.confidence, dtype="<f4").tobytes(),
     )
     spec = message.grid
-    spec.x0, spec.y0, spec.step, spec.nx, spec.ny = grid["x0"], grid["y0"], grid["step"], grid["nx"], grid["ny"]
+    spec.x0, spec.y0, spec.step, spec.nx, spec.ny = (
+        grid["x0"],
+        grid["y0"],
+        grid["step"],
+        grid["nx"],
+        grid["ny"],
+    )
     spec.z.extend(grid["z"])
     spec.theta_step, spec.n_theta = grid["theta_step"], grid["n_theta"]
     for row, joints in zip(amap.skeletons, amap.joints):
-        message.skeletons.add(x=row[0], y=row[1], z=row[2], theta=row[3], score=row[4], joints=np.ravel(joints).tolist())
+        message.skeletons.add(
+            x=row[0], y=row[1], z=row[2], theta=row[3], score=row[4], joints=np.ravel(joints).tolist()
+        )
     _carry_source(message, fields.world_from_input, fields.cloud_timestamp, fields.frames, at)
     return message
 
@@ -297,9 +366,13 @@ def map_arrays(message: AffordanceMapMessage) -> dict[str, np.ndarray]:
     """skeletons (k, 5), joints (k, 15, 3), positives (n, 5) and confidence (nx, ny) of a map message."""
     spec = message.grid
     if len(message.confidence) != 4 * spec.nx * spec.ny:
-        raise MessageError(f"confidence holds {len(message.confidence)} bytes; a {spec.nx} x {spec.ny} grid needs {4 * spec.nx * spec.ny}")
+        raise MessageError(
+            f"confidence holds {len(message.confidence)} bytes; a {spec.nx} x {spec.ny} grid needs {4 * spec.nx * spec.ny}"
+        )
     if len(message.positives) % 20:
-        raise MessageError(f"positives hold {len(message.positives)} bytes, not a whole number of 5-float rows")
+        raise MessageError(
+            f"positives hold {len(message.positives)} bytes, not a whole number of 5-float rows"
+        )
     rows = [(s.x, s.y, s.z, s.theta, s.score) for s in message.skeletons]
     joints = [np.array(s.joints, dtype=np.float64) for s in message.skeletons]
     if any(j.size != 3 * len(JOINTS) for j in joints):
@@ -317,5 +390,13 @@ def map_document_of(message: AffordanceMapMessage) -> dict:
     from affordcore.maps import map_document
 
     arrays = map_arrays(message)
-    return map_document(message.affordance, message.model, message.threshold, map_grid(message).as_dict(),
-                        arrays["skeletons"], arrays["joints"], arrays["positives"], pose_matrix(message.world_from_input))
+    return map_document(
+        message.affordance,
+        message.model,
+        message.threshold,
+        map_grid(message).as_dict(),
+        arrays["skeletons"],
+        arrays["joints"],
+        arrays["positives"],
+        pose_matrix(message.world_from_input),
+    )

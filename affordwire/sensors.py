@@ -45,6 +45,8 @@ def decode_sensor(schema: str, payload: bytes) -> SensorFrame:
     knows it or the message is unusable."""
     decoder = SENSOR_DECODERS.get(schema)
     if decoder is None:
-        raise messages.MessageError(f"expected encoding application/protobuf with schema {' or '.join(SENSOR_DECODERS)}, "
-                                    f"got schema {schema or 'none'!r}")
+        raise messages.MessageError(
+            f"expected encoding application/protobuf with schema {' or '.join(SENSOR_DECODERS)}, "
+            f"got schema {schema or 'none'!r}"
+        )
     return decoder(payload)

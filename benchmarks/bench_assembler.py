@@ -3,8 +3,8 @@ is from the ground truth.
 
 Microsoft 7-Scenes redkitchen, frames 0 to 299 (Kinect v1, 640 x 480, a 2.11 m hand-held path; in
 ../shared/data/sequences/). Every frame is decoded and back-projected before anything is timed: by
-`depth_block_points` with the assembler's pixel step and range (the mean of each 2 x 2 block of pixels), and,
-for the rows that say so, by `messages.depth_points` (every 2nd pixel, what the service does today).
+`affordcore.depth.back_project` with the assembler's pixel step and range (the mean of each 2 x 2 block of
+pixels, what the service does), and, for the rows that say so, every 2nd pixel (`every_nth_pixel`).
 
 Cost, side by side in one run on the same points: bare KISS-ICP (`KissICP(KISSConfig)` with the assembler's
 range and voxel, deskew off, `register_frame` only) against `Assembler.register` (the same registration, plus
@@ -39,14 +39,28 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from affordcore.assembly import Assembler, depth_block_points, trajectory_errors  # noqa: E402
+from affordcore.assembly import Assembler, trajectory_errors  # noqa: E402
+from affordcore.depth import DepthImage, back_project  # noqa: E402
 from affordcore.gravity import align_to_gravity  # noqa: E402
-from affordwire.messages import depth_frame_message, depth_points  # noqa: E402
 from affordcore.sequence import INVALID_DEPTH, read_sequence  # noqa: E402
 from affordcore.settings import AssemblerSettings, GravitySettings  # noqa: E402
 
-SEQUENCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "sequences" / "7scenes_redkitchen_frames_000000-000299"
+SEQUENCE = (
+    Path(__file__).resolve().parents[2]
+    / "shared"
+    / "data"
+    / "sequences"
+    / "7scenes_redkitchen_frames_000000-000299"
+)
 GROUND_TRUTH_JUMP = 122  # the first frame after the ground truth's unsupported 3.5 cm step (see above)
+
+
+def every_nth_pixel(image: DepthImage, n: int, min_range: float, max_range: float) -> np.ndarray:
+    """Every n-th pixel in each direction, as it is: blocks of one pixel on the strided image, whose pinhole
+    is the original's scaled by 1/n (pixel u*n of the original is pixel u of the strided one)."""
+    scale = np.diag([1 / n, 1 / n, 1.0])
+    strided = DepthImage(image.pixels[::n, ::n], scale @ image.intrinsics, image.scale, image.invalid_value)
+    return back_project(strided, 1, min_range, max_range)
 
 
 def load_frames(folder: Path, frames: int, settings: AssemblerSettings) -> dict:
@@ -55,18 +69,22 @@ def load_frames(folder: Path, frames: int, settings: AssemblerSettings) -> dict:
     sequence = read_sequence(folder)
     loaded = {"blocks": [], "pixels": [], "pixels 0-4 m": [], "gravity": [], "truth": []}
     for index in range(min(frames, len(sequence.frames))):
-        depth = sequence.depth(index)
-        loaded["blocks"].append(depth_block_points(depth, sequence.intrinsics, settings.pixel_step, settings.min_range,
-                                                   settings.max_range, invalid_value=INVALID_DEPTH))
-        message = depth_frame_message(depth, sequence.intrinsics, invalid_value=INVALID_DEPTH)
-        loaded["pixels"].append(depth_points(message, settings.pixel_step, settings.min_range, settings.max_range))
-        loaded["pixels 0-4 m"].append(depth_points(message, 2, 0.0, 4.0))
+        image = DepthImage(sequence.depth(index), sequence.intrinsics, invalid_value=INVALID_DEPTH)
+        loaded["blocks"].append(
+            back_project(image, settings.pixel_step, settings.min_range, settings.max_range)
+        )
+        loaded["pixels"].append(
+            every_nth_pixel(image, settings.pixel_step, settings.min_range, settings.max_range)
+        )
+        loaded["pixels 0-4 m"].append(every_nth_pixel(image, 2, 0.0, 4.0))
         loaded["gravity"].append(sequence.gravity(index))
         loaded["truth"].append(sequence.pose(index))
     return loaded
 
 
-def run_bare(points: list[np.ndarray], max_range: float, min_range: float, voxel_size: float) -> tuple[list[np.ndarray], list[float]]:
+def run_bare(
+    points: list[np.ndarray], max_range: float, min_range: float, voxel_size: float
+) -> tuple[list[np.ndarray], list[float]]:
     from kiss_icp.config import KISSConfig
     from kiss_icp.kiss_icp import KissICP
 
@@ -83,7 +101,9 @@ def run_bare(points: list[np.ndarray], max_range: float, min_range: float, voxel
     return poses, seconds
 
 
-def run_assembler(points: list[np.ndarray], gravity: list, settings: AssemblerSettings) -> tuple[list[np.ndarray], list[float], Assembler]:
+def run_assembler(
+    points: list[np.ndarray], gravity: list, settings: AssemblerSettings
+) -> tuple[list[np.ndarray], list[float], Assembler]:
     assembler = Assembler(settings)
     poses, seconds = [], []
     for index, (frame, down) in enumerate(zip(points, gravity)):
@@ -95,8 +115,10 @@ def run_assembler(points: list[np.ndarray], gravity: list, settings: AssemblerSe
 
 def error_row(name: str, poses: list[np.ndarray], truth: list[np.ndarray], ms: float) -> str:
     e = trajectory_errors(poses, truth)
-    return (f"| {name} | {e['frames']} | {e['path_m']:.2f} | {100 * e['mean_m']:.1f} | {100 * e['worst_m']:.1f} | "
-            f"{e['final_rotation_deg']:.2f} | {ms:.0f} |")
+    return (
+        f"| {name} | {e['frames']} | {e['path_m']:.2f} | {100 * e['mean_m']:.1f} | {100 * e['worst_m']:.1f} | "
+        f"{e['final_rotation_deg']:.2f} | {ms:.0f} |"
+    )
 
 
 def split_row(name: str, poses: list[np.ndarray], truth: list[np.ndarray]) -> str:
@@ -129,7 +151,7 @@ def main() -> None:
     for repeat in range(args.repeats):
         cpu_start, wall_start = time.process_time(), time.perf_counter()
         runs = {}
-        for which in (("bare", "ours") if repeat % 2 == 0 else ("ours", "bare")):
+        for which in ("bare", "ours") if repeat % 2 == 0 else ("ours", "bare"):
             if which == "bare":
                 runs["bare"] = run_bare(points, settings.max_range, settings.min_range, settings.voxel_size)
             else:
@@ -152,34 +174,58 @@ def main() -> None:
             pass
         auto.append(time.perf_counter() - start)
 
-    print(f"7-Scenes redkitchen, {len(points)} frames, {statistics.mean(len(p) for p in points):,.0f} points a frame "
-          f"({settings.pixel_step} x {settings.pixel_step} block means, {settings.min_range:g}-{settings.max_range:g} m), "
-          f"{os.cpu_count()} cores, {args.repeats} repeats, cpu/wall {min(cpu):.2f}-{max(cpu):.2f} (2.0 would be both cores busy)")
+    print(
+        f"7-Scenes redkitchen, {len(points)} frames, {statistics.mean(len(p) for p in points):,.0f} points a frame "
+        f"({settings.pixel_step} x {settings.pixel_step} block means, {settings.min_range:g}-{settings.max_range:g} m), "
+        f"{os.cpu_count()} cores, {args.repeats} repeats, cpu/wall {min(cpu):.2f}-{max(cpu):.2f} (2.0 would be both cores busy)"
+    )
     print(f"assembler defaults: {', '.join(f'{k} {v:g}' for k, v in settings.model_dump().items())}\n")
     print("| per frame (median over the frames, then over the repeats) | ms |\n|---|---:|")
-    print(f"| bare KISS-ICP (voxel {settings.voxel_size:g} m, register_frame) | {statistics.median(bare_ms):.1f} |")
+    print(
+        f"| bare KISS-ICP (voxel {settings.voxel_size:g} m, register_frame) | {statistics.median(bare_ms):.1f} |"
+    )
     print(f"| Assembler.register (KISS-ICP + global map + keyframes) | {statistics.median(ours_ms):.1f} |")
     print(f"| ratio assembler / bare | {statistics.median(ratio):.2f} |")
-    print(f"| Assembler.aligned_map() at the end, gravity from the frames ({len(map_points):,} points, "
-          f"{assembler.keyframes} keyframes of {assembler.frames} frames) | {1000 * statistics.median(with_gravity):.0f} |")
-    print(f"| the same alignment without gravity (floor search over the candidate axes) | {1000 * statistics.median(auto):.0f} |")
-    print(f"\npeak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:,.0f} MB (the whole process; "
-          f"{loaded_mb:,.0f} MB once the frames were loaded)\n")
+    print(
+        f"| Assembler.aligned_map() at the end, gravity from the frames ({len(map_points):,} points, "
+        f"{assembler.keyframes} keyframes of {assembler.frames} frames) | {1000 * statistics.median(with_gravity):.0f} |"
+    )
+    print(
+        f"| the same alignment without gravity (floor search over the candidate axes) | {1000 * statistics.median(auto):.0f} |"
+    )
+    print(
+        f"\npeak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:,.0f} MB (the whole process; "
+        f"{loaded_mb:,.0f} MB once the frames were loaded)\n"
+    )
 
     default_poses, default_seconds = run_bare(frames["pixels 0-4 m"], 4.0, 0.0, 0.04)
     pixel_poses, pixel_seconds, _ = run_assembler(frames["pixels"], frames["gravity"], settings)
     rows = [
-        ("bare KISS-ICP, KISSConfig defaults, every 2nd pixel", default_poses, 1000 * statistics.median(default_seconds)),
-        (f"bare KISS-ICP, voxel {settings.voxel_size:g}, block means", bare_poses, statistics.median(bare_ms)),
-        ("assembler defaults, every 2nd pixel (messages.depth_points)", pixel_poses, 1000 * statistics.median(pixel_seconds)),
-        ("assembler defaults, block means (depth_block_points)", ours_poses, statistics.median(ours_ms)),
+        (
+            "bare KISS-ICP, KISSConfig defaults, every 2nd pixel",
+            default_poses,
+            1000 * statistics.median(default_seconds),
+        ),
+        (
+            f"bare KISS-ICP, voxel {settings.voxel_size:g}, block means",
+            bare_poses,
+            statistics.median(bare_ms),
+        ),
+        ("assembler defaults, every 2nd pixel", pixel_poses, 1000 * statistics.median(pixel_seconds)),
+        ("assembler defaults, block means (back_project)", ours_poses, statistics.median(ours_ms)),
     ]
-    print("| trajectory | frames | path (m) | mean (cm) | worst (cm) | final rotation (deg) | ms/frame |\n|---|---:|---:|---:|---:|---:|---:|")
+    print(
+        "| trajectory | frames | path (m) | mean (cm) | worst (cm) | final rotation (deg) | ms/frame |\n|---|---:|---:|---:|---:|---:|---:|"
+    )
     for name, poses, ms in rows:
         print(error_row(name, poses, truth, ms))
-    print(f"\nThe same trajectories, the ground truth split at its jump: frames 0-{min(GROUND_TRUTH_JUMP, len(truth)) - 1} "
-          f"and {GROUND_TRUTH_JUMP}-{len(truth) - 1}, each anchored at its own first frame")
-    print("| trajectory | mean (cm) | worst (cm) | final rot. (deg) | mean (cm) | worst (cm) | final rot. (deg) |\n|---|---:|---:|---:|---:|---:|---:|")
+    print(
+        f"\nThe same trajectories, the ground truth split at its jump: frames 0-{min(GROUND_TRUTH_JUMP, len(truth)) - 1} "
+        f"and {GROUND_TRUTH_JUMP}-{len(truth) - 1}, each anchored at its own first frame"
+    )
+    print(
+        "| trajectory | mean (cm) | worst (cm) | final rot. (deg) | mean (cm) | worst (cm) | final rot. (deg) |\n|---|---:|---:|---:|---:|---:|---:|"
+    )
     for name, poses, _ in rows:
         print(split_row(name, poses, truth))
 

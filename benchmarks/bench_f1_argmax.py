@@ -36,7 +36,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
     sizes = [10_000, 100_000] if args.quick else [10_000, 100_000, 300_000, 1_300_000]
-    pair_limit = 2e8 if args.quick else 1e9  # positives x negatives the double loop is given (it takes ~4 s per 1e9)
+    pair_limit = (
+        2e8 if args.quick else 1e9
+    )  # positives x negatives the double loop is given (it takes ~4 s per 1e9)
     print(f"F1 argmax, {os.cpu_count()} cores, numpy {np.__version__}, median of {args.repeats}")
     print(f"{'n':>10} {'ratio':>8} {'positives':>10} {'sweep s':>9} {'double s':>9} {'double/sweep':>13}")
     rng = np.random.default_rng(0)
@@ -52,7 +54,9 @@ def main() -> None:
                 shown = f"{double:>9.4f} {double / sweep:>12.0f}x"
             else:
                 shown = f"{'-':>9} {'-':>13}"
-            print(f"{n:>10,} {'1:' + format(ratio, ','):>8} {int((labels > 0).sum()):>10,} {sweep:>9.4f} {shown}")
+            print(
+                f"{n:>10,} {'1:' + format(ratio, ','):>8} {int((labels > 0).sum()):>10,} {sweep:>9.4f} {shown}"
+            )
     print("The sweep's cost is the sort (n log n); the double loop's grows with positives x negatives.")
 
 

@@ -72,8 +72,12 @@ PAPER, TINY = "10 cm cells", "1 cell (joints)"
 # Furniture in its own frame (x along its length, z up): lists of (low, high) boxes, metres.
 _LEGS = [((x - 0.03, y - 0.03, 0.0), (x + 0.03, y + 0.03, 0.71)) for x in (-0.65, 0.65) for y in (-0.3, 0.3)]
 FURNITURE = {
-    "sofa": [((-1.0, -0.45, 0.0), (1.0, 0.45, 0.42)), ((-1.0, 0.2, 0.42), (1.0, 0.45, 0.85)),
-             ((-1.2, -0.45, 0.0), (-1.0, 0.45, 0.62)), ((1.0, -0.45, 0.0), (1.2, 0.45, 0.62))],
+    "sofa": [
+        ((-1.0, -0.45, 0.0), (1.0, 0.45, 0.42)),
+        ((-1.0, 0.2, 0.42), (1.0, 0.45, 0.85)),
+        ((-1.2, -0.45, 0.0), (-1.0, 0.45, 0.62)),
+        ((1.0, -0.45, 0.0), (1.2, 0.45, 0.62)),
+    ],
     "table": [((-0.6, -0.4, 0.71), (0.6, 0.4, 0.75)), ((-0.1, -0.1, 0.0), (0.1, 0.1, 0.71))],
     "desk": [((-0.7, -0.375, 0.71), (0.7, 0.375, 0.75)), ((-0.2, 0.25, 0.75), (0.2, 0.3, 1.1)), *_LEGS],
     "counter": [((-1.2, -0.3, 0.0), (1.2, 0.3, 0.92)), ((-1.2, -0.32, 0.92), (1.2, 0.32, 0.95))],
@@ -110,9 +114,11 @@ def room_boxes(side: float, rng: np.random.Generator) -> list[tuple[np.ndarray, 
     lo, hi, wall, door = INSET, side - INSET, 0.1, (side / 2 - 0.45, side / 2 + 0.45)
     boxes = [
         ((lo, lo, 0.0), (hi, hi, 0.0)),
-        ((lo, lo, 0.0), (hi, lo + wall, 2.5)), ((lo, hi - wall, 0.0), (hi, hi, 2.5)),
+        ((lo, lo, 0.0), (hi, lo + wall, 2.5)),
+        ((lo, hi - wall, 0.0), (hi, hi, 2.5)),
         ((lo, lo, 0.0), (lo + wall, hi, 2.5)),
-        ((hi - wall, lo, 0.0), (hi, door[0], 2.5)), ((hi - wall, door[1], 0.0), (hi, hi, 2.5)),
+        ((hi - wall, lo, 0.0), (hi, door[0], 2.5)),
+        ((hi - wall, door[1], 0.0), (hi, hi, 2.5)),
         ((hi - wall, door[0], 2.05), (hi, door[1], 2.5)),
     ]
     slots = max(1, round(side / 2.5))
@@ -256,8 +262,10 @@ def fmt(value) -> str:
 def table(title: str, headers: list[str], rows: list[list]) -> None:
     cells = [headers] + [[fmt(v) for v in row] for row in rows]
     widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
-    lines = ["  ".join(v.ljust(w) if i == 0 else v.rjust(w) for i, (v, w) in enumerate(zip(r, widths)))
-             for r in cells]
+    lines = [
+        "  ".join(v.ljust(w) if i == 0 else v.rjust(w) for i, (v, w) in enumerate(zip(r, widths)))
+        for r in cells
+    ]
     print("\n".join([f"\n{title}", lines[0], "  ".join("-" * w for w in widths), *lines[1:]]))
 
 
@@ -293,13 +301,38 @@ def throughput(room: Room, skeleton: Skeleton, repeats: int, keep: np.ndarray) -
         seconds, cpu_seconds, kept = time_features(room, skeleton, layout, repeats, keep)
         memory = peak_memory(room, skeleton, layout)
         results[label] = Measured(seconds, cpu_seconds, kept, *memory, room.grid.size)
-    table(f"1. iter_features(reuse_buffer=True) over all {room.grid.size:,} poses",
-          ["layout", "features", "poses/s", "s", "min-max s", "cpu/wall", "poses/cpu-s", "out GB/s",
-           "base MB", "peak MB", "+MB"],
-          [[label, LAYOUTS[label].n_features, m.speed, m.median, f"{m.seconds[0]:.2f}-{m.seconds[-1]:.2f}",
-            f"{m.cpu_share:.0%}", m.cpu_speed,
-            m.speed * LAYOUTS[label].n_features * 4 / 1e9, m.base_mb, m.peak_mb, m.peak_mb - m.base_mb]
-           for label, m in results.items()])
+    table(
+        f"1. iter_features(reuse_buffer=True) over all {room.grid.size:,} poses",
+        [
+            "layout",
+            "features",
+            "poses/s",
+            "s",
+            "min-max s",
+            "cpu/wall",
+            "poses/cpu-s",
+            "out GB/s",
+            "base MB",
+            "peak MB",
+            "+MB",
+        ],
+        [
+            [
+                label,
+                LAYOUTS[label].n_features,
+                m.speed,
+                m.median,
+                f"{m.seconds[0]:.2f}-{m.seconds[-1]:.2f}",
+                f"{m.cpu_share:.0%}",
+                m.cpu_speed,
+                m.speed * LAYOUTS[label].n_features * 4 / 1e9,
+                m.base_mb,
+                m.peak_mb,
+                m.peak_mb - m.base_mb,
+            ]
+            for label, m in results.items()
+        ],
+    )
     return results
 
 
@@ -310,8 +343,11 @@ def reference(room: Room, skeleton: Skeleton, poses: np.ndarray, results: dict[s
         fast = results[label].speed
         ratios[label] = fast / naive_speed
         rows.append([label, len(poses), naive_speed, fast, f"{ratios[label]:,.0f}x", f"{diff:.1e}"])
-    table(f"2. Naive per-pose Python reference on {len(poses)} random poses (values asserted equal)",
-          ["layout", "poses", "naive poses/s", "fast poses/s", "fast/naive", "max |diff|"], rows)
+    table(
+        f"2. Naive per-pose Python reference on {len(poses)} random poses (values asserted equal)",
+        ["layout", "poses", "naive poses/s", "fast poses/s", "fast/naive", "max |diff|"],
+        rows,
+    )
     return ratios
 
 
@@ -329,11 +365,32 @@ def scaling(room: Room, main: Measured, sides, skeleton: Skeleton, settings: Set
         cpu_per_m.append(cpu_seconds / len(seconds) / other.grid.size * 1e6)
         cpu_share = f"{cpu_seconds / sum(seconds):.0%}"
         fields_share = f"{other.prepare_s / (other.prepare_s + features_s):.0%}"
-        rows.append([f"{side:g} m", other.grid.size, other.prepare_s, features_s, cpu_share,
-                     wall_per_m[-1], cpu_per_m[-1], fields_share])
-    table(f"3. Scaling with room area ({PAPER}; fields = prepare_scene, timed once)",
-          ["room", "poses", "fields s", "features s", "cpu/wall", "s / M poses", "cpu-s / M poses",
-           "fields share"], rows)
+        rows.append(
+            [
+                f"{side:g} m",
+                other.grid.size,
+                other.prepare_s,
+                features_s,
+                cpu_share,
+                wall_per_m[-1],
+                cpu_per_m[-1],
+                fields_share,
+            ]
+        )
+    table(
+        f"3. Scaling with room area ({PAPER}; fields = prepare_scene, timed once)",
+        [
+            "room",
+            "poses",
+            "fields s",
+            "features s",
+            "cpu/wall",
+            "s / M poses",
+            "cpu-s / M poses",
+            "fields share",
+        ],
+        rows,
+    )
     return wall_per_m, cpu_per_m
 
 
@@ -352,13 +409,19 @@ def main() -> None:
         assert room.grid.size == 100 * 100 * 3 * 63 == 1_890_000, room.grid.size
     lattice = room.scene.fields.lattice
     print(f"bench_features: {'QUICK' if args.quick else 'full'} run, {repeats} repeat(s), medians reported")
-    print(f"machine: {os.cpu_count()} cores (os.cpu_count), {platform.machine()}, Python "
-          f"{platform.python_version()}, numpy {np.__version__}, load {os.getloadavg()[0]:.2f} at start")
-    print(f"room: {cfg.side:g} m x {cfg.side:g} m synthetic, {room.n_points:,} points, seed {SEED}; "
-          f"fields {lattice.shape} voxels of {lattice.resolution:g} m "
-          f"({room.scene.fields.nbytes / 2**20:.0f} MB), prepare_scene {room.prepare_s:.1f} s")
-    print(f"pose grid ({AFFORDANCE}): z x theta x X x Y = {' x '.join(map(str, room.grid.shape))} "
-          f"= {room.grid.size:,} poses")
+    print(
+        f"machine: {os.cpu_count()} cores (os.cpu_count), {platform.machine()}, Python "
+        f"{platform.python_version()}, numpy {np.__version__}, load {os.getloadavg()[0]:.2f} at start"
+    )
+    print(
+        f"room: {cfg.side:g} m x {cfg.side:g} m synthetic, {room.n_points:,} points, seed {SEED}; "
+        f"fields {lattice.shape} voxels of {lattice.resolution:g} m "
+        f"({room.scene.fields.nbytes / 2**20:.0f} MB), prepare_scene {room.prepare_s:.1f} s"
+    )
+    print(
+        f"pose grid ({AFFORDANCE}): z x theta x X x Y = {' x '.join(map(str, room.grid.shape))} "
+        f"= {room.grid.size:,} poses"
+    )
 
     keep = np.sort(np.random.default_rng(SEED).choice(room.grid.size, cfg.naive_poses, replace=False))
     results = throughput(room, skeleton, repeats, keep)
@@ -370,19 +433,29 @@ def main() -> None:
     spread, wall_spread = (max(v) / min(v) - 1 for v in (cpu_per_m, wall_per_m))
     sides = ", ".join(f"{side:g}" for side in cfg.scaling_sides)
     print("\nWhat dominates")
-    print(f"- Headline: the slab method is {ratios[PAPER]:,.0f}x the naive per-pose loop ({PAPER}, "
-          f"{paper.speed:,.0f} vs {paper.speed / ratios[PAPER]:,.1f} poses/s), with the same values.")
-    print(f"- {PAPER}: the normal cube is {1 - joints_share:.0%} of feature time; joints plus per-slab "
-          f"set-up {joints_share:.0%} (measured as the one-cell cube, {LAYOUTS[TINY].n_features} features).")
-    print(f"- Coarser cells: 20 cm runs {results['20 cm cells'].speed / paper.speed:.1f}x and 25 cm "
-          f"{coarse.speed / paper.speed:.1f}x the 10 cm speed; "
-          f"feature memory +{paper.peak_mb - paper.base_mb:.0f} MB (10 cm) vs "
-          f"+{coarse.peak_mb - coarse.base_mb:.0f} MB (25 cm) over the fields.")
-    print(f"- Cost per pose is {'flat' if spread < 0.15 else 'NOT flat'} in room area: "
-          f"CPU seconds per million poses vary by {spread:.0%} over the {sides} m rooms "
-          f"(wall seconds by {wall_spread:.0%}).")
-    print(f"- One affordance on the {cfg.side:g} m room: features {paper.median:.1f} s vs fields "
-          f"{room.prepare_s:.1f} s (the fields are shared by all affordances).")
+    print(
+        f"- Headline: the slab method is {ratios[PAPER]:,.0f}x the naive per-pose loop ({PAPER}, "
+        f"{paper.speed:,.0f} vs {paper.speed / ratios[PAPER]:,.1f} poses/s), with the same values."
+    )
+    print(
+        f"- {PAPER}: the normal cube is {1 - joints_share:.0%} of feature time; joints plus per-slab "
+        f"set-up {joints_share:.0%} (measured as the one-cell cube, {LAYOUTS[TINY].n_features} features)."
+    )
+    print(
+        f"- Coarser cells: 20 cm runs {results['20 cm cells'].speed / paper.speed:.1f}x and 25 cm "
+        f"{coarse.speed / paper.speed:.1f}x the 10 cm speed; "
+        f"feature memory +{paper.peak_mb - paper.base_mb:.0f} MB (10 cm) vs "
+        f"+{coarse.peak_mb - coarse.base_mb:.0f} MB (25 cm) over the fields."
+    )
+    print(
+        f"- Cost per pose is {'flat' if spread < 0.15 else 'NOT flat'} in room area: "
+        f"CPU seconds per million poses vary by {spread:.0%} over the {sides} m rooms "
+        f"(wall seconds by {wall_spread:.0%})."
+    )
+    print(
+        f"- One affordance on the {cfg.side:g} m room: features {paper.median:.1f} s vs fields "
+        f"{room.prepare_s:.1f} s (the fields are shared by all affordances)."
+    )
     print(f"\ntotal wall time {time.perf_counter() - began:.0f} s, load {os.getloadavg()[0]:.2f} at the end")
 
 

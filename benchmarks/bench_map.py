@@ -30,8 +30,10 @@ from affordcore.example import box_surface_points  # noqa: E402
 from affordcore.features import iter_features  # noqa: E402
 from affordcore.gravity import align_to_gravity  # noqa: E402
 from affordcore.inference import score_poses  # noqa: E402
-from affordcore.learn.model import load_model  # noqa: E402
-from affordcore.learn.model import shipped_models  # noqa: E402
+from affordcore.learn.model import (
+    load_model,  # noqa: E402
+    shipped_models,  # noqa: E402
+)
 from affordcore.outputs import write_map_outputs  # noqa: E402
 from affordcore.pipeline import map_affordances, prepare_scene  # noqa: E402
 from affordcore.scene import Cloud  # noqa: E402
@@ -40,7 +42,9 @@ from affordcore.settings import Settings  # noqa: E402
 
 def room_cloud(side: float = 10.0) -> Cloud:
     rng = np.random.default_rng(SEED)
-    points = np.concatenate([box_surface_points(low, high, POINTS_PER_M2, rng) for low, high in room_boxes(side, rng)])
+    points = np.concatenate(
+        [box_surface_points(low, high, POINTS_PER_M2, rng) for low, high in room_boxes(side, rng)]
+    )
     return Cloud(points + rng.normal(scale=0.003, size=points.shape), source="10 m benchmark room")
 
 
@@ -63,7 +67,9 @@ def one_run(cloud: Cloud, settings: Settings, models) -> dict[str, float]:
         start = time.perf_counter()
         write_map_outputs(scene, maps, models, Path(out), Path(out) / "map.rrd")
         seconds["JSON + PNG + Rerun outputs"] = time.perf_counter() - start
-    seconds["cloud in to maps computed (no outputs)"] = sum(v for k, v in seconds.items() if not k.startswith("JSON"))
+    seconds["cloud in to maps computed (no outputs)"] = sum(
+        v for k, v in seconds.items() if not k.startswith("JSON")
+    )
     return seconds, scene
 
 
@@ -75,8 +81,10 @@ def materialised(scene, model, settings) -> tuple[float, float, float]:
     start = time.perf_counter()
     scores = np.empty(grid.size, dtype=np.float32)
     weights = model.weights.astype(np.float32)
-    for chunk in iter_features(scene.fields, skeleton, grid, scene.layout, settings.features.chunk_mb, reuse_buffer=True):
-        scores[chunk.start:chunk.stop] = chunk.values @ weights + model.bias
+    for chunk in iter_features(
+        scene.fields, skeleton, grid, scene.layout, settings.features.chunk_mb, reuse_buffer=True
+    ):
+        scores[chunk.start : chunk.stop] = chunk.values @ weights + model.bias
     slow = time.perf_counter() - start
     start = time.perf_counter()
     fast = score_poses(scene.fields, skeleton, grid, scene.layout, model.weights, model.bias).ravel()
@@ -100,15 +108,21 @@ def main() -> None:
         seconds, scene = one_run(cloud, settings, models)
         cpu.append((time.process_time() - cpu_start) / (time.perf_counter() - wall_start))
         runs.append(seconds)
-    print(f"{len(cloud):,} points, {os.cpu_count()} cores, {args.repeats} repeats, cpu/wall {min(cpu):.2f}-{max(cpu):.2f} "
-          f"(2.0 would be both cores busy; far below 1 means a contended machine)")
+    print(
+        f"{len(cloud):,} points, {os.cpu_count()} cores, {args.repeats} repeats, cpu/wall {min(cpu):.2f}-{max(cpu):.2f} "
+        f"(2.0 would be both cores busy; far below 1 means a contended machine)"
+    )
     print("| stage | seconds (median) |\n|---|---:|")
     for stage in runs[0]:
         print(f"| {stage} | {statistics.median(r[stage] for r in runs):.2f} |")
     slow, fast, difference = materialised(scene, models[0], settings)
-    print(f"\n{models[0].affordance}: features materialised then w . f: {slow:.2f} s; applied to the fields: {fast:.2f} s "
-          f"({slow / fast:.1f}x); largest difference {difference:.1e} of the largest score")
-    print(f"peak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:,.0f} MB (the whole process)")
+    print(
+        f"\n{models[0].affordance}: features materialised then w . f: {slow:.2f} s; applied to the fields: {fast:.2f} s "
+        f"({slow / fast:.1f}x); largest difference {difference:.1e} of the largest score"
+    )
+    print(
+        f"peak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:,.0f} MB (the whole process)"
+    )
 
 
 if __name__ == "__main__":

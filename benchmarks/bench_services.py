@@ -21,9 +21,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from affordwire import messages  # noqa: E402
 from affordcore.learn.model import shipped_models  # noqa: E402
 from affordcore.sequence import read_sequence  # noqa: E402
+from affordwire import messages  # noqa: E402
 from services.clients import publish_sequence, sequence_messages  # noqa: E402
 from services.launch import Stack  # noqa: E402
 from services.transport import Keys, open_session, schema_of  # noqa: E402
@@ -46,7 +46,10 @@ class Arrivals:
     """When the first output built from all `frames` scans arrived on each key."""
 
     def __init__(self, frames: int, affordances: list[str]):
-        self.frames, self.wanted = frames, {f"affordance/{name}" for name in affordances} | {"map/cloud", "fields"}
+        self.frames, self.wanted = (
+            frames,
+            {f"affordance/{name}" for name in affordances} | {"map/cloud", "fields"},
+        )
         self.at: dict[str, float] = {}
         self.done = threading.Event()
 
@@ -76,7 +79,9 @@ def one_run(folder: Path, indices: list[int], rate: float, workdir: Path) -> dic
             publish_sequence(session, keys, sequence_messages(sequence, indices), "camera", rate, wait=30)
             last_scan = time.monotonic()
             if not arrivals.done.wait(600):
-                raise RuntimeError(f"outputs missing after 600 s: {sorted(arrivals.wanted - set(arrivals.at))}\n{stack.logs()}")
+                raise RuntimeError(
+                    f"outputs missing after 600 s: {sorted(arrivals.wanted - set(arrivals.at))}\n{stack.logs()}"
+                )
         finally:
             subscriber.undeclare()
             session.close()
@@ -87,20 +92,26 @@ def one_run(folder: Path, indices: list[int], rate: float, workdir: Path) -> dic
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--step", type=int, default=3)
     parser.add_argument("--rate", type=float, default=30.0)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        folder = KITCHEN if KITCHEN.is_dir() else generated_sequence(Path(tmp) / "seq", args.frames * args.step)
+        folder = (
+            KITCHEN if KITCHEN.is_dir() else generated_sequence(Path(tmp) / "seq", args.frames * args.step)
+        )
         indices = list(range(0, len(read_sequence(folder).frames), args.step))[: args.frames]
         runs = [one_run(folder, indices, args.rate, Path(tmp) / f"run{k}") for k in range(args.repeats)]
     source = "7-Scenes redkitchen (real)" if folder == KITCHEN else "generated living room"
-    print(f"\n{source}: {len(indices)} frames (every {args.step} of the sequence) at {args.rate:g} Hz, {args.repeats} runs, "
-          f"{os.cpu_count()} cores; services as processes on one machine\n")
-    print(f"| from the last scan published to ... | median (s) | runs (s) |\n|---|---:|---|")
+    print(
+        f"\n{source}: {len(indices)} frames (every {args.step} of the sequence) at {args.rate:g} Hz, {args.repeats} runs, "
+        f"{os.cpu_count()} cores; services as processes on one machine\n"
+    )
+    print("| from the last scan published to ... | median (s) | runs (s) |\n|---|---:|---|")
     for key in runs[0]:
         values = [run[key] for run in runs]
         print(f"| {key} | {statistics.median(values):.2f} | {', '.join(f'{v:.2f}' for v in values)} |")

@@ -48,7 +48,10 @@ def run(setup: str, learner: str, C: float, quick: bool) -> dict:
     n, d, ratio, shift = SETUPS[setup]
     n = n // 10 if quick else n
     rng = np.random.default_rng(0)
-    (X, y), (Xv, yv) = gaussian(rng, n, d, ratio, shift), gaussian(rng, max(n // 4, 200_000 // (10 if quick else 1)), d, ratio, shift)
+    (X, y), (Xv, yv) = (
+        gaussian(rng, n, d, ratio, shift),
+        gaussian(rng, max(n // 4, 200_000 // (10 if quick else 1)), d, ratio, shift),
+    )
     start = time.perf_counter()
     if learner == "linear-tuned":
         model = linear_tuned(X, y)
@@ -57,26 +60,45 @@ def run(setup: str, learner: str, C: float, quick: bool) -> dict:
         result = train_ssvm(X, y, SSVMSettings(C=C), validation=(Xv, yv))
         weights, iterations = result.best.weights, f"{result.best.number}/{len(result.iterations)}"
     seconds = time.perf_counter() - start
-    scores, scores_v = X @ weights[:-1].astype(np.float32) + weights[-1], Xv @ weights[:-1].astype(np.float32) + weights[-1]
-    return {"setup": setup, "learner": learner if learner != "ssvm" else f"ssvm C={C:g}", "positives": int((y > 0).sum()),
-            "iterations": iterations, "seconds": seconds, "train_f1": f1_at(scores, y), "val_f1": f1_at(scores_v, yv),
-            "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    scores, scores_v = (
+        X @ weights[:-1].astype(np.float32) + weights[-1],
+        Xv @ weights[:-1].astype(np.float32) + weights[-1],
+    )
+    return {
+        "setup": setup,
+        "learner": learner if learner != "ssvm" else f"ssvm C={C:g}",
+        "positives": int((y > 0).sum()),
+        "iterations": iterations,
+        "seconds": seconds,
+        "train_f1": f1_at(scores, y),
+        "val_f1": f1_at(scores_v, yv),
+        "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     args = parser.parse_args()
-    jobs = [(setup, learner, C) for setup in SETUPS for learner, C in (("linear-tuned", 0.0), ("ssvm", 0.1), ("ssvm", 2.0))]
+    jobs = [
+        (setup, learner, C)
+        for setup in SETUPS
+        for learner, C in (("linear-tuned", 0.0), ("ssvm", 0.1), ("ssvm", 2.0))
+    ]
     context = multiprocessing.get_context("forkserver")  # a fresh small process per run: honest peak memory
-    print(f"{os.cpu_count()} cores; iterations = kept (best on validation) / run; peak = the process's high-water mark")
-    print(f"| set-up | learner | positives | iterations | seconds | train F1 | validation F1 | peak MB |")
+    print(
+        f"{os.cpu_count()} cores; iterations = kept (best on validation) / run; peak = the process's high-water mark"
+    )
+    print("| set-up | learner | positives | iterations | seconds | train F1 | validation F1 | peak MB |")
     print("|---|---|---:|---:|---:|---:|---:|---:|")
     for setup, learner, C in jobs:
         with context.Pool(1) as pool:
             r = pool.apply(run, (setup, learner, C, args.quick))
-        print(f"| {r['setup']} | {r['learner']} | {r['positives']} | {r['iterations']} | {r['seconds']:.1f} | {r['train_f1']:.3f} "
-              f"| {r['val_f1']:.3f} | {r['peak_mb']:,.0f} |", flush=True)
+        print(
+            f"| {r['setup']} | {r['learner']} | {r['positives']} | {r['iterations']} | {r['seconds']:.1f} | {r['train_f1']:.3f} "
+            f"| {r['val_f1']:.3f} | {r['peak_mb']:,.0f} |",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -18,9 +18,8 @@ import numpy as np
 
 from affordcore.labels import ground_truth, load_labels, match_places
 from affordcore.learn.baselines import tune_threshold
-from affordcore.learn.model import load_model
+from affordcore.learn.model import load_model, shipped_models
 from affordcore.learn.train import metrics
-from affordcore.learn.model import shipped_models
 from affordcore.pipeline import map_affordances, prepare_scene
 from affordcore.plots import plot_map
 from affordcore.scene import load_cloud
@@ -32,7 +31,11 @@ FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures" / "real-rooms
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--gravity", default="none", help="none: the rooms are z-up already; auto: find the floor as for any cloud")
+    parser.add_argument(
+        "--gravity",
+        default="none",
+        help="none: the rooms are z-up already; auto: find the floor as for any cloud",
+    )
     parser.add_argument("--figures", type=Path, default=FIGURES)
     args = parser.parse_args()
     if not ROOMS.is_dir():
@@ -40,7 +43,9 @@ def main() -> None:
     settings = Settings()
     models = {name: load_model(path) for name, path in shipped_models().items()}
     args.figures.mkdir(parents=True, exist_ok=True)
-    print("| room | affordance | labels | positive poses | P / R / F1 at the threshold | oracle-threshold F1 | places found | false skeletons |")
+    print(
+        "| room | affordance | labels | positive poses | P / R / F1 at the threshold | oracle-threshold F1 | places found | false skeletons |"
+    )
     print("|---|---|---:|---:|---|---:|---:|---:|")
     for cloud_path in sorted(ROOMS.glob("*.ply")):
         labels = load_labels(cloud_path.with_name(cloud_path.stem + ".labels.json"))
@@ -57,10 +62,14 @@ def main() -> None:
             at = metrics(scores, y, model.threshold)
             oracle = tune_threshold(scores, y)[1] if (y > 0).any() else 0.0
             places = match_places(labels, model.affordance, amap.skeletons[:, [0, 1, 3]])
-            print(f"| {short} | {model.affordance} | {len(labels.of(model.affordance))} | {at['positives']:,} | "
-                  f"{at['precision']:.2f} / {at['recall']:.2f} / {at['f1']:.2f} | {oracle:.2f} | "
-                  f"{int(places.found.sum())} / {len(places.found)} | {int(places.false.sum())} |")
-            plot_map(scene.cloud.points, amap, args.figures / f"{short}-{model.affordance}.png", labels=labels)
+            print(
+                f"| {short} | {model.affordance} | {len(labels.of(model.affordance))} | {at['positives']:,} | "
+                f"{at['precision']:.2f} / {at['recall']:.2f} / {at['f1']:.2f} | {oracle:.2f} | "
+                f"{int(places.found.sum())} / {len(places.found)} | {int(places.false.sum())} |"
+            )
+            plot_map(
+                scene.cloud.points, amap, args.figures / f"{short}-{model.affordance}.png", labels=labels
+            )
 
 
 if __name__ == "__main__":

@@ -28,7 +28,9 @@ def generate() -> dict[str, str]:
     protos = sorted(str(p.relative_to(SCHEMAS)) for p in (SCHEMAS / "afford" / "v1").glob("*.proto"))
     well_known = Path(grpc_tools.__file__).parent / "_proto"
     with tempfile.TemporaryDirectory() as out:
-        status = protoc.main(["protoc", f"-I{SCHEMAS}", f"-I{well_known}", f"--python_out={out}", f"--pyi_out={out}", *protos])
+        status = protoc.main(
+            ["protoc", f"-I{SCHEMAS}", f"-I{well_known}", f"--python_out={out}", f"--pyi_out={out}", *protos]
+        )
         if status != 0:
             raise SystemExit(f"protoc failed ({status}) on {protos}")
         generated = sorted((Path(out) / "afford" / "v1").glob("*_pb2.py*"))
@@ -38,7 +40,11 @@ def generate() -> dict[str, str]:
 def stale(files: dict[str, str]) -> list[str]:
     """Names of generated files that differ from (or are missing in, or are extra in) affordwire/proto."""
     present = {path.name for path in PACKAGE.glob("*_pb2.py*")}
-    differ = [name for name, text in files.items() if not (PACKAGE / name).exists() or (PACKAGE / name).read_text() != text]
+    differ = [
+        name
+        for name, text in files.items()
+        if not (PACKAGE / name).exists() or (PACKAGE / name).read_text() != text
+    ]
     return sorted(differ + list(present - set(files)))
 
 
@@ -47,7 +53,9 @@ def main() -> int:
     if "--check" in sys.argv:
         names = stale(files)
         if names:
-            print(f"stale generated code: {', '.join(names)}; run: python schemas/generate.py", file=sys.stderr)
+            print(
+                f"stale generated code: {', '.join(names)}; run: python schemas/generate.py", file=sys.stderr
+            )
         return int(bool(names))
     for path in PACKAGE.glob("*_pb2.py*"):
         path.unlink()

@@ -14,7 +14,9 @@ from affordwire.sensors import decode_sensor
 
 from .node import Inbound, Inbox, Node
 
-QUIET_BEFORE_PUBLISHING = 0.5  # seconds without scans after which a pending map goes out whatever the rate limit
+QUIET_BEFORE_PUBLISHING = (
+    0.5  # seconds without scans after which a pending map goes out whatever the rate limit
+)
 
 
 class AssemblerService:
@@ -57,14 +59,21 @@ class AssemblerService:
         try:
             points, world_from_odom = self.assembler.aligned_map(self.node.settings)
         except ValueError as error:
-            self.node.publish_status(messages.Status.READY, f"{self.assembler.frames} frames, no map yet: {error}")
+            self.node.publish_status(
+                messages.Status.READY, f"{self.assembler.frames} frames, no map yet: {error}"
+            )
             self.last_published = time.monotonic()
             self.pending = False
             return
-        cloud = messages.cloud_message(points, world_from_odom, self.node.service, self.assembler.frames, self.last_stamp)
+        cloud = messages.cloud_message(
+            points, world_from_odom, self.node.service, self.assembler.frames, self.last_stamp
+        )
         self.node.publish(self.node.keys.cloud, cloud)
         self.last_published, self.pending = time.monotonic(), False
         set_time(self.node.recording, self.last_stamp)
         log_trajectory(self.node.recording, self.assembler.trajectory.positions, world_from_odom)
         log_cloud(self.node.recording, points)
-        self.node.publish_status(messages.Status.READY, f"published the map of {self.assembler.frames} frames, {len(points):,} points")
+        self.node.publish_status(
+            messages.Status.READY,
+            f"published the map of {self.assembler.frames} frames, {len(points):,} points",
+        )

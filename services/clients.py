@@ -31,6 +31,7 @@ def run_router(listen: list[str], stop: threading.Event | None = None) -> None:
 
 # -- publish -------------------------------------------------------------------------------------------------
 
+
 class NoSubscriber(RuntimeError):
     """Nobody listens on the key a client was about to publish on."""
 
@@ -52,8 +53,10 @@ def _publisher(session, key: str, message_class, wait: float):
     while not publisher.matching_status.matching:
         if time.monotonic() > deadline:
             publisher.undeclare()
-            raise NoSubscriber(f"nothing subscribes to {key} after {wait:.0f} s: is the service for robot "
-                               f"{key.split('/')[2]!r} running and connected to the same router?")
+            raise NoSubscriber(
+                f"nothing subscribes to {key} after {wait:.0f} s: is the service for robot "
+                f"{key.split('/')[2]!r} running and connected to the same router?"
+            )
         time.sleep(0.05)
     return publisher
 
@@ -65,8 +68,15 @@ def publish_map(session, keys: Keys, cloud: messages.CloudMessage, wait: float) 
     publisher.undeclare()
 
 
-def publish_sequence(session, keys: Keys, frames, sensor: str, rate: float, wait: float,
-                     on_frame: Callable[[int], None] | None = None) -> int:
+def publish_sequence(
+    session,
+    keys: Keys,
+    frames,
+    sensor: str,
+    rate: float,
+    wait: float,
+    on_frame: Callable[[int], None] | None = None,
+) -> int:
     """Publish (index, message) pairs on scan/<sensor> at `rate` Hz (0: as fast as the network takes them);
     each message is stamped when it is sent. Returns how many were sent."""
     publisher = None
@@ -98,8 +108,13 @@ def sequence_messages(sequence, indices, with_gravity: bool = True):
 
     for index in indices:
         if sequence.kind == "depth":
-            message = messages.depth_frame_message(sequence.depth(index), sequence.intrinsics, DEPTH_SCALE,
-                                                   frame_id="camera", invalid_value=INVALID_DEPTH)
+            message = messages.depth_frame_message(
+                sequence.depth(index),
+                sequence.intrinsics,
+                DEPTH_SCALE,
+                frame_id="camera",
+                invalid_value=INVALID_DEPTH,
+            )
         else:
             message = messages.Scan(frame_id="lidar")
             messages.pack_points(message, sequence.scan(index))
@@ -110,6 +125,7 @@ def sequence_messages(sequence, indices, with_gravity: bool = True):
 
 
 # -- watch ---------------------------------------------------------------------------------------------------
+
 
 def describe(key: str, schema: str, payload: bytes) -> str:
     """One line about a publication, for people watching the robot's keys."""
@@ -143,9 +159,21 @@ class MapWatcher:
     """Collects the affordance maps of one robot; `done` once every wanted affordance has a map of at least
     `min_frames` scans."""
 
-    def __init__(self, keys: Keys, affordances: list[str], min_frames: int, out: Path | None,
-                 echo: Callable[[str], None] = print):
-        self.keys, self.wanted, self.min_frames, self.out, self.echo = keys, set(affordances), min_frames, out, echo
+    def __init__(
+        self,
+        keys: Keys,
+        affordances: list[str],
+        min_frames: int,
+        out: Path | None,
+        echo: Callable[[str], None] = print,
+    ):
+        self.keys, self.wanted, self.min_frames, self.out, self.echo = (
+            keys,
+            set(affordances),
+            min_frames,
+            out,
+            echo,
+        )
         self.received: dict[str, dict] = {}
         self.done = threading.Event()
         self._lock = threading.Lock()
@@ -185,7 +213,9 @@ def watch(session, keys: Keys, watcher: MapWatcher, timeout: float) -> bool:
     import zenoh
 
     def on_liveliness(sample) -> None:
-        watcher.echo(f"{sample.key_expr}: service {'joined' if sample.kind == zenoh.SampleKind.PUT else 'left'}")
+        watcher.echo(
+            f"{sample.key_expr}: service {'joined' if sample.kind == zenoh.SampleKind.PUT else 'left'}"
+        )
 
     alive = session.liveliness().declare_subscriber(keys.key("status", "*"), on_liveliness, history=True)
     try:

@@ -25,11 +25,15 @@ class FeaturesService:
         cloud = self.node.decode(item, messages.CloudMessage)
         points = messages.cloud_points(cloud)
         self.node.publish_status(messages.Status.BUSY, f"computing the fields of {len(points):,} points")
-        scene = prepare_scene(Cloud(points, source=item.key), self.node.settings, gravity="none")  # already world
+        scene = prepare_scene(
+            Cloud(points, source=item.key), self.node.settings, gravity="none"
+        )  # already world
         message = messages.fields_message(scene.fields, cloud)
         self.node.publish(self.node.keys.fields, message)
         set_time(self.node.recording, messages.seconds(cloud.timestamp))
         log_cloud(self.node.recording, scene.cloud.points)
         log_fields(self.node.recording, scene.fields)
-        self.node.publish_status(messages.Status.READY,
-                                 f"published fields {scene.fields.lattice.shape} of a {cloud.frames}-frame map")
+        self.node.publish_status(
+            messages.Status.READY,
+            f"published fields {scene.fields.lattice.shape} of a {cloud.frames}-frame map",
+        )

@@ -10,6 +10,7 @@ from affordwire import messages
 
 from .node import Inbound, Inbox, Node
 
+
 class InferenceService:
     def __init__(self, node: Node):
         self.node, self.models = node, node.models
@@ -26,15 +27,21 @@ class InferenceService:
         message = self.node.decode(item, messages.SceneFieldsMessage)
         fields = messages.scene_fields(message)
         if abs(fields.lattice.resolution - self.node.settings.voxel.resolution) > 1e-9:
-            raise messages.MessageError(f"fields at {fields.lattice.resolution} m voxels; the models here need "
-                                        f"{self.node.settings.voxel.resolution} m (AFFORD_VOXEL__RESOLUTION of the features service)")
+            raise messages.MessageError(
+                f"fields at {fields.lattice.resolution} m voxels; the models here need "
+                f"{self.node.settings.voxel.resolution} m (AFFORD_VOXEL__RESOLUTION of the features service)"
+            )
         self.node.publish_status(messages.Status.BUSY, f"mapping {len(self.models)} affordances")
         set_time(self.node.recording, messages.seconds(message.cloud_timestamp))
         ids = {model.affordance: model.id for model in self.models}
 
         def publish(affordance: str, amap) -> None:
-            self.node.publish(self.node.keys.affordance(affordance), messages.map_message(amap, ids[affordance], message))
+            self.node.publish(
+                self.node.keys.affordance(affordance), messages.map_message(amap, ids[affordance], message)
+            )
             log_map(self.node.recording, amap)
 
         map_affordances(fields, self.layout, self.models, self.node.settings, on_map=publish)
-        self.node.publish_status(messages.Status.READY, f"published {len(self.models)} maps of a {message.frames}-frame map")
+        self.node.publish_status(
+            messages.Status.READY, f"published {len(self.models)} maps of a {message.frames}-frame map"
+        )

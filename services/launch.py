@@ -36,7 +36,9 @@ class Stack:
     `start()` returns once every service has declared its liveliness token; `stop()` sends SIGTERM (the
     services close their recordings) and returns the exit codes."""
 
-    def __init__(self, folder: Path, robot: str = "robot1", env: dict[str, str] | None = None, services=tuple(SERVICES)):
+    def __init__(
+        self, folder: Path, robot: str = "robot1", env: dict[str, str] | None = None, services=tuple(SERVICES)
+    ):
         self.folder, self.robot, self.services = Path(folder), robot, tuple(services)
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
@@ -45,13 +47,23 @@ class Stack:
     def _spawn(self, name: str, command: list[str]) -> None:
         self.folder.mkdir(parents=True, exist_ok=True)
         with open(self.folder / f"{name}.log", "w") as log:  # the child keeps its own descriptor
-            self.processes[name] = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=self.env)
+            self.processes[name] = subprocess.Popen(
+                command, stdout=log, stderr=subprocess.STDOUT, env=self.env
+            )
 
-    def start(self, timeout: float = 60.0) -> "Stack":
+    def start(self, timeout: float = 60.0) -> Stack:
         self._spawn("router", python_call("services.clients:run_router", [self.endpoint]))
         for service in self.services:
-            self._spawn(service, python_call("services.registry:run_service", service, self.robot, [self.endpoint],
-                                             rrd=str(self.folder / f"{service}.rrd")))
+            self._spawn(
+                service,
+                python_call(
+                    "services.registry:run_service",
+                    service,
+                    self.robot,
+                    [self.endpoint],
+                    rrd=str(self.folder / f"{service}.rrd"),
+                ),
+            )
         self.wait_ready(timeout)
         return self
 
@@ -64,13 +76,18 @@ class Stack:
         deadline = time.monotonic() + timeout
         try:
             while True:
-                alive = {str(reply.ok.key_expr).rsplit("/", 1)[-1]
-                         for reply in session.liveliness().get(keys.key("status", "*"), timeout=2.0) if reply.ok is not None}
+                alive = {
+                    str(reply.ok.key_expr).rsplit("/", 1)[-1]
+                    for reply in session.liveliness().get(keys.key("status", "*"), timeout=2.0)
+                    if reply.ok is not None
+                }
                 if set(self.services) <= alive:
                     return
                 dead = {name: p.returncode for name, p in self.processes.items() if p.poll() is not None}
                 if dead or time.monotonic() > deadline:
-                    raise RuntimeError(f"services not ready (alive: {sorted(alive)}, exited: {dead}); logs: {self.logs()}")
+                    raise RuntimeError(
+                        f"services not ready (alive: {sorted(alive)}, exited: {dead}); logs: {self.logs()}"
+                    )
                 time.sleep(0.3)
         finally:
             session.close()
@@ -92,9 +109,11 @@ class Stack:
         return codes
 
     def logs(self) -> str:
-        return "\n".join(f"--- {path.name}\n{path.read_text()[-3000:]}" for path in sorted(self.folder.glob("*.log")))
+        return "\n".join(
+            f"--- {path.name}\n{path.read_text()[-3000:]}" for path in sorted(self.folder.glob("*.log"))
+        )
 
-    def __enter__(self) -> "Stack":
+    def __enter__(self) -> Stack:
         return self.start()
 
     def __exit__(self, *exc) -> None:

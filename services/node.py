@@ -16,8 +16,19 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from affordwire import messages
+
 from .settings import ServiceSettings
-from .transport import PREFIX, Keys, encoding_of, open_session, put, put_message, schema_of, stop_on_signals, version
+from .transport import (
+    PREFIX,
+    Keys,
+    encoding_of,
+    open_session,
+    put,
+    put_message,
+    schema_of,
+    stop_on_signals,
+    version,
+)
 
 
 @dataclass
@@ -63,9 +74,17 @@ class Inbox:
 class Node:
     """One service process: `service` is its name (assembler, features, inference)."""
 
-    def __init__(self, service: str, robot: str, endpoints: list[str], settings: ServiceSettings | None = None,
-                 rrd: Path | None = None, viewer: str | None = None, models: list | None = None,
-                 listen: list[str] | None = None):
+    def __init__(
+        self,
+        service: str,
+        robot: str,
+        endpoints: list[str],
+        settings: ServiceSettings | None = None,
+        rrd: Path | None = None,
+        viewer: str | None = None,
+        models: list | None = None,
+        listen: list[str] | None = None,
+    ):
         from affordcore.recording import open_recording
 
         self.service, self.keys = service, Keys(robot)
@@ -83,17 +102,33 @@ class Node:
         self.session = open_session(endpoints, self.settings.service.mode, listen)
         self.state, self.detail = messages.Status.STARTING, "starting"
         self._declared.append(self.session.liveliness().declare_token(self.keys.status(service)))
-        self._declared.append(self.session.declare_queryable(
-            self.keys.status(service), lambda query: query.reply(self.keys.status(service), self._status().SerializeToString(),
-                                                                 encoding=encoding_of(messages.Status))))
+        self._declared.append(
+            self.session.declare_queryable(
+                self.keys.status(service),
+                lambda query: query.reply(
+                    self.keys.status(service),
+                    self._status().SerializeToString(),
+                    encoding=encoding_of(messages.Status),
+                ),
+            )
+        )
 
     # -- inputs ------------------------------------------------------------------------------------------------
 
     def subscribe(self, key: str, inbox: Inbox) -> None:
         def on_sample(sample) -> None:
-            item = Inbound(str(sample.key_expr), schema_of(sample), str(sample.encoding), sample.payload.to_bytes(), time.time())
+            item = Inbound(
+                str(sample.key_expr),
+                schema_of(sample),
+                str(sample.encoding),
+                sample.payload.to_bytes(),
+                time.time(),
+            )
             if not inbox.offer(item):
-                self.reject(item, f"{self.service} is {len(inbox)} inputs behind (AFFORD_SERVICE__MAX_QUEUE); this one was not taken")
+                self.reject(
+                    item,
+                    f"{self.service} is {len(inbox)} inputs behind (AFFORD_SERVICE__MAX_QUEUE); this one was not taken",
+                )
 
         self._declared.append(self.session.declare_subscriber(key, on_sample))
 
@@ -101,12 +136,20 @@ class Node:
         """The message of the class the sample's schema names, among `message_classes`, or MessageError."""
         names = {messages.schema_name(cls): cls for cls in message_classes}
         if item.schema not in names:
-            raise messages.MessageError(f"expected encoding application/protobuf with schema {' or '.join(names)}, got {item.encoding!r}")
+            raise messages.MessageError(
+                f"expected encoding application/protobuf with schema {' or '.join(names)}, got {item.encoding!r}"
+            )
         return messages.parse(names[item.schema], item.payload)
 
     def reject(self, item: Inbound, reason: str) -> None:
         """Answer a bad input on error/<service>; the service keeps running."""
-        error = messages.Error(service=self.service, key=item.key, encoding=item.encoding, payload_bytes=len(item.payload), reason=reason)
+        error = messages.Error(
+            service=self.service,
+            key=item.key,
+            encoding=item.encoding,
+            payload_bytes=len(item.payload),
+            reason=reason,
+        )
         messages.stamp(error.timestamp)
         with self._lock:
             self.counts["rejected"] += 1
@@ -118,6 +161,7 @@ class Node:
 
     def answer_latest(self, key: str) -> None:
         """A queryable on `key` that replies with the latest output published there, if any."""
+
         def on_query(query) -> None:
             with self._lock:
                 latest = self.latest.get(key)
@@ -138,8 +182,15 @@ class Node:
     def _status(self) -> messages.Status:
         """The service's status now (a get on its status key answers this, not the last one published)."""
         with self._lock:
-            status = messages.Status(service=self.service, robot=self.keys.robot, state=self.state, detail=self.detail,
-                                     last_seconds=self.last_seconds, version=version(), **self.counts)
+            status = messages.Status(
+                service=self.service,
+                robot=self.keys.robot,
+                state=self.state,
+                detail=self.detail,
+                last_seconds=self.last_seconds,
+                version=version(),
+                **self.counts,
+            )
         messages.stamp(status.timestamp)
         return status
 
@@ -150,12 +201,17 @@ class Node:
 
     # -- the work loop -----------------------------------------------------------------------------------------
 
-    def run(self, inbox: Inbox, handle: Callable[[Inbound], None], idle: Callable[[], None] | None = None) -> None:
+    def run(
+        self, inbox: Inbox, handle: Callable[[Inbound], None], idle: Callable[[], None] | None = None
+    ) -> None:
         """Take inputs until SIGINT/SIGTERM: `handle` each (a ValueError rejects it), `idle` when none came
         for a moment. Then close everything, the recording last."""
         stop_on_signals(self.stop_event)
         self.publish_status(messages.Status.READY, "waiting for input")
-        print(f"[{self.service}] ready: robot {self.keys.robot}, keys {PREFIX}/{self.keys.robot}/...", flush=True)
+        print(
+            f"[{self.service}] ready: robot {self.keys.robot}, keys {PREFIX}/{self.keys.robot}/...",
+            flush=True,
+        )
         last_status = time.monotonic()
         try:
             while not self.stop_event.is_set():
@@ -199,5 +255,8 @@ class Node:
         warning = close_recording(self.recording)
         if warning:
             print(f"[{self.service}] {warning}", flush=True)
-        print(f"[{self.service}] stopped: {self.counts['accepted']} inputs taken, {self.counts['rejected']} rejected, "
-              f"{self.counts['published']} outputs published", flush=True)
+        print(
+            f"[{self.service}] stopped: {self.counts['accepted']} inputs taken, {self.counts['rejected']} rejected, "
+            f"{self.counts['published']} outputs published",
+            flush=True,
+        )

@@ -21,15 +21,29 @@ class ServiceSpec:
         return getattr(importlib.import_module(module), name)
 
 
-SERVICES: dict[str, ServiceSpec] = {spec.name: spec for spec in (
-    ServiceSpec("assembler", "scans to a map (KISS-ICP)", "services.assembler:AssemblerService", downstream=False),
-    ServiceSpec("features", "map to voxel fields", "services.features:FeaturesService", downstream=True),
-    ServiceSpec("inference", "fields to affordance maps", "services.inference:InferenceService", downstream=True),
-)}
+SERVICES: dict[str, ServiceSpec] = {
+    spec.name: spec
+    for spec in (
+        ServiceSpec(
+            "assembler", "scans to a map (KISS-ICP)", "services.assembler:AssemblerService", downstream=False
+        ),
+        ServiceSpec("features", "map to voxel fields", "services.features:FeaturesService", downstream=True),
+        ServiceSpec(
+            "inference", "fields to affordance maps", "services.inference:InferenceService", downstream=True
+        ),
+    )
+}
 
 
-def run_service(name: str, robot: str, endpoints: list[str], rrd: Path | None = None, viewer: str | None = None,
-                listen: list[str] | None = None, model_files: list[Path] | None = None) -> None:
+def run_service(
+    name: str,
+    robot: str,
+    endpoints: list[str],
+    rrd: Path | None = None,
+    viewer: str | None = None,
+    listen: list[str] | None = None,
+    model_files: list[Path] | None = None,
+) -> None:
     """Run one registered service until SIGINT/SIGTERM, with the settings from the environment and the given
     models (default: the shipped ones)."""
     from affordcore.features import FeatureLayout
@@ -44,6 +58,8 @@ def run_service(name: str, robot: str, endpoints: list[str], rrd: Path | None = 
     settings = ServiceSettings()
     if spec.downstream:
         os.nice(settings.service.downstream_nice)
-    models = choose_models(model_files or [], [], FeatureLayout.from_settings(settings.features, settings.voxel))
+    models = choose_models(
+        model_files or [], [], FeatureLayout.from_settings(settings.features, settings.voxel)
+    )
     node = Node(name, robot, endpoints, settings, rrd, viewer, models, listen)
     spec.service_class()(node).run()

@@ -31,7 +31,9 @@ class Keys:
 
     def __post_init__(self) -> None:
         if not self.robot or any(c in self.robot for c in "/*$?#@ "):
-            raise ValueError(f"robot name {self.robot!r} must be one non-empty key chunk (no / * $ ? # @ or spaces)")
+            raise ValueError(
+                f"robot name {self.robot!r} must be one non-empty key chunk (no / * $ ? # @ or spaces)"
+            )
 
     def key(self, *chunks: str) -> str:
         return "/".join((PREFIX, self.robot, *chunks))

@@ -6,16 +6,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import SHARED_DATA
 
-from affordwire import messages
 from affordcore.assembly import Assembler, trajectory_errors
 from affordcore.depth import DepthImage, back_project
 from affordcore.example import box_surface_points
 from affordcore.settings import AssemblerSettings
 from affordcore.synth.scanner import DepthCamera, Raycaster, depth_frame, look_at
 from affordcore.synth.shapes import Box
-
-from conftest import SHARED_DATA
+from affordwire import messages
 
 KITCHEN = SHARED_DATA / "sequences" / "7scenes_redkitchen_frames_000000-000299"
 
@@ -31,11 +30,14 @@ def _turn_z(degrees: float) -> np.ndarray:
 
 ROOM = [
     Box.span((-3, -2.5, -0.1), (3, 2.5, 0)),  # floor slab
-    Box.span((-3.1, -2.5, 0), (-3, 2.5, 2.6)), Box.span((3, -2.5, 0), (3.1, 2.5, 2.6)),  # walls
-    Box.span((-3, -2.6, 0), (3, -2.5, 2.6)), Box.span((-3, 2.5, 0), (3, 2.6, 2.6)),
+    Box.span((-3.1, -2.5, 0), (-3, 2.5, 2.6)),
+    Box.span((3, -2.5, 0), (3.1, 2.5, 2.6)),  # walls
+    Box.span((-3, -2.6, 0), (3, -2.5, 2.6)),
+    Box.span((-3, 2.5, 0), (3, 2.6, 2.6)),
     Box.span((-3, -2.5, 2.6), (3, 2.5, 2.7)),  # ceiling
     Box.span((0.2, 0.8, 0.70), (1.4, 1.6, 0.75)),  # table top and two legs
-    Box.span((0.25, 0.85, 0), (0.3, 0.9, 0.7)), Box.span((1.3, 1.5, 0), (1.35, 1.55, 0.7)),
+    Box.span((0.25, 0.85, 0), (0.3, 0.9, 0.7)),
+    Box.span((1.3, 1.5, 0), (1.35, 1.55, 0.7)),
     Box.span((-2.9, 1.9, 0), (-1.5, 2.5, 0.9)),  # counter
     Box.span((2.4, -1.0, 0), (3.0, 0.4, 1.8)),  # cupboard
     Box.span((-1.2, -2.5, 0), (-0.6, -2.0, 1.2)),  # shelf
@@ -55,7 +57,9 @@ def room_frames():
     for k in range(30):
         eye = np.array([-1.0 + 0.009 * k, -0.8 + 0.004 * k, 1.4])
         yaw, pitch = np.radians(60 + 0.8 * k), np.radians(-25)
-        poses.append(look_at(eye, eye + [np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)]))
+        poses.append(
+            look_at(eye, eye + [np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)])
+        )
         depth, _ = depth_frame(raycaster, CAMERA, poses[-1], rng)
         millimetres = np.round(depth * 1000).astype(np.uint16)
         frames.append(back_project(DepthImage(millimetres, CAMERA.intrinsics), 2, 0.3, 4.0))
@@ -67,7 +71,9 @@ def room_run(room_frames):
     frames, poses = room_frames
     assembler = Assembler()
     gravity = [pose[:3, :3].T @ [0.0, 0.0, -1.0] for pose in poses]  # what an IMU on the camera reports
-    estimated = [assembler.register(points, k / 30, gravity=g) for k, (points, g) in enumerate(zip(frames, gravity))]
+    estimated = [
+        assembler.register(points, k / 30, gravity=g) for k, (points, g) in enumerate(zip(frames, gravity))
+    ]
     return assembler, estimated
 
 
@@ -109,9 +115,13 @@ def test_a_static_sensor_adds_no_keyframes(room_frames):
 
 # -- a walk through a field of boxes, seen all round (no occlusion): quick to make, easy to register ---------
 
+
 def _box_field(rng: np.random.Generator) -> np.ndarray:
-    boxes = [box_surface_points(np.array([x, y, 0.0]), np.array([x, y, 0.0]) + rng.uniform(0.3, 1.0, 3), 400, rng)
-             for x in np.arange(-3.0, 8.0, 1.3) for y in (-2.0, 1.6)]
+    boxes = [
+        box_surface_points(np.array([x, y, 0.0]), np.array([x, y, 0.0]) + rng.uniform(0.3, 1.0, 3), 400, rng)
+        for x in np.arange(-3.0, 8.0, 1.3)
+        for y in (-2.0, 1.6)
+    ]
     floor = np.column_stack([rng.uniform(-3, 9, 30000), rng.uniform(-3, 3, 30000), np.zeros(30000)])
     return np.concatenate(boxes + [floor])
 
@@ -171,6 +181,7 @@ def test_too_few_points_are_refused_with_a_reason():
 
 # -- the error measure --------------------------------------------------------------------------------------
 
+
 def test_trajectory_errors_of_a_known_offset_and_turn():
     truth = []
     for k in range(5):
@@ -187,9 +198,13 @@ def test_trajectory_errors_of_a_known_offset_and_turn():
     assert errors["final_rotation_deg"] == pytest.approx(0.0, abs=1e-6)
     turned = [start @ pose for pose in truth[:-1]] + [start @ truth[-1] @ _turn_z(7.0)]
     errors = trajectory_errors(turned, truth)
-    assert errors["final_rotation_deg"] == pytest.approx(7.0) and errors["worst_m"] == pytest.approx(0.0, abs=1e-9)
+    assert errors["final_rotation_deg"] == pytest.approx(7.0) and errors["worst_m"] == pytest.approx(
+        0.0, abs=1e-9
+    )
     # the estimate starts at the identity whatever the world frame of the ground truth
-    assert trajectory_errors([start @ pose for pose in truth], truth)["worst_m"] == pytest.approx(0.0, abs=1e-9)
+    assert trajectory_errors([start @ pose for pose in truth], truth)["worst_m"] == pytest.approx(
+        0.0, abs=1e-9
+    )
 
 
 # -- depth blocks -------------------------------------------------------------------------------------------
@@ -198,11 +213,16 @@ K = np.array([[500.0, 0, 3.0], [0, 500.0, 2.0], [0, 0, 1]])
 
 
 def test_depth_blocks_average_the_measured_pixels_on_the_block_centre_ray():
-    depth = np.array([[1000, 1002, 2000, 0, 0, 0, 7],
-                      [1004, 1006, 2000, 65535, 0, 0, 7],
-                      [3000, 3000, 1500, 1500, 500, 500, 7],
-                      [3000, 3000, 1500, 9000, 500, 500, 7],
-                      [9, 9, 9, 9, 9, 9, 9]], dtype=np.uint16)
+    depth = np.array(
+        [
+            [1000, 1002, 2000, 0, 0, 0, 7],
+            [1004, 1006, 2000, 65535, 0, 0, 7],
+            [3000, 3000, 1500, 1500, 500, 500, 7],
+            [3000, 3000, 1500, 9000, 500, 500, 7],
+            [9, 9, 9, 9, 9, 9, 9],
+        ],
+        dtype=np.uint16,
+    )
     points = back_project(DepthImage(depth, K), pixel_step=2)
     # 2 x 3 whole blocks (the last row and column are a partial block); the top-right block has no measurement
     np.testing.assert_allclose(points[:, 2], [1.003, 2.0, 3.0, 3.375, 0.5])
@@ -210,7 +230,9 @@ def test_depth_blocks_average_the_measured_pixels_on_the_block_centre_ray():
     v = points[:, 1] / points[:, 2] * K[1, 1] + K[1, 2]
     np.testing.assert_allclose(u, [0.5, 2.5, 0.5, 2.5, 4.5])
     np.testing.assert_allclose(v, [0.5, 0.5, 2.5, 2.5, 2.5])
-    np.testing.assert_allclose(back_project(DepthImage(depth, K), 2, min_range=0.6, max_range=3.0)[:, 2], [1.003, 2.0, 3.0])
+    np.testing.assert_allclose(
+        back_project(DepthImage(depth, K), 2, min_range=0.6, max_range=3.0)[:, 2], [1.003, 2.0, 3.0]
+    )
     assert back_project(DepthImage(np.zeros((4, 4), np.uint16), K), 2).shape == (0, 3)
     with pytest.raises(ValueError, match="pixel_step"):
         back_project(DepthImage(depth, K), 0)
@@ -227,6 +249,7 @@ def test_a_depth_frame_off_the_wire_back_projects_as_its_image():
 
 
 # -- real frames --------------------------------------------------------------------------------------------
+
 
 @pytest.mark.skipif(not KITCHEN.is_dir(), reason=f"the 7-Scenes kitchen frames are not at {KITCHEN}")
 def test_the_defaults_on_the_first_100_real_kitchen_frames():

@@ -7,7 +7,13 @@ import pytest
 from conftest import imbalanced_gaussian
 
 from affordcore.learn.baselines import (
-    best_z, different_costs, focused_resampling, linear_tuned, tune_threshold, undersample, zsvm,
+    best_z,
+    different_costs,
+    focused_resampling,
+    linear_tuned,
+    tune_threshold,
+    undersample,
+    zsvm,
 )
 from affordcore.learn.f1_argmax import f1_at
 
@@ -18,7 +24,9 @@ def test_tuned_threshold_is_the_best_there_is(seed):
     scores = np.round(rng.normal(size=300), 1 if seed % 2 else 6)
     labels = np.where(rng.random(300) < 0.2, 1, -1)
     threshold, f1 = tune_threshold(scores, labels)
-    brute = max(f1_at(scores, labels, t) for t in np.concatenate([np.unique(scores) - 1e-9, [scores.max() + 1]]))
+    brute = max(
+        f1_at(scores, labels, t) for t in np.concatenate([np.unique(scores) - 1e-9, [scores.max() + 1]])
+    )
     assert f1 == pytest.approx(brute) and f1_at(scores, labels, threshold) == pytest.approx(f1)
 
 
@@ -29,7 +37,9 @@ def test_best_z_is_the_best_there_is(seed):
     labels = np.where(rng.random(200) < 0.3, 1, -1)
     z = best_z(plus, minus, labels)
     breaks = np.unique((minus / plus)[minus / plus > 0])
-    grid = np.concatenate([[breaks[0] / 2], (breaks[1:] + breaks[:-1]) / 2, [breaks[-1] * 2]])  # one z per interval
+    grid = np.concatenate(
+        [[breaks[0] / 2], (breaks[1:] + breaks[:-1]) / 2, [breaks[-1] * 2]]
+    )  # one z per interval
     brute = max(f1_at(g * plus - minus, labels) for g in grid)
     assert z > 0 and f1_at(z * plus - minus, labels) == pytest.approx(brute)
 

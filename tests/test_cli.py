@@ -18,16 +18,24 @@ from affordcore.skeleton import all_skeletons, get_skeleton
 
 
 def afford(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "afford", *args], capture_output=True, text=True, timeout=300, env=env)
+    return subprocess.run(
+        [sys.executable, "-m", "afford", *args], capture_output=True, text=True, timeout=300, env=env
+    )
 
 
 @pytest.fixture(scope="module")
 def small_room(tmp_path_factory) -> str:
     rng = np.random.default_rng(0)
     # Sizes off the 10 cm lattice, so the grid's extent does not hinge on rounding at a cell edge.
-    boxes = [((0, 0, 0), (2.47, 1.96, 0)), ((0, -0.08, 0), (2.47, 0, 2.3)), ((-0.08, 0, 0), (0, 1.96, 2.3)),
-             ((1.0, 0.8, 0.7), (1.8, 1.5, 0.74))]
-    points = np.concatenate([box_surface_points(np.array(a, float), np.array(b, float), 800, rng) for a, b in boxes])
+    boxes = [
+        ((0, 0, 0), (2.47, 1.96, 0)),
+        ((0, -0.08, 0), (2.47, 0, 2.3)),
+        ((-0.08, 0, 0), (0, 1.96, 2.3)),
+        ((1.0, 0.8, 0.7), (1.8, 1.5, 0.74)),
+    ]
+    points = np.concatenate(
+        [box_surface_points(np.array(a, float), np.array(b, float), 800, rng) for a, b in boxes]
+    )
     path = tmp_path_factory.mktemp("cloud") / "small-room.ply"
     save_cloud(path, Cloud(points))
     return str(path)
@@ -54,7 +62,11 @@ def test_features_json_contract(small_room):
     skeleton = get_skeleton("sitting-working")
     expected = PoseGrid.over_footprint((-0.08, -0.08, 2.47, 1.96), skeleton.torso_height, 0.1)
     assert report["poses"] == expected.size == 26 * 21 * 3 * 63
-    assert report["features"] == FeatureLayout.from_settings(Settings().features, Settings().voxel).n_features == 222
+    assert (
+        report["features"]
+        == FeatureLayout.from_settings(Settings().features, Settings().voxel).n_features
+        == 222
+    )
     assert report["seconds"] > 0 and report["peak_rss_mb"] > 50
 
 
@@ -109,7 +121,9 @@ def test_align_reports_the_frame_it_found(small_room, tmp_path):
     report = json.loads(result.stdout)
     assert report["up_axis"] == "+y" and abs(report["floor_offset"] - 0.8) < 0.02
     aligned = load_cloud(out).points
-    np.testing.assert_allclose(np.sort(aligned[:, 2])[[0, -1]], np.sort(cloud.points[:, 2])[[0, -1]], atol=0.02)
+    np.testing.assert_allclose(
+        np.sort(aligned[:, 2])[[0, -1]], np.sort(cloud.points[:, 2])[[0, -1]], atol=0.02
+    )
 
 
 def test_config_prints_every_default_with_its_variable():

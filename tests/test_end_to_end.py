@@ -11,11 +11,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SHARED_DATA, needs_shared
 
 from affordcore.recording import recorded_entities
 from services.launch import Stack
-
-from conftest import SHARED_DATA, needs_shared
 
 AFFORD = [sys.executable, "-m", "afford"]  # the command line of this interpreter, as a user runs it
 
@@ -23,9 +22,17 @@ pytestmark = pytest.mark.slow
 AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")
 KITCHEN = SHARED_DATA / "sequences" / "7scenes_redkitchen_frames_000000-000299"
 ENTITIES = {
-    "assembler": {"/world/odom", "/world/odom/sensor", "/world/odom/sensor/scan", "/world/odom/trajectory", "/world/cloud"},
+    "assembler": {
+        "/world/odom",
+        "/world/odom/sensor",
+        "/world/odom/sensor/scan",
+        "/world/odom/trajectory",
+        "/world/cloud",
+    },
     "features": {"/world/cloud", "/world/fields/occupied", "/world/fields/normals"},
-    "inference": {f"/world/{name}/{part}" for name in AFFORDANCES for part in ("confidence", "skeletons", "places")},
+    "inference": {
+        f"/world/{name}/{part}" for name in AFFORDANCES for part in ("confidence", "skeletons", "places")
+    },
 }
 
 
@@ -46,11 +53,39 @@ def _afford(*args: str, timeout: float) -> subprocess.CompletedProcess:
     return subprocess.run(AFFORD + list(args), capture_output=True, text=True, timeout=timeout)
 
 
-def _stream_and_watch(stack: Stack, frames_folder: Path, out: Path, publish_args: list[str], frames: int) -> str:
-    watch = subprocess.Popen(AFFORD + ["watch", "--connect", stack.endpoint, "--robot", stack.robot, "--frames", str(frames),
-                                                 "--timeout", "300", "--out", str(out)],
-                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    published = _afford("publish", str(frames_folder), "--connect", stack.endpoint, "--robot", stack.robot, "-q", *publish_args, timeout=300)
+def _stream_and_watch(
+    stack: Stack, frames_folder: Path, out: Path, publish_args: list[str], frames: int
+) -> str:
+    watch = subprocess.Popen(
+        AFFORD
+        + [
+            "watch",
+            "--connect",
+            stack.endpoint,
+            "--robot",
+            stack.robot,
+            "--frames",
+            str(frames),
+            "--timeout",
+            "300",
+            "--out",
+            str(out),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    published = _afford(
+        "publish",
+        str(frames_folder),
+        "--connect",
+        stack.endpoint,
+        "--robot",
+        stack.robot,
+        "-q",
+        *publish_args,
+        timeout=300,
+    )
     assert published.returncode == 0, published.stderr + stack.logs()
     assert f"published {frames} depth frames" in published.stdout
     output, _ = watch.communicate(timeout=360)
@@ -63,12 +98,19 @@ def _check_recordings(folder: Path, recording_id: str) -> None:
 
     for service, entities in ENTITIES.items():
         rrd = folder / f"{service}.rrd"
-        verify = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
+        verify = subprocess.run(
+            [sys.executable, "-m", "rerun", "rrd", "verify", str(rrd)],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert verify.returncode == 0, f"{rrd}: {verify.stdout}{verify.stderr}"
         missing = entities - recorded_entities(rrd)
         assert not missing, f"{service}.rrd lacks {sorted(missing)}"
         # one recording id across the processes: the viewer opens the three files as one recording
-        assert [(e.application_id, e.recording_id) for e in RrdReader(str(rrd)).recordings()] == [("affordmap", recording_id)]
+        assert [(e.application_id, e.recording_id) for e in RrdReader(str(rrd)).recordings()] == [
+            ("affordmap", recording_id)
+        ]
 
 
 def _check_maps(out: Path, frames: int, watched: str) -> dict:
@@ -87,7 +129,9 @@ def _check_maps(out: Path, frames: int, watched: str) -> dict:
     return documents
 
 
-def test_generated_depth_frames_become_affordance_maps_through_the_three_services(generated_sequence, tmp_path):
+def test_generated_depth_frames_become_affordance_maps_through_the_three_services(
+    generated_sequence, tmp_path
+):
     stack = Stack(tmp_path / "run", env={"AFFORD_SERVICE__RECORDING_ID": "e2e-generated"}).start()
     try:
         watched = _stream_and_watch(stack, generated_sequence, tmp_path / "maps", ["--rate", "30"], frames=40)
@@ -95,7 +139,9 @@ def test_generated_depth_frames_become_affordance_maps_through_the_three_service
         codes = stack.stop()
     assert codes == {"assembler": 0, "features": 0, "inference": 0, "router": 0}, stack.logs()
     documents = _check_maps(tmp_path / "maps", 40, watched)
-    assert sum(len(d["skeletons"]) for d in documents.values()) > 0, "a living room with sofas and no place at all"
+    assert sum(len(d["skeletons"]) for d in documents.values()) > 0, (
+        "a living room with sofas and no place at all"
+    )
     _check_recordings(tmp_path / "run", "e2e-generated")
     assert "0 rejected" in (tmp_path / "run" / "assembler.log").read_text()
 
@@ -104,7 +150,9 @@ def test_generated_depth_frames_become_affordance_maps_through_the_three_service
 def test_the_real_kitchen_frames_become_affordance_maps_through_the_three_services(tmp_path):
     stack = Stack(tmp_path / "run").start()
     try:
-        watched = _stream_and_watch(stack, KITCHEN, tmp_path / "maps", ["--rate", "30", "--step", "3"], frames=100)
+        watched = _stream_and_watch(
+            stack, KITCHEN, tmp_path / "maps", ["--rate", "30", "--step", "3"], frames=100
+        )
     finally:
         codes = stack.stop()
     assert codes == {"assembler": 0, "features": 0, "inference": 0, "router": 0}, stack.logs()

@@ -26,8 +26,17 @@ def data_set(tmp_path_factory):
     save_cloud(folder / "bench-room.ply", Cloud(points, colors))
     labels = room.labels()
     xs, ys = points[:, 0], points[:, 1]
-    labels["unlabelled_regions"] = [{"polygon": [[xs.min(), ys.min()], [xs.min() + 1, ys.min()], [xs.min() + 1, ys.min() + 1],
-                                                 [xs.min(), ys.min() + 1]], "note": "left out"}]
+    labels["unlabelled_regions"] = [
+        {
+            "polygon": [
+                [xs.min(), ys.min()],
+                [xs.min() + 1, ys.min()],
+                [xs.min() + 1, ys.min() + 1],
+                [xs.min(), ys.min() + 1],
+            ],
+            "note": "left out",
+        }
+    ]
     (folder / "bench-room.labels.json").write_text(json.dumps(labels))
     (folder / "no-labels.ply").write_bytes((folder / "bench-room.ply").read_bytes())  # ignored: no label file
     return folder

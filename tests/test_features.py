@@ -27,7 +27,9 @@ def _room(seed: int = 0, size: float = 3.2, shift: float = 0.0) -> np.ndarray:
         ((0.05, 2.2, 0.0), (0.4, 3.0, 1.6)),
     ]
     offset = np.array([shift, shift, 0.0])
-    return np.concatenate([box_surface_points(np.array(a) + offset, np.array(b) + offset, 700, rng) for a, b in boxes])
+    return np.concatenate(
+        [box_surface_points(np.array(a) + offset, np.array(b) + offset, 700, rng) for a, b in boxes]
+    )
 
 
 def _trilinear(field: np.ndarray, origin: np.ndarray, res: float, points: np.ndarray) -> np.ndarray:
@@ -57,11 +59,17 @@ def reference_features(fields, skeleton, pose, layout: FeatureLayout) -> np.ndar
     coll = list(_trilinear(fields.occupancy, origin, res, joints))
     n, cell, per = layout.cells_per_axis, layout.cell_size, layout.samples_per_cell
     # Every sample of every cell, cells in C order over (forward, left, up), samples grouped per cell.
-    offsets = np.array([
-        -layout.cube_size / 2 + np.array([i, j, k]) * cell + (np.array([a, b, d]) + 0.5) * cell / per
-        for i in range(n) for j in range(n) for k in range(n)
-        for a in range(per) for b in range(per) for d in range(per)
-    ])
+    offsets = np.array(
+        [
+            -layout.cube_size / 2 + np.array([i, j, k]) * cell + (np.array([a, b, d]) + 0.5) * cell / per
+            for i in range(n)
+            for j in range(n)
+            for k in range(n)
+            for a in range(per)
+            for b in range(per)
+            for d in range(per)
+        ]
+    )
     world_normals = _trilinear(fields.normals, origin, res, torso + offsets @ rotation.T)
     skeleton_normals = np.array([rotation.T @ w for w in world_normals])
     normals = list(skeleton_normals.reshape(n**3, per**3, 3).mean(axis=1).ravel())
@@ -94,7 +102,12 @@ def _streamed_rows(fields, skeleton, grid, layout, wanted: np.ndarray) -> np.nda
     [
         ("sitting-working", 1.0, 0.10, 0.10),  # the paper's layout
         ("standing-working", 1.0, 0.20, 0.10),  # coarse cells: 2 x 2 x 2 samples each
-        ("sitting-relaxing", 0.6, 0.20, 0.05),  # finer voxels than the pose step (slab stride 2), 4^3 samples a cell
+        (
+            "sitting-relaxing",
+            0.6,
+            0.20,
+            0.05,
+        ),  # finer voxels than the pose step (slab stride 2), 4^3 samples a cell
     ],
 )
 def test_features_match_slow_reference_on_random_poses(affordance, cube_size, cell_size, resolution):
@@ -106,7 +119,11 @@ def test_features_match_slow_reference_on_random_poses(affordance, cube_size, ce
     fast = _streamed_rows(fields, skeleton, grid, layout, wanted)
     reference = np.array([reference_features(fields, skeleton, pose, layout) for pose in grid.poses(wanted)])
     # Every block must be non-trivial somewhere, or the comparison proves little.
-    assert reference[:, :15].max() > 0.3 and reference[:, 15:30].max() > 0.5 and np.abs(reference[:, 30:]).max() > 0.5
+    assert (
+        reference[:, :15].max() > 0.3
+        and reference[:, 15:30].max() > 0.5
+        and np.abs(reference[:, 30:]).max() > 0.5
+    )
     np.testing.assert_allclose(fast, reference, atol=2e-5, rtol=1e-5)
 
 
@@ -157,10 +174,14 @@ def test_a_wall_ahead_faces_the_skeleton():
         wall_direction = np.array([np.cos(phi), np.sin(phi)])
         along = np.array([-wall_direction[1], wall_direction[0]])
         s, h = rng.uniform(-1.5, 1.5, 20000), rng.uniform(0, 2.2, 20000)
-        wall = np.column_stack([0.35 * wall_direction[0] + s * along[0], 0.35 * wall_direction[1] + s * along[1], h])
+        wall = np.column_stack(
+            [0.35 * wall_direction[0] + s * along[0], 0.35 * wall_direction[1] + s * along[1], h]
+        )
         fields = compute_fields(np.concatenate([floor, wall]))
         skeleton = get_skeleton("standing-working")
-        grid = PoseGrid(np.array([0.05]), np.array([0.05]), np.array([skeleton.torso_height]), np.array([phi]))
+        grid = PoseGrid(
+            np.array([0.05]), np.array([0.05]), np.array([skeleton.torso_height]), np.array([phi])
+        )
         # Place the pose at the origin-ish lattice point, facing the wall.
         values = compute_features(fields, skeleton, grid, FeatureLayout())[0]
         cells = values[30:].reshape(10, 10, 10, 3)
@@ -193,14 +214,19 @@ def test_reuse_buffer_gives_the_same_values_as_fresh_chunks():
     grid = _sparse_grid(fields, skeleton, n_theta=2)
     layout = FeatureLayout(1.0, 0.5, 0.10)
     fresh = [c.values for c in iter_features(fields, skeleton, grid, layout, chunk_mb=0.1)]
-    reused = [c.values.copy() for c in iter_features(fields, skeleton, grid, layout, chunk_mb=0.1, reuse_buffer=True)]
+    reused = [
+        c.values.copy()
+        for c in iter_features(fields, skeleton, grid, layout, chunk_mb=0.1, reuse_buffer=True)
+    ]
     np.testing.assert_array_equal(np.concatenate(fresh), np.concatenate(reused))
 
 
 def test_poses_beyond_the_fields_are_a_clear_error():
     fields = _fields()
     skeleton = get_skeleton("standing-working")
-    beyond = PoseGrid(np.array([fields.footprint[2] + 5.05]), np.array([0.05]), np.array([1.1]), np.array([0.0]))
+    beyond = PoseGrid(
+        np.array([fields.footprint[2] + 5.05]), np.array([0.05]), np.array([1.1]), np.array([0.0])
+    )
     with pytest.raises(ReachError, match="margin"):
         compute_features(fields, skeleton, beyond, FeatureLayout())
     too_high = PoseGrid(np.array([1.05]), np.array([1.05]), np.array([9.0]), np.array([0.0]))

@@ -32,7 +32,9 @@ def test_occupancy_marks_exactly_the_voxels_holding_points():
 def test_distance_transform_is_the_distance_to_the_nearest_occupied_centre():
     rng = np.random.default_rng(1)
     points = rng.uniform([0, 0, 0], [1.5, 1.5, 1.0], size=(40, 3))
-    fields = compute_fields(points, VoxelSettings(margin=0.3, min_height=1.0), normals=np.tile([0.0, 0.0, 1.0], (40, 1)))
+    fields = compute_fields(
+        points, VoxelSettings(margin=0.3, min_height=1.0), normals=np.tile([0.0, 0.0, 1.0], (40, 1))
+    )
     lattice = fields.lattice
     occupied = lattice.centres(np.argwhere(fields.occupancy > 0))
     every = np.argwhere(np.ones(lattice.shape, bool))

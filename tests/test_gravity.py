@@ -195,7 +195,9 @@ def test_given_gravity_finds_a_floor_that_shows_less_than_the_furniture_on_it():
     """A few frames of a furnished room: a 1.2 m^2 floor patch under a big sofa seat and a table top. The
     biggest low plane is the seat; with gravity known, the floor under it is what is found."""
     rng = np.random.default_rng(5)
-    floor = np.column_stack([rng.uniform(0, 1.2, 3000), rng.uniform(0, 1.0, 3000), rng.normal(0, 0.004, 3000)])
+    floor = np.column_stack(
+        [rng.uniform(0, 1.2, 3000), rng.uniform(0, 1.0, 3000), rng.normal(0, 0.004, 3000)]
+    )
     seat = np.column_stack([rng.uniform(0, 2.5, 20000), rng.uniform(1.0, 2.0, 20000), np.full(20000, 0.45)])
     table = np.column_stack([rng.uniform(0, 2.5, 20000), rng.uniform(2.0, 3.0, 20000), np.full(20000, 0.74)])
     wall = np.column_stack([np.zeros(20000), rng.uniform(0, 3, 20000), rng.uniform(0, 2.5, 20000)])
@@ -375,7 +377,10 @@ def test_real_7scenes_merged_frames_find_gravity():
     assert gravity.shape == (3,)
     frames = range(0, 300, 30)
     world = np.concatenate(
-        [_back_project(SEVEN_SCENES / f"frame-{i:06d}.depth.png", SEVEN_SCENES / f"frame-{i:06d}.pose.txt") for i in frames]
+        [
+            _back_project(SEVEN_SCENES / f"frame-{i:06d}.depth.png", SEVEN_SCENES / f"frame-{i:06d}.pose.txt")
+            for i in frames
+        ]
     )
     assert len(world) > 500_000
     alignment = align_to_gravity(world)

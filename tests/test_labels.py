@@ -10,11 +10,22 @@ import numpy as np
 import pytest
 
 from affordcore.grid import PoseGrid
-from affordcore.plots import plot_labels
 from affordcore.labels import (
-    THETA_TOLERANCE, XY_TOLERANCE, ClassCount, Label, LabelError, LabelSet, UnlabelledRegion,
-    affordance_colours, class_counts, ground_truth, load_labels, match_places, save_labels,
+    THETA_TOLERANCE,
+    XY_TOLERANCE,
+    ClassCount,
+    Label,
+    LabelError,
+    LabelSet,
+    UnlabelledRegion,
+    affordance_colours,
+    class_counts,
+    ground_truth,
+    load_labels,
+    match_places,
+    save_labels,
 )
+from affordcore.plots import plot_labels
 
 TWO_PI = 2 * math.pi
 
@@ -38,10 +49,13 @@ def test_tolerances_are_the_design_values():
     assert (XY_TOLERANCE, THETA_TOLERANCE) == (0.15, 0.4)
 
 
-@pytest.mark.parametrize("label", [
-    Label("perch", 0.0, start=(-1.0, 0.0), end=(1.0, 0.0)),
-    Label("perch", 0.0, at=(0.0, 0.0)),
-])
+@pytest.mark.parametrize(
+    "label",
+    [
+        Label("perch", 0.0, start=(-1.0, 0.0), end=(1.0, 0.0)),
+        Label("perch", 0.0, at=(0.0, 0.0)),
+    ],
+)
 def test_xy_tolerance_edge(label):
     truth = positives(room(label), grid([0.0], [0.149, 0.151]))
     assert truth[0, 0].tolist() == [True, False]
@@ -67,14 +81,25 @@ def test_segment_covers_its_length_and_a_point_only_its_disc():
     assert positives(degenerate, g).tolist() == positives(point, g).tolist()
 
 
-@pytest.mark.parametrize("facing, thetas, expected", [
-    (1.0, [1.39, 1.41, 0.61, 0.59], [True, False, True, False]),
-    # across the 0 / 2 pi wrap, both ways
-    (6.25, [0.05, 6.25 + 0.39 - TWO_PI, 6.25 + 0.41 - TWO_PI, 5.86, 5.84], [True, True, False, True, False]),
-    (0.05, [6.25, 0.05 - 0.39 + TWO_PI, 0.05 - 0.41 + TWO_PI, 0.44, 0.46], [True, True, False, True, False]),
-    # facing outside [0, 2 pi) (files may say -1.5708)
-    (-0.03, [6.2, 0.36, 0.38, 3.14], [True, True, False, False]),
-])
+@pytest.mark.parametrize(
+    "facing, thetas, expected",
+    [
+        (1.0, [1.39, 1.41, 0.61, 0.59], [True, False, True, False]),
+        # across the 0 / 2 pi wrap, both ways
+        (
+            6.25,
+            [0.05, 6.25 + 0.39 - TWO_PI, 6.25 + 0.41 - TWO_PI, 5.86, 5.84],
+            [True, True, False, True, False],
+        ),
+        (
+            0.05,
+            [6.25, 0.05 - 0.39 + TWO_PI, 0.05 - 0.41 + TWO_PI, 0.44, 0.46],
+            [True, True, False, True, False],
+        ),
+        # facing outside [0, 2 pi) (files may say -1.5708)
+        (-0.03, [6.2, 0.36, 0.38, 3.14], [True, True, False, False]),
+    ],
+)
 def test_theta_tolerance_edge_and_wrap(facing, thetas, expected):
     truth = positives(room(Label("perch", facing, at=(0.0, 0.0))), grid([0.0], [0.0], theta=thetas))
     assert truth[:, 0, 0].tolist() == expected
@@ -118,7 +143,9 @@ def test_counts_on_a_hand_computed_grid():
     negatives = truth.scored_mask() & ~truth.pose_mask()
     assert (positive, negative) == (int(truth.pose_mask().sum()), int(negatives.sum()))
     assert class_counts(labels, {"perch": g, "lean": g}) == {
-        "lean": ClassCount(8, 64, "1:8"), "perch": ClassCount(8, 64, "1:8")}
+        "lean": ClassCount(8, 64, "1:8"),
+        "perch": ClassCount(8, 64, "1:8"),
+    }
 
 
 def test_class_count_ratio_reads_like_the_paper():
@@ -135,8 +162,10 @@ def full_room() -> LabelSet:
         Label("perch", -1.5708, start=(1.2, 3.0), end=(2.6, 3.0), note="3-seat sofa"),
         Label("lean", 0.0, at=(4.1, 0.8)),
         Label("levitating", 0.1, at=(0, 0), note="an affordance with no skeleton loads too"),
-        regions=(UnlabelledRegion(((0, 0), (1, 0), (1, 1), (0, 1)), "not scanned"),
-                 UnlabelledRegion(((5, 5), (6, 5), (6, 6)))),
+        regions=(
+            UnlabelledRegion(((0, 0), (1, 0), (1, 1), (0, 1)), "not scanned"),
+            UnlabelledRegion(((5, 5), (6, 5), (6, 6))),
+        ),
     )
 
 
@@ -146,8 +175,13 @@ def test_save_load_round_trip(tmp_path):
     assert load_labels(path) == labels
     document = json.loads(path.read_text())
     assert document["format"] == "affordance-labels/1"
-    assert document["labels"][0] == {"affordance": "perch", "from": [1.2, 3.0], "to": [2.6, 3.0],
-                                     "facing": -1.5708, "note": "3-seat sofa"}
+    assert document["labels"][0] == {
+        "affordance": "perch",
+        "from": [1.2, 3.0],
+        "to": [2.6, 3.0],
+        "facing": -1.5708,
+        "note": "3-seat sofa",
+    }
     assert document["labels"][1] == {"affordance": "lean", "at": [4.1, 0.8], "facing": 0.0}
     assert set(document) == {"format", "scene", "cloud", "frame", "labels", "unlabelled_regions"}
 
@@ -165,32 +199,41 @@ def edit(document: dict, change) -> dict:
     return document
 
 
-@pytest.mark.parametrize("change, field, problem", [
-    (lambda d: d.update(format="affordance-labels/2"), "format", "must be 'affordance-labels/1'"),
-    (lambda d: d.pop("format"), "format", "must be"),
-    (lambda d: d.pop("scene"), "scene", "is missing"),
-    (lambda d: d.update(cloud=3), "cloud", "must be a string"),
-    (lambda d: d.update(labels={"0": {}}), "labels", "must be a list"),
-    (lambda d: d.update(unlabeled_regions=[]), "unlabeled_regions", "is not a field"),
-    (lambda d: d["labels"][1].update({"from": [0, 0], "to": [1, 0]}), "labels[1]", "not both"),
-    (lambda d: d["labels"][1].pop("at"), "labels[1]", "either 'at'"),
-    (lambda d: d["labels"][0].pop("to"), "labels[0].to", "is missing"),
-    (lambda d: d["labels"][1].update(at=[1.0]), "labels[1].at", "must be 2 numbers"),
-    (lambda d: d["labels"][1].update(at=[1.0, 2.0, 3.0]), "labels[1].at", "must be 2 numbers"),
-    (lambda d: d["labels"][0].update({"from": ["1.2", 3.0]}), "labels[0].from[0]", "must be a number"),
-    (lambda d: d["labels"][0].update(to=[2.6, float("inf")]), "labels[0].to[1]", "must be finite"),
-    (lambda d: d["labels"][2].update(facing="north"), "labels[2].facing", "must be a number"),
-    (lambda d: d["labels"][2].update(facing=True), "labels[2].facing", "must be a number"),
-    (lambda d: d["labels"][2].update(facing=float("nan")), "labels[2].facing", "must be finite"),
-    (lambda d: d["labels"][2].pop("facing"), "labels[2].facing", "is missing"),
-    (lambda d: d["labels"][1].update(affordance=""), "labels[1].affordance", "non-empty string"),
-    (lambda d: d["labels"][1].update(facng=0.0), "labels[1].facng", "is not a field"),
-    (lambda d: d["labels"].append("sofa"), "labels[3]", "must be an object"),
-    (lambda d: d["unlabelled_regions"][1].update(polygon=[[0, 0], [1, 1]]), "unlabelled_regions[1].polygon",
-     "at least 3 vertices"),
-    (lambda d: d["unlabelled_regions"][0]["polygon"].__setitem__(2, [1, None]),
-     "unlabelled_regions[0].polygon[2][1]", "must be a number"),
-])
+@pytest.mark.parametrize(
+    "change, field, problem",
+    [
+        (lambda d: d.update(format="affordance-labels/2"), "format", "must be 'affordance-labels/1'"),
+        (lambda d: d.pop("format"), "format", "must be"),
+        (lambda d: d.pop("scene"), "scene", "is missing"),
+        (lambda d: d.update(cloud=3), "cloud", "must be a string"),
+        (lambda d: d.update(labels={"0": {}}), "labels", "must be a list"),
+        (lambda d: d.update(unlabeled_regions=[]), "unlabeled_regions", "is not a field"),
+        (lambda d: d["labels"][1].update({"from": [0, 0], "to": [1, 0]}), "labels[1]", "not both"),
+        (lambda d: d["labels"][1].pop("at"), "labels[1]", "either 'at'"),
+        (lambda d: d["labels"][0].pop("to"), "labels[0].to", "is missing"),
+        (lambda d: d["labels"][1].update(at=[1.0]), "labels[1].at", "must be 2 numbers"),
+        (lambda d: d["labels"][1].update(at=[1.0, 2.0, 3.0]), "labels[1].at", "must be 2 numbers"),
+        (lambda d: d["labels"][0].update({"from": ["1.2", 3.0]}), "labels[0].from[0]", "must be a number"),
+        (lambda d: d["labels"][0].update(to=[2.6, float("inf")]), "labels[0].to[1]", "must be finite"),
+        (lambda d: d["labels"][2].update(facing="north"), "labels[2].facing", "must be a number"),
+        (lambda d: d["labels"][2].update(facing=True), "labels[2].facing", "must be a number"),
+        (lambda d: d["labels"][2].update(facing=float("nan")), "labels[2].facing", "must be finite"),
+        (lambda d: d["labels"][2].pop("facing"), "labels[2].facing", "is missing"),
+        (lambda d: d["labels"][1].update(affordance=""), "labels[1].affordance", "non-empty string"),
+        (lambda d: d["labels"][1].update(facng=0.0), "labels[1].facng", "is not a field"),
+        (lambda d: d["labels"].append("sofa"), "labels[3]", "must be an object"),
+        (
+            lambda d: d["unlabelled_regions"][1].update(polygon=[[0, 0], [1, 1]]),
+            "unlabelled_regions[1].polygon",
+            "at least 3 vertices",
+        ),
+        (
+            lambda d: d["unlabelled_regions"][0]["polygon"].__setitem__(2, [1, None]),
+            "unlabelled_regions[0].polygon[2][1]",
+            "must be a number",
+        ),
+    ],
+)
 def test_validation_errors_name_the_file_and_the_field(tmp_path, change, field, problem):
     path = tmp_path / "room.labels.json"
     document = edit(json.loads(save_labels(path, full_room()).read_text()), change)
@@ -233,15 +276,17 @@ def test_match_places_found_false_and_ignored():
         Label("perch", 0.0, at=(10.0, 10.0)),  # inside the region: nothing can find it
         regions=(region,),
     )
-    skeletons = np.array([
-        [0.5, 0.1, 0.2],  # finds the segment
-        [1.1, 0.0, 6.2],  # also the segment (end cap, across the wrap): not false
-        [3.0, 0.2, 0.0],  # at the point but facing 1.57 rad away: false
-        [5.0, 5.0, 0.0],  # on a label of another affordance: false
-        [10.0, 10.0, 0.0],  # in the unlabelled region, on a label: ignored
-        [10.0, 9.5, 3.0],  # in the unlabelled region, on nothing: ignored, not false
-        [3.0, 0.149, 1.57 + 0.39],  # the point, at both tolerances' edges
-    ])
+    skeletons = np.array(
+        [
+            [0.5, 0.1, 0.2],  # finds the segment
+            [1.1, 0.0, 6.2],  # also the segment (end cap, across the wrap): not false
+            [3.0, 0.2, 0.0],  # at the point but facing 1.57 rad away: false
+            [5.0, 5.0, 0.0],  # on a label of another affordance: false
+            [10.0, 10.0, 0.0],  # in the unlabelled region, on a label: ignored
+            [10.0, 9.5, 3.0],  # in the unlabelled region, on nothing: ignored, not false
+            [3.0, 0.149, 1.57 + 0.39],  # the point, at both tolerances' edges
+        ]
+    )
     match = match_places(labels, "perch", skeletons)
     assert [label.at or label.start for label in match.labels] == [(0.0, 0.0), (3.0, 0.0), (10.0, 10.0)]
     assert match.found.tolist() == [True, True, False]
@@ -306,8 +351,10 @@ def test_real_label_files(real_rooms, tmp_path):
 
     for path, labels, cloud in real_rooms:
         footprint = (*cloud.points[:, :2].min(axis=0), *cloud.points[:, :2].max(axis=0))
-        grids = {skeleton.affordance: PoseGrid.over_footprint(footprint, skeleton.torso_height, 0.1)
-                 for skeleton in all_skeletons()}
+        grids = {
+            skeleton.affordance: PoseGrid.over_footprint(footprint, skeleton.torso_height, 0.1)
+            for skeleton in all_skeletons()
+        }
         assert set(labels.affordances) <= set(grids), f"{path.name}: labels of types with no skeleton"
         for i, label in enumerate(labels.labels):
             alone = ground_truth(replace(labels, labels=(label,)), label.affordance, grids[label.affordance])

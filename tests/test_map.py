@@ -12,19 +12,22 @@ import pytest
 
 from affordcore.example import example_room
 from affordcore.features import FeatureLayout
-from affordcore.learn.model import load_model
-from affordcore.learn.model import shipped_models
-from affordcore.scene import thin_huge_cloud
+from affordcore.learn.model import load_model, shipped_models
 from affordcore.recording import recorded_entities
-from affordcore.scene import Cloud, load_cloud, save_cloud
+from affordcore.scene import Cloud, load_cloud, save_cloud, thin_huge_cloud
 from affordcore.settings import MapSettings, Settings
 
 AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")
 
 
 def afford(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "afford", *map(str, args)], capture_output=True, text=True,
-                          timeout=600, env={**os.environ, **(env or {})})
+    return subprocess.run(
+        [sys.executable, "-m", "afford", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, **(env or {})},
+    )
 
 
 @pytest.fixture(scope="module")
@@ -58,11 +61,18 @@ def test_map_writes_json_png_and_a_verified_recording(mapped):
         grid = document["grid"]
         assert grid["step"] == pytest.approx(0.1) and grid["n_theta"] == 63 and len(grid["z"]) == 3
         scores = [p["score"] for p in document["positives"]]
-        assert all(s > document["threshold"] - 1e-4 for s in scores) and scores == sorted(scores, reverse=True)
+        assert all(s > document["threshold"] - 1e-4 for s in scores) and scores == sorted(
+            scores, reverse=True
+        )
         for skeleton in document["skeletons"]:
-            assert np.array(skeleton["joints"]).shape == (15, 3) and skeleton["score"] > document["threshold"] - 1e-4
+            assert (
+                np.array(skeleton["joints"]).shape == (15, 3)
+                and skeleton["score"] > document["threshold"] - 1e-4
+            )
         assert (out / f"{affordance}.png").stat().st_size > 20_000
-    verify = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(out / "map.rrd")], capture_output=True, text=True)
+    verify = subprocess.run(
+        [sys.executable, "-m", "rerun", "rrd", "verify", str(out / "map.rrd")], capture_output=True, text=True
+    )
     assert verify.returncode == 0, verify.stderr
     entities = recorded_entities(out / "map.rrd")
     assert "/world/cloud" in entities
@@ -93,12 +103,15 @@ def test_world_from_input_maps_the_input_cloud_to_the_world(example, tmp_path):
     assert np.percentile(points[:, 2], 99.9) > 2.0  # and up is up
 
 
-@pytest.mark.parametrize("case, message", [
-    ("empty", "empty file"),
-    ("no-floor", "floor"),
-    ("other-layout", "feature layout"),
-    ("unknown-affordance", "no shipped model for sitting-upside-down"),
-])
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("empty", "empty file"),
+        ("no-floor", "floor"),
+        ("other-layout", "feature layout"),
+        ("unknown-affordance", "no shipped model for sitting-upside-down"),
+    ],
+)
 def test_bad_input_is_a_clear_error(case, message, example, tmp_path):
     args = [example]
     env = {}
@@ -115,7 +128,9 @@ def test_bad_input_is_a_clear_error(case, message, example, tmp_path):
     else:
         args += ["-a", "sitting-upside-down"]
     result = afford("map", *args, "--out", tmp_path / "out", "--quiet", env=env)
-    assert result.returncode == 2 and result.stderr.startswith("error: ") and message in result.stderr, result.stderr
+    assert result.returncode == 2 and result.stderr.startswith("error: ") and message in result.stderr, (
+        result.stderr
+    )
     assert "Traceback" not in result.stderr
 
 
@@ -135,4 +150,6 @@ def test_demo_maps_the_example_room(tmp_path):
     assert result.returncode == 0, result.stderr
     assert all((tmp_path / "demo" / f"{a}.json").exists() for a in AFFORDANCES)
     assert "map.rrd" in result.stdout and "rerun " in result.stdout
-    assert (tmp_path / "demo" / "example-room.ply").stat().st_size > 1_000_000 and "up = input +z" in result.stdout
+    assert (
+        tmp_path / "demo" / "example-room.ply"
+    ).stat().st_size > 1_000_000 and "up = input +z" in result.stdout

@@ -10,7 +10,9 @@ from affordcore.skeleton import get_skeleton
 
 
 def _grid() -> PoseGrid:
-    return PoseGrid(np.arange(20) * 0.1 + 0.05, np.arange(10) * 0.1 + 0.05, np.array([0.5, 0.6]), np.arange(8) * np.pi / 4)
+    return PoseGrid(
+        np.arange(20) * 0.1 + 0.05, np.arange(10) * 0.1 + 0.05, np.array([0.5, 0.6]), np.arange(8) * np.pi / 4
+    )
 
 
 def _bump(grid: PoseGrid, x: float, y: float, iz: int, it: int, height: float) -> np.ndarray:
@@ -31,9 +33,17 @@ def test_one_skeleton_per_place_at_its_best_pose():
     assert (x1, y1, z1, t1, s1) == (0.45, 0.45, 0.6, np.pi / 2, 3.0)
     assert (x2, y2, z2) == (1.55, 0.55, 0.5) and np.isclose(t2, 5 * np.pi / 4) and np.isclose(s2, 2.0)
     assert result.joints.shape == (2, 15, 3)
-    np.testing.assert_allclose(result.joints[0].mean(axis=0)[:2], [0.45, 0.45] + (skeleton.joints @ _rz(np.pi / 2).T).mean(axis=0)[:2], atol=1e-9)
+    np.testing.assert_allclose(
+        result.joints[0].mean(axis=0)[:2],
+        [0.45, 0.45] + (skeleton.joints @ _rz(np.pi / 2).T).mean(axis=0)[:2],
+        atol=1e-9,
+    )
     # the confidence map is the best over theta and z, and remembers which theta
-    assert result.confidence.shape == (20, 10) and result.confidence[4, 4] == 3.0 and result.best_theta[4, 4] == np.pi / 2
+    assert (
+        result.confidence.shape == (20, 10)
+        and result.confidence[4, 4] == 3.0
+        and result.best_theta[4, 4] == np.pi / 2
+    )
 
 
 def test_nothing_above_the_threshold_gives_empty_maps_and_valid_json():
@@ -41,15 +51,28 @@ def test_nothing_above_the_threshold_gives_empty_maps_and_valid_json():
     result = build_map("x", np.full(grid.shape, -1.0), grid, get_skeleton("standing-working"), threshold=0.0)
     assert len(result.skeletons) == 0 and len(result.positives) == 0
     document = result.to_json("model-id", np.eye(4))
-    assert document["skeletons"] == [] and document["positives"] == [] and document["world_from_input"][3] == [0, 0, 0, 1]
+    assert (
+        document["skeletons"] == []
+        and document["positives"] == []
+        and document["world_from_input"][3] == [0, 0, 0, 1]
+    )
 
 
 def test_json_holds_the_grid_and_every_positive():
     grid = _grid()
-    result = build_map("a", _bump(grid, 1.0, 0.5, 0, 0, 1.0), grid, get_skeleton("sitting-working"), threshold=0.0)
+    result = build_map(
+        "a", _bump(grid, 1.0, 0.5, 0, 0, 1.0), grid, get_skeleton("sitting-working"), threshold=0.0
+    )
     document = result.to_json("m", np.eye(4))
     assert document["grid"]["nx"] == 20 and document["grid"]["n_theta"] == 8
-    assert len(document["positives"]) == len(result.positives) and set(document["skeletons"][0]) == {"x", "y", "z", "theta", "score", "joints"}
+    assert len(document["positives"]) == len(result.positives) and set(document["skeletons"][0]) == {
+        "x",
+        "y",
+        "z",
+        "theta",
+        "score",
+        "joints",
+    }
 
 
 def _rz(theta: float) -> np.ndarray:
@@ -72,8 +95,12 @@ def test_observed_floor_is_the_scanned_floor_and_a_margin():
     from affordcore.settings import NormalSettings, VoxelSettings
 
     rng = np.random.default_rng(0)
-    floor = np.column_stack([rng.uniform(0, 2, 20000), rng.uniform(0, 4, 20000), np.zeros(20000)])  # x 0-2 scanned
-    wall = np.column_stack([np.full(8000, 4.0), rng.uniform(0, 4, 8000), rng.uniform(0, 2.4, 8000)])  # x 2-4 not
+    floor = np.column_stack(
+        [rng.uniform(0, 2, 20000), rng.uniform(0, 4, 20000), np.zeros(20000)]
+    )  # x 0-2 scanned
+    wall = np.column_stack(
+        [np.full(8000, 4.0), rng.uniform(0, 4, 8000), rng.uniform(0, 2.4, 8000)]
+    )  # x 2-4 not
     fields = compute_fields(np.concatenate([floor, wall]), VoxelSettings(), NormalSettings())
     x, y = np.array([0.55, 1.85, 2.25, 2.55, 3.05]), np.array([2.05])
     np.testing.assert_array_equal(observed_floor(fields, x, y, 0.3)[:, 0], [True, True, True, False, False])

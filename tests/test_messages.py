@@ -8,11 +8,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from affordcore.depth import back_project
-from affordwire import messages
 from affordcore.grid import PoseGrid
 from affordcore.maps import build_map
-from affordwire.messages import MessageError
 from affordcore.skeleton import get_skeleton
+from affordwire import messages
+from affordwire.messages import MessageError
 
 FIELD = messages._Field
 
@@ -37,15 +37,21 @@ def _scan(records: np.ndarray, types: dict[str, int]):
 
 # -- names and parsing ---------------------------------------------------------------------------------------------
 
+
 def test_schema_names_are_the_full_protobuf_names():
     assert messages.schema_name(messages.Scan) == "afford.v1.Scan"
     assert messages.schema_name(messages.AffordanceMapMessage()) == "afford.v1.AffordanceMap"
 
 
-@pytest.mark.parametrize("payload", [b"\xff", b"\x0a\x10abc", b"\x2a\x05\x01\x02", b"\x07"],
-                         ids=["truncated varint", "truncated bytes", "truncated data", "bad wire type"])
+@pytest.mark.parametrize(
+    "payload",
+    [b"\xff", b"\x0a\x10abc", b"\x2a\x05\x01\x02", b"\x07"],
+    ids=["truncated varint", "truncated bytes", "truncated data", "bad wire type"],
+)
 def test_parse_refuses_what_is_not_protobuf(payload):
-    with pytest.raises(MessageError, match=rf"payload of {len(payload)} bytes is not a valid afford\.v1\.Scan"):
+    with pytest.raises(
+        MessageError, match=rf"payload of {len(payload)} bytes is not a valid afford\.v1\.Scan"
+    ):
         messages.parse(messages.Scan, payload)
 
 
@@ -57,14 +63,19 @@ def test_parse_reads_a_valid_payload():
 
 # -- packed points -------------------------------------------------------------------------------------------------
 
+
 def test_points_and_times_round_trip_at_float32_precision():
     rng = np.random.default_rng(1)
     points = rng.normal(scale=20.0, size=(500, 3))
     times = rng.uniform(0, 0.1, 500)
     scan = messages.Scan(frame_id="lidar")
     messages.pack_points(scan, points, times)
-    assert [(f.name, f.offset, f.type) for f in scan.fields] == [("x", 0, FIELD.FLOAT32), ("y", 4, FIELD.FLOAT32),
-                                                                   ("z", 8, FIELD.FLOAT32), ("t", 12, FIELD.FLOAT32)]
+    assert [(f.name, f.offset, f.type) for f in scan.fields] == [
+        ("x", 0, FIELD.FLOAT32),
+        ("y", 4, FIELD.FLOAT32),
+        ("z", 8, FIELD.FLOAT32),
+        ("t", 12, FIELD.FLOAT32),
+    ]
     assert scan.point_stride == 16 and len(scan.data) == 500 * 16
     got, got_times = messages.unpack_points(_wire(scan))
     assert got.dtype == np.float64 and got.shape == (500, 3)
@@ -80,17 +91,31 @@ def test_points_and_times_round_trip_at_float32_precision():
 
 def test_scan_with_extra_fields_a_larger_stride_and_float64_coordinates():
     rng = np.random.default_rng(2)
-    layout = np.dtype({"names": ["intensity", "x", "y", "z", "ring", "t"],
-                       "formats": ["<u2", "<f8", "<f8", "<f8", "u1", "<f4"],
-                       "offsets": [0, 8, 16, 24, 32, 36], "itemsize": 48})  # 8 bytes of padding at the end
+    layout = np.dtype(
+        {
+            "names": ["intensity", "x", "y", "z", "ring", "t"],
+            "formats": ["<u2", "<f8", "<f8", "<f8", "u1", "<f4"],
+            "offsets": [0, 8, 16, 24, 32, 36],
+            "itemsize": 48,
+        }
+    )  # 8 bytes of padding at the end
     records = np.zeros(300, dtype=layout)
     xyz = rng.normal(scale=30.0, size=(300, 3))
     records["x"], records["y"], records["z"] = xyz.T
     records["intensity"] = rng.integers(0, 65535, 300)
     records["ring"] = rng.integers(0, 64, 300)
     records["t"] = np.linspace(0, 0.1, 300)
-    scan = _scan(records, {"intensity": FIELD.UINT16, "x": FIELD.FLOAT64, "y": FIELD.FLOAT64, "z": FIELD.FLOAT64,
-                           "ring": FIELD.UINT8, "t": FIELD.FLOAT32})
+    scan = _scan(
+        records,
+        {
+            "intensity": FIELD.UINT16,
+            "x": FIELD.FLOAT64,
+            "y": FIELD.FLOAT64,
+            "z": FIELD.FLOAT64,
+            "ring": FIELD.UINT8,
+            "t": FIELD.FLOAT32,
+        },
+    )
     fields = list(scan.fields)
     del scan.fields[:]
     scan.fields.extend(reversed(fields))  # the order of the fields does not matter, their offsets do
@@ -100,7 +125,9 @@ def test_scan_with_extra_fields_a_larger_stride_and_float64_coordinates():
 
 
 def test_integer_and_mixed_coordinate_types_decode_to_their_values():
-    layout = np.dtype({"names": ["x", "y", "z"], "formats": ["<i2", "<f4", "<f8"], "offsets": [0, 2, 8], "itemsize": 16})
+    layout = np.dtype(
+        {"names": ["x", "y", "z"], "formats": ["<i2", "<f4", "<f8"], "offsets": [0, 2, 8], "itemsize": 16}
+    )
     records = np.zeros(3, dtype=layout)
     records["x"], records["y"], records["z"] = [-3, 2, 7], [0.5, -1.25, 4.0], [1e-3, 2.0, -8.5]
     scan = _scan(records, {"x": FIELD.INT16, "y": FIELD.FLOAT32, "z": FIELD.FLOAT64})
@@ -146,14 +173,24 @@ def _field(scan, name):
     return next(f for f in scan.fields if f.name == name)
 
 
-@pytest.mark.parametrize(("spoil", "reason"), [
-    (_without_z, r"need fields x, y, z; missing z \(has x, y, t\)"),
-    (lambda s: s.ClearField("fields"), r"missing x, y, z \(has none\)"),
-    (lambda s: setattr(s, "point_stride", 0), r"point_stride is 0"),
-    (lambda s: setattr(s, "data", s.data + b"\x00\x00\x00"), r"data is 67 bytes, not a whole number of 16-byte points"),
-    (lambda s: setattr(_field(s, "t"), "offset", 13), r"field t \(offset 13, 4 bytes\) runs past the 16-byte point"),
-    (lambda s: setattr(_field(s, "x"), "type", FIELD.UNKNOWN), r"field x has no numeric type"),
-], ids=["missing z", "no fields", "stride 0", "ragged data", "t past the stride", "untyped x"])
+@pytest.mark.parametrize(
+    ("spoil", "reason"),
+    [
+        (_without_z, r"need fields x, y, z; missing z \(has x, y, t\)"),
+        (lambda s: s.ClearField("fields"), r"missing x, y, z \(has none\)"),
+        (lambda s: setattr(s, "point_stride", 0), r"point_stride is 0"),
+        (
+            lambda s: setattr(s, "data", s.data + b"\x00\x00\x00"),
+            r"data is 67 bytes, not a whole number of 16-byte points",
+        ),
+        (
+            lambda s: setattr(_field(s, "t"), "offset", 13),
+            r"field t \(offset 13, 4 bytes\) runs past the 16-byte point",
+        ),
+        (lambda s: setattr(_field(s, "x"), "type", FIELD.UNKNOWN), r"field x has no numeric type"),
+    ],
+    ids=["missing z", "no fields", "stride 0", "ragged data", "t past the stride", "untyped x"],
+)
 def test_bad_point_layouts_are_refused(spoil, reason):
     scan = _valid_scan()
     spoil(scan)
@@ -171,6 +208,7 @@ def test_a_field_past_a_shorter_stride_is_refused():
 
 
 # -- poses and time ------------------------------------------------------------------------------------------------
+
 
 def test_a_random_rigid_transform_round_trips_through_a_pose():
     rng = np.random.default_rng(3)
@@ -194,11 +232,14 @@ def test_an_unset_pose_is_the_identity():
     np.testing.assert_array_equal(messages.pose_matrix(messages.Pose()), np.eye(4))
 
 
-@pytest.mark.parametrize(("quaternion", "reason"), [
-    ((0.0, 0.0, 0.0, 2.0), r"not a unit quaternion \(norm 2\)"),
-    ((0.5, 0.5, 0.0, 0.5), r"not a unit quaternion \(norm 0\.866"),
-    ((0.0, 0.0, np.nan, 1.0), r"not a unit quaternion"),
-])
+@pytest.mark.parametrize(
+    ("quaternion", "reason"),
+    [
+        ((0.0, 0.0, 0.0, 2.0), r"not a unit quaternion \(norm 2\)"),
+        ((0.5, 0.5, 0.0, 0.5), r"not a unit quaternion \(norm 0\.866"),
+        ((0.0, 0.0, np.nan, 1.0), r"not a unit quaternion"),
+    ],
+)
 def test_a_non_unit_quaternion_is_refused(quaternion, reason):
     pose = messages.Pose()
     pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = quaternion
@@ -222,14 +263,32 @@ K = np.array([[500.0, 0.0, 2.2], [0.0, 400.0, 1.7], [0.0, 0.0, 1.0]])
 def test_depth_frame_message_holds_the_image_and_the_pinhole():
     depth = np.arange(12, dtype=np.uint16).reshape(3, 4) * 1000
     frame = _wire(messages.depth_frame_message(depth, K, frame_id="kinect", at=12.5))
-    assert (frame.width, frame.height, frame.frame_id, frame.depth_scale, frame.invalid_value) == (4, 3, "kinect", 0.001, 65535)
+    assert (frame.width, frame.height, frame.frame_id, frame.depth_scale, frame.invalid_value) == (
+        4,
+        3,
+        "kinect",
+        0.001,
+        65535,
+    )
     np.testing.assert_array_equal(np.frombuffer(frame.depth, dtype="<u2").reshape(3, 4), depth)
-    assert (frame.intrinsics.fx, frame.intrinsics.fy, frame.intrinsics.cx, frame.intrinsics.cy) == (500.0, 400.0, 2.2, 1.7)
+    assert (frame.intrinsics.fx, frame.intrinsics.fy, frame.intrinsics.cx, frame.intrinsics.cy) == (
+        500.0,
+        400.0,
+        2.2,
+        1.7,
+    )
     assert messages.seconds(frame.timestamp) == pytest.approx(12.5)
 
 
-@pytest.mark.parametrize("image", [np.zeros((3, 4), dtype=np.float32), np.zeros((3, 4), dtype=np.int32),
-                                   np.zeros((2, 3, 4), dtype=np.uint16)], ids=["float", "int32", "3-D"])
+@pytest.mark.parametrize(
+    "image",
+    [
+        np.zeros((3, 4), dtype=np.float32),
+        np.zeros((3, 4), dtype=np.int32),
+        np.zeros((2, 3, 4), dtype=np.uint16),
+    ],
+    ids=["float", "int32", "3-D"],
+)
 def test_depth_frame_message_wants_a_2d_uint16_image(image):
     with pytest.raises(MessageError, match="must be 2-D uint16"):
         messages.depth_frame_message(image, K)
@@ -277,7 +336,9 @@ def test_depth_scale_and_range_limits():
     frame = messages.depth_frame_message(depth, K)
     np.testing.assert_allclose(back_project_message(frame)[:, 2], [0.5, 1.0, 3.0, 8.0])
     np.testing.assert_allclose(back_project_message(frame, min_range=0.8, max_range=4.0)[:, 2], [1.0, 3.0])
-    np.testing.assert_allclose(back_project_message(frame, min_range=1.0, max_range=3.0)[:, 2], [1.0, 3.0])  # inclusive
+    np.testing.assert_allclose(
+        back_project_message(frame, min_range=1.0, max_range=3.0)[:, 2], [1.0, 3.0]
+    )  # inclusive
     assert back_project_message(frame, min_range=9.0).shape == (0, 3)
     frame.depth_scale = 0.0002  # e.g. a sensor counting fifths of a millimetre
     np.testing.assert_allclose(back_project_message(frame)[:, 2], [0.1, 0.2, 0.6, 1.6])
@@ -301,24 +362,38 @@ def _frame(**changes):
     return frame
 
 
-@pytest.mark.parametrize(("changes", "reason"), [
-    ({"depth": b"\x00" * 23}, r"depth holds 23 bytes; a 4 x 3 16-bit image needs 24"),
-    ({"width": 5}, r"depth holds 24 bytes; a 5 x 3 16-bit image needs 30"),
-    ({"height": 0}, r"depth image is 4 x 0"),
-    ({"fx": 0.0}, r"fx=0\.0, fy=400\.0 must be positive focal lengths"),
-    ({"fx": -500.0}, r"fx=-500\.0"),
-    ({"fy": -1.0}, r"fy=-1\.0 must be positive"),
-    ({"cx": np.nan}, r"must be positive focal lengths"),
-    ({"depth_scale": 0.0}, r"depth_scale must be positive metres per unit, got 0\.0"),
-    ({"depth_scale": -0.001}, r"depth_scale must be positive"),
-], ids=["depth bytes short", "width too big", "height 0", "fx 0", "fx negative", "fy negative", "cx nan", "scale 0",
-        "scale negative"])
+@pytest.mark.parametrize(
+    ("changes", "reason"),
+    [
+        ({"depth": b"\x00" * 23}, r"depth holds 23 bytes; a 4 x 3 16-bit image needs 24"),
+        ({"width": 5}, r"depth holds 24 bytes; a 5 x 3 16-bit image needs 30"),
+        ({"height": 0}, r"depth image is 4 x 0"),
+        ({"fx": 0.0}, r"fx=0\.0, fy=400\.0 must be positive focal lengths"),
+        ({"fx": -500.0}, r"fx=-500\.0"),
+        ({"fy": -1.0}, r"fy=-1\.0 must be positive"),
+        ({"cx": np.nan}, r"must be positive focal lengths"),
+        ({"depth_scale": 0.0}, r"depth_scale must be positive metres per unit, got 0\.0"),
+        ({"depth_scale": -0.001}, r"depth_scale must be positive"),
+    ],
+    ids=[
+        "depth bytes short",
+        "width too big",
+        "height 0",
+        "fx 0",
+        "fx negative",
+        "fy negative",
+        "cx nan",
+        "scale 0",
+        "scale negative",
+    ],
+)
 def test_unusable_depth_frames_are_refused(changes, reason):
     with pytest.raises(MessageError, match=reason):
         back_project_message(_wire(_frame(**changes)))
 
 
 # -- clouds --------------------------------------------------------------------------------------------------------
+
 
 def _rigid(seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
@@ -358,6 +433,7 @@ def test_a_cloud_needs_a_hundred_finite_points():
 
 # -- scene fields --------------------------------------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def small_fields():
     """Fields of a small synthetic room corner (a floor and a wall), normals given so no estimation runs."""
@@ -376,7 +452,9 @@ def test_scene_fields_round_trip_with_what_the_cloud_carried(small_fields):
     cloud = messages.cloud_message(np.zeros((100, 3)), transform, "assembler", frames=12, at=50.0)
     message = _wire(messages.fields_message(small_fields, cloud, at=51.0))
     assert message.frame_id == "world" and message.frames == 12
-    assert message.cloud_timestamp == cloud.timestamp and messages.seconds(message.timestamp) == pytest.approx(51.0)
+    assert message.cloud_timestamp == cloud.timestamp and messages.seconds(
+        message.timestamp
+    ) == pytest.approx(51.0)
     assert message.world_from_input == cloud.world_from_input
     np.testing.assert_allclose(messages.pose_matrix(message.world_from_input), transform, atol=1e-12)
 
@@ -398,23 +476,41 @@ def test_scene_fields_round_trip_with_what_the_cloud_carried(small_fields):
     assert distance[(i * ny + j) * nz + k] == small_fields.distance[i, j, k]
 
 
-@pytest.mark.parametrize(("spoil", "reason"), [
-    (lambda m: setattr(m, "occupancy", m.occupancy[:-1]), r"occupancy holds \d+ bytes; a \(\d+, \d+, \d+\) grid needs"),
-    (lambda m: setattr(m, "distance", m.distance + b"\x00" * 4), r"distance holds \d+ bytes"),
-    (lambda m: setattr(m, "normals", m.normals[:-12]), r"normals holds \d+ bytes"),
-    (lambda m: setattr(m.grid, "nz", m.grid.nz + 1), r"occupancy holds \d+ bytes"),
-    (lambda m: setattr(m.grid, "resolution", 0.0), r"at resolution 0\.0 is empty"),
-    (lambda m: setattr(m.grid, "nx", 0), r"voxel grid \(0, \d+, \d+\) .* is empty"),
-    (lambda m: setattr(m, "x_max", m.x_min - 1), r"empty floor footprint"),
-], ids=["occupancy short", "distance long", "normals short", "grid bigger", "resolution 0", "nx 0", "footprint"])
+@pytest.mark.parametrize(
+    ("spoil", "reason"),
+    [
+        (
+            lambda m: setattr(m, "occupancy", m.occupancy[:-1]),
+            r"occupancy holds \d+ bytes; a \(\d+, \d+, \d+\) grid needs",
+        ),
+        (lambda m: setattr(m, "distance", m.distance + b"\x00" * 4), r"distance holds \d+ bytes"),
+        (lambda m: setattr(m, "normals", m.normals[:-12]), r"normals holds \d+ bytes"),
+        (lambda m: setattr(m.grid, "nz", m.grid.nz + 1), r"occupancy holds \d+ bytes"),
+        (lambda m: setattr(m.grid, "resolution", 0.0), r"at resolution 0\.0 is empty"),
+        (lambda m: setattr(m.grid, "nx", 0), r"voxel grid \(0, \d+, \d+\) .* is empty"),
+        (lambda m: setattr(m, "x_max", m.x_min - 1), r"empty floor footprint"),
+    ],
+    ids=[
+        "occupancy short",
+        "distance long",
+        "normals short",
+        "grid bigger",
+        "resolution 0",
+        "nx 0",
+        "footprint",
+    ],
+)
 def test_unusable_scene_fields_are_refused(small_fields, spoil, reason):
-    message = messages.fields_message(small_fields, messages.cloud_message(np.zeros((100, 3)), np.eye(4), "x"))
+    message = messages.fields_message(
+        small_fields, messages.cloud_message(np.zeros((100, 3)), np.eye(4), "x")
+    )
     spoil(message)
     with pytest.raises(MessageError, match=reason):
         messages.scene_fields(_wire(message))
 
 
 # -- affordance maps -----------------------------------------------------------------------------------------------
+
 
 def _assert_documents_match(got, expected, path="document"):
     """Same structure and keys; numbers within 1e-3 (positives and joints travel as float32)."""
@@ -454,7 +550,12 @@ def test_a_real_map_message_gives_the_document_afford_map_writes(real_map):
     cloud = messages.cloud_message(scene.cloud.points, world_from_input, "example room", frames=3, at=10.0)
     fields = _wire(messages.fields_message(scene.fields, cloud, at=11.0))
     message = _wire(messages.map_message(amap, model_id, fields, at=12.0))
-    assert (message.affordance, message.model, message.frame_id, message.frames) == ("sitting-relaxing", model_id, "world", 3)
+    assert (message.affordance, message.model, message.frame_id, message.frames) == (
+        "sitting-relaxing",
+        model_id,
+        "world",
+        3,
+    )
     assert message.cloud_timestamp == cloud.timestamp and message.world_from_input == cloud.world_from_input
     assert messages.seconds(message.timestamp) == pytest.approx(12.0)
 
@@ -475,7 +576,9 @@ def test_a_real_map_message_gives_the_document_afford_map_writes(real_map):
 
 
 def _small_grid(nx: int = 20, ny: int = 10) -> PoseGrid:
-    return PoseGrid(np.arange(nx) * 0.1 + 0.05, np.arange(ny) * 0.1 + 0.05, np.array([0.5, 0.6]), np.arange(8) * np.pi / 4)
+    return PoseGrid(
+        np.arange(nx) * 0.1 + 0.05, np.arange(ny) * 0.1 + 0.05, np.array([0.5, 0.6]), np.arange(8) * np.pi / 4
+    )
 
 
 def _fields_message():
@@ -491,14 +594,20 @@ def test_a_map_from_random_scores_round_trips():
     amap = build_map("sitting-working", scores, grid, get_skeleton("sitting-working"), threshold=1.5)
     fields = _fields_message()
     message = _wire(messages.map_message(amap, "m-1", fields))
-    _assert_documents_match(messages.map_document_of(message), amap.to_json("m-1", messages.pose_matrix(fields.world_from_input)))
-    np.testing.assert_array_equal(messages.map_arrays(message)["confidence"], amap.confidence.astype(np.float32))
+    _assert_documents_match(
+        messages.map_document_of(message), amap.to_json("m-1", messages.pose_matrix(fields.world_from_input))
+    )
+    np.testing.assert_array_equal(
+        messages.map_arrays(message)["confidence"], amap.confidence.astype(np.float32)
+    )
 
 
 def test_an_empty_map_round_trips():
     """Nothing above the threshold is a common map; a receiver (afford watch) must still read it."""
     grid = _small_grid()
-    amap = build_map("standing-working", np.full(grid.shape, -1.0), grid, get_skeleton("standing-working"), threshold=0.0)
+    amap = build_map(
+        "standing-working", np.full(grid.shape, -1.0), grid, get_skeleton("standing-working"), threshold=0.0
+    )
     message = _wire(messages.map_message(amap, "m-2", _fields_message()))
     arrays = messages.map_arrays(message)
     assert arrays["skeletons"].shape == (0, 5) and arrays["positives"].shape == (0, 5)
@@ -508,7 +617,9 @@ def test_an_empty_map_round_trips():
 
 def test_a_single_position_map_keeps_its_position():
     grid = PoseGrid([0.35], [0.45], [0.5], np.arange(4) * 0.5)
-    amap = build_map("sitting-working", np.ones(grid.shape), grid, get_skeleton("sitting-working"), threshold=0.0)
+    amap = build_map(
+        "sitting-working", np.ones(grid.shape), grid, get_skeleton("sitting-working"), threshold=0.0
+    )
     message = _wire(messages.map_message(amap, "m-3", _fields_message()))
     back = messages.map_grid(message)
     np.testing.assert_allclose(back.x, [0.35])
@@ -530,14 +641,23 @@ def _drop_a_joint(message):
     del message.skeletons[0].joints[-3:]  # whole triples, but 14 joints
 
 
-@pytest.mark.parametrize(("spoil", "reason"), [
-    (lambda m: setattr(m, "confidence", m.confidence[:-4]), r"confidence holds 796 bytes; a 20 x 10 grid needs 800"),
-    (lambda m: setattr(m.grid, "ny", 11), r"confidence holds 800 bytes; a 20 x 11 grid needs 880"),
-    (lambda m: setattr(m, "positives", m.positives + b"\x00" * 4),
-     r"positives hold \d+ bytes, not a whole number of 5-float rows"),
-    (_truncate_joints, r"a skeleton's joints are not 15 \(x, y, z\) triples"),
-    (_drop_a_joint, r"a skeleton's joints are not 15 \(x, y, z\) triples"),
-], ids=["confidence short", "grid bigger", "positives ragged", "joints ragged", "joint missing"])
+@pytest.mark.parametrize(
+    ("spoil", "reason"),
+    [
+        (
+            lambda m: setattr(m, "confidence", m.confidence[:-4]),
+            r"confidence holds 796 bytes; a 20 x 10 grid needs 800",
+        ),
+        (lambda m: setattr(m.grid, "ny", 11), r"confidence holds 800 bytes; a 20 x 11 grid needs 880"),
+        (
+            lambda m: setattr(m, "positives", m.positives + b"\x00" * 4),
+            r"positives hold \d+ bytes, not a whole number of 5-float rows",
+        ),
+        (_truncate_joints, r"a skeleton's joints are not 15 \(x, y, z\) triples"),
+        (_drop_a_joint, r"a skeleton's joints are not 15 \(x, y, z\) triples"),
+    ],
+    ids=["confidence short", "grid bigger", "positives ragged", "joints ragged", "joint missing"],
+)
 def test_unusable_maps_are_refused(spoil, reason):
     message = _map_message()
     spoil(message)

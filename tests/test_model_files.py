@@ -14,9 +14,15 @@ from affordcore.learn.model import AffordanceModel, ModelError, load_model
 def _model(layout: FeatureLayout) -> AffordanceModel:
     rng = np.random.default_rng(0)
     return AffordanceModel(
-        affordance="leaning", layout=layout.describe(), fingerprint=layout.fingerprint,
-        weights=rng.normal(size=layout.n_features), bias=-0.3, threshold=0.1, learner="ssvm",
-        parameters={"C": 1e7}, training={"rooms": ["a", "b"], "class_counts": {"positives": 10, "negatives": 9990}},
+        affordance="leaning",
+        layout=layout.describe(),
+        fingerprint=layout.fingerprint,
+        weights=rng.normal(size=layout.n_features),
+        bias=-0.3,
+        threshold=0.1,
+        learner="ssvm",
+        parameters={"C": 1e7},
+        training={"rooms": ["a", "b"], "class_counts": {"positives": 10, "negatives": 9990}},
         validation={"precision": 0.5, "recall": 0.6, "f1": 0.545},
     )
 
@@ -26,23 +32,33 @@ def test_round_trip(tmp_path):
     model = _model(layout)
     loaded = load_model(model.save(tmp_path / "m.json"), layout)
     np.testing.assert_array_equal(loaded.weights, model.weights)
-    assert (loaded.bias, loaded.threshold, loaded.learner, loaded.validation) == (model.bias, model.threshold, "ssvm", model.validation)
+    assert (loaded.bias, loaded.threshold, loaded.learner, loaded.validation) == (
+        model.bias,
+        model.threshold,
+        "ssvm",
+        model.validation,
+    )
     X = np.random.default_rng(1).normal(size=(5, layout.n_features)).astype(np.float32)
     np.testing.assert_allclose(loaded.decision(X), model.decision(X), rtol=1e-6)
 
 
 def test_another_layout_is_refused_with_both_layouts_named(tmp_path):
     path = _model(FeatureLayout(cell_size=0.25)).save(tmp_path / "m.json")
-    with pytest.raises(ModelError, match=r"m.json: trained on feature layout .*222 features.* computes .*3030 features"):
+    with pytest.raises(
+        ModelError, match=r"m.json: trained on feature layout .*222 features.* computes .*3030 features"
+    ):
         load_model(path, FeatureLayout())
 
 
-@pytest.mark.parametrize("mutate, message", [
-    (lambda d: d.update(format="other/9"), "not an affordance-model/1"),
-    (lambda d: d.pop("weights"), "malformed"),
-    (lambda d: d.update(weights=[1.0, 2.0]), "2 weights for a layout of 222"),
-    (lambda d: d.update(surprise=1), "malformed"),
-])
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda d: d.update(format="other/9"), "not an affordance-model/1"),
+        (lambda d: d.pop("weights"), "malformed"),
+        (lambda d: d.update(weights=[1.0, 2.0]), "2 weights for a layout of 222"),
+        (lambda d: d.update(surprise=1), "malformed"),
+    ],
+)
 def test_bad_files_are_named_errors(tmp_path, mutate, message):
     path = _model(FeatureLayout(cell_size=0.25)).save(tmp_path / "m.json")
     document = json.loads(path.read_text())

@@ -36,7 +36,9 @@ def _write_table(path: Path, table: np.ndarray, header: str | None = None, delim
     path.write_text("\n".join(lines) + "\n")
 
 
-def _check(cloud: Cloud, points: np.ndarray, colors: np.ndarray | None, atol: float = 1e-9, color_atol: float = 1e-6):
+def _check(
+    cloud: Cloud, points: np.ndarray, colors: np.ndarray | None, atol: float = 1e-9, color_atol: float = 1e-6
+):
     assert isinstance(cloud, Cloud)
     assert cloud.points.shape == points.shape
     assert cloud.points.dtype == np.float64
@@ -79,7 +81,10 @@ def test_ply_ascii_written_by_hand(tmp_path, points, colors255):
         f"element vertex {N}\nproperty float x\nproperty float y\nproperty float z\n"
         "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
     )
-    rows = [f"{x:.6f} {y:.6f} {z:.6f} {int(r)} {int(g)} {int(b)}" for (x, y, z), (r, g, b) in zip(points, colors255)]
+    rows = [
+        f"{x:.6f} {y:.6f} {z:.6f} {int(r)} {int(g)} {int(b)}"
+        for (x, y, z), (r, g, b) in zip(points, colors255)
+    ]
     path.write_text(header + "\n".join(rows) + "\n")
     _check(load_cloud(path), points, colors255 / 255.0, atol=2e-6, color_atol=1e-6)
 
@@ -239,7 +244,9 @@ def _poison(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return bad, good
 
 
-def _check_dropped(cloud: Cloud, points: np.ndarray, colors: np.ndarray | None, good: np.ndarray, atol: float):
+def _check_dropped(
+    cloud: Cloud, points: np.ndarray, colors: np.ndarray | None, good: np.ndarray, atol: float
+):
     assert cloud.dropped_nonfinite == 4
     assert len(cloud) == good.sum()
     assert any("4" in note and ("NaN" in note or "nan" in note) for note in cloud.notes), cloud.notes

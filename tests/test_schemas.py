@@ -20,7 +20,14 @@ MODULES = {"geometry": geometry_pb2, "maps": maps_pb2, "sensing": sensing_pb2, "
 
 F = geometry_pb2.Pose.DESCRIPTOR.fields_by_name["frame_id"]  # any field: for the type constants
 STRING, BYTES, DOUBLE, UINT32, UINT64, MESSAGE, ENUM, FLOAT = (
-    F.TYPE_STRING, F.TYPE_BYTES, F.TYPE_DOUBLE, F.TYPE_UINT32, F.TYPE_UINT64, F.TYPE_MESSAGE, F.TYPE_ENUM, F.TYPE_FLOAT,
+    F.TYPE_STRING,
+    F.TYPE_BYTES,
+    F.TYPE_DOUBLE,
+    F.TYPE_UINT32,
+    F.TYPE_UINT64,
+    F.TYPE_MESSAGE,
+    F.TYPE_ENUM,
+    F.TYPE_FLOAT,
 )
 TIMESTAMP = "google.protobuf.Timestamp"
 
@@ -28,7 +35,9 @@ TIMESTAMP = "google.protobuf.Timestamp"
 @pytest.fixture(scope="module")
 def generator():
     """schemas/generate.py loaded as a module (it is a script, not part of a package)."""
-    pytest.importorskip("grpc_tools", reason="grpcio-tools (a test dependency) bundles the protoc the schemas need")
+    pytest.importorskip(
+        "grpc_tools", reason="grpcio-tools (a test dependency) bundles the protoc the schemas need"
+    )
     spec = importlib.util.spec_from_file_location("afford_schemas_generate", ROOT / "schemas" / "generate.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -41,6 +50,7 @@ def generated(generator) -> dict[str, str]:
 
 
 # -- the generated code is current -------------------------------------------------------------------------------
+
 
 def test_checked_in_code_is_what_protoc_generates_now(generator, generated):
     stems = sorted(p.stem for p in PROTOS.glob("*.proto"))
@@ -88,13 +98,17 @@ def test_stale_reports_a_proto_edit(generator, generated, proto_copy, tmp_path, 
     schemas = tmp_path / "schemas"
     shutil.copytree(ROOT / "schemas" / "afford", schemas / "afford")
     path = schemas / "afford" / "v1" / "service.proto"
-    path.write_text(path.read_text().replace("string version = 10;", "string version = 10;\n  string host = 11;"))
+    path.write_text(
+        path.read_text().replace("string version = 10;", "string version = 10;\n  string host = 11;")
+    )
     monkeypatch.setattr(generator, "SCHEMAS", schemas)
     assert generator.stale(generator.generate()) == ["service_pb2.py", "service_pb2.pyi"]
 
 
 def test_main_check_exit_code_and_rewrite(generator, generated, proto_copy, tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(generator, "ROOT", tmp_path)  # main() reports where it wrote relative to the repository
+    monkeypatch.setattr(
+        generator, "ROOT", tmp_path
+    )  # main() reports where it wrote relative to the repository
     monkeypatch.setattr(sys, "argv", ["generate.py", "--check"])
     assert generator.main() == 0
     (proto_copy / "geometry_pb2.py").write_text("stale\n")
@@ -108,6 +122,7 @@ def test_main_check_exit_code_and_rewrite(generator, generated, proto_copy, tmp_
 
 
 # -- every .proto is in afford.v1 ----------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("stem", sorted(MODULES))
 def test_every_proto_declares_package_afford_v1(stem):
@@ -124,61 +139,109 @@ def test_every_proto_declares_package_afford_v1(stem):
 
 # {message: {field: (type, message or enum full name, repeated)}}
 POINTS = {
-    "timestamp": (MESSAGE, TIMESTAMP, False), "frame_id": (STRING, None, False),
-    "fields": (MESSAGE, "afford.v1.PackedElementField", True), "point_stride": (UINT32, None, False),
+    "timestamp": (MESSAGE, TIMESTAMP, False),
+    "frame_id": (STRING, None, False),
+    "fields": (MESSAGE, "afford.v1.PackedElementField", True),
+    "point_stride": (UINT32, None, False),
     "data": (BYTES, None, False),
 }
-SOURCE = {"world_from_input": (MESSAGE, "afford.v1.Pose", False), "cloud_timestamp": (MESSAGE, TIMESTAMP, False),
-          "frames": (UINT32, None, False)}
+SOURCE = {
+    "world_from_input": (MESSAGE, "afford.v1.Pose", False),
+    "cloud_timestamp": (MESSAGE, TIMESTAMP, False),
+    "frames": (UINT32, None, False),
+}
 DESIGN = {
     sensing_pb2.Scan: {**POINTS, "pose_guess": (MESSAGE, "afford.v1.Pose", False)},
     sensing_pb2.DepthFrame: {
-        "timestamp": (MESSAGE, TIMESTAMP, False), "frame_id": (STRING, None, False), "width": (UINT32, None, False),
-        "height": (UINT32, None, False), "depth": (BYTES, None, False), "depth_scale": (DOUBLE, None, False),
-        "invalid_value": (UINT32, None, False), "intrinsics": (MESSAGE, "afford.v1.CameraIntrinsics", False),
+        "timestamp": (MESSAGE, TIMESTAMP, False),
+        "frame_id": (STRING, None, False),
+        "width": (UINT32, None, False),
+        "height": (UINT32, None, False),
+        "depth": (BYTES, None, False),
+        "depth_scale": (DOUBLE, None, False),
+        "invalid_value": (UINT32, None, False),
+        "intrinsics": (MESSAGE, "afford.v1.CameraIntrinsics", False),
         "pose_guess": (MESSAGE, "afford.v1.Pose", False),
     },
     sensing_pb2.CameraIntrinsics: {name: (DOUBLE, None, False) for name in ("fx", "fy", "cx", "cy")},
-    maps_pb2.Cloud: {**POINTS, "world_from_input": (MESSAGE, "afford.v1.Pose", False), "frames": (UINT32, None, False),
-                     "source": (STRING, None, False)},
+    maps_pb2.Cloud: {
+        **POINTS,
+        "world_from_input": (MESSAGE, "afford.v1.Pose", False),
+        "frames": (UINT32, None, False),
+        "source": (STRING, None, False),
+    },
     geometry_pb2.Pose: {
-        "timestamp": (MESSAGE, TIMESTAMP, False), "frame_id": (STRING, None, False), "child_frame_id": (STRING, None, False),
-        "position": (MESSAGE, "afford.v1.Vector3", False), "orientation": (MESSAGE, "afford.v1.Quaternion", False),
+        "timestamp": (MESSAGE, TIMESTAMP, False),
+        "frame_id": (STRING, None, False),
+        "child_frame_id": (STRING, None, False),
+        "position": (MESSAGE, "afford.v1.Vector3", False),
+        "orientation": (MESSAGE, "afford.v1.Quaternion", False),
     },
     geometry_pb2.Vector3: {name: (DOUBLE, None, False) for name in "xyz"},
     geometry_pb2.Quaternion: {name: (DOUBLE, None, False) for name in "xyzw"},
-    geometry_pb2.PackedElementField: {"name": (STRING, None, False), "offset": (UINT32, None, False),
-                                      "type": (ENUM, "afford.v1.PackedElementField.NumericType", False)},
-    maps_pb2.SceneFields: {
-        "timestamp": (MESSAGE, TIMESTAMP, False), "frame_id": (STRING, None, False),
-        "grid": (MESSAGE, "afford.v1.VoxelGrid", False), "occupancy": (BYTES, None, False),
-        "distance": (BYTES, None, False), "normals": (BYTES, None, False),
-        **{name: (DOUBLE, None, False) for name in ("x_min", "y_min", "x_max", "y_max")}, **SOURCE,
+    geometry_pb2.PackedElementField: {
+        "name": (STRING, None, False),
+        "offset": (UINT32, None, False),
+        "type": (ENUM, "afford.v1.PackedElementField.NumericType", False),
     },
-    maps_pb2.VoxelGrid: {"origin": (MESSAGE, "afford.v1.Vector3", False), "resolution": (DOUBLE, None, False),
-                         **{name: (UINT32, None, False) for name in ("nx", "ny", "nz")}},
+    maps_pb2.SceneFields: {
+        "timestamp": (MESSAGE, TIMESTAMP, False),
+        "frame_id": (STRING, None, False),
+        "grid": (MESSAGE, "afford.v1.VoxelGrid", False),
+        "occupancy": (BYTES, None, False),
+        "distance": (BYTES, None, False),
+        "normals": (BYTES, None, False),
+        **{name: (DOUBLE, None, False) for name in ("x_min", "y_min", "x_max", "y_max")},
+        **SOURCE,
+    },
+    maps_pb2.VoxelGrid: {
+        "origin": (MESSAGE, "afford.v1.Vector3", False),
+        "resolution": (DOUBLE, None, False),
+        **{name: (UINT32, None, False) for name in ("nx", "ny", "nz")},
+    },
     maps_pb2.AffordanceMap: {
-        "timestamp": (MESSAGE, TIMESTAMP, False), "frame_id": (STRING, None, False), "affordance": (STRING, None, False),
-        "model": (STRING, None, False), "threshold": (DOUBLE, None, False), "grid": (MESSAGE, "afford.v1.PoseGridSpec", False),
-        "skeletons": (MESSAGE, "afford.v1.PlacedSkeleton", True), "positives": (BYTES, None, False),
-        "confidence": (BYTES, None, False), **SOURCE,
+        "timestamp": (MESSAGE, TIMESTAMP, False),
+        "frame_id": (STRING, None, False),
+        "affordance": (STRING, None, False),
+        "model": (STRING, None, False),
+        "threshold": (DOUBLE, None, False),
+        "grid": (MESSAGE, "afford.v1.PoseGridSpec", False),
+        "skeletons": (MESSAGE, "afford.v1.PlacedSkeleton", True),
+        "positives": (BYTES, None, False),
+        "confidence": (BYTES, None, False),
+        **SOURCE,
     },
     maps_pb2.PoseGridSpec: {
-        "x0": (DOUBLE, None, False), "y0": (DOUBLE, None, False), "step": (DOUBLE, None, False),
-        "nx": (UINT32, None, False), "ny": (UINT32, None, False), "z": (DOUBLE, None, True),
-        "theta_step": (DOUBLE, None, False), "n_theta": (UINT32, None, False),
+        "x0": (DOUBLE, None, False),
+        "y0": (DOUBLE, None, False),
+        "step": (DOUBLE, None, False),
+        "nx": (UINT32, None, False),
+        "ny": (UINT32, None, False),
+        "z": (DOUBLE, None, True),
+        "theta_step": (DOUBLE, None, False),
+        "n_theta": (UINT32, None, False),
     },
-    maps_pb2.PlacedSkeleton: {**{name: (DOUBLE, None, False) for name in ("x", "y", "z", "theta", "score")},
-                              "joints": (FLOAT, None, True)},
+    maps_pb2.PlacedSkeleton: {
+        **{name: (DOUBLE, None, False) for name in ("x", "y", "z", "theta", "score")},
+        "joints": (FLOAT, None, True),
+    },
     service_pb2.Status: {
-        "timestamp": (MESSAGE, TIMESTAMP, False), "service": (STRING, None, False), "robot": (STRING, None, False),
-        "state": (ENUM, "afford.v1.Status.State", False), "detail": (STRING, None, False),
+        "timestamp": (MESSAGE, TIMESTAMP, False),
+        "service": (STRING, None, False),
+        "robot": (STRING, None, False),
+        "state": (ENUM, "afford.v1.Status.State", False),
+        "detail": (STRING, None, False),
         **{name: (UINT64, None, False) for name in ("accepted", "rejected", "published")},
-        "last_seconds": (DOUBLE, None, False), "version": (STRING, None, False),
+        "last_seconds": (DOUBLE, None, False),
+        "version": (STRING, None, False),
     },
     service_pb2.Error: {
-        "timestamp": (MESSAGE, TIMESTAMP, False), "service": (STRING, None, False), "key": (STRING, None, False),
-        "encoding": (STRING, None, False), "payload_bytes": (UINT64, None, False), "reason": (STRING, None, False),
+        "timestamp": (MESSAGE, TIMESTAMP, False),
+        "service": (STRING, None, False),
+        "key": (STRING, None, False),
+        "encoding": (STRING, None, False),
+        "payload_bytes": (UINT64, None, False),
+        "reason": (STRING, None, False),
     },
 }
 
@@ -201,11 +264,17 @@ def test_message_has_the_fields_of_the_design(message):
     assert len(set(numbers)) == len(numbers)
 
 
-@pytest.mark.parametrize("message", [sensing_pb2.Scan, sensing_pb2.DepthFrame], ids=lambda m: m.DESCRIPTOR.name)
+@pytest.mark.parametrize(
+    "message", [sensing_pb2.Scan, sensing_pb2.DepthFrame], ids=lambda m: m.DESCRIPTOR.name
+)
 def test_pose_guess_is_optional(message):
     """`optional Pose pose_guess`: a robot without other odometry leaves it out, and a reader can tell."""
     field = message.DESCRIPTOR.fields_by_name["pose_guess"]
-    assert field.has_presence and field.containing_oneof is not None and field.containing_oneof.name == "_pose_guess"
+    assert (
+        field.has_presence
+        and field.containing_oneof is not None
+        and field.containing_oneof.name == "_pose_guess"
+    )
     scan = message()
     assert not scan.HasField("pose_guess")
     scan.pose_guess.frame_id = "world"
@@ -216,16 +285,42 @@ def test_pose_guess_is_optional(message):
 def test_packed_field_types_and_status_states():
     numeric = geometry_pb2.PackedElementField.NumericType
     assert {name: numeric.Value(name) for name in numeric.keys()} == {
-        "UNKNOWN": 0, "UINT8": 1, "INT8": 2, "UINT16": 3, "INT16": 4, "UINT32": 5, "INT32": 6, "FLOAT32": 7, "FLOAT64": 8,
+        "UNKNOWN": 0,
+        "UINT8": 1,
+        "INT8": 2,
+        "UINT16": 3,
+        "INT16": 4,
+        "UINT32": 5,
+        "INT32": 6,
+        "FLOAT32": 7,
+        "FLOAT64": 8,
     }
     state = service_pb2.Status.State
-    assert set(state.keys()) == {"UNKNOWN", "STARTING", "READY", "BUSY", "STOPPING"} and state.Value("UNKNOWN") == 0
+    assert (
+        set(state.keys()) == {"UNKNOWN", "STARTING", "READY", "BUSY", "STOPPING"}
+        and state.Value("UNKNOWN") == 0
+    )
 
 
 def test_a_depth_frame_serialises_16_bit_depth_with_its_scale_and_intrinsics():
-    frame = sensing_pb2.DepthFrame(width=2, height=1, depth=(1234).to_bytes(2, "little") + (65535).to_bytes(2, "little"),
-                                   depth_scale=0.001, invalid_value=65535)
-    frame.intrinsics.fx, frame.intrinsics.fy, frame.intrinsics.cx, frame.intrinsics.cy = 585.0, 586.0, 320.5, 240.25
+    frame = sensing_pb2.DepthFrame(
+        width=2,
+        height=1,
+        depth=(1234).to_bytes(2, "little") + (65535).to_bytes(2, "little"),
+        depth_scale=0.001,
+        invalid_value=65535,
+    )
+    frame.intrinsics.fx, frame.intrinsics.fy, frame.intrinsics.cx, frame.intrinsics.cy = (
+        585.0,
+        586.0,
+        320.5,
+        240.25,
+    )
     again = sensing_pb2.DepthFrame.FromString(frame.SerializeToString())
     assert again == frame and again.depth == frame.depth and again.depth_scale == 0.001
-    assert (again.intrinsics.fx, again.intrinsics.fy, again.intrinsics.cx, again.intrinsics.cy) == (585.0, 586.0, 320.5, 240.25)
+    assert (again.intrinsics.fx, again.intrinsics.fy, again.intrinsics.cx, again.intrinsics.cy) == (
+        585.0,
+        586.0,
+        320.5,
+        240.25,
+    )

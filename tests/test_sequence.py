@@ -6,12 +6,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SHARED_DATA
 from PIL import Image
 
 from affordcore.depth import back_project
-from affordwire import messages
 from affordcore.sequence import DEPTH_SCALE, INVALID_DEPTH, SequenceError, read_sequence
-from conftest import SHARED_DATA
+from affordwire import messages
 
 K = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0], [0.0, 0.0, 1.0]])
 SEVEN_SCENES = SHARED_DATA / "sequences" / "7scenes_redkitchen_frames_000000-000299"
@@ -52,8 +52,11 @@ def test_a_7scenes_folder_reads_back(tmp_path):
     images = _depth_folder(tmp_path / "seq", indices=(10, 2, 0))
     sequence = read_sequence(tmp_path / "seq")
     assert sequence.kind == "depth" and sequence.folder == tmp_path / "seq"
-    assert [path.name for path in sequence.frames] == ["frame-000000.depth.png", "frame-000002.depth.png",
-                                                       "frame-000010.depth.png"]
+    assert [path.name for path in sequence.frames] == [
+        "frame-000000.depth.png",
+        "frame-000002.depth.png",
+        "frame-000010.depth.png",
+    ]
     np.testing.assert_array_equal(sequence.intrinsics, K)
     for position, index in enumerate((0, 2, 10)):
         depth = sequence.depth(position)
@@ -65,8 +68,9 @@ def test_a_7scenes_folder_reads_back(tmp_path):
 def test_a_sequence_frame_becomes_a_depth_frame_message(tmp_path):
     images = _depth_folder(tmp_path / "seq", indices=(0,))
     sequence = read_sequence(tmp_path / "seq")
-    frame = messages.depth_frame_message(sequence.depth(0), sequence.intrinsics, depth_scale=DEPTH_SCALE,
-                                         invalid_value=INVALID_DEPTH)
+    frame = messages.depth_frame_message(
+        sequence.depth(0), sequence.intrinsics, depth_scale=DEPTH_SCALE, invalid_value=INVALID_DEPTH
+    )
     points = back_project(messages.depth_image(frame))
     valid = (images[0] != 0) & (images[0] != INVALID_DEPTH)
     assert len(points) == valid.sum() == 12 * 16 - 4
@@ -87,7 +91,11 @@ def test_a_lidar_folder_reads_back(tmp_path):
     np.savetxt(tmp_path / "scan-000001.pose.txt", _pose(1))
     sequence = read_sequence(tmp_path)
     assert sequence.kind == "lidar" and sequence.intrinsics is None
-    assert [path.name for path in sequence.frames] == ["scan-000000.bin", "scan-000001.bin", "scan-000003.bin"]
+    assert [path.name for path in sequence.frames] == [
+        "scan-000000.bin",
+        "scan-000001.bin",
+        "scan-000003.bin",
+    ]
     for position, index in enumerate((0, 1, 3)):
         points = sequence.scan(position)
         assert points.dtype == np.float64 and points.shape == (50 + index, 3)
@@ -105,6 +113,7 @@ def test_depth_frames_win_over_scans_in_one_folder(tmp_path):
 
 # -- folders that are not sequences ---------------------------------------------------------------------------------
 
+
 def test_not_a_folder(tmp_path):
     with pytest.raises(SequenceError, match=r"missing: not a folder"):
         read_sequence(tmp_path / "missing")
@@ -117,7 +126,9 @@ def test_a_folder_without_frames(tmp_path):
     (tmp_path / "frame-000000.color.jpg").write_bytes(b"colour only")
     (tmp_path / "scan-000000.pcd").write_bytes(b"another format")
     np.savetxt(tmp_path / "camera-intrinsics.txt", K)
-    with pytest.raises(SequenceError, match=rf"{tmp_path.name}: no frame-NNNNNN\.depth\.png .* or scan-NNNNNN\.bin files"):
+    with pytest.raises(
+        SequenceError, match=rf"{tmp_path.name}: no frame-NNNNNN\.depth\.png .* or scan-NNNNNN\.bin files"
+    ):
         read_sequence(tmp_path)
 
 
@@ -127,12 +138,22 @@ def test_depth_frames_without_intrinsics(tmp_path):
         read_sequence(tmp_path)
 
 
-@pytest.mark.parametrize("intrinsics", [np.eye(2), np.array([585.0, 585.0, 320.0, 240.0]), np.vstack([K, K[:1]]),
-                                        np.diag([0.0, 585.0, 1.0]), np.diag([-585.0, 585.0, 1.0])],
-                         ids=["2 x 2", "one row", "4 x 3", "fx 0", "fx negative"])
+@pytest.mark.parametrize(
+    "intrinsics",
+    [
+        np.eye(2),
+        np.array([585.0, 585.0, 320.0, 240.0]),
+        np.vstack([K, K[:1]]),
+        np.diag([0.0, 585.0, 1.0]),
+        np.diag([-585.0, 585.0, 1.0]),
+    ],
+    ids=["2 x 2", "one row", "4 x 3", "fx 0", "fx negative"],
+)
 def test_bad_intrinsics(tmp_path, intrinsics):
     _depth_folder(tmp_path, intrinsics=intrinsics)
-    with pytest.raises(SequenceError, match=r"camera-intrinsics\.txt: expected a 3 x 3 pinhole matrix with fx > 0"):
+    with pytest.raises(
+        SequenceError, match=r"camera-intrinsics\.txt: expected a 3 x 3 pinhole matrix with fx > 0"
+    ):
         read_sequence(tmp_path)
 
 
@@ -155,7 +176,10 @@ def test_a_depth_frame_that_is_not_16_bit(tmp_path):
 def test_a_scan_that_is_not_whole_points(tmp_path, floats):
     np.arange(floats, dtype="<f4").tofile(tmp_path / "scan-000000.bin")
     sequence = read_sequence(tmp_path)
-    with pytest.raises(SequenceError, match=rf"scan-000000\.bin: {4 * floats} bytes is not a whole number of float32 x, y, z points"):
+    with pytest.raises(
+        SequenceError,
+        match=rf"scan-000000\.bin: {4 * floats} bytes is not a whole number of float32 x, y, z points",
+    ):
         sequence.scan(0)
 
 
@@ -168,6 +192,7 @@ def test_a_scan_with_a_partial_float_is_refused(tmp_path):
 
 # -- the real 7-Scenes frames ---------------------------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def seven_scenes():
     if not SEVEN_SCENES.is_dir():
@@ -177,18 +202,25 @@ def seven_scenes():
 
 def test_the_real_7scenes_sequence_reads(seven_scenes):
     assert seven_scenes.kind == "depth" and len(seven_scenes.frames) == 300
-    assert seven_scenes.frames[0].name == "frame-000000.depth.png" and seven_scenes.frames[-1].name == "frame-000299.depth.png"
+    assert (
+        seven_scenes.frames[0].name == "frame-000000.depth.png"
+        and seven_scenes.frames[-1].name == "frame-000299.depth.png"
+    )
     k = seven_scenes.intrinsics
     assert k[0, 0] == 585 and k[1, 1] == 585 and (k[0, 2], k[1, 2]) == (320, 240)
     pose = seven_scenes.pose(0)
-    np.testing.assert_allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-3)  # rigid (to the ground truth's 1e-4)
+    np.testing.assert_allclose(
+        pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-3
+    )  # rigid (to the ground truth's 1e-4)
     np.testing.assert_array_equal(pose[3], [0, 0, 0, 1])
 
 
 def test_the_real_frame_0_back_projects_within_the_kinect_range(seven_scenes):
     depth = seven_scenes.depth(0)
     assert depth.dtype == np.uint16 and depth.shape == (480, 640)
-    frame = messages.depth_frame_message(depth, seven_scenes.intrinsics, DEPTH_SCALE, invalid_value=INVALID_DEPTH)
+    frame = messages.depth_frame_message(
+        depth, seven_scenes.intrinsics, DEPTH_SCALE, invalid_value=INVALID_DEPTH
+    )
     points = back_project(messages.depth_image(frame))
     valid = (depth != 0) & (depth != INVALID_DEPTH)
     assert len(points) == valid.sum() > 0.5 * depth.size

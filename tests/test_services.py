@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from affordwire import messages
-from affordcore.recording import recorded_entities
 from affordcore.features import FeatureLayout
 from affordcore.learn.model import choose_models
-from services.settings import ServiceSettings
+from affordcore.recording import recorded_entities
+from affordwire import messages
 from services.clients import _publisher
 from services.launch import free_port
 from services.node import Node
+from services.settings import ServiceSettings
 from services.transport import Keys, encoding_of, open_session
 
 ROBOT = "testbot"
@@ -44,9 +44,13 @@ def client(router):
 class Running:
     """A service in a thread, stopped (and its recording closed) at the end."""
 
-    def __init__(self, service_class, name: str, endpoint: str, rrd: Path, settings: ServiceSettings | None = None):
+    def __init__(
+        self, service_class, name: str, endpoint: str, rrd: Path, settings: ServiceSettings | None = None
+    ):
         settings = settings or ServiceSettings()
-        models = choose_models([], ["sitting-relaxing"], FeatureLayout.from_settings(settings.features, settings.voxel))
+        models = choose_models(
+            [], ["sitting-relaxing"], FeatureLayout.from_settings(settings.features, settings.voxel)
+        )
         self.node = Node(name, ROBOT, [endpoint], settings, rrd, models=models)
         self.service = service_class(self.node)
         self.thread = threading.Thread(target=self.service.run, daemon=True)
@@ -60,7 +64,9 @@ class Running:
 
 def _listen(session, key: str) -> queue.Queue:
     inbox: queue.Queue = queue.Queue()
-    session.declare_subscriber(key, lambda sample: inbox.put((str(sample.encoding), sample.payload.to_bytes())))
+    session.declare_subscriber(
+        key, lambda sample: inbox.put((str(sample.encoding), sample.payload.to_bytes()))
+    )
     return inbox
 
 
@@ -77,7 +83,11 @@ def _next(inbox: queue.Queue, message_class, timeout: float = 30):
 
 
 def _alive(session) -> list[str]:
-    return [str(r.ok.key_expr) for r in session.liveliness().get(KEYS.key("status", "*"), timeout=2) if r.ok is not None]
+    return [
+        str(r.ok.key_expr)
+        for r in session.liveliness().get(KEYS.key("status", "*"), timeout=2)
+        if r.ok is not None
+    ]
 
 
 def _eventually(condition, timeout: float = 10.0) -> bool:
@@ -115,8 +125,13 @@ def test_the_assembler_rejects_bad_scans_with_a_reason_and_keeps_registering(rou
         _send(client, KEYS.scan("cam"), wrong_size.SerializeToString(), messages.DepthFrame)
         assert "depth holds 100 bytes" in _next(errors, messages.Error).reason
 
-        client.put(KEYS.scan("cam"), b"{}", encoding=encoding_of(messages.Status))  # a message of another schema
-        assert "expected encoding application/protobuf with schema afford.v1.Scan or afford.v1.DepthFrame" in _next(errors, messages.Error).reason
+        client.put(
+            KEYS.scan("cam"), b"{}", encoding=encoding_of(messages.Status)
+        )  # a message of another schema
+        assert (
+            "expected encoding application/protobuf with schema afford.v1.Scan or afford.v1.DepthFrame"
+            in _next(errors, messages.Error).reason
+        )
 
         rng = np.random.default_rng(0)
         room = _box_room_scan(rng) - [2.0, 1.5, 1.2]  # the sensor in the middle of the room
@@ -126,7 +141,9 @@ def test_the_assembler_rejects_bad_scans_with_a_reason_and_keeps_registering(rou
             _send(client, KEYS.scan("cam"), scan.SerializeToString(), messages.Scan)
             pose = _next(poses, messages.Pose)
         moved = messages.pose_matrix(pose)[:3, 3]
-        assert moved[0] == pytest.approx(-0.04, abs=0.01), "three scans 2 cm apart: the sensor moved 4 cm against x"
+        assert moved[0] == pytest.approx(-0.04, abs=0.01), (
+            "three scans 2 cm apart: the sensor moved 4 cm against x"
+        )
         assert errors.empty()
 
         replies = list(client.get(KEYS.status("assembler"), timeout=5))
@@ -167,7 +184,9 @@ def test_features_serve_the_latest_fields_to_a_late_get_and_refuse_unaligned_map
     finally:
         running.stop()
     assert _eventually(lambda: _alive(client) == []), "the liveliness token outlived the service"
-    assert {"/world/cloud", "/world/fields/occupied", "/world/fields/normals"} <= recorded_entities(tmp_path / "features.rrd")
+    assert {"/world/cloud", "/world/fields/occupied", "/world/fields/normals"} <= recorded_entities(
+        tmp_path / "features.rrd"
+    )
 
 
 def test_inference_refuses_fields_at_another_resolution(router, client, tmp_path):
@@ -202,10 +221,17 @@ def test_a_recording_whose_viewer_is_absent_still_writes_the_whole_file(tmp_path
     from affordcore.recording import close_recording, log_cloud, open_recording
 
     rrd = tmp_path / "sub" / "with-viewer.rrd"
-    recording = open_recording(rrd, ["sitting-relaxing"], "absent-viewer", viewer=f"rerun+http://127.0.0.1:{free_port()}/proxy")
+    recording = open_recording(
+        rrd, ["sitting-relaxing"], "absent-viewer", viewer=f"rerun+http://127.0.0.1:{free_port()}/proxy"
+    )
     log_cloud(recording, np.random.default_rng(0).uniform(0, 3, (5000, 3)))
     warning = close_recording(recording, timeout=1.0)
     assert warning is not None and "viewer unreachable" in warning
-    verify = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
+    verify = subprocess.run(
+        [sys.executable, "-m", "rerun", "rrd", "verify", str(rrd)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert verify.returncode == 0, verify.stderr
     assert "/world/cloud" in recorded_entities(rrd)

@@ -12,7 +12,15 @@ import pytest
 
 from affordcore.grid import PoseGrid
 from affordcore.settings import Settings
-from affordcore.skeleton import BUILTIN_DIR, JOINTS, SkeletonError, all_skeletons, get_skeleton, load_skeleton, skeleton_files
+from affordcore.skeleton import (
+    BUILTIN_DIR,
+    JOINTS,
+    SkeletonError,
+    all_skeletons,
+    get_skeleton,
+    load_skeleton,
+    skeleton_files,
+)
 
 PACKAGE = Path(__file__).resolve().parents[1] / "affordcore"
 
@@ -36,7 +44,11 @@ def test_shipped_skeletons_are_plausible_adults():
             assert 0.3 < _bone(skeleton, f"{side}_HIP", f"{side}_KNEE") < 0.55
             assert 0.3 < _bone(skeleton, f"{side}_KNEE", f"{side}_FOOT") < 0.55
         # left is +y in the skeleton frame
-        assert skeleton.joints[JOINTS.index("L_SHOULDER"), 1] > 0 > skeleton.joints[JOINTS.index("R_SHOULDER"), 1]
+        assert (
+            skeleton.joints[JOINTS.index("L_SHOULDER"), 1]
+            > 0
+            > skeleton.joints[JOINTS.index("R_SHOULDER"), 1]
+        )
 
 
 def test_no_affordance_names_are_hard_coded_in_the_code():
@@ -104,7 +116,9 @@ def test_pose_index_order_is_z_theta_x_y():
     grid = PoseGrid.over_footprint((0.0, 0.0, 0.5, 0.3), torso_height=1.0, voxel_resolution=0.1)
     nz, nt, nx, ny = grid.shape
     index = ((2 * nt + 5) * nx + 3) * ny + 1
-    np.testing.assert_allclose(grid.poses(np.array([index]))[0], [grid.x[3], grid.y[1], grid.z[2], grid.theta[5]])
+    np.testing.assert_allclose(
+        grid.poses(np.array([index]))[0], [grid.x[3], grid.y[1], grid.z[2], grid.theta[5]]
+    )
 
 
 def test_pose_grid_rejects_uneven_steps():

@@ -14,21 +14,40 @@ from typer.testing import CliRunner
 from afford.app import app
 from affordcore.skeleton import BUILTIN_DIR, JOINTS, rotation_z
 from affordcore.skeleton_models import (
-    Frames, bone_lengths, canonicalise, derive, filter_masks, kinect_to_zup, leg_angles, load_frames, load_sources, reach,
-    retarget, skeleton_json,
+    Frames,
+    bone_lengths,
+    canonicalise,
+    derive,
+    filter_masks,
+    kinect_to_zup,
+    leg_angles,
+    load_frames,
+    load_sources,
+    reach,
+    retarget,
+    skeleton_json,
 )
 
 J = {name: i for i, name in enumerate(JOINTS)}
-SEATED_THIGH = (55 - 5, 78 + 5)  # README: seated thighs 55 to 78 degrees from vertical; 5 degrees of Kinect slack
+SEATED_THIGH = (
+    55 - 5,
+    78 + 5,
+)  # README: seated thighs 55 to 78 degrees from vertical; 5 degrees of Kinect slack
 
 
 def _skeleton(seated: bool) -> np.ndarray:
     """A symmetric synthetic adult in the skeleton frame (torso at the origin, facing +x, left +y)."""
     knee, foot = ([0.42, 0.1, -0.3], [0.5, 0.1, -0.7]) if seated else ([0.03, 0.1, -0.65], [0.0, 0.1, -1.05])
     joints = {
-        "HEAD": [0.03, 0, 0.55], "NECK": [0.0, 0, 0.38], "TORSO": [0, 0, 0], "L_SHOULDER": [0, 0.19, 0.33],
-        "L_ELBOW": [0.05, 0.22, 0.05], "L_HAND": [0.3, 0.15, -0.05], "L_HIP": [0, 0.1, -0.2],
-        "L_KNEE": knee, "L_FOOT": foot,
+        "HEAD": [0.03, 0, 0.55],
+        "NECK": [0.0, 0, 0.38],
+        "TORSO": [0, 0, 0],
+        "L_SHOULDER": [0, 0.19, 0.33],
+        "L_ELBOW": [0.05, 0.22, 0.05],
+        "L_HAND": [0.3, 0.15, -0.05],
+        "L_HIP": [0, 0.1, -0.2],
+        "L_KNEE": knee,
+        "L_FOOT": foot,
     }
     for name in [n for n in joints if n.startswith("L_")]:
         joints["R_" + name[2:]] = [joints[name][0], -joints[name][1], joints[name][2]]
@@ -42,8 +61,15 @@ def _zup_to_kinect(joints: np.ndarray) -> np.ndarray:
 
 def _frames(joints: np.ndarray, trial: str) -> Frames:
     n = len(joints)
-    return Frames(joints, np.full(n, f"a09_s01_{trial}"), np.arange(n), np.full(n, "sit_still"), np.ones(n, int),
-                  np.full(n, trial), np.ones(n))
+    return Frames(
+        joints,
+        np.full(n, f"a09_s01_{trial}"),
+        np.arange(n),
+        np.full(n, "sit_still"),
+        np.ones(n, int),
+        np.full(n, trial),
+        np.ones(n),
+    )
 
 
 @pytest.mark.parametrize("seated", [False, True])
@@ -65,7 +91,10 @@ def test_kinect_to_zup_is_a_proper_rotation():
 
 
 def test_canonicalise_keeps_the_lean():
-    leaning = _skeleton(True) @ np.array([[np.cos(0.3), 0, -np.sin(0.3)], [0, 1, 0], [np.sin(0.3), 0, np.cos(0.3)]]).T
+    leaning = (
+        _skeleton(True)
+        @ np.array([[np.cos(0.3), 0, -np.sin(0.3)], [0, 1, 0], [np.sin(0.3), 0, np.cos(0.3)]]).T
+    )
     canonical = canonicalise(leaning[None])[0]
     np.testing.assert_allclose(canonical, leaning, atol=1e-12)
 
@@ -89,7 +118,11 @@ def test_filters_reject_swapped_knees_and_hips_and_broken_bones():
 
 def test_filters_reject_knees_above_hips_when_seated():
     trials = load_sources()["trials"]
-    joints = np.repeat(_skeleton(True)[None], 10, axis=0) + [1.0, 2.0, 0.5]  # off the origin: (0, 0, 0) is "lost"
+    joints = np.repeat(_skeleton(True)[None], 10, axis=0) + [
+        1.0,
+        2.0,
+        0.5,
+    ]  # off the origin: (0, 0, 0) is "lost"
     joints[4, [J["L_KNEE"], J["R_KNEE"]], 2] = 0.4  # knees 0.1 m above the hips
     masks = filter_masks(_frames(joints, "e01"), trials)
     assert leg_angles(joints[4:5])["thigh"].min() > 90
@@ -107,7 +140,9 @@ def test_retarget_and_reach_keep_directions_and_bone_lengths():
     np.testing.assert_allclose(hands[:, 2], -0.1)
     assert (hands[:, 0] > adapted[[J["L_ELBOW"], J["R_ELBOW"]], 0]).all()
     assert np.allclose(turns[0], turns[1]) and 0 < turns[0] < 90
-    np.testing.assert_allclose(np.delete(adapted, [J["L_HAND"], J["R_HAND"]], 0), np.delete(body, [J["L_HAND"], J["R_HAND"]], 0))
+    np.testing.assert_allclose(
+        np.delete(adapted, [J["L_HAND"], J["R_HAND"]], 0), np.delete(body, [J["L_HAND"], J["R_HAND"]], 0)
+    )
     with pytest.raises(ValueError, match="cannot reach"):
         reach(body, -0.9)
 
@@ -119,7 +154,9 @@ def test_show_draws_the_shipped_skeletons(tmp_path):
 
 
 def test_derive_without_the_data_is_a_clear_error(tmp_path):
-    result = CliRunner().invoke(app, ["skeletons", "derive", "--data", str(tmp_path / "none.npz"), "--out", str(tmp_path)])
+    result = CliRunner().invoke(
+        app, ["skeletons", "derive", "--data", str(tmp_path / "none.npz"), "--out", str(tmp_path)]
+    )
     assert result.exit_code == 2 and "not found" in result.output
 
 
@@ -139,12 +176,25 @@ def derived(data_file):
 def test_derivation_reproduces_the_shipped_files(derived):
     assert [s.affordance for s in derived.skeletons] == sorted(p.stem for p in BUILTIN_DIR.glob("*.json"))
     for skeleton in derived.skeletons:
-        assert skeleton_json(skeleton) == (BUILTIN_DIR / f"{skeleton.affordance}.json").read_text(), skeleton.affordance
+        assert skeleton_json(skeleton) == (BUILTIN_DIR / f"{skeleton.affordance}.json").read_text(), (
+            skeleton.affordance
+        )
 
 
 def test_cli_derive_is_deterministic(data_file, tmp_path):
-    result = CliRunner().invoke(app, ["skeletons", "derive", "--data", str(data_file), "--out", str(tmp_path),
-                                      "--png", str(tmp_path / "models.png")])
+    result = CliRunner().invoke(
+        app,
+        [
+            "skeletons",
+            "derive",
+            "--data",
+            str(data_file),
+            "--out",
+            str(tmp_path),
+            "--png",
+            str(tmp_path / "models.png"),
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert "bone lengths" in result.output and "K=" in result.output
     for shipped in BUILTIN_DIR.glob("*.json"):
@@ -160,7 +210,9 @@ def test_filter_and_cluster_report_is_consistent(derived):
     for name, info in derived.clusters.items():
         assert sum(info["sizes"]) == info["frames"] == table["kept"][name]
         assert len(derived.members[name]) == info["sizes"][info["chosen"]]
-    assert 1.1 < derived.scale["factor"] < 1.3  # README: median standing head-to-foot 1.35 m, short for an adult
+    assert (
+        1.1 < derived.scale["factor"] < 1.3
+    )  # README: median standing head-to-foot 1.35 m, short for an adult
 
 
 def test_kinect_left_ends_up_at_plus_y_facing_plus_x(data_file):
@@ -186,7 +238,9 @@ def test_derived_models_are_plausible(derived):
     hands = standing.joints[[J["L_HAND"], J["R_HAND"]]]
     assert ((hands[:, 2] + standing.torso_height > 0.85) & (hands[:, 2] + standing.torso_height < 1.05)).all()
     assert (hands[:, 0] > 0.2).all()
-    assert max(derived.clusters["standing-working"]["forearm_turns"]) < 30  # a real cluster nearly fits a bench
+    assert (
+        max(derived.clusters["standing-working"]["forearm_turns"]) < 30
+    )  # a real cluster nearly fits a bench
     head = standing.torso_height + standing.joints[J["HEAD"], 2]
     assert 1.55 < head < 1.70  # head centre of a 1.75 m adult
 

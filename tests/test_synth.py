@@ -13,7 +13,15 @@ from affordcore.labels import load_labels, save_labels
 from affordcore.skeleton import all_skeletons, get_skeleton, place_joints
 from affordcore.synth import furniture as F
 from affordcore.synth.rooms import KINDS, any_overlap, generate_room, inside_polygon, role_affordances
-from affordcore.synth.scanner import DepthCamera, Raycaster, axial_sigma, backproject, depth_frame, look_at, sample_room_uniform
+from affordcore.synth.scanner import (
+    DepthCamera,
+    Raycaster,
+    axial_sigma,
+    backproject,
+    depth_frame,
+    look_at,
+    sample_room_uniform,
+)
 from affordcore.synth.shapes import Box, boxes_overlap
 
 ROOMS = [(kind, seed) for kind in KINDS for seed in range(6)]
@@ -31,8 +39,10 @@ def test_no_furniture_intersects_furniture_or_walls(rooms):
             corners = np.vstack([p.corners_xy() for p in parts])
             assert inside_polygon(room.polygon, corners).all(), f"{room.name}: {piece.kind} leaves the room"
             assert not any_overlap(parts, room.walls), f"{room.name}: {piece.kind} cuts a wall"
-            for other in room.pieces[i + 1:]:
-                assert not any_overlap(parts, other.world_parts()), f"{room.name}: {piece.kind} hits {other.kind}"
+            for other in room.pieces[i + 1 :]:
+                assert not any_overlap(parts, other.world_parts()), (
+                    f"{room.name}: {piece.kind} hits {other.kind}"
+                )
 
 
 def test_every_label_has_room_for_its_skeleton(rooms):
@@ -41,17 +51,23 @@ def test_every_label_has_room_for_its_skeleton(rooms):
     roles = role_affordances()
     for room in rooms:
         for piece in room.pieces:
-            others = room.walls + [p for other in room.pieces if other is not piece for p in other.world_parts()]
+            others = room.walls + [
+                p for other in room.pieces if other is not piece for p in other.world_parts()
+            ]
             for anchor in piece.anchors:
                 clearance = [box.placed(piece.x, piece.y, piece.yaw) for box in anchor.clearance]
-                assert clearance and not any_overlap(clearance, others), f"{room.name}: {piece.note} has no room"
+                assert clearance and not any_overlap(clearance, others), (
+                    f"{room.name}: {piece.note} has no room"
+                )
                 skeleton = get_skeleton(roles[anchor.role])
                 for t in (0.0, 0.5, 1.0):
                     xy = piece.world_point(np.add(anchor.start, t * np.subtract(anchor.end, anchor.start)))
                     pose = np.array([[*xy, skeleton.torso_height, anchor.facing + piece.yaw]])
                     for joint in place_joints(skeleton.joints, pose)[0]:
                         dot = Box(tuple(joint), (0.02, 0.02, 0.02))
-                        assert not any(boxes_overlap(dot, box) for box in others), f"{room.name}: {piece.note}"
+                        assert not any(boxes_overlap(dot, box) for box in others), (
+                            f"{room.name}: {piece.note}"
+                        )
 
 
 def test_labels_are_valid_and_round_trip(rooms, tmp_path):
@@ -96,8 +112,16 @@ def test_furniture_dimensions_are_real(seed):
 
 def test_distractors_afford_nothing():
     rng = np.random.default_rng(0)
-    for piece in (F.bench(rng), F.storage_box(rng), F.lone_chair(rng), F.shelf(rng, low=True), F.coffee_table(rng),
-                  F.counter(rng, cluttered=True), F.workbench(rng, cluttered=True), F.desk(rng, with_chair=False)):
+    for piece in (
+        F.bench(rng),
+        F.storage_box(rng),
+        F.lone_chair(rng),
+        F.shelf(rng, low=True),
+        F.coffee_table(rng),
+        F.counter(rng, cluttered=True),
+        F.workbench(rng, cluttered=True),
+        F.desk(rng, with_chair=False),
+    ):
         assert piece.anchors == [], piece.note
 
 
@@ -115,6 +139,7 @@ def test_chair_labels_sit_outside_the_table_edge_facing_it():
 
 
 # ---------------------------------------------------------------- the scanner
+
 
 def _probe_room():
     """A room with a table (top 0.70-0.74 m) and a solid box on the floor, nothing else."""
@@ -135,17 +160,25 @@ def test_depth_camera_misses_what_a_real_one_never_sees():
     seen = []
     for eye in ((0.6, 3.4), (3.4, 0.6), (3.4, 3.4), (0.4, 0.4)):
         pose = look_at(np.array([*eye, 1.6]), np.array([1.6, 1.8, 0.3]))
-        seen.append(backproject(depth_frame(raycaster, camera, pose, np.random.default_rng(0))[0], camera, pose))
+        seen.append(
+            backproject(depth_frame(raycaster, camera, pose, np.random.default_rng(0))[0], camera, pose)
+        )
     scanned = np.concatenate(seen)
     sampled, _ = sample_room_uniform(room, np.random.default_rng(0))
 
     underside = room.pieces[0].parts[0].z_range[0]
 
     def table_underside(points):
-        return np.sum((np.abs(points[:, 0] - 2.0) < 0.45) & (np.abs(points[:, 1] - 2.0) < 0.75) & (np.abs(points[:, 2] - underside) < 0.002))
+        return np.sum(
+            (np.abs(points[:, 0] - 2.0) < 0.45)
+            & (np.abs(points[:, 1] - 2.0) < 0.75)
+            & (np.abs(points[:, 2] - underside) < 0.002)
+        )
 
     def under_box(points):
-        return np.sum((np.abs(points[:, 0] - 1.0) < 0.25) & (np.abs(points[:, 1] - 1.2) < 0.25) & (points[:, 2] < 0.02))
+        return np.sum(
+            (np.abs(points[:, 0] - 1.0) < 0.25) & (np.abs(points[:, 1] - 1.2) < 0.25) & (points[:, 2] < 0.02)
+        )
 
     assert table_underside(sampled) > 1000 and under_box(sampled) > 300
     assert table_underside(scanned) == 0 and under_box(scanned) == 0
@@ -170,9 +203,29 @@ def test_depth_noise_grows_with_range_as_the_kinect_model_says():
 
 # ---------------------------------------------------------------- data sets
 
+
 def _synth(out, seed, *extra):
-    return subprocess.run([sys.executable, "-m", "afford", "synth", "--rooms", "2", "--seed", str(seed), "--out", str(out),
-                           "--kinds", "office,workshop", "--quiet", *extra], capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "afford",
+            "synth",
+            "--rooms",
+            "2",
+            "--seed",
+            str(seed),
+            "--out",
+            str(out),
+            "--kinds",
+            "office,workshop",
+            "--quiet",
+            *extra,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
 
 
 def test_same_seed_same_files_and_a_class_table(tmp_path):
@@ -182,7 +235,13 @@ def test_same_seed_same_files_and_a_class_table(tmp_path):
         assert result.returncode == 0, result.stderr
     names = sorted(p.name for p in first.iterdir())
     assert names == sorted(p.name for p in second.iterdir())
-    assert {"office-000.ply", "office-000.labels.json", "workshop-001.ply", "summary.json", "summary.md"} <= set(names)
+    assert {
+        "office-000.ply",
+        "office-000.labels.json",
+        "workshop-001.ply",
+        "summary.json",
+        "summary.md",
+    } <= set(names)
     for name in names:
         assert (first / name).read_bytes() == (second / name).read_bytes(), name
     assert (first / "office-000.ply").read_bytes() != (other / "office-000.ply").read_bytes()
@@ -197,9 +256,8 @@ def test_same_seed_same_files_and_a_class_table(tmp_path):
 @pytest.mark.slow
 def test_depth_sequence_frames_back_project_onto_the_room(tmp_path):
     """Poses are camera-to-world and depth is millimetres: every frame lands on the same room surfaces."""
-    from PIL import Image
-
     import open3d as o3d
+    from PIL import Image
 
     result = _synth(tmp_path, 9, "--sequences", "--frames", "12")
     assert result.returncode == 0, result.stderr
@@ -213,5 +271,7 @@ def test_depth_sequence_frames_back_project_onto_the_room(tmp_path):
         depth = np.asarray(Image.open(folder / f"frame-{k:06d}.depth.png")).astype(float) / 1000.0
         assert np.mean(depth > 0) > 0.3
         points = backproject(depth, camera, np.loadtxt(folder / f"frame-{k:06d}.pose.txt"))
-        distance = surfaces.compute_distance(o3d.core.Tensor(points[:: max(1, len(points) // 3000)].astype(np.float32))).numpy()
+        distance = surfaces.compute_distance(
+            o3d.core.Tensor(points[:: max(1, len(points) // 3000)].astype(np.float32))
+        ).numpy()
         assert np.quantile(distance, 0.9) < 0.05

@@ -10,26 +10,52 @@ import sys
 import numpy as np
 import pytest
 
-from affordcore.learn.model import load_model
 from affordcore.learn.evaluate import deal_folds, evaluate, write_outputs
 from affordcore.learn.learners import LEARNERS
+from affordcore.learn.model import load_model
 from affordcore.learn.train import split_rooms, train
 from affordcore.settings import FeatureSettings, GridSettings, Settings
 
-SMALL = {"AFFORD_FEATURES__CELL_SIZE": "0.5", "AFFORD_GRID__N_THETA": "8", "AFFORD_GRID__THETA_STEP": "0.785398"}
+SMALL = {
+    "AFFORD_FEATURES__CELL_SIZE": "0.5",
+    "AFFORD_GRID__N_THETA": "8",
+    "AFFORD_GRID__THETA_STEP": "0.785398",
+}
 
 
 @pytest.fixture(scope="module")
 def data_set(tmp_path_factory):
     folder = tmp_path_factory.mktemp("rooms")
-    result = subprocess.run([sys.executable, "-m", "afford", "synth", "--rooms", "3", "--seed", "11", "--out", str(folder),
-                             "--kinds", "workshop", "--scanner", "uniform", "--quiet"], capture_output=True, text=True, timeout=600)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "afford",
+            "synth",
+            "--rooms",
+            "3",
+            "--seed",
+            "11",
+            "--out",
+            str(folder),
+            "--kinds",
+            "workshop",
+            "--scanner",
+            "uniform",
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert result.returncode == 0, result.stderr
     return folder
 
 
 def _settings() -> Settings:
-    return Settings(features=FeatureSettings(cell_size=0.5), grid=GridSettings(n_theta=8, theta_step=np.pi / 4))
+    return Settings(
+        features=FeatureSettings(cell_size=0.5), grid=GridSettings(n_theta=8, theta_step=np.pi / 4)
+    )
 
 
 def _affordance(folder) -> str:
@@ -56,9 +82,27 @@ def test_split_is_by_room_and_seeded():
 def test_afford_train_writes_a_model(data_set, tmp_path):
     out = tmp_path / "model.json"
     env = {**os.environ, **SMALL}
-    result = subprocess.run([sys.executable, "-m", "afford", "train", "--data", str(data_set), "--affordance",
-                             _affordance(data_set), "--learner", "linear-tuned", "--out", str(out), "--quiet"],
-                            capture_output=True, text=True, timeout=600, env=env)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "afford",
+            "train",
+            "--data",
+            str(data_set),
+            "--affordance",
+            _affordance(data_set),
+            "--learner",
+            "linear-tuned",
+            "--out",
+            str(out),
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+    )
     assert result.returncode == 0, result.stderr
     model = load_model(out)
     assert model.affordance == _affordance(data_set) and "f1" in result.stdout
@@ -79,8 +123,16 @@ def test_folds_are_stratified_seeded_and_cover_every_room():
 def test_evaluate_runs_every_learner_per_fold_and_the_imbalance_test(data_set, tmp_path):
     affordance = _affordance(data_set)
     learners = ["linear-tuned", "undersample", "ssvm"]
-    evaluation = evaluate(data_set, [affordance], learners, 3, _settings(), seed=0, ratios=(1, 4, None),
-                          params={"ssvm": {"max_iterations": 30}})
+    evaluation = evaluate(
+        data_set,
+        [affordance],
+        learners,
+        3,
+        _settings(),
+        seed=0,
+        ratios=(1, 4, None),
+        params={"ssvm": {"max_iterations": 30}},
+    )
     rooms = sorted(sum(evaluation.folds, []))
     assert len(rooms) == 3 and all(len(fold) == 1 for fold in evaluation.folds)
     table = evaluation.table()
@@ -104,16 +156,38 @@ def test_evaluate_runs_every_learner_per_fold_and_the_imbalance_test(data_set, t
 
     paths = write_outputs(evaluation, tmp_path / "eval")
     results = json.loads(paths[0].read_text())["results"]
-    assert {tuple(sorted(r)) for r in results} == {("affordance", "f1", "f1_std", "folds", "learner", "precision", "recall", "train_seconds")}
+    assert {tuple(sorted(r)) for r in results} == {
+        ("affordance", "f1", "f1_std", "folds", "learner", "precision", "recall", "train_seconds")
+    }
     markdown = paths[1].read_text()
     assert all(f"| {learner} |" in markdown for learner in learners) and "Imbalance test" in markdown
     assert all(p.stat().st_size > 10_000 for p in paths[2:])  # two real figures
 
 
 def test_evaluate_rejects_bad_ratios_and_learners(data_set, tmp_path):
-    for option, value, message in (("--ratios", "1,x", "'x' is not a whole number"), ("--learners", "svm", "unknown learner")):
-        result = subprocess.run([sys.executable, "-m", "afford", "evaluate", "--data", str(data_set), "--out", str(tmp_path),
-                                 option, value, "--quiet"], capture_output=True, text=True, timeout=120, env={**os.environ, **SMALL})
+    for option, value, message in (
+        ("--ratios", "1,x", "'x' is not a whole number"),
+        ("--learners", "svm", "unknown learner"),
+    ):
+        result = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "afford",
+                "evaluate",
+                "--data",
+                str(data_set),
+                "--out",
+                str(tmp_path),
+                option,
+                value,
+                "--quiet",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            env={**os.environ, **SMALL},
+        )
         assert result.returncode == 2 and message in result.stderr, result.stderr
 
 
@@ -124,14 +198,20 @@ def test_split_keeps_positives_on_both_sides():
         training, validation = split_rooms(names, seed, positives=positives)
         assert sum(positives[n] for n in training) > 0 and sum(positives[n] for n in validation) > 0
         assert sorted(training + validation) == names
-    lonely = {name: (5 if name == "room-3" else 0) for name in names}  # one room with positives: used for both
+    lonely = {
+        name: (5 if name == "room-3" else 0) for name in names
+    }  # one room with positives: used for both
     assert split_rooms(names, 0, positives=lonely) == (names, names)
 
 
 def test_the_evaluation_picks_each_affordance_its_best_learner(tmp_path):
     from affordcore.learn.defaults import winners
 
-    rows = [{"affordance": "a", "learner": "ssvm", "f1": 0.2, "f1_std": 0.01}, {"affordance": "a", "learner": "dcm", "f1": 0.3, "f1_std": 0.02},
-            {"affordance": "b", "learner": "ssvm", "f1": 0.1, "f1_std": 0.02}, {"affordance": "b", "learner": "zsvm", "f1": 0.15, "f1_std": 0.2}]
+    rows = [
+        {"affordance": "a", "learner": "ssvm", "f1": 0.2, "f1_std": 0.01},
+        {"affordance": "a", "learner": "dcm", "f1": 0.3, "f1_std": 0.02},
+        {"affordance": "b", "learner": "ssvm", "f1": 0.1, "f1_std": 0.02},
+        {"affordance": "b", "learner": "zsvm", "f1": 0.15, "f1_std": 0.2},
+    ]
     (tmp_path / "results.json").write_text(json.dumps({"results": rows}))
     assert winners(tmp_path / "results.json") == {"a": "dcm", "b": "ssvm"}  # b: zsvm's lead is one lucky fold

@@ -19,7 +19,6 @@ import numpy as np
 
 from .f1_argmax import f1_loss
 
-
 DUAL_EPOCHS = 300  # passes of dual coordinate descent for class-weighted fits
 
 
@@ -69,7 +68,9 @@ def _svc(X: np.ndarray, y: np.ndarray, C: float, class_weight=None) -> LinearMod
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)  # bounded on purpose; see above
             svc = LinearSVC(C=C, class_weight=class_weight, dual=True, max_iter=DUAL_EPOCHS).fit(standard, y)
-    weights = svc.coef_.ravel().astype(np.float64) / scale  # w . (x - mean) / scale + b = (w / scale) . x + b'
+    weights = (
+        svc.coef_.ravel().astype(np.float64) / scale
+    )  # w . (x - mean) / scale + b = (w / scale) . x + b'
     return LinearModel(weights, float(svc.intercept_[0]) - float(weights @ mean))
 
 
@@ -78,7 +79,9 @@ def linear_tuned(X: np.ndarray, y: np.ndarray, C: float = 1.0) -> LinearModel:
     return LinearModel(model.weights, model.bias, tune_threshold(model.decision(X), y)[0])
 
 
-def undersample(X: np.ndarray, y: np.ndarray, ratio: float | None, rng: np.random.Generator, C: float = 1.0) -> LinearModel:
+def undersample(
+    X: np.ndarray, y: np.ndarray, ratio: float | None, rng: np.random.Generator, C: float = 1.0
+) -> LinearModel:
     keep = undersampled_indices(y, ratio, rng)
     return _svc(X[keep], y[keep], C)
 
@@ -95,8 +98,14 @@ def different_costs(X: np.ndarray, y: np.ndarray, cost_ratio: float, C: float = 
     return _svc(X, y, C, class_weight={1: cost_ratio, -1: 1.0})
 
 
-def focused_resampling(X: np.ndarray, y: np.ndarray, rng: np.random.Generator, C: float = 1.0, band: float = 1.0,
-                       balance: float = 1.0) -> LinearModel:
+def focused_resampling(
+    X: np.ndarray,
+    y: np.ndarray,
+    rng: np.random.Generator,
+    C: float = 1.0,
+    band: float = 1.0,
+    balance: float = 1.0,
+) -> LinearModel:
     """Train on all; keep every positive and the negatives within `band` of the boundary (at least as many
     as there are positives, nearest first), where the boundary is decided; rebalance them to `balance`
     negatives per positive by undersampling; retrain."""
@@ -110,8 +119,14 @@ def focused_resampling(X: np.ndarray, y: np.ndarray, rng: np.random.Generator, C
     return _svc(X[keep], y[keep], C)
 
 
-def zsvm(X: np.ndarray, y: np.ndarray, validation: tuple[np.ndarray, np.ndarray], rng: np.random.Generator,
-         C: float = 1.0, max_negatives: int = 20000) -> LinearModel:
+def zsvm(
+    X: np.ndarray,
+    y: np.ndarray,
+    validation: tuple[np.ndarray, np.ndarray],
+    rng: np.random.Generator,
+    C: float = 1.0,
+    max_negatives: int = 20000,
+) -> LinearModel:
     """zSVM on a linear SVC (libsvm exposes the dual coefficients LinearSVC does not); the SVC sees every
     positive and at most `max_negatives` negatives, since kernel SVMs do not scale to millions."""
     from sklearn.svm import SVC
@@ -139,7 +154,9 @@ def best_z(plus: np.ndarray, minus: np.ndarray, labels: np.ndarray) -> float:
     moving = np.flatnonzero(~flat & (breaks > z0))
     order = moving[np.argsort(breaks[moving], kind="stable")]
     values = breaks[order]
-    step = np.where(rising[order], 1, -1)  # crossing a breakpoint upwards turns a rising example on, others off
+    step = np.where(
+        rising[order], 1, -1
+    )  # crossing a breakpoint upwards turns a rising example on, others off
     tps = tp + np.cumsum(step * positive[order])
     fps = fp + np.cumsum(step * ~positive[order])
     f1 = 1.0 - f1_loss(tps, fps, positive.sum())

@@ -34,8 +34,14 @@ def winners(results_json: Path) -> dict[str, str]:
     return {affordance: learner for affordance, (_, learner) in best.items()}
 
 
-def rebuild_default_models(out: Path, learners: dict[str, str] | str, rooms: int = ROOMS, seed: int = SEED,
-                           workers: int = 1, on_step: Callable[[str], None] | None = None) -> list[Path]:
+def rebuild_default_models(
+    out: Path,
+    learners: dict[str, str] | str,
+    rooms: int = ROOMS,
+    seed: int = SEED,
+    workers: int = 1,
+    on_step: Callable[[str], None] | None = None,
+) -> list[Path]:
     """`learners`: one learner for every affordance, or {affordance: learner} (say, from `winners`)."""
     from ..synth.dataset import SynthOptions, synthesize
     from .train import train
@@ -51,8 +57,13 @@ def rebuild_default_models(out: Path, learners: dict[str, str] | str, rooms: int
         for affordance in sorted(skeleton_files(settings.skeleton_dirs)):
             learner = learners if isinstance(learners, str) else learners.get(affordance, "ssvm")
             model = train(data, affordance, learner, settings, seed=seed)
-            model.parameters["data"] = {"generator": "afford synth", "rooms": rooms, "seed": seed, "kinds": list(KINDS),
-                                        "train_grid_step": TRAIN_STEP}
+            model.parameters["data"] = {
+                "generator": "afford synth",
+                "rooms": rooms,
+                "seed": seed,
+                "kinds": list(KINDS),
+                "train_grid_step": TRAIN_STEP,
+            }
             written.append(model.save(out / f"{affordance}.model.json"))
             if on_step:
                 on_step(f"{affordance} ({learner}): validation F1 {model.validation['f1']:.3f}")

@@ -26,8 +26,8 @@ from ..labels import load_labels
 from ..settings import Settings
 from .baselines import undersampled_indices
 from .examples import RoomExamples, data_set_rooms, room_examples
-from .ssvm import decision
 from .learners import LEARNERS
+from .ssvm import decision
 from .train import fit, metrics, split_rooms, stack
 
 SWEEP_RATIOS: tuple[int | None, ...] = (*(2**k for k in range(12)), None)  # 1:1 ... 1:2048, then all data
@@ -61,23 +61,38 @@ class Evaluation:
         rows = []
         for affordance in dict.fromkeys(o.affordance for o in self.outcomes):
             for learner in dict.fromkeys(o.learner for o in self.outcomes):
-                runs = [o for o in self.outcomes if o.affordance == affordance and o.learner == learner and not o.sweep]
+                runs = [
+                    o
+                    for o in self.outcomes
+                    if o.affordance == affordance and o.learner == learner and not o.sweep
+                ]
                 if runs:
-                    rows.append({
-                        "affordance": affordance, "learner": learner,
-                        **{k: float(np.mean([getattr(o, k) for o in runs])) for k in ("precision", "recall", "f1")},
-                        "f1_std": float(np.std([o.f1 for o in runs])),
-                        "train_seconds": float(np.mean([o.train_seconds for o in runs])),
-                        "folds": len(runs),
-                    })
+                    rows.append(
+                        {
+                            "affordance": affordance,
+                            "learner": learner,
+                            **{
+                                k: float(np.mean([getattr(o, k) for o in runs]))
+                                for k in ("precision", "recall", "f1")
+                            },
+                            "f1_std": float(np.std([o.f1 for o in runs])),
+                            "train_seconds": float(np.mean([o.train_seconds for o in runs])),
+                            "folds": len(runs),
+                        }
+                    )
         return rows
 
     def sweep(self) -> list[Outcome]:
         return [o for o in self.outcomes if o.sweep]
 
     def to_json(self) -> dict:
-        return {"format": "affordance-evaluation/1", "folds": self.folds, "class_counts": self.class_counts,
-                "results": self.table(), "runs": [_without_curves(asdict(o)) for o in self.outcomes]}
+        return {
+            "format": "affordance-evaluation/1",
+            "folds": self.folds,
+            "class_counts": self.class_counts,
+            "results": self.table(),
+            "runs": [_without_curves(asdict(o)) for o in self.outcomes],
+        }
 
 
 def _without_curves(run: dict) -> dict:
@@ -92,14 +107,25 @@ def deal_folds(names: list[str], k: int, seed: int, groups: dict[str, str] | Non
         raise ValueError(f"{k} folds need at least {k} rooms and k >= 2; the data set has {len(names)} rooms")
     rng = np.random.default_rng(seed)
     groups = groups or {}
-    order = [name for key in sorted(set(groups.get(n, "") for n in names))
-             for name in rng.permutation(sorted(n for n in names if groups.get(n, "") == key))]
+    order = [
+        name
+        for key in sorted(set(groups.get(n, "") for n in names))
+        for name in rng.permutation(sorted(n for n in names if groups.get(n, "") == key))
+    ]
     return [sorted(order[f::k]) for f in range(k)]
 
 
-def evaluate(data: str | Path, affordances: list[str], learners: list[str], k: int, settings: Settings | None = None,
-             seed: int = 0, ratios: tuple[int | None, ...] = SWEEP_RATIOS, params: dict[str, dict] | None = None,
-             on_step: Callable[[str], None] | None = None) -> Evaluation:
+def evaluate(
+    data: str | Path,
+    affordances: list[str],
+    learners: list[str],
+    k: int,
+    settings: Settings | None = None,
+    seed: int = 0,
+    ratios: tuple[int | None, ...] = SWEEP_RATIOS,
+    params: dict[str, dict] | None = None,
+    on_step: Callable[[str], None] | None = None,
+) -> Evaluation:
     """Runs len(affordances) x (k x len(learners) + len(ratios) x len(learners)) trainings; `on_step`
     hears each room's features and each training."""
     unknown = [name for name in learners if name not in LEARNERS]
@@ -118,27 +144,55 @@ def evaluate(data: str | Path, affordances: list[str], learners: list[str], k: i
             _tell(on_step, f"{affordance}: features of {name}")
         positives = sum(e.positives for e in examples.values())
         total = sum(len(e.y) for e in examples.values())
-        result.class_counts[affordance] = {"positives": positives, "negatives": total - positives,
-                                           "ratio": (total - positives) / max(1, positives)}
+        result.class_counts[affordance] = {
+            "positives": positives,
+            "negatives": total - positives,
+            "ratio": (total - positives) / max(1, positives),
+        }
         for f, test_rooms in enumerate(folds):
             split = _split(examples, test_rooms, affordance, f, seed)  # stacked once, shared by every learner
             for learner in learners:
-                outcome = _run(examples, split, affordance, learner, None, (params or {}).get(learner, {}), seed)
+                outcome = _run(
+                    examples, split, affordance, learner, None, (params or {}).get(learner, {}), seed
+                )
                 result.outcomes.append(outcome)
                 _tell(on_step, f"{affordance}: {learner}, fold {f + 1}/{k}: F1 {outcome.f1:.3f}")
         split = _split(examples, folds[0], affordance, 0, seed) if ratios else None
         for ratio in ratios:
-            at_ratio = split if ratio is None else replace(
-                split, training=_undersampled(split.training, ratio, np.random.default_rng([seed, 0, ratio])))
+            at_ratio = (
+                split
+                if ratio is None
+                else replace(
+                    split,
+                    training=_undersampled(split.training, ratio, np.random.default_rng([seed, 0, ratio])),
+                )
+            )
             for learner in learners:
-                if ratio is None and learner != "undersample":  # fold 1's table run is the sweep's all-data point
-                    table_run = next(o for o in result.outcomes if o.affordance == affordance and o.learner == learner
-                                     and o.fold == 0 and not o.sweep)
+                if (
+                    ratio is None and learner != "undersample"
+                ):  # fold 1's table run is the sweep's all-data point
+                    table_run = next(
+                        o
+                        for o in result.outcomes
+                        if o.affordance == affordance and o.learner == learner and o.fold == 0 and not o.sweep
+                    )
                     result.outcomes.append(replace(table_run, sweep=True))
                     continue
-                outcome = _run(examples, at_ratio, affordance, learner, ratio, (params or {}).get(learner, {}), seed, sweep=True)
+                outcome = _run(
+                    examples,
+                    at_ratio,
+                    affordance,
+                    learner,
+                    ratio,
+                    (params or {}).get(learner, {}),
+                    seed,
+                    sweep=True,
+                )
                 result.outcomes.append(outcome)
-                _tell(on_step, f"{affordance}: {learner} at {'all data' if ratio is None else f'1:{ratio}'}: F1 {outcome.f1:.3f}")
+                _tell(
+                    on_step,
+                    f"{affordance}: {learner} at {'all data' if ratio is None else f'1:{ratio}'}: F1 {outcome.f1:.3f}",
+                )
     return result
 
 
@@ -158,17 +212,31 @@ class _Split:
     validation: RoomExamples
 
 
-def _split(examples: dict[str, RoomExamples], test_rooms: list[str], affordance: str, fold: int, seed: int) -> _Split:
+def _split(
+    examples: dict[str, RoomExamples], test_rooms: list[str], affordance: str, fold: int, seed: int
+) -> _Split:
     train_names = [name for name in examples if name not in test_rooms]
-    fit_names, validation_names = split_rooms(train_names, seed + fold, positives={n: examples[n].positives for n in train_names})
+    fit_names, validation_names = split_rooms(
+        train_names, seed + fold, positives={n: examples[n].positives for n in train_names}
+    )
     training = stack(examples, fit_names)
     if training.positives == 0:
-        raise ValueError(f"fold {fold + 1}: the training rooms {', '.join(fit_names)} hold no {affordance} label; use fewer folds or more rooms")
+        raise ValueError(
+            f"fold {fold + 1}: the training rooms {', '.join(fit_names)} hold no {affordance} label; use fewer folds or more rooms"
+        )
     return _Split(fold, test_rooms, validation_names, training, stack(examples, validation_names))
 
 
-def _run(examples: dict[str, RoomExamples], split: _Split, affordance: str, learner: str, ratio: int | None,
-         params: dict, seed: int, sweep: bool = False) -> Outcome:
+def _run(
+    examples: dict[str, RoomExamples],
+    split: _Split,
+    affordance: str,
+    learner: str,
+    ratio: int | None,
+    params: dict,
+    seed: int,
+    sweep: bool = False,
+) -> Outcome:
     """Train one learner on the split (its training set already at `ratio`) and score the fold's test rooms."""
     if sweep and learner == "undersample":  # in the imbalance test the plain SVM trains at the test's ratio
         params = {**params, "ratio": None if ratio is None else float(ratio)}
@@ -180,8 +248,19 @@ def _run(examples: dict[str, RoomExamples], split: _Split, affordance: str, lear
     w = np.append(weights, bias)  # test rooms scored one by one: no copy of their features
     scores = np.concatenate([decision(examples[name].X, w) for name in split.test_rooms])
     scored = metrics(scores, np.concatenate([examples[name].y for name in split.test_rooms]), threshold)
-    return Outcome(affordance, learner, split.fold, ratio, scored["precision"], scored["recall"], scored["f1"], seconds,
-                   (len(training.y) - training.positives) / training.positives, sweep, report)
+    return Outcome(
+        affordance,
+        learner,
+        split.fold,
+        ratio,
+        scored["precision"],
+        scored["recall"],
+        scored["f1"],
+        seconds,
+        (len(training.y) - training.positives) / training.positives,
+        sweep,
+        report,
+    )
 
 
 def _undersampled(examples: RoomExamples, ratio: int, rng: np.random.Generator) -> RoomExamples:
@@ -212,21 +291,40 @@ def results_markdown(evaluation: Evaluation) -> str:
     learners = list(dict.fromkeys(r["learner"] for r in rows))
     cell = {(r["affordance"], r["learner"]): r for r in rows}
     k = len(evaluation.folds)
-    lines = [f"# Learners compared ({k}-fold over {sum(map(len, evaluation.folds))} rooms)", "",
-             "Pose-level precision / recall / F1 on the held-out rooms, mean over folds (F1 ± its standard deviation",
-             "over folds), and seconds to train once.", "",
-             "| learner | " + " | ".join(affordances) + " |", "|---|" + "---|" * len(affordances)]
+    lines = [
+        f"# Learners compared ({k}-fold over {sum(map(len, evaluation.folds))} rooms)",
+        "",
+        "Pose-level precision / recall / F1 on the held-out rooms, mean over folds (F1 ± its standard deviation",
+        "over folds), and seconds to train once.",
+        "",
+        "| learner | " + " | ".join(affordances) + " |",
+        "|---|" + "---|" * len(affordances),
+    ]
     for learner in learners:
         values = []
         for affordance in affordances:
             r = cell.get((affordance, learner))
-            values.append("" if r is None else f"{r['precision']:.2f} / {r['recall']:.2f} / **{r['f1']:.2f}** ± {r['f1_std']:.2f} ({r['train_seconds']:.0f} s)")
+            values.append(
+                ""
+                if r is None
+                else f"{r['precision']:.2f} / {r['recall']:.2f} / **{r['f1']:.2f}** ± {r['f1_std']:.2f} ({r['train_seconds']:.0f} s)"
+            )
         lines.append(f"| {learner} | " + " | ".join(values) + " |")
-    lines += ["", "Class counts (all rooms): " + "; ".join(
-        f"{a} {c['positives']:,} / {c['negatives']:,} (1:{c['ratio']:,.0f})" for a, c in evaluation.class_counts.items()), ""]
-    lines += ["## Beside the paper (its 12 real rooms)", "",
-              "| affordance | paper: best SVM baseline F1 | paper: structured SVM P / R / F1 | ours: best learner F1 | ours: ssvm P / R / F1 |",
-              "|---|---|---|---|---|"]
+    lines += [
+        "",
+        "Class counts (all rooms): "
+        + "; ".join(
+            f"{a} {c['positives']:,} / {c['negatives']:,} (1:{c['ratio']:,.0f})"
+            for a, c in evaluation.class_counts.items()
+        ),
+        "",
+    ]
+    lines += [
+        "## Beside the paper (its 12 real rooms)",
+        "",
+        "| affordance | paper: best SVM baseline F1 | paper: structured SVM P / R / F1 | ours: best learner F1 | ours: ssvm P / R / F1 |",
+        "|---|---|---|---|---|",
+    ]
     paper_rows = json.loads(PAPER_RESULTS.read_text())["affordances"]
     for affordance in affordances:
         ours = [r for r in rows if r["affordance"] == affordance]
@@ -234,18 +332,30 @@ def results_markdown(evaluation: Evaluation) -> str:
         ssvm = cell.get((affordance, "ssvm"))
         paper = paper_rows.get(affordance, {})
         paper = (paper.get("best_baseline", "-"), paper.get("structured_svm", "-"))
-        ssvm_text = "-" if ssvm is None else f"{ssvm['precision']:.2f} / {ssvm['recall']:.2f} / {ssvm['f1']:.2f}"
-        lines.append(f"| {affordance} | {paper[0]} | {paper[1]} | {best['f1']:.2f} ({best['learner']}) | {ssvm_text} |")
+        ssvm_text = (
+            "-" if ssvm is None else f"{ssvm['precision']:.2f} / {ssvm['recall']:.2f} / {ssvm['f1']:.2f}"
+        )
+        lines.append(
+            f"| {affordance} | {paper[0]} | {paper[1]} | {best['f1']:.2f} ({best['learner']}) | {ssvm_text} |"
+        )
     sweep = evaluation.sweep()
     if sweep:
         lines += ["", "## Imbalance test (fold 1): F1 against the training set's negatives per positive", ""]
         for affordance in affordances:
             runs = [o for o in sweep if o.affordance == affordance]
             ratios = sorted({o.ratio for o in runs if o.ratio is not None}) + [None]
-            lines += [f"**{affordance}**", "", "| learner | " + " | ".join("all" if r is None else f"1:{r}" for r in ratios) + " |",
-                      "|---|" + "---:|" * len(ratios)]
+            lines += [
+                f"**{affordance}**",
+                "",
+                "| learner | " + " | ".join("all" if r is None else f"1:{r}" for r in ratios) + " |",
+                "|---|" + "---:|" * len(ratios),
+            ]
             for learner in learners:
                 by_ratio = {o.ratio: o.f1 for o in runs if o.learner == learner}
-                lines.append(f"| {learner} | " + " | ".join(f"{by_ratio[r]:.2f}" if r in by_ratio else "" for r in ratios) + " |")
+                lines.append(
+                    f"| {learner} | "
+                    + " | ".join(f"{by_ratio[r]:.2f}" if r in by_ratio else "" for r in ratios)
+                    + " |"
+                )
             lines.append("")
     return "\n".join(lines).rstrip() + "\n"

@@ -46,8 +46,14 @@ def data_set_rooms(folder: str | Path) -> list[tuple[str, Path, Path]]:
     return rooms
 
 
-def room_examples(cloud: Path, labels_path: Path, affordance: str, settings: Settings, layout: FeatureLayout,
-                  on_chunk: Callable[[int], None] | None = None) -> RoomExamples:
+def room_examples(
+    cloud: Path,
+    labels_path: Path,
+    affordance: str,
+    settings: Settings,
+    layout: FeatureLayout,
+    on_chunk: Callable[[int], None] | None = None,
+) -> RoomExamples:
     skeleton = get_skeleton(affordance, settings.skeleton_dirs)
     labels = load_labels(labels_path)
     scene = prepare_scene(load_cloud(cloud), settings, "none")
@@ -57,9 +63,11 @@ def room_examples(cloud: Path, labels_path: Path, affordance: str, settings: Set
     positive = truth.pose_mask().ravel()
     X = np.empty((int(scored.sum()), layout.n_features), dtype=np.float32)
     row = 0
-    for chunk in iter_features(scene.fields, skeleton, grid, layout, settings.features.chunk_mb, reuse_buffer=True):
-        keep = scored[chunk.start:chunk.stop]
-        X[row:row + int(keep.sum())] = chunk.values[keep]
+    for chunk in iter_features(
+        scene.fields, skeleton, grid, layout, settings.features.chunk_mb, reuse_buffer=True
+    ):
+        keep = scored[chunk.start : chunk.stop]
+        X[row : row + int(keep.sum())] = chunk.values[keep]
         row += int(keep.sum())
         if on_chunk:
             on_chunk(chunk.stop - chunk.start)
@@ -67,8 +75,9 @@ def room_examples(cloud: Path, labels_path: Path, affordance: str, settings: Set
     return RoomExamples(cloud.stem, X, y)
 
 
-def load_examples(folder: str | Path, affordance: str, settings: Settings | None = None,
-                  layout: FeatureLayout | None = None) -> Iterator[RoomExamples]:
+def load_examples(
+    folder: str | Path, affordance: str, settings: Settings | None = None, layout: FeatureLayout | None = None
+) -> Iterator[RoomExamples]:
     settings = settings or Settings()
     layout = layout or FeatureLayout.from_settings(settings.features, settings.voxel)
     for _, cloud, labels in data_set_rooms(folder):

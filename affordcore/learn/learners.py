@@ -20,7 +20,9 @@ Fitted = tuple["np.ndarray", float, float, dict]  # weights, bias, threshold, wh
 class Learner:
     name: str
     summary: str  # one line for --help and the docs
-    fit: Callable[[RoomExamples, RoomExamples, dict, np.random.Generator], Fitted]  # train, validation, params, rng
+    fit: Callable[
+        [RoomExamples, RoomExamples, dict, np.random.Generator], Fitted
+    ]  # train, validation, params, rng
 
 
 def _ssvm(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> Fitted:
@@ -28,15 +30,26 @@ def _ssvm(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> F
 
     result = train_ssvm(train.X, train.y, SSVMSettings(**params), validation=(validation.X, validation.y))
     best = result.best
-    weights = best.weights / len(train.y)  # in SVMperf's units (summed Psi): the same sign, scores of order one
-    return weights[:-1], float(weights[-1]), 0.0, {
-        "iterations": len(result.iterations), "best_iteration": best.number, "converged": result.converged,
-        "train_f1": [it.train_f1 for it in result.iterations],
-        "validation_f1": [it.validation_f1 for it in result.iterations]}
+    weights = best.weights / len(
+        train.y
+    )  # in SVMperf's units (summed Psi): the same sign, scores of order one
+    return (
+        weights[:-1],
+        float(weights[-1]),
+        0.0,
+        {
+            "iterations": len(result.iterations),
+            "best_iteration": best.number,
+            "converged": result.converged,
+            "train_f1": [it.train_f1 for it in result.iterations],
+            "validation_f1": [it.validation_f1 for it in result.iterations],
+        },
+    )
 
 
 def _baseline(make: Callable) -> Callable[..., Fitted]:
     """A scikit-learn baseline as a fit function: `make(train, validation, params, rng)` returns a LinearModel."""
+
     def fit(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> Fitted:
         model = make(train, validation, params, rng)
         return model.weights, model.bias, model.threshold, {}
@@ -76,15 +89,23 @@ def _linear_tuned(train, validation, params, rng):
     return linear_tuned(train.X, train.y, params.get("C", 1.0))
 
 
-LEARNERS: dict[str, Learner] = {learner.name: learner for learner in (
-    Learner("ssvm", "structured SVM optimising F1 with cutting planes (Joachims 2005)", _ssvm),
-    Learner("undersample", "linear SVM on randomly undersampled negatives", _baseline(_undersample)),
-    Learner("focused", "focused resampling near the boundary (Batuwita & Palade 2010)", _baseline(_focused)),
-    Learner("zsvm", "zSVM: positive support vectors weighted by z (Imam et al. 2006)", _baseline(_zsvm)),
-    Learner("dcm", "different cost model: C+ and C- by the class ratio", _baseline(_different_costs)),
-    Learner("linear-tuned", "linear SVM on all data, threshold tuned for F1 (the baseline to beat)",
-            _baseline(_linear_tuned)),
-)}
+LEARNERS: dict[str, Learner] = {
+    learner.name: learner
+    for learner in (
+        Learner("ssvm", "structured SVM optimising F1 with cutting planes (Joachims 2005)", _ssvm),
+        Learner("undersample", "linear SVM on randomly undersampled negatives", _baseline(_undersample)),
+        Learner(
+            "focused", "focused resampling near the boundary (Batuwita & Palade 2010)", _baseline(_focused)
+        ),
+        Learner("zsvm", "zSVM: positive support vectors weighted by z (Imam et al. 2006)", _baseline(_zsvm)),
+        Learner("dcm", "different cost model: C+ and C- by the class ratio", _baseline(_different_costs)),
+        Learner(
+            "linear-tuned",
+            "linear SVM on all data, threshold tuned for F1 (the baseline to beat)",
+            _baseline(_linear_tuned),
+        ),
+    )
+}
 
 
 def get_learner(name: str) -> Learner:

@@ -46,13 +46,19 @@ class AffordanceModel:
     @property
     def id(self) -> str:
         """affordance/learner/hash of the weights: names exactly this model in the maps it makes."""
-        digest = hashlib.sha256(np.asarray(self.weights, dtype=np.float64).tobytes() + repr((self.bias, self.threshold)).encode())
+        digest = hashlib.sha256(
+            np.asarray(self.weights, dtype=np.float64).tobytes() + repr((self.bias, self.threshold)).encode()
+        )
         return f"{self.affordance}/{self.learner}/{digest.hexdigest()[:12]}"
 
     def as_skeleton(self) -> Skeleton:
         """The skeleton the model was trained with (maps place it, not whatever skeleton file is installed now)."""
-        return Skeleton(self.affordance, np.asarray(self.skeleton["joints"], dtype=np.float64), float(self.skeleton["torso_height"]),
-                        source=self.skeleton.get("source", ""))
+        return Skeleton(
+            self.affordance,
+            np.asarray(self.skeleton["joints"], dtype=np.float64),
+            float(self.skeleton["torso_height"]),
+            source=self.skeleton.get("source", ""),
+        )
 
     def decision(self, X: np.ndarray) -> np.ndarray:
         return X @ self.weights.astype(X.dtype, copy=False) + self.bias
@@ -76,7 +82,9 @@ def load_model(path: str | Path, layout: FeatureLayout | None = None) -> Afforda
     path = Path(path)
     document = read_json(path, ModelError)
     if not isinstance(document, dict) or document.get("format") != FORMAT:
-        raise ModelError(f"{path}: not an {FORMAT} file (format {document.get('format') if isinstance(document, dict) else None!r})")
+        raise ModelError(
+            f"{path}: not an {FORMAT} file (format {document.get('format') if isinstance(document, dict) else None!r})"
+        )
     try:
         document.pop("format")
         weights = np.asarray(document.pop("weights"), dtype=np.float64)
@@ -84,15 +92,19 @@ def load_model(path: str | Path, layout: FeatureLayout | None = None) -> Afforda
     except (KeyError, TypeError, ValueError) as error:
         raise ModelError(f"{path}: malformed model ({error})") from error
     if len(model.weights) != model.layout.get("n_features"):
-        raise ModelError(f"{path}: {len(model.weights)} weights for a layout of {model.layout.get('n_features')} features")
+        raise ModelError(
+            f"{path}: {len(model.weights)} weights for a layout of {model.layout.get('n_features')} features"
+        )
     if layout is not None:
         model.check_layout(layout, str(path))
     return model
 
 
 def _summary(layout: dict) -> str:
-    return (f"v{layout.get('version')}, {layout.get('n_features')} features, {layout.get('cell_size')} m cells, "
-            f"{layout.get('voxel_resolution')} m voxels")
+    return (
+        f"v{layout.get('version')}, {layout.get('n_features')} features, {layout.get('cell_size')} m cells, "
+        f"{layout.get('voxel_resolution')} m voxels"
+    )
 
 
 def shipped_models() -> dict[str, Path]:
@@ -100,7 +112,9 @@ def shipped_models() -> dict[str, Path]:
     return {path.name.removesuffix(".model.json"): path for path in sorted(MODELS_DIR.glob("*.model.json"))}
 
 
-def choose_models(model_files: list[Path], affordances: list[str], layout: FeatureLayout) -> list[AffordanceModel]:
+def choose_models(
+    model_files: list[Path], affordances: list[str], layout: FeatureLayout
+) -> list[AffordanceModel]:
     """The given model files, else the shipped models of the named affordances, else every shipped model."""
     if model_files:
         models = [load_model(path, layout) for path in model_files]
@@ -108,8 +122,10 @@ def choose_models(model_files: list[Path], affordances: list[str], layout: Featu
         shipped = shipped_models()
         unknown = [name for name in affordances if name not in shipped]
         if unknown:
-            raise ModelError(f"no shipped model for {', '.join(unknown)}; shipped: {', '.join(shipped) or 'none'} "
-                             "(or pass --model FILE)")
+            raise ModelError(
+                f"no shipped model for {', '.join(unknown)}; shipped: {', '.join(shipped) or 'none'} "
+                "(or pass --model FILE)"
+            )
         models = [load_model(shipped[name], layout) for name in (affordances or list(shipped))]
     wanted = [m for m in models if not affordances or m.affordance in affordances]
     if not wanted:

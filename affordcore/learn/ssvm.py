@@ -64,7 +64,11 @@ class SSVMResult:
     @property
     def best(self) -> Iteration:
         """The iteration with the best validation F1 (training F1 when there is no validation set)."""
-        key = (lambda it: it.validation_f1) if self.iterations[0].validation_f1 is not None else (lambda it: it.train_f1)
+        key = (
+            (lambda it: it.validation_f1)
+            if self.iterations[0].validation_f1 is not None
+            else (lambda it: it.train_f1)
+        )
         return max(self.iterations, key=key)
 
 
@@ -92,15 +96,25 @@ def train_ssvm(
     start = time.perf_counter()
     for number in range(1, settings.max_iterations + 1):
         scores = decision(X, weights)
-        violator = most_violated(scores / (len(y) * settings.loss_scale), y)  # argmax of loss_scale Delta + Psi(y') . w
+        violator = most_violated(
+            scores / (len(y) * settings.loss_scale), y
+        )  # argmax of loss_scale Delta + Psi(y') . w
         plane = _plane(X, y, violator.labelling)
         loss = settings.loss_scale * violator.loss
         slack = max(0.0, float(np.max(losses - planes @ weights))) if len(losses) else 0.0
         violation = loss - float(plane @ weights) - slack
-        result.iterations.append(Iteration(
-            number, weights.copy(), f1_at(scores, y),
-            None if validation is None else f1_at(decision(validation[0], weights), validation[1]),
-            violation, slack, len(losses), time.perf_counter() - start))
+        result.iterations.append(
+            Iteration(
+                number,
+                weights.copy(),
+                f1_at(scores, y),
+                None if validation is None else f1_at(decision(validation[0], weights), validation[1]),
+                violation,
+                slack,
+                len(losses),
+                time.perf_counter() - start,
+            )
+        )
         if on_iteration:
             on_iteration(result.iterations[-1])
         if violation <= settings.epsilon:
@@ -109,7 +123,9 @@ def train_ssvm(
         if validation is not None and number - result.best.number >= settings.patience:
             break
         planes, losses = np.vstack([planes, plane]), np.append(losses, loss)
-        weights, slack, alpha = _solve_working_set(planes, losses, settings.C * float(len(y)) ** 2, np.append(weights, slack))
+        weights, slack, alpha = _solve_working_set(
+            planes, losses, settings.C * float(len(y)) ** 2, np.append(weights, slack)
+        )
         idle = np.append(idle, 0)
         idle = np.where(alpha > 1e-9 * max(1.0, alpha.max(initial=0.0)), 0, idle + 1)
         keep = idle <= settings.prune_after
@@ -127,7 +143,11 @@ def _plane(X: np.ndarray, y: np.ndarray, labelling: np.ndarray) -> np.ndarray:
         signs = np.zeros(len(y), dtype=X.dtype)
         signs[differ] = y[differ]
         block = 1 << 16
-        total = np.sum([signs[i:i + block] @ X[i:i + block] for i in range(0, len(y), block)], axis=0, dtype=np.float64)
+        total = np.sum(
+            [signs[i : i + block] @ X[i : i + block] for i in range(0, len(y), block)],
+            axis=0,
+            dtype=np.float64,
+        )
     return np.append(2.0 * total, 2.0 * float(y[differ].sum())) / len(y)
 
 
@@ -147,17 +167,33 @@ def _solve_working_set(planes: np.ndarray, losses: np.ndarray, C: float, warm: n
     norms = np.where(norms > 0, norms, 1.0)
     t = max(float(losses.max(initial=0.0)), 1e-12)  # the loss scale
     s = max(float(np.max(losses / norms, initial=0.0)), 1e-12)  # the weight scale that meets every plane
-    rows = np.hstack([planes / norms[:, None], (t / (s * norms))[:, None]])  # [plane_k, 1] . [w, xi] >= Delta_k, scaled
-    A = sparse.vstack([sparse.csc_matrix(rows), sparse.csc_matrix(([1.0], ([0], [dims])), shape=(1, dims + 1))]).tocsc()
+    rows = np.hstack(
+        [planes / norms[:, None], (t / (s * norms))[:, None]]
+    )  # [plane_k, 1] . [w, xi] >= Delta_k, scaled
+    A = sparse.vstack(
+        [sparse.csc_matrix(rows), sparse.csc_matrix(([1.0], ([0], [dims])), shape=(1, dims + 1))]
+    ).tocsc()
     P = sparse.diags(np.append(np.ones(dims), 0.0)).tocsc()
     q = np.append(np.zeros(dims), C * t / s**2)
     problem = osqp.OSQP()
-    problem.setup(P=P, q=q, A=A, l=np.append(losses / (s * norms), 0.0), u=np.full(k + 1, np.inf),
-                  verbose=False, eps_abs=1e-6, eps_rel=1e-6, max_iter=100000, polishing=True)
+    problem.setup(
+        P=P,
+        q=q,
+        A=A,
+        l=np.append(losses / (s * norms), 0.0),
+        u=np.full(k + 1, np.inf),
+        verbose=False,
+        eps_abs=1e-6,
+        eps_rel=1e-6,
+        max_iter=100000,
+        polishing=True,
+    )
     if warm is not None:
         problem.warm_start(x=np.append(warm[:dims] / s, warm[dims] / t))
     solution = problem.solve(raise_error=False)
     if solution.x is None or not np.all(np.isfinite(solution.x)):
         raise RuntimeError(f"OSQP failed on the working set ({solution.info.status})")
-    alpha = np.clip(-solution.y[:k], 0.0, None) / norms  # up to one common factor: only compared with each other
+    alpha = (
+        np.clip(-solution.y[:k], 0.0, None) / norms
+    )  # up to one common factor: only compared with each other
     return s * solution.x[:dims], max(0.0, t * float(solution.x[dims])), alpha

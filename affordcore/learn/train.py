@@ -30,12 +30,14 @@ def metrics(scores: np.ndarray, labels: np.ndarray, threshold: float) -> dict:
         "precision": tp / (tp + fp) if tp + fp else 0.0,
         "recall": tp / (tp + fn) if tp + fn else 0.0,
         "f1": 1.0 - float(f1_loss(tp, fp, positive.sum())),
-        "positives": int(positive.sum()), "negatives": int((~positive).sum()),
+        "positives": int(positive.sum()),
+        "negatives": int((~positive).sum()),
     }
 
 
-def split_rooms(names: list[str], seed: int, fraction: float = 0.25,
-                positives: dict[str, int] | None = None) -> tuple[list[str], list[str]]:
+def split_rooms(
+    names: list[str], seed: int, fraction: float = 0.25, positives: dict[str, int] | None = None
+) -> tuple[list[str], list[str]]:
     """(training, validation) rooms: a seeded `fraction` held out, drawn separately from the rooms that hold
     positives and those that do not, so that both sides keep positives whenever two rooms hold any.
     A single room (or a single room with positives) is used for both."""
@@ -58,8 +60,15 @@ def fit(learner: str, train: RoomExamples, validation: RoomExamples, params: dic
     return get_learner(learner).fit(train, validation, params, np.random.default_rng(seed))
 
 
-def train(data: str | Path, affordance: str, learner: str, settings: Settings | None = None, params: dict | None = None,
-          seed: int = 0, on_room: Callable[[str], None] | None = None) -> AffordanceModel:
+def train(
+    data: str | Path,
+    affordance: str,
+    learner: str,
+    settings: Settings | None = None,
+    params: dict | None = None,
+    seed: int = 0,
+    on_room: Callable[[str], None] | None = None,
+) -> AffordanceModel:
     get_learner(learner)  # an unknown learner fails before the rooms are read
     settings = settings or Settings()
     layout = FeatureLayout.from_settings(settings.features, settings.voxel)
@@ -69,23 +78,44 @@ def train(data: str | Path, affordance: str, learner: str, settings: Settings | 
         examples[name] = room_examples(cloud, labels, affordance, settings, layout)
         if on_room:
             on_room(name)
-    train_names, validation_names = split_rooms(list(examples), seed, positives={n: e.positives for n, e in examples.items()})
+    train_names, validation_names = split_rooms(
+        list(examples), seed, positives={n: e.positives for n, e in examples.items()}
+    )
     training, validation = stack(examples, train_names), stack(examples, validation_names)
     if training.positives == 0:
         raise ValueError(f"{data}: the training rooms hold no {affordance} label")
     weights, bias, threshold, report = fit(learner, training, validation, params or {}, seed)
     skeleton = get_skeleton(affordance, settings.skeleton_dirs)
     return AffordanceModel(
-        affordance=affordance, layout=layout.describe(), fingerprint=layout.fingerprint,
-        weights=np.asarray(weights, dtype=np.float64), bias=float(bias), threshold=float(threshold), learner=learner,
+        affordance=affordance,
+        layout=layout.describe(),
+        fingerprint=layout.fingerprint,
+        weights=np.asarray(weights, dtype=np.float64),
+        bias=float(bias),
+        threshold=float(threshold),
+        learner=learner,
         parameters={**(params or {}), "seed": seed, **({"report": report} if report else {})},
-        skeleton={"joints": skeleton.joints.round(4).tolist(), "torso_height": skeleton.torso_height, "source": skeleton.source},
+        skeleton={
+            "joints": skeleton.joints.round(4).tolist(),
+            "torso_height": skeleton.torso_height,
+            "source": skeleton.source,
+        },
         grid=settings.grid.model_dump(),
-        training={"rooms": train_names, "positives": training.positives, "negatives": int(len(training.y) - training.positives)},
-        validation={"rooms": validation_names, **metrics(decision(validation.X, np.append(weights, bias)), validation.y, threshold)},
+        training={
+            "rooms": train_names,
+            "positives": training.positives,
+            "negatives": int(len(training.y) - training.positives),
+        },
+        validation={
+            "rooms": validation_names,
+            **metrics(decision(validation.X, np.append(weights, bias)), validation.y, threshold),
+        },
     )
 
 
 def stack(examples: dict[str, RoomExamples], names: list[str]) -> RoomExamples:
-    return RoomExamples("+".join(names), np.concatenate([examples[n].X for n in names]),
-                        np.concatenate([examples[n].y for n in names]))
+    return RoomExamples(
+        "+".join(names),
+        np.concatenate([examples[n].X for n in names]),
+        np.concatenate([examples[n].y for n in names]),
+    )

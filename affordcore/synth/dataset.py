@@ -51,8 +51,12 @@ class SynthOptions:
         return f"{self.kinds[index % len(self.kinds)]}-{index:03d}"
 
 
-def synthesize(options: SynthOptions, out: Path, workers: int | None = None,
-               on_room_done: Callable[[dict], None] | None = None) -> dict:
+def synthesize(
+    options: SynthOptions,
+    out: Path,
+    workers: int | None = None,
+    on_room_done: Callable[[dict], None] | None = None,
+) -> dict:
     """Generate every room (in parallel processes), then write the summary; returns it."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -128,7 +132,9 @@ def write_sequence(room, rng: np.random.Generator, folder: Path, sensor: str, fr
     camera = DepthCamera()
     np.savetxt(folder / "camera-intrinsics.txt", camera.intrinsics, fmt="%.6f")
     np.savetxt(folder / "gravity-direction.txt", [0.0, 0.0, -1.0], fmt="%.6f")
-    to_lidar = np.array([[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]], float)  # ROS axes from camera axes
+    to_lidar = np.array(
+        [[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]], float
+    )  # ROS axes from camera axes
     for k, pose in enumerate(trajectory(room, rng, frames)):
         if sensor == "depth":
             depth, _ = depth_frame(raycaster, camera, pose, rng)
@@ -160,13 +166,21 @@ def _summary(options: SynthOptions, reports: list[dict]) -> dict:
 
 
 def summary_table(summary: dict) -> str:
-    rows = [f"# Generated rooms (seed {summary['seed']}, {len(summary['rooms'])} rooms, scanner {summary['scanner']})", "",
-            "| affordance | labels | positive poses | negative poses | ratio |", "|---|---:|---:|---:|---:|"]
+    rows = [
+        f"# Generated rooms (seed {summary['seed']}, {len(summary['rooms'])} rooms, scanner {summary['scanner']})",
+        "",
+        "| affordance | labels | positive poses | negative poses | ratio |",
+        "|---|---:|---:|---:|---:|",
+    ]
     for name, count in summary["class_imbalance"].items():
         labels = sum(room["labels"].get(name, 0) for room in summary["rooms"])
-        rows.append(f"| {name} | {labels} | {count['positives']:,} | {count['negatives']:,} | {count['ratio']} |")
+        rows.append(
+            f"| {name} | {labels} | {count['positives']:,} | {count['negatives']:,} | {count['ratio']} |"
+        )
     rows += ["", "| room | kind | size (m) | points | labels |", "|---|---|---|---:|---|"]
     for room in summary["rooms"]:
         labels = ", ".join(f"{n} {k}" for n, k in room["labels"].items() if k) or "none"
-        rows.append(f"| {room['room']} | {room['kind']} | {room['size_m'][0]} x {room['size_m'][1]} | {room['points']:,} | {labels} |")
+        rows.append(
+            f"| {room['room']} | {room['kind']} | {room['size_m'][0]} x {room['size_m'][1]} | {room['points']:,} | {labels} |"
+        )
     return "\n".join(rows) + "\n"

@@ -34,9 +34,13 @@ def _pick(rng: np.random.Generator, palette) -> tuple[float, float, float]:
 
 def _legs(rng, x_half, y_half, height, thickness, color, inset=0.03) -> list[Box]:
     return [
-        Box.span((sx * (x_half - inset) - thickness / 2, sy * (y_half - inset) - thickness / 2, 0),
-                 (sx * (x_half - inset) + thickness / 2, sy * (y_half - inset) + thickness / 2, height), color)
-        for sx in (-1, 1) for sy in (-1, 1)
+        Box.span(
+            (sx * (x_half - inset) - thickness / 2, sy * (y_half - inset) - thickness / 2, 0),
+            (sx * (x_half - inset) + thickness / 2, sy * (y_half - inset) + thickness / 2, height),
+            color,
+        )
+        for sx in (-1, 1)
+        for sy in (-1, 1)
     ]
 
 
@@ -45,6 +49,7 @@ def _free_space(x0: float, x1: float, y0: float, y1: float, height: float = 1.8)
 
 
 # ---------------------------------------------------------------- seating for relaxing
+
 
 def sofa(rng: np.random.Generator, seats: int | None = None, armrests: bool | None = None) -> Piece:
     """A sofa of 1 to 4 seats with a backrest (and usually armrests): one lounge segment."""
@@ -64,12 +69,20 @@ def sofa(rng: np.random.Generator, seats: int | None = None, armrests: bool | No
     ]
     if armrests:
         arm_h = rng.uniform(0.55, 0.68)
-        parts += [Box.span((x0, side * y_half - (arm if side > 0 else 0), leg_h),
-                           (x1, side * y_half + (0 if side > 0 else arm), arm_h), color) for side in (-1, 1)]
+        parts += [
+            Box.span(
+                (x0, side * y_half - (arm if side > 0 else 0), leg_h),
+                (x1, side * y_half + (0 if side > 0 else arm), arm_h),
+                color,
+            )
+            for side in (-1, 1)
+        ]
     seat_centre_x = (x0 + back_t + x1) / 2
     reach = max(0.0, y_half - arm - SEAT_INSET)
     legroom = _free_space(x1, x1 + 0.45, -y_half + arm, y_half - arm, 0.35)
-    anchor = Anchor(LOUNGE, (seat_centre_x, -reach), (seat_centre_x, reach), 0.0, [legroom], f"{seats}-seat sofa")
+    anchor = Anchor(
+        LOUNGE, (seat_centre_x, -reach), (seat_centre_x, reach), 0.0, [legroom], f"{seats}-seat sofa"
+    )
     return Piece("sofa", parts, [anchor], note=f"{seats}-seat sofa, seat {seat_h:.2f} m")
 
 
@@ -88,18 +101,30 @@ def corner_sofa(rng: np.random.Generator) -> Piece:
     wing = [
         Box.span((hi[0], y1 - depth, leg_h), (hi[0] + wing_len, y1 - back_t, seat_top), color),
         Box.span((hi[0], y1 - back_t, leg_h), (hi[0] + wing_len, y1, back_top), color),
-        Box.span((hi[0] + wing_len - 0.15, y1 - depth, leg_h), (hi[0] + wing_len, y1, seat_top + 0.15), color),
+        Box.span(
+            (hi[0] + wing_len - 0.15, y1 - depth, leg_h), (hi[0] + wing_len, y1, seat_top + 0.15), color
+        ),
     ]
     # Drop the main run's left armrest: the wing replaces it.
-    parts = [p for p in main.parts if not (p.centre[1] > hi[1] - 0.3 and p.size[1] < 0.3 and p.size[2] > 0.3)] + wing
+    parts = [
+        p for p in main.parts if not (p.centre[1] > hi[1] - 0.3 and p.size[1] < 0.3 and p.size[2] > 0.3)
+    ] + wing
     anchor = main.anchors[0]
     main_end = min(anchor.end[1], y1 - depth - SEAT_INSET + 0.1)
     wing_x = y1 - (depth + back_t) / 2  # the wing seat's centre line
     wing_anchor = Anchor(
-        LOUNGE, (hi[0] + SEAT_INSET, wing_x), (hi[0] + wing_len - 0.15 - SEAT_INSET, wing_x), -np.pi / 2,
-        [_free_space(hi[0], hi[0] + wing_len - 0.15, y1 - depth - 0.45, y1 - depth, 0.35)], "corner sofa, wing",
+        LOUNGE,
+        (hi[0] + SEAT_INSET, wing_x),
+        (hi[0] + wing_len - 0.15 - SEAT_INSET, wing_x),
+        -np.pi / 2,
+        [_free_space(hi[0], hi[0] + wing_len - 0.15, y1 - depth - 0.45, y1 - depth, 0.35)],
+        "corner sofa, wing",
     )
-    anchors = [Anchor(LOUNGE, anchor.start, (anchor.end[0], main_end), 0.0, anchor.clearance, "corner sofa, main run")]
+    anchors = [
+        Anchor(
+            LOUNGE, anchor.start, (anchor.end[0], main_end), 0.0, anchor.clearance, "corner sofa, main run"
+        )
+    ]
     if wing_anchor.start[0] <= wing_anchor.end[0]:
         anchors.append(wing_anchor)
     return Piece("corner-sofa", parts, anchors, note="L-shaped sofa")
@@ -116,6 +141,7 @@ def armchair(rng: np.random.Generator) -> Piece:
 
 # ---------------------------------------------------------------- tables, desks, chairs
 
+
 def table(rng, length, depth, height, color=None, legs=True) -> list[Box]:
     color = color or _pick(rng, WOOD)
     top_t = rng.uniform(0.025, 0.045)
@@ -131,16 +157,31 @@ def office_chair(rng: np.random.Generator) -> list[Box]:
     color, metal = _pick(rng, METAL + FABRIC[:1]), _pick(rng, METAL)
     parts = [
         Box.span((-depth / 2, -width / 2, seat_h - 0.07), (depth / 2, width / 2, seat_h), color),
-        Box.span((-depth / 2 - 0.06, -width / 2 + 0.03, seat_h + 0.05), (-depth / 2, width / 2 - 0.03,
-                 seat_h + rng.uniform(0.40, 0.60)), color),
+        Box.span(
+            (-depth / 2 - 0.06, -width / 2 + 0.03, seat_h + 0.05),
+            (-depth / 2, width / 2 - 0.03, seat_h + rng.uniform(0.40, 0.60)),
+            color,
+        ),
         Box.span((-0.03, -0.03, 0.08), (0.03, 0.03, seat_h - 0.07), metal),
     ]
     for k in range(5):
-        parts.append(Box((0.15 * np.cos(2 * np.pi * k / 5), 0.15 * np.sin(2 * np.pi * k / 5), 0.05), (0.32, 0.05, 0.05),
-                         2 * np.pi * k / 5, metal))
+        parts.append(
+            Box(
+                (0.15 * np.cos(2 * np.pi * k / 5), 0.15 * np.sin(2 * np.pi * k / 5), 0.05),
+                (0.32, 0.05, 0.05),
+                2 * np.pi * k / 5,
+                metal,
+            )
+        )
     if rng.random() < 0.6:
-        parts += [Box.span((-0.15, side * width / 2 - 0.03, seat_h + 0.16), (0.15, side * width / 2 + 0.03,
-                           seat_h + 0.20), metal) for side in (-1, 1)]
+        parts += [
+            Box.span(
+                (-0.15, side * width / 2 - 0.03, seat_h + 0.16),
+                (0.15, side * width / 2 + 0.03, seat_h + 0.20),
+                metal,
+            )
+            for side in (-1, 1)
+        ]
     return parts
 
 
@@ -149,18 +190,26 @@ def dining_chair(rng: np.random.Generator) -> list[Box]:
     color = _pick(rng, WOOD)
     return [
         Box.span((-depth / 2, -width / 2, seat_h - 0.04), (depth / 2, width / 2, seat_h), color),
-        Box.span((-depth / 2, -width / 2, seat_h), (-depth / 2 + 0.03, width / 2, seat_h + rng.uniform(0.40, 0.50)), color),
+        Box.span(
+            (-depth / 2, -width / 2, seat_h),
+            (-depth / 2 + 0.03, width / 2, seat_h + rng.uniform(0.40, 0.50)),
+            color,
+        ),
         *_legs(rng, depth / 2, width / 2, seat_h - 0.04, 0.035, color, inset=0.02),
     ]
 
 
-def _seat_at_edge(rng, edge_x: float, along: float, chair: list[Box], serve: bool) -> tuple[list[Box], Anchor | None]:
+def _seat_at_edge(
+    rng, edge_x: float, along: float, chair: list[Box], serve: bool
+) -> tuple[list[Box], Anchor | None]:
     """A chair in front of a table edge at x = edge_x (table on the -x side), facing roughly the table.
 
     Pushed in (seat reaching under the top, barely turned), pulled out, swivelled, or turned away. When it
     serves the table, its label is 0.25 m outside the edge on the chair's line, facing the table.
     """
-    state = rng.choice(["pushed-in", "pulled-out", "turned-away"], p=[0.6, 0.3, 0.1])  # real rooms: mostly pushed in
+    state = rng.choice(
+        ["pushed-in", "pulled-out", "turned-away"], p=[0.6, 0.3, 0.1]
+    )  # real rooms: mostly pushed in
     if state == "pushed-in":
         offset, turn = rng.uniform(0.02, 0.15), rng.normal(0, 0.08)
     elif state == "pulled-out":
@@ -183,21 +232,46 @@ def desk(rng: np.random.Generator, with_chair: bool | None = None, cluttered: bo
     parts = table(rng, length, depth, height, _pick(rng, WOOD + LAMINATE[:2]))
     monitor_w = rng.uniform(0.45, 0.70)
     along = rng.uniform(-length / 2 + monitor_w / 2 + 0.05, length / 2 - monitor_w / 2 - 0.05)
-    parts.append(Box.span((-depth / 2 + 0.08, along - monitor_w / 2, height + 0.10),
-                          (-depth / 2 + 0.11, along + monitor_w / 2, height + 0.10 + monitor_w * 0.6), METAL[2]))
-    parts.append(Box.span((-depth / 2 + 0.12, along - 0.1, height), (-depth / 2 + 0.22, along + 0.1, height + 0.10), METAL[2]))
-    parts += _clutter(rng, (-depth / 2 + 0.25, depth / 2 - 0.05), (-length / 2 + 0.05, length / 2 - 0.05), height,
-                      count=int(rng.integers(6, 12)) if cluttered else int(rng.integers(0, 3)))
+    parts.append(
+        Box.span(
+            (-depth / 2 + 0.08, along - monitor_w / 2, height + 0.10),
+            (-depth / 2 + 0.11, along + monitor_w / 2, height + 0.10 + monitor_w * 0.6),
+            METAL[2],
+        )
+    )
+    parts.append(
+        Box.span(
+            (-depth / 2 + 0.12, along - 0.1, height),
+            (-depth / 2 + 0.22, along + 0.1, height + 0.10),
+            METAL[2],
+        )
+    )
+    parts += _clutter(
+        rng,
+        (-depth / 2 + 0.25, depth / 2 - 0.05),
+        (-length / 2 + 0.05, length / 2 - 0.05),
+        height,
+        count=int(rng.integers(6, 12)) if cluttered else int(rng.integers(0, 3)),
+    )
     if rng.random() < 0.5:  # a drawer pedestal under one end
         end = rng.choice([-1, 1]) * (length / 2 - 0.25)
-        parts.append(Box.span((-depth / 2 + 0.02, end - 0.2, 0.0), (depth / 2 - 0.05, end + 0.2, height - 0.05),
-                              _pick(rng, LAMINATE)))
+        parts.append(
+            Box.span(
+                (-depth / 2 + 0.02, end - 0.2, 0.0),
+                (depth / 2 - 0.05, end + 0.2, height - 0.05),
+                _pick(rng, LAMINATE),
+            )
+        )
     anchors = []
     if with_chair:
-        anchor = _add_chair(rng, parts, depth / 2, rng.uniform(-length / 2 + 0.35, length / 2 - 0.35), office_chair)
+        anchor = _add_chair(
+            rng, parts, depth / 2, rng.uniform(-length / 2 + 0.35, length / 2 - 0.35), office_chair
+        )
         anchors += [anchor] if anchor else []
         with_chair = anchor is not None
-    return Piece("desk", parts, anchors, note=f"desk {height:.2f} m" + (" with chair" if with_chair else ", no chair"))
+    return Piece(
+        "desk", parts, anchors, note=f"desk {height:.2f} m" + (" with chair" if with_chair else ", no chair")
+    )
 
 
 def meeting_table(rng: np.random.Generator) -> Piece:
@@ -217,7 +291,9 @@ def meeting_table(rng: np.random.Generator) -> Piece:
     return Piece("meeting-table", parts, anchors, note=f"meeting table {height:.2f} m, {len(anchors)} chairs")
 
 
-def _add_chair(rng, parts: list[Box], edge_x: float, along: float, chair_maker, turn: float = 0.0, tries: int = 10):
+def _add_chair(
+    rng, parts: list[Box], edge_x: float, along: float, chair_maker, turn: float = 0.0, tries: int = 10
+):
     """Add a chair serving the edge (turned by `turn` about the table's centre) where it hits nothing already
     there; returns its anchor, or None when every try collided (the table then has one chair fewer)."""
     for _ in range(tries):
@@ -231,8 +307,14 @@ def _add_chair(rng, parts: list[Box], edge_x: float, along: float, chair_maker, 
 
 def _rotated_anchor(anchor: Anchor, yaw: float) -> Anchor:
     turn = rot2(yaw)
-    return Anchor(anchor.role, tuple(turn @ anchor.start), tuple(turn @ anchor.end), anchor.facing + yaw,
-                  [box.placed(0, 0, yaw) for box in anchor.clearance], anchor.note)
+    return Anchor(
+        anchor.role,
+        tuple(turn @ anchor.start),
+        tuple(turn @ anchor.end),
+        anchor.facing + yaw,
+        [box.placed(0, 0, yaw) for box in anchor.clearance],
+        anchor.note,
+    )
 
 
 def lone_chair(rng: np.random.Generator) -> Piece:
@@ -242,6 +324,7 @@ def lone_chair(rng: np.random.Generator) -> Piece:
 
 
 # ---------------------------------------------------------------- standing work surfaces
+
 
 def counter(rng: np.random.Generator, wall_cabinets: bool | None = None, cluttered: bool = False) -> Piece:
     """A kitchen counter against the wall behind it (-x): plinth recess, overhanging top, wall cabinets."""
@@ -255,10 +338,18 @@ def counter(rng: np.random.Generator, wall_cabinets: bool | None = None, clutter
     ]
     if wall_cabinets if wall_cabinets is not None else rng.random() < 0.6:
         parts.append(Box.span((x0, -y, rng.uniform(1.40, 1.55)), (x0 + 0.35, y, rng.uniform(2.0, 2.2)), body))
-    parts += _clutter(rng, (x0 + 0.05, x1 - 0.05), (-y + 0.05, y - 0.05), height,
-                      count=int(rng.integers(10, 18)) if cluttered else int(rng.integers(0, 4)), tall=cluttered)
+    parts += _clutter(
+        rng,
+        (x0 + 0.05, x1 - 0.05),
+        (-y + 0.05, y - 0.05),
+        height,
+        count=int(rng.integers(10, 18)) if cluttered else int(rng.integers(0, 4)),
+        tall=cluttered,
+    )
     anchors = [] if cluttered else [_standing_edge(x1, length)]
-    return Piece("counter", parts, anchors, note=f"counter {height:.2f} m" + (", cluttered" if cluttered else ""))
+    return Piece(
+        "counter", parts, anchors, note=f"counter {height:.2f} m" + (", cluttered" if cluttered else "")
+    )
 
 
 def workbench(rng: np.random.Generator, both_sides: bool = False, cluttered: bool = False) -> Piece:
@@ -267,21 +358,39 @@ def workbench(rng: np.random.Generator, both_sides: bool = False, cluttered: boo
     color = _pick(rng, WOOD + METAL[:2])
     parts = table(rng, length, depth, height, color)
     if rng.random() < 0.5:  # a lower shelf
-        parts.append(Box.span((-depth / 2 + 0.05, -length / 2 + 0.05, 0.15), (depth / 2 - 0.05, length / 2 - 0.05, 0.18), color))
-    parts += _clutter(rng, (-depth / 2 + 0.05, depth / 2 - 0.05), (-length / 2 + 0.05, length / 2 - 0.05), height,
-                      count=int(rng.integers(10, 16)) if cluttered else int(rng.integers(0, 4)), tall=cluttered)
+        parts.append(
+            Box.span(
+                (-depth / 2 + 0.05, -length / 2 + 0.05, 0.15),
+                (depth / 2 - 0.05, length / 2 - 0.05, 0.18),
+                color,
+            )
+        )
+    parts += _clutter(
+        rng,
+        (-depth / 2 + 0.05, depth / 2 - 0.05),
+        (-length / 2 + 0.05, length / 2 - 0.05),
+        height,
+        count=int(rng.integers(10, 16)) if cluttered else int(rng.integers(0, 4)),
+        tall=cluttered,
+    )
     anchors = [] if cluttered else [_standing_edge(depth / 2, length)]
     if both_sides and not cluttered:
         anchors.append(_rotated_anchor(_standing_edge(depth / 2, length), np.pi))
-    return Piece("workbench", parts, anchors, note=f"workbench {height:.2f} m" + (", cluttered" if cluttered else ""))
+    return Piece(
+        "workbench", parts, anchors, note=f"workbench {height:.2f} m" + (", cluttered" if cluttered else "")
+    )
 
 
 def high_table(rng: np.random.Generator) -> Piece:
     """A high lab table (standing height) on legs, worked at from its long sides."""
     length, depth, height = rng.uniform(0.9, 1.5), rng.uniform(0.6, 0.8), rng.uniform(0.90, 1.00)
     parts = table(rng, length, depth, height, _pick(rng, LAMINATE))
-    return Piece("high-table", parts, [_standing_edge(depth / 2, length), _rotated_anchor(_standing_edge(depth / 2, length), np.pi)],
-                 note=f"high table {height:.2f} m")
+    return Piece(
+        "high-table",
+        parts,
+        [_standing_edge(depth / 2, length), _rotated_anchor(_standing_edge(depth / 2, length), np.pi)],
+        note=f"high table {height:.2f} m",
+    )
 
 
 def _standing_edge(edge_x: float, length: float) -> Anchor:
@@ -294,17 +403,23 @@ def _standing_edge(edge_x: float, length: float) -> Anchor:
 
 # ---------------------------------------------------------------- context and distractors
 
+
 def coffee_table(rng: np.random.Generator) -> Piece:
-    return Piece("coffee-table", table(rng, rng.uniform(0.8, 1.3), rng.uniform(0.45, 0.70), rng.uniform(0.35, 0.45)),
-                 note="coffee table (seat height, not a seat)")
+    return Piece(
+        "coffee-table",
+        table(rng, rng.uniform(0.8, 1.3), rng.uniform(0.45, 0.70), rng.uniform(0.35, 0.45)),
+        note="coffee table (seat height, not a seat)",
+    )
 
 
 def tv_unit(rng: np.random.Generator) -> Piece:
     length, depth, height = rng.uniform(1.2, 1.9), rng.uniform(0.35, 0.45), rng.uniform(0.40, 0.55)
     tv_w = rng.uniform(0.9, min(1.5, length))
-    parts = [Box.span((-depth / 2, -length / 2, 0), (depth / 2, length / 2, height), _pick(rng, WOOD + LAMINATE)),
-             Box.span((-0.05, -tv_w / 2, height + 0.05), (0.0, tv_w / 2, height + 0.05 + tv_w * 0.58), METAL[2]),
-             Box.span((-0.10, -0.15, height), (0.05, 0.15, height + 0.05), METAL[2])]
+    parts = [
+        Box.span((-depth / 2, -length / 2, 0), (depth / 2, length / 2, height), _pick(rng, WOOD + LAMINATE)),
+        Box.span((-0.05, -tv_w / 2, height + 0.05), (0.0, tv_w / 2, height + 0.05 + tv_w * 0.58), METAL[2]),
+        Box.span((-0.10, -0.15, height), (0.05, 0.15, height + 0.05), METAL[2]),
+    ]
     return Piece("tv-unit", parts, note="TV unit")
 
 
@@ -315,23 +430,46 @@ def shelf(rng: np.random.Generator, low: bool | None = None) -> Piece:
     height = rng.uniform(0.85, 1.0) if low else rng.uniform(1.6, 2.1)
     color = _pick(rng, WOOD + LAMINATE)
     x0, x1, y = -depth / 2, depth / 2, length / 2
-    parts = [Box.span((x0, -y, 0), (x0 + 0.02, y, height), color),
-             Box.span((x0, -y, 0), (x1, -y + 0.02, height), color), Box.span((x0, y - 0.02, 0), (x1, y, height), color)]
+    parts = [
+        Box.span((x0, -y, 0), (x0 + 0.02, y, height), color),
+        Box.span((x0, -y, 0), (x1, -y + 0.02, height), color),
+        Box.span((x0, y - 0.02, 0), (x1, y, height), color),
+    ]
     levels = np.linspace(0.02, height, max(2, int(height / 0.35)) + 1)
     for z in levels:
         parts.append(Box.span((x0, -y + 0.02, z - 0.02), (x1, y - 0.02, z), color))
     for z0, z1 in zip(levels[:-1], levels[1:]):  # books
-        parts += _clutter(rng, (x0 + 0.03, x1 - 0.02), (-y + 0.03, y - 0.03), z0, count=int(rng.integers(1, 4)),
-                          max_height=max(0.05, z1 - z0 - 0.06))
+        parts += _clutter(
+            rng,
+            (x0 + 0.03, x1 - 0.02),
+            (-y + 0.03, y - 0.03),
+            z0,
+            count=int(rng.integers(1, 4)),
+            max_height=max(0.05, z1 - z0 - 0.06),
+        )
     if low:
-        parts += _clutter(rng, (x0 + 0.02, x1 - 0.02), (-y + 0.03, y - 0.03), height, count=int(rng.integers(3, 7)), tall=True)
+        parts += _clutter(
+            rng,
+            (x0 + 0.02, x1 - 0.02),
+            (-y + 0.03, y - 0.03),
+            height,
+            count=int(rng.integers(3, 7)),
+            tall=True,
+        )
     return Piece("shelf", parts, note="low shelf, things on top" if low else "bookshelf")
 
 
 def cabinet(rng: np.random.Generator) -> Piece:
     length, depth, height = rng.uniform(0.5, 1.2), rng.uniform(0.40, 0.60), rng.uniform(0.7, 1.9)
-    return Piece("cabinet", [Box.span((-depth / 2, -length / 2, 0), (depth / 2, length / 2, height), _pick(rng, LAMINATE + METAL))],
-                 note=f"cabinet {height:.2f} m")
+    return Piece(
+        "cabinet",
+        [
+            Box.span(
+                (-depth / 2, -length / 2, 0), (depth / 2, length / 2, height), _pick(rng, LAMINATE + METAL)
+            )
+        ],
+        note=f"cabinet {height:.2f} m",
+    )
 
 
 def bench(rng: np.random.Generator) -> Piece:
@@ -350,30 +488,53 @@ def storage_box(rng: np.random.Generator) -> Piece:
     """A box at seat height with no backrest and no room for knees in front when against things."""
     size = rng.uniform(0.35, 0.6, 2)
     height = rng.uniform(0.38, 0.50)
-    return Piece("box", [Box.span((-size[0] / 2, -size[1] / 2, 0), (size[0] / 2, size[1] / 2, height), _pick(rng, WOOD + FABRIC))],
-                 note="box at seat height")
+    return Piece(
+        "box",
+        [
+            Box.span(
+                (-size[0] / 2, -size[1] / 2, 0), (size[0] / 2, size[1] / 2, height), _pick(rng, WOOD + FABRIC)
+            )
+        ],
+        note="box at seat height",
+    )
 
 
 # ---------------------------------------------------------------- decor: what makes a room more than a box
+
 
 def picture(rng: np.random.Generator) -> Piece:
     """A framed picture or a wall shelf with things on it, hung at eye height (depth gives ICP something to hold)."""
     width, bottom = rng.uniform(0.3, 1.2), rng.uniform(1.1, 1.6)
     if rng.random() < 0.6:
         height, depth = rng.uniform(0.3, 0.8), rng.uniform(0.02, 0.05)
-        parts = [Box.span((-depth / 2, -width / 2, bottom), (depth / 2, width / 2, bottom + height), tuple(rng.uniform(0.1, 0.9, 3)))]
+        parts = [
+            Box.span(
+                (-depth / 2, -width / 2, bottom),
+                (depth / 2, width / 2, bottom + height),
+                tuple(rng.uniform(0.1, 0.9, 3)),
+            )
+        ]
         return Piece("picture", parts, note="picture")
     depth = rng.uniform(0.18, 0.28)
-    parts = [Box.span((-depth / 2, -width / 2, bottom), (depth / 2, width / 2, bottom + 0.025), _pick(rng, WOOD))]
-    parts += _clutter(rng, (-depth / 2 + 0.02, depth / 2 - 0.02), (-width / 2 + 0.03, width / 2 - 0.03), bottom + 0.025,
-                      count=int(rng.integers(1, 5)))
+    parts = [
+        Box.span((-depth / 2, -width / 2, bottom), (depth / 2, width / 2, bottom + 0.025), _pick(rng, WOOD))
+    ]
+    parts += _clutter(
+        rng,
+        (-depth / 2 + 0.02, depth / 2 - 0.02),
+        (-width / 2 + 0.03, width / 2 - 0.03),
+        bottom + 0.025,
+        count=int(rng.integers(1, 5)),
+    )
     return Piece("wall-shelf", parts, note="wall shelf")
 
 
 def radiator(rng: np.random.Generator) -> Piece:
     width, height = rng.uniform(0.6, 1.4), rng.uniform(0.4, 0.6)
-    fins = [Box.span((-0.05, y - 0.01, 0.12), (0.05, y + 0.01, 0.12 + height), METAL[1])
-            for y in np.arange(-width / 2 + 0.02, width / 2, 0.06)]
+    fins = [
+        Box.span((-0.05, y - 0.01, 0.12), (0.05, y + 0.01, 0.12 + height), METAL[1])
+        for y in np.arange(-width / 2 + 0.02, width / 2, 0.06)
+    ]
     return Piece("radiator", fins, note="radiator")
 
 
@@ -383,16 +544,36 @@ def floor_clutter(rng: np.random.Generator) -> Piece:
     if kind == "plant":
         pot = rng.uniform(0.2, 0.4)
         parts = [Box.span((-pot / 2, -pot / 2, 0), (pot / 2, pot / 2, pot), (0.6, 0.35, 0.25))]
-        parts += [Box((rng.normal(0, 0.08), rng.normal(0, 0.08), pot + h / 2), (0.12, 0.12, h), rng.uniform(0, np.pi), (0.2, 0.5, 0.2))
-                  for h in rng.uniform(0.2, 0.9, 4)]
+        parts += [
+            Box(
+                (rng.normal(0, 0.08), rng.normal(0, 0.08), pot + h / 2),
+                (0.12, 0.12, h),
+                rng.uniform(0, np.pi),
+                (0.2, 0.5, 0.2),
+            )
+            for h in rng.uniform(0.2, 0.9, 4)
+        ]
     elif kind == "bin":
         size = rng.uniform(0.25, 0.4)
-        parts = [Box.span((-size / 2, -size / 2, 0), (size / 2, size / 2, rng.uniform(0.3, 0.6)), _pick(rng, METAL + LAMINATE))]
+        parts = [
+            Box.span(
+                (-size / 2, -size / 2, 0),
+                (size / 2, size / 2, rng.uniform(0.3, 0.6)),
+                _pick(rng, METAL + LAMINATE),
+            )
+        ]
     else:
         parts, z = [], 0.0
         for _ in range(int(rng.integers(1, 4))):
             sx, sy, sz = rng.uniform(0.25, 0.55, 3)
-            parts.append(Box((rng.normal(0, 0.03), rng.normal(0, 0.03), z + sz / 2), (sx, sy, sz), rng.normal(0, 0.2), (0.65, 0.5, 0.32)))
+            parts.append(
+                Box(
+                    (rng.normal(0, 0.03), rng.normal(0, 0.03), z + sz / 2),
+                    (sx, sy, sz),
+                    rng.normal(0, 0.2),
+                    (0.65, 0.5, 0.32),
+                )
+            )
             z += sz
     return Piece(str(kind), parts, note=str(kind))
 

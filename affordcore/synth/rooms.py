@@ -59,9 +59,15 @@ class Room:
 
     def shell_boxes(self) -> list[Box]:
         low, high = self.polygon.min(axis=0), self.polygon.max(axis=0)
-        floor = [Box.span((a[0], a[1], -0.05), (b[0], b[1], 0.0), FLOOR_COLOR) for a, b in _floor_rectangles(self.polygon)]
-        ceiling = Box.span((low[0] - WALL, low[1] - WALL, self.height), (high[0] + WALL, high[1] + WALL, self.height + 0.05),
-                           (0.93, 0.93, 0.92))
+        floor = [
+            Box.span((a[0], a[1], -0.05), (b[0], b[1], 0.0), FLOOR_COLOR)
+            for a, b in _floor_rectangles(self.polygon)
+        ]
+        ceiling = Box.span(
+            (low[0] - WALL, low[1] - WALL, self.height),
+            (high[0] + WALL, high[1] + WALL, self.height + 0.05),
+            (0.93, 0.93, 0.92),
+        )
         return floor + self.walls + [ceiling]
 
     def furniture_boxes(self) -> list[Box]:
@@ -113,14 +119,26 @@ def generate_room(kind: str, rng: np.random.Generator, name: str) -> Room:
 
 # ---------------------------------------------------------------- the shell
 
+
 def _shell(kind: str, rng: np.random.Generator, name: str) -> Room:
-    low, high = {"living": (3.0, 7.0), "office": (3.5, 10.0), "workshop": (3.0, 8.0), "mixed": (4.0, 10.0)}[kind]
+    low, high = {"living": (3.0, 7.0), "office": (3.5, 10.0), "workshop": (3.0, 8.0), "mixed": (4.0, 10.0)}[
+        kind
+    ]
     width, depth = rng.uniform(low, high, 2)
     polygon = np.array([[0, 0], [width, 0], [width, depth], [0, depth]], float)
     if rng.random() < 0.3 and min(width, depth) > 4.0:  # an L: cut away one corner
         cut_w, cut_d = rng.uniform(0.25, 0.45) * width, rng.uniform(0.25, 0.45) * depth
-        polygon = np.array([[0, 0], [width, 0], [width, depth - cut_d], [width - cut_w, depth - cut_d],
-                            [width - cut_w, depth], [0, depth]], float)
+        polygon = np.array(
+            [
+                [0, 0],
+                [width, 0],
+                [width, depth - cut_d],
+                [width - cut_w, depth - cut_d],
+                [width - cut_w, depth],
+                [0, depth],
+            ],
+            float,
+        )
     room = Room(name, kind, polygon, float(rng.uniform(2.4, 3.0)))
     room.openings = _openings(polygon, rng, room.height)
     room.walls = _walls(polygon, room.openings, room.height)
@@ -145,10 +163,18 @@ def _openings(polygon: np.ndarray, rng: np.random.Generator, height: float) -> l
         door = k < 1 or rng.random() < 0.2
         width = rng.uniform(0.8, 1.0) if door else rng.uniform(0.8, min(2.0, length - 0.6))
         start = rng.uniform(0.3, length - width - 0.3)
-        candidate = Opening(index, start, width, 0.0 if door else rng.uniform(0.8, 1.0),
-                            min(height - 0.2, 2.05) if door else min(height - 0.15, rng.uniform(2.0, 2.3)),
-                            "door" if door else "window")
-        if all(o.edge != index or start > o.start + o.width + 0.3 or start + width < o.start - 0.3 for o in openings):
+        candidate = Opening(
+            index,
+            start,
+            width,
+            0.0 if door else rng.uniform(0.8, 1.0),
+            min(height - 0.2, 2.05) if door else min(height - 0.15, rng.uniform(2.0, 2.3)),
+            "door" if door else "window",
+        )
+        if all(
+            o.edge != index or start > o.start + o.width + 0.3 or start + width < o.start - 0.3
+            for o in openings
+        ):
             openings.append(candidate)
     return openings
 
@@ -168,28 +194,57 @@ def _walls(polygon: np.ndarray, openings: list[Opening], height: float) -> list[
         pieces.append((cursor, length + WALL, 0.0, height))
         for a, b, bottom, top in pieces:
             middle = start + direction * (a + b) / 2 - inward * WALL / 2
-            walls.append(Box((float(middle[0]), float(middle[1]), (bottom + top) / 2), (b - a, WALL, top - bottom), yaw, WALL_COLOR))
+            walls.append(
+                Box(
+                    (float(middle[0]), float(middle[1]), (bottom + top) / 2),
+                    (b - a, WALL, top - bottom),
+                    yaw,
+                    WALL_COLOR,
+                )
+            )
             if bottom == 0.0:  # a skirting board along every stretch that reaches the floor
                 board = start + direction * (max(a, 0.0) + min(b, length)) / 2 + inward * 0.0075
-                walls.append(Box((float(board[0]), float(board[1]), 0.04), (min(b, length) - max(a, 0.0), 0.015, 0.08), yaw,
-                                 (0.95, 0.95, 0.93)))
+                walls.append(
+                    Box(
+                        (float(board[0]), float(board[1]), 0.04),
+                        (min(b, length) - max(a, 0.0), 0.015, 0.08),
+                        yaw,
+                        (0.95, 0.95, 0.93),
+                    )
+                )
         for opening in (o for o in openings if o.edge == index):  # door and window frames stand proud
             for along in (opening.start - 0.035, opening.start + opening.width + 0.035):
                 post = start + direction * along + inward * 0.01
-                walls.append(Box((float(post[0]), float(post[1]), (opening.bottom + opening.top) / 2),
-                                 (0.07, 0.02, opening.top - opening.bottom + 0.07), yaw, (0.95, 0.95, 0.93)))
+                walls.append(
+                    Box(
+                        (float(post[0]), float(post[1]), (opening.bottom + opening.top) / 2),
+                        (0.07, 0.02, opening.top - opening.bottom + 0.07),
+                        yaw,
+                        (0.95, 0.95, 0.93),
+                    )
+                )
             if opening.kind == "window":
                 sill = start + direction * (opening.start + opening.width / 2) + inward * 0.08
-                walls.append(Box((float(sill[0]), float(sill[1]), opening.bottom - 0.015),
-                                 (opening.width + 0.14, 0.16, 0.03), yaw, (0.95, 0.95, 0.93)))
+                walls.append(
+                    Box(
+                        (float(sill[0]), float(sill[1]), opening.bottom - 0.015),
+                        (opening.width + 0.14, 0.16, 0.03),
+                        yaw,
+                        (0.95, 0.95, 0.93),
+                    )
+                )
     return walls
 
 
 def _door_swing(polygon: np.ndarray, door: Opening) -> Box:
     _, start, direction, inward, _ = list(_edges(polygon))[door.edge]
     centre = start + direction * (door.start + door.width / 2) + inward * 0.5
-    return Box((float(centre[0]), float(centre[1]), 1.0), (door.width + 0.1, 1.0, 2.0),
-               float(np.arctan2(direction[1], direction[0])), (0, 0, 0))
+    return Box(
+        (float(centre[0]), float(centre[1]), 1.0),
+        (door.width + 0.1, 1.0, 2.0),
+        float(np.arctan2(direction[1], direction[0])),
+        (0, 0, 0),
+    )
 
 
 def _floor_rectangles(polygon: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -218,26 +273,46 @@ def _on_boundary(polygon: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 # ---------------------------------------------------------------- what goes in a room
 
+
 def _program(kind: str, rng: np.random.Generator) -> list[tuple]:
     """(builder, placement) pairs in placement order: the big pieces first, then context and distractors."""
     n = lambda low, high: int(rng.integers(low, high + 1))  # noqa: E731
-    living = ([(F.corner_sofa if rng.random() < 0.3 else F.sofa, "wall"), (F.coffee_table, "in-front")]
-              + [(F.armchair, "free" if rng.random() < 0.5 else "wall") for _ in range(n(0, 2))]
-              + [(F.tv_unit, "wall")] * n(0, 1) + [(F.shelf, "wall")] * n(0, 2)
-              + [(F.meeting_table, "free")] * int(rng.random() < 0.5))  # a dining table with its chairs
-    office = ([(F.desk, "wall") for _ in range(n(1, 4))] + [(F.meeting_table, "free")] * n(0, 1)
-              + [(F.cabinet, "wall")] * n(1, 3) + [(F.shelf, "wall")] * n(0, 2))
-    workshop = ([(F.counter, "wall") for _ in range(n(1, 3))]
-                + [(lambda r: F.workbench(r, both_sides=True), "free")] * n(0, 2)
-                + [(F.workbench, "wall")] * n(0, 1) + [(F.high_table, "free")] * n(0, 1)
-                + [(F.cabinet, "wall")] * n(0, 2))
-    distractors = ([(F.bench, "any")] * n(0, 1) + [(F.storage_box, "any")] * n(0, 2) + [(F.lone_chair, "any")] * n(0, 2)
-                   + [(lambda r: F.shelf(r, low=True), "wall")] * n(0, 1) + [(F.stool, "any")] * n(0, 2)
-                   + [(lambda r: F.counter(r, cluttered=True), "wall")] * n(0, 1)
-                   + [(lambda r: F.desk(r, with_chair=False, cluttered=r.random() < 0.5), "wall")] * n(0, 1)
-                   + [(lambda r: F.workbench(r, cluttered=True), "any")] * n(0, 1) + [(F.coffee_table, "any")] * n(0, 1))
-    decor = ([(F.picture, "wall") for _ in range(n(2, 6))] + [(F.radiator, "wall")] * n(0, 2)
-             + [(F.floor_clutter, "any") for _ in range(n(2, 6))])
+    living = (
+        [(F.corner_sofa if rng.random() < 0.3 else F.sofa, "wall"), (F.coffee_table, "in-front")]
+        + [(F.armchair, "free" if rng.random() < 0.5 else "wall") for _ in range(n(0, 2))]
+        + [(F.tv_unit, "wall")] * n(0, 1)
+        + [(F.shelf, "wall")] * n(0, 2)
+        + [(F.meeting_table, "free")] * int(rng.random() < 0.5)
+    )  # a dining table with its chairs
+    office = (
+        [(F.desk, "wall") for _ in range(n(1, 4))]
+        + [(F.meeting_table, "free")] * n(0, 1)
+        + [(F.cabinet, "wall")] * n(1, 3)
+        + [(F.shelf, "wall")] * n(0, 2)
+    )
+    workshop = (
+        [(F.counter, "wall") for _ in range(n(1, 3))]
+        + [(lambda r: F.workbench(r, both_sides=True), "free")] * n(0, 2)
+        + [(F.workbench, "wall")] * n(0, 1)
+        + [(F.high_table, "free")] * n(0, 1)
+        + [(F.cabinet, "wall")] * n(0, 2)
+    )
+    distractors = (
+        [(F.bench, "any")] * n(0, 1)
+        + [(F.storage_box, "any")] * n(0, 2)
+        + [(F.lone_chair, "any")] * n(0, 2)
+        + [(lambda r: F.shelf(r, low=True), "wall")] * n(0, 1)
+        + [(F.stool, "any")] * n(0, 2)
+        + [(lambda r: F.counter(r, cluttered=True), "wall")] * n(0, 1)
+        + [(lambda r: F.desk(r, with_chair=False, cluttered=r.random() < 0.5), "wall")] * n(0, 1)
+        + [(lambda r: F.workbench(r, cluttered=True), "any")] * n(0, 1)
+        + [(F.coffee_table, "any")] * n(0, 1)
+    )
+    decor = (
+        [(F.picture, "wall") for _ in range(n(2, 6))]
+        + [(F.radiator, "wall")] * n(0, 2)
+        + [(F.floor_clutter, "any") for _ in range(n(2, 6))]
+    )
     if kind == "mixed":
         main = living[:2] + office[: n(1, 2)] + workshop[: n(1, 2)] + [(F.armchair, "free")] * n(0, 1)
     else:
@@ -246,7 +321,9 @@ def _program(kind: str, rng: np.random.Generator) -> list[tuple]:
     return main + chosen + decor
 
 
-def _place(room: Room, piece: Piece, mode: str, rng: np.random.Generator, anchor_piece: Piece | None, tries: int = 80) -> bool:
+def _place(
+    room: Room, piece: Piece, mode: str, rng: np.random.Generator, anchor_piece: Piece | None, tries: int = 80
+) -> bool:
     edges = list(_edges(room.polygon))
     lengths = np.array([e[4] for e in edges])
     lo, hi = piece.local_bounds()
@@ -257,14 +334,20 @@ def _place(room: Room, piece: Piece, mode: str, rng: np.random.Generator, anchor
             piece.x, piece.y = anchor_piece.world_point((front + gap - lo[0], rng.uniform(-0.2, 0.2)))
             piece.yaw = anchor_piece.yaw
         elif mode == "wall" or (mode == "any" and rng.random() < 0.6):
-            _, start, direction, inward, length = edges[int(rng.choice(len(edges), p=lengths / lengths.sum()))]
+            _, start, direction, inward, length = edges[
+                int(rng.choice(len(edges), p=lengths / lengths.sum()))
+            ]
             along = rng.uniform(0, length)
             piece.x, piece.y = start + direction * along + inward * (rng.uniform(0.02, 0.05) - lo[0])
             piece.yaw = float(np.arctan2(inward[1], inward[0]))
         else:
             low, high = room.polygon.min(axis=0), room.polygon.max(axis=0)
             piece.x, piece.y = rng.uniform(low, high)
-            piece.yaw = float(rng.integers(4) * np.pi / 2 + rng.normal(0, 0.1)) if rng.random() < 0.7 else float(rng.uniform(0, 2 * np.pi))
+            piece.yaw = (
+                float(rng.integers(4) * np.pi / 2 + rng.normal(0, 0.1))
+                if rng.random() < 0.7
+                else float(rng.uniform(0, 2 * np.pi))
+            )
         if fits(room, piece):
             room.pieces.append(piece)
             return True
@@ -279,7 +362,12 @@ def reserve_body_space(piece: Piece, margin: float = 0.05) -> None:
     roles = role_affordances()
     for anchor in piece.anchors:
         skeleton = get_skeleton(roles[anchor.role])
-        ends = np.array([[*anchor.start, skeleton.torso_height, anchor.facing], [*anchor.end, skeleton.torso_height, anchor.facing]])
+        ends = np.array(
+            [
+                [*anchor.start, skeleton.torso_height, anchor.facing],
+                [*anchor.end, skeleton.torso_height, anchor.facing],
+            ]
+        )
         joints = place_joints(skeleton.joints, ends).reshape(-1, 3)
         low, high = joints.min(axis=0) - margin, joints.max(axis=0) + margin
         anchor.clearance.append(Box.span((low[0], low[1], 0.0), (high[0], high[1], high[2]), (0, 0, 0)))
@@ -306,8 +394,12 @@ def any_overlap(boxes: list[Box], others: list[Box], tolerance: float = 1e-3) ->
     if not boxes or not others:
         return False
     a, b = _bounds(boxes), _bounds(others)
-    candidates = np.argwhere(np.all(
-        (a[:, None, :3] < b[None, :, 3:] - tolerance) & (b[None, :, :3] < a[:, None, 3:] - tolerance), axis=2))
+    candidates = np.argwhere(
+        np.all(
+            (a[:, None, :3] < b[None, :, 3:] - tolerance) & (b[None, :, :3] < a[:, None, 3:] - tolerance),
+            axis=2,
+        )
+    )
     return any(boxes_overlap(boxes[i], others[j], tolerance) for i, j in candidates)
 
 
@@ -323,7 +415,19 @@ def _bounds(boxes: list[Box]) -> np.ndarray:
 
 def world_anchor_boxes(piece: Piece) -> list[tuple]:
     """(anchor, its clearance boxes in the world) for every anchor of a placed piece."""
-    return [(anchor, [box.placed(piece.x, piece.y, piece.yaw) for box in anchor.clearance]) for anchor in piece.anchors]
+    return [
+        (anchor, [box.placed(piece.x, piece.y, piece.yaw) for box in anchor.clearance])
+        for anchor in piece.anchors
+    ]
 
 
-__all__ = ["KINDS", "Room", "generate_room", "fits", "any_overlap", "inside_polygon", "role_affordances", "rot2"]
+__all__ = [
+    "KINDS",
+    "Room",
+    "generate_room",
+    "fits",
+    "any_overlap",
+    "inside_polygon",
+    "role_affordances",
+    "rot2",
+]

@@ -44,7 +44,7 @@ class DepthCamera:
     noisy: bool = True
 
     @classmethod
-    def qvga(cls, **changes) -> "DepthCamera":
+    def qvga(cls, **changes) -> DepthCamera:
         """The same sensor at 320 x 240 (Kinect's QVGA depth mode): a quarter of the rays, for fused room scans
         where 1 cm fusion voxels are coarser than a VGA pixel's footprint anyway."""
         return cls(width=320, height=240, fx=292.5, fy=292.5, cx=160.0, cy=120.0, lateral_px=0.25, **changes)
@@ -100,9 +100,11 @@ def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
     return pose
 
 
-def depth_frame(raycaster: Raycaster, camera: DepthCamera, cam_to_world: np.ndarray, rng: np.random.Generator):
+def depth_frame(
+    raycaster: Raycaster, camera: DepthCamera, cam_to_world: np.ndarray, rng: np.random.Generator
+):
     """(depth (H, W) in metres with 0 where nothing was measured, box index (H, W) of each hit)."""
-    v, u = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width].astype(np.float64)
     if camera.noisy and camera.lateral_px > 0:
         u = u + rng.normal(0, camera.lateral_px, u.shape)
         v = v + rng.normal(0, camera.lateral_px, v.shape)
@@ -141,8 +143,11 @@ def free_positions(room: Room, rng: np.random.Generator, count: int, clearance: 
     candidates = rng.uniform(low, high, size=(400, 2))
     candidates = candidates[inside_polygon(room.polygon, candidates)]
     furniture = room.furniture_boxes() + room.walls
-    free = [p for p in candidates
-            if not any_overlap([Box((p[0], p[1], 1.0), (2 * clearance, 2 * clearance, 2.0))], furniture)]
+    free = [
+        p
+        for p in candidates
+        if not any_overlap([Box((p[0], p[1], 1.0), (2 * clearance, 2 * clearance, 2.0))], furniture)
+    ]
     if not free:
         raise RuntimeError(f"{room.name}: no free floor to scan from")
     free = np.array(free)
@@ -154,7 +159,9 @@ def free_positions(room: Room, rng: np.random.Generator, count: int, clearance: 
     return free[chosen]
 
 
-def viewpoints(room: Room, rng: np.random.Generator, count: int | None = None, turns: int = 3) -> list[np.ndarray]:
+def viewpoints(
+    room: Room, rng: np.random.Generator, count: int | None = None, turns: int = 3
+) -> list[np.ndarray]:
     """Person-height cameras in free space: at each spot the person turns round in `turns` steps, the first
     aimed at a piece of furniture, pitched 15 to 35 degrees down (the floor near walls shows, as in real scans)."""
     area = abs(_polygon_area(room.polygon))
@@ -173,8 +180,13 @@ def viewpoints(room: Room, rng: np.random.Generator, count: int | None = None, t
     return poses
 
 
-def scan_room(room: Room, rng: np.random.Generator, camera: DepthCamera | None = None,
-              views: int | None = None, registration_error: tuple[float, float] = (0.005, 0.3)) -> tuple[np.ndarray, np.ndarray]:
+def scan_room(
+    room: Room,
+    rng: np.random.Generator,
+    camera: DepthCamera | None = None,
+    views: int | None = None,
+    registration_error: tuple[float, float] = (0.005, 0.3),
+) -> tuple[np.ndarray, np.ndarray]:
     """Fused, thinned points (N, 3) and colours (N, 3) of depth frames from several viewpoints.
 
     Each frame is fused with its pose off by `registration_error` (metres, degrees; standard deviations), as
@@ -195,14 +207,18 @@ def perturbed(pose: np.ndarray, rng: np.random.Generator, error: tuple[float, fl
     translation, degrees = error
     axis = rng.normal(size=3)
     angle = np.radians(rng.normal(0, degrees))
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]]) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]]) / np.linalg.norm(
+        axis
+    )
     out = pose.copy()
     out[:3, :3] = (np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k) @ pose[:3, :3]
     out[:3, 3] += rng.normal(0, translation, 3)
     return out
 
 
-def sample_room_uniform(room: Room, rng: np.random.Generator, points_per_m2: float = 2500.0) -> tuple[np.ndarray, np.ndarray]:
+def sample_room_uniform(
+    room: Room, rng: np.random.Generator, points_per_m2: float = 2500.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Points spread uniformly over every face of every box (no occlusion, no noise): the cheap option."""
     points, colors = [], []
     for box in room.shell_boxes() + room.furniture_boxes():
@@ -221,7 +237,9 @@ def sample_room_uniform(room: Room, rng: np.random.Generator, points_per_m2: flo
     return np.concatenate(points), np.concatenate(colors)
 
 
-def walkable(room: Room, resolution: float = 0.05, body_radius: float = 0.30) -> tuple[np.ndarray, np.ndarray]:
+def walkable(
+    room: Room, resolution: float = 0.05, body_radius: float = 0.30
+) -> tuple[np.ndarray, np.ndarray]:
     """Cell centres (nx, ny, 2) of a plan raster and whether a person can stand there: inside the room and at
     least `body_radius` from every wall and every piece below head height (a table too: nobody walks through it)."""
     low, high = room.polygon.min(axis=0), room.polygon.max(axis=0)
@@ -231,7 +249,9 @@ def walkable(room: Room, resolution: float = 0.05, body_radius: float = 0.30) ->
     for box in room.walls + room.furniture_boxes():
         if box.z_range[0] > 1.9:
             continue
-        local = (cells - box.centre[:2]) @ np.array([[np.cos(box.yaw), -np.sin(box.yaw)], [np.sin(box.yaw), np.cos(box.yaw)]])
+        local = (cells - box.centre[:2]) @ np.array(
+            [[np.cos(box.yaw), -np.sin(box.yaw)], [np.sin(box.yaw), np.cos(box.yaw)]]
+        )
         outside = np.maximum(np.abs(local) - np.array(box.size[:2]) / 2, 0.0)
         free &= np.linalg.norm(outside, axis=-1) > body_radius
     return cells, free
@@ -253,7 +273,8 @@ def trajectory(room: Room, rng: np.random.Generator, frames: int, step: float = 
         radii, turn = rng.uniform(0.2, 1.6, 2), rng.uniform(0, np.pi)
         angles = np.linspace(0, 2 * np.pi, 400, endpoint=False)
         loop = centre + np.column_stack([radii[0] * np.cos(angles), radii[1] * np.sin(angles)]) @ np.array(
-            [[np.cos(turn), np.sin(turn)], [-np.sin(turn), np.cos(turn)]])
+            [[np.cos(turn), np.sin(turn)], [-np.sin(turn), np.cos(turn)]]
+        )
         index = np.round((loop - origin) / resolution).astype(int)
         inside = np.all((index >= 0) & (index < free.shape), axis=1)
         if not inside.all() or not free[index[:, 0], index[:, 1]].all():
@@ -275,7 +296,9 @@ def trajectory(room: Room, rng: np.random.Generator, frames: int, step: float = 
         heading = np.arctan2(across[1], across[0]) + 0.8 * np.sin(k / 120.0)
         pitch = np.radians(-20 + 8 * np.sin(k / 150.0))
         eye = np.array([*position, height + 0.03 * np.sin(k / 45.0)])
-        target = eye + np.array([np.cos(heading) * np.cos(pitch), np.sin(heading) * np.cos(pitch), np.sin(pitch)])
+        target = eye + np.array(
+            [np.cos(heading) * np.cos(pitch), np.sin(heading) * np.cos(pitch), np.sin(pitch)]
+        )
         poses.append(look_at(eye, target))
     return poses
 
@@ -301,8 +324,16 @@ def _resample(path: np.ndarray, step: float) -> np.ndarray:
     return np.column_stack([np.interp(samples, arc, path[:, 0]), np.interp(samples, arc, path[:, 1])])
 
 
-def lidar_scan(raycaster: Raycaster, sensor_to_world: np.ndarray, rng: np.random.Generator, beams: int = 16,
-               vertical_fov_deg: float = 30.0, columns: int = 1800, max_range: float = 30.0, sigma: float = 0.015) -> np.ndarray:
+def lidar_scan(
+    raycaster: Raycaster,
+    sensor_to_world: np.ndarray,
+    rng: np.random.Generator,
+    beams: int = 16,
+    vertical_fov_deg: float = 30.0,
+    columns: int = 1800,
+    max_range: float = 30.0,
+    sigma: float = 0.015,
+) -> np.ndarray:
     """One revolution of a spinning multi-beam LiDAR: points (N, 3) in the sensor frame (x forward, z up)."""
     elevation = np.radians(np.linspace(-vertical_fov_deg / 2, vertical_fov_deg / 2, beams))
     azimuth = np.linspace(-np.pi, np.pi, columns, endpoint=False)

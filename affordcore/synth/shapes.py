@@ -12,8 +12,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 _TRIANGLES = np.array(
-    [[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
-     [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]]
+    [
+        [0, 2, 1],
+        [0, 3, 2],
+        [4, 5, 6],
+        [4, 6, 7],
+        [0, 1, 5],
+        [0, 5, 4],
+        [1, 2, 6],
+        [1, 6, 5],
+        [2, 3, 7],
+        [2, 7, 6],
+        [3, 0, 4],
+        [3, 4, 7],
+    ]
 )  # outward-facing, vertices ordered bottom (0-3) then top (4-7), counter-clockwise from (-x, -y)
 
 
@@ -30,12 +42,12 @@ class Box:
     color: tuple[float, float, float] = (0.6, 0.6, 0.6)
 
     @classmethod
-    def span(cls, low, high, color=(0.6, 0.6, 0.6), yaw: float = 0.0) -> "Box":
+    def span(cls, low, high, color=(0.6, 0.6, 0.6), yaw: float = 0.0) -> Box:
         """An axis-aligned box (in its own frame) from its low and high corners."""
         low, high = np.asarray(low, float), np.asarray(high, float)
         return cls(tuple((low + high) / 2), tuple(high - low), yaw, tuple(color))
 
-    def placed(self, x: float, y: float, yaw: float) -> "Box":
+    def placed(self, x: float, y: float, yaw: float) -> Box:
         """This box moved by a rotation `yaw` about the origin, then a translation (x, y)."""
         cx, cy = rot2(yaw) @ np.array(self.centre[:2]) + (x, y)
         return Box((float(cx), float(cy), self.centre[2]), self.size, self.yaw + yaw, self.color)
@@ -53,7 +65,9 @@ class Box:
         """(8, 3) vertices and (12, 3) triangles."""
         low, high = self.z_range
         ring = self.corners_xy()
-        vertices = np.vstack([np.column_stack([ring, np.full(4, low)]), np.column_stack([ring, np.full(4, high)])])
+        vertices = np.vstack(
+            [np.column_stack([ring, np.full(4, low)]), np.column_stack([ring, np.full(4, high)])]
+        )
         return vertices, _TRIANGLES.copy()
 
 
