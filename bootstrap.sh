@@ -2,7 +2,7 @@
 # One entry point for a fresh machine: sets up everything affordmap needs, then runs one job.
 #
 #   bash bootstrap.sh demo [ARGS]   sets up, then maps the built-in example room (afford demo)
-#   bash bootstrap.sh test [ARGS]   sets up, then runs the whole test suite (what CI runs)
+#   bash bootstrap.sh test [ARGS]   sets up, then runs ruff, the import contracts and the whole test suite (CI)
 #
 # Needs only Python >= 3.11. Missing system libraries (open3d needs libGL, libEGL and libusb) are
 # installed with apt-get when running as root; otherwise the script stops and prints the line to run.
@@ -66,5 +66,10 @@ fi
 
 case "$job" in
   demo) exec .venv/bin/afford demo "$@" ;;
-  test) exec .venv/bin/python -m pytest "$@" ;;
+  test)
+    # Static checks first (seconds): style, then the layers of README's "Layout" (pyproject.toml's contracts).
+    .venv/bin/ruff check --quiet .
+    .venv/bin/ruff format --check --quiet .
+    .venv/bin/lint-imports --no-cache | tail -n +13
+    exec .venv/bin/python -m pytest "$@" ;;
 esac

@@ -1,4 +1,5 @@
-"""What every command shares: one-line errors instead of tracebacks, progress bars, peak memory, help texts."""
+"""What every command shares: one-line errors instead of tracebacks, progress bars, peak memory, help
+texts."""
 
 from __future__ import annotations
 
@@ -29,7 +30,8 @@ def user_errors() -> Iterator[None]:
         yield
     except ValidationError as error:
         fail(
-            f"invalid settings: {error.errors()[0].get('msg', error)} (check the AFFORD_* environment variables)"
+            f"invalid settings: {error.errors()[0].get('msg', error)} (check the AFFORD_* environment "
+            "variables)"
         )
     except (UserError, ValueError, OSError, MemoryError) as error:
         fail(str(error))

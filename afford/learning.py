@@ -85,7 +85,8 @@ def train(
         v = model.validation
         typer.echo(
             f"{affordance} / {learner}: validation rooms {', '.join(v['rooms'])}: precision "
-            f"{v['precision']:.3f}, recall {v['recall']:.3f}, f1 {v['f1']:.3f} ({v['positives']} positive poses)"
+            f"{v['precision']:.3f}, recall {v['recall']:.3f}, f1 {v['f1']:.3f} ({v['positives']} positive "
+            "poses)"
         )
         typer.echo(f"model written to {out}")
 
@@ -123,7 +124,8 @@ def evaluate(
             if ratios.strip() == "none"
             else tuple(None if r == "all" else _ratio(r) for r in names(ratios))
         )
-        # runs at a ratio other than "all" are per learner; "all" is fold 1 again, reused except by undersample
+        # runs at a ratio other than "all" are per learner; "all" is fold 1 again, reused except by
+        # undersample
         sweep_runs = sum(1 for r in sweep for name in chosen if r is not None or name == "undersample")
         steps = len(kinds) * (folds * len(chosen) + sweep_runs)
         with progress(quiet) as bar:

@@ -135,7 +135,8 @@ def publish(
                 with connected(connect, settings.service.mode) as session:
                     publish_sequence(session, keys, [(0, scan)], sensor or "sensor", 0, wait)
                 typer.echo(
-                    f"published {source} as one scan of robot {robot} (--as-map publishes a finished room instead)"
+                    f"published {source} as one scan of robot {robot} (--as-map publishes a finished room "
+                    "instead)"
                 )
         except NoSubscriber as error:
             raise UserError(str(error)) from None

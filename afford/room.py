@@ -184,7 +184,8 @@ def features(
         typer.echo(f"{cloud}: {len(scene.cloud)} points; {scene.alignment.describe()}")
         typer.echo(
             f"{affordance}: {poses} poses x {n_features} features in {total:.2f} s (load, align, fields "
-            f"{prepared - start:.2f} s; features {feature_seconds:.2f} s, {poses / feature_seconds:,.0f} poses/s); "
+            f"{prepared - start:.2f} s; features {feature_seconds:.2f} s, {poses / feature_seconds:,.0f} "
+            "poses/s); "
             f"peak memory {report['peak_rss_mb']:.0f} MB"
         )
         if out:

@@ -56,7 +56,8 @@ def skeletons_derive(
     ),
     png: Path | None = typer.Option(None, "--png", help="also draw the models and their clusters (PNG)"),
 ) -> None:
-    """Derive the skeleton files from real Kinect skeletons: filter, canonicalise, K-means, medoid, adult scale."""
+    """Derive the skeleton files from real Kinect skeletons: filter, canonicalise, K-means, medoid, adult
+    scale."""
     with user_errors():
         from affordcore.plots import plot_skeletons
         from affordcore.skeleton import BUILTIN_DIR
@@ -84,7 +85,8 @@ def _print_derivation(result) -> None:
         typer.echo(f"{label:<22}" + "".join(f"{row[g]:>18,}" for g in groups))
     scale = result.scale
     typer.echo(
-        f"scale: standing head-to-foot span {scale['median_span']:.3f} m (median) -> {scale['target_span']:.3f} m "
+        f"scale: standing head-to-foot span {scale['median_span']:.3f} m (median) -> "
+        f"{scale['target_span']:.3f} m "
         f"(x{scale['factor']:.3f}; per subject x{scale['subject_min']:.3f} to x{scale['subject_max']:.3f}); "
         f"body: median bone lengths of {scale['body_frames']} standing frames"
     )

@@ -91,14 +91,15 @@ class Assembler:
 
         `pose_guess` (world_from_sensor from the robot's own odometry) replaces KISS-ICP's constant-velocity
         prediction by the guessed motion since the previous frame. `gravity` (its direction in the sensor
-        frame, from an IMU) is averaged in the odometry frame and used by `aligned_map` instead of a floor search
-        over candidate axes, which fails when a hand-held camera has seen little floor."""
+        frame, from an IMU) is averaged in the odometry frame and used by `aligned_map` instead of a floor
+        search over candidate axes, which fails when a hand-held camera has seen little floor."""
         points = np.asarray(points, dtype=np.float64)
         ranges = np.linalg.norm(points, axis=1)
         points = points[(ranges >= self.settings.min_range) & (ranges <= self.settings.max_range)]
         if len(points) < 100:
             raise ValueError(
-                f"the frame has {len(points)} points within {self.settings.min_range}-{self.settings.max_range} m; at least 100 are needed"
+                f"the frame has {len(points)} points within "
+                f"{self.settings.min_range}-{self.settings.max_range} m; at least 100 are needed"
             )
         if pose_guess is not None and self._last_guess is not None:
             self.odometry.last_delta = np.linalg.inv(self._last_guess) @ pose_guess

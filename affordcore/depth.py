@@ -1,8 +1,9 @@
-"""Depth images to points: the one back-projection of the project (pinhole camera; x right, y down, z forward).
+"""Depth images to points: the one back-projection of the project (pinhole camera; x right, y down, z
+forward).
 
-Each `pixel_step` x `pixel_step` block of pixels becomes one point: the mean of the block's measured depths, on
-the ray through the block's centre. Kinect-class depth comes in disparity steps with noise of the same size;
-averaging a block smooths both, the way the sensor's own correlation window would at a lower resolution
+Each `pixel_step` x `pixel_step` block of pixels becomes one point: the mean of the block's measured depths,
+on the ray through the block's centre. Kinect-class depth comes in disparity steps with noise of the same
+size; averaging a block smooths both, the way the sensor's own correlation window would at a lower resolution
 (docs/services.md has the measured gain over taking every n-th pixel). A block that straddles a depth edge
 keeps its mean, a point between foreground and background like the sensor's own flying pixels: dropping such
 blocks lost most of the gain. `pixel_step` 1 is every measured pixel, as it is.

@@ -16,9 +16,9 @@ of the voxels it covers (for larger cells, the mean over a lattice of such sampl
 Speed. Every pose of a (z, theta) slab places its joints and cube cells at the same offsets from its own
 (x, y), and pose positions step by whole voxels, so each feature column of a slab is one shifted, strided
 slice of a field (bilinear: at most four). No per-pose work at all: with the paper's 10 cm cells the cost is
-mostly writing the 3030-value rows (the normal cube is 97 % of the time); with coarser cells, reading the
-samples. The z part of the interpolation depends only on the torso height, so it is done once per z level.
-Measured in benchmarks/bench_features.py (docs/benchmarks.md).
+mostly writing the long normal-cube rows; with coarser cells, reading the samples. The z part of the
+interpolation depends only on the torso height, so it is done once per z level. Measured in
+benchmarks/bench_features.py (docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -140,7 +140,7 @@ def iter_features(
     """Features of every pose of the grid, in pose order, a bounded chunk at a time.
 
     With ``reuse_buffer`` every chunk's values live in one array that the next chunk overwrites: copy what
-    you keep. It saves the page faults of a fresh chunk-sized array per chunk (about 40 % of the time).
+    you keep. It saves the page faults of a fresh chunk-sized array per chunk.
     """
     sampler = _SlabSampler(fields, grid, layout)
     nz, nt, nx, ny = grid.shape
@@ -165,7 +165,8 @@ def compute_features(
     size_mb = grid.size * layout.n_features * 4 / 2**20
     if size_mb > max_mb:
         raise MemoryError(
-            f"{grid.size} poses x {layout.n_features} features is {size_mb:.0f} MB (limit {max_mb:.0f} MB); use iter_features"
+            f"{grid.size} poses x {layout.n_features} features is {size_mb:.0f} MB (limit {max_mb:.0f} MB); "
+            "use iter_features"
         )
     out = np.empty((grid.size, layout.n_features), dtype=np.float32)
     for chunk in iter_features(fields, skeleton, grid, layout, reuse_buffer=True):
@@ -225,7 +226,8 @@ class _SlabSampler:
         if base.min() < 0 or base.max() + 1 >= self.shape[2]:
             raise ReachError(
                 f"heights {np.min(heights):.2f}..{np.max(heights):.2f} m leave the voxel fields "
-                f"({self.fields.lattice.origin[2]:.2f}..{self.fields.lattice.upper[2]:.2f} m); raise voxel.min_height or margin"
+                f"({self.fields.lattice.origin[2]:.2f}..{self.fields.lattice.upper[2]:.2f} m); raise "
+                "voxel.min_height or margin"
             )
         below = field[:, :, base]
         above = field[:, :, base + 1]
@@ -240,7 +242,8 @@ class _SlabSampler:
         last_u, last_v = bu + 1 + (self.nx - 1) * self.stride, bv + 1 + (self.ny - 1) * self.stride
         if bu < 0 or bv < 0 or last_u >= self.shape[0] or last_v >= self.shape[1]:
             raise ReachError(
-                "placed skeletons reach beyond the voxel fields in x or y; compute the fields with a larger voxel.margin"
+                "placed skeletons reach beyond the voxel fields in x or y; compute the fields with a larger "
+                "voxel.margin"
             )
         weights = ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv))
         return [(bu + cu, bv + cv, w) for cu, cv, w in weights if w > 1e-12]

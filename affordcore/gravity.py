@@ -121,8 +121,8 @@ def align_to_gravity(
 
 
 def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
-    # The horizontal-surface score is a fraction of points: a coarser copy scores as well, at a tenth of the
-    # normal-estimation cost (which was 40 % of an auto alignment).
+    # The horizontal-surface score is a fraction of points: a coarser copy scores as well, and normal
+    # estimation, a large share of an auto alignment, costs far less on it.
     coarse = voxel_thin(sample, 2 * settings.sample_voxel)[0]
     normals = (coarse, _estimate_normals(coarse, radius=4 * settings.sample_voxel))
     candidates = []
@@ -205,7 +205,8 @@ def _find_floor(
 def _ransac_plane(
     points: np.ndarray, up: np.ndarray, settings: GravitySettings, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """The plane with the most inliers among those leaning at most max_tilt from `up`, refined by least squares."""
+    """The plane with the most inliers among those leaning at most max_tilt from `up`, refined by least
+    squares."""
     if len(points) < 3:
         return None
     min_cos = np.cos(np.radians(settings.max_tilt_deg))

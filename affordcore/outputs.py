@@ -12,7 +12,8 @@ from .learn.model import AffordanceModel
 def write_map_outputs(
     scene, maps: dict, models: list[AffordanceModel], out: Path, rrd: Path | None
 ) -> list[Path]:
-    """DIR/<affordance>.json and .png for every map of a `PreparedScene`, and the recording; returns the paths."""
+    """DIR/<affordance>.json and .png for every map of a `PreparedScene`, and the recording; returns the
+    paths."""
     from .plots import plot_map
     from .recording import close_recording, log_cloud, log_map, open_recording
 
@@ -37,4 +38,7 @@ def write_map_outputs(
 def summary_line(amap) -> str:
     """One line per map for people: places, poses above the threshold, the best score."""
     best = f", best {amap.skeletons[0, 4]:.2f}" if len(amap.skeletons) else ""
-    return f"{amap.affordance:<18} {len(amap.skeletons):>3} places, {len(amap.positives):>7,} poses above the threshold{best}"
+    return (
+        f"{amap.affordance:<18} {len(amap.skeletons):>3} places, "
+        f"{len(amap.positives):>7,} poses above the threshold{best}"
+    )

@@ -1,6 +1,6 @@
-"""The walk of a cloud: any cloud -> the world frame (`to_world`: thinned when huge, gravity-aligned) -> its voxel
-fields (`prepare_scene`) -> every model's scores and maps (`map_affordances`). `afford map`, `afford publish
---as-map`, the assembler and the features service all take this one path."""
+"""The walk of a cloud: any cloud -> the world frame (`to_world`: thinned when huge, gravity-aligned) -> its
+voxel fields (`prepare_scene`) -> every model's scores and maps (`map_affordances`). `afford map`,
+`afford publish --as-map`, the assembler and the features service all take this one path."""
 
 from __future__ import annotations
 
@@ -74,8 +74,9 @@ def parse_gravity(text: str) -> str | np.ndarray:
 def to_world(
     cloud: Cloud, settings: Settings | None = None, gravity: str | np.ndarray = "auto"
 ) -> WorldCloud:
-    """Any cloud in the world frame: thinned when over `map.max_points`, then gravity-aligned (`gravity`: "auto",
-    "none" or the direction of gravity in the cloud's frame). Raises `NoFloorError` when no floor is found."""
+    """Any cloud in the world frame: thinned when over `map.max_points`, then gravity-aligned (`gravity`:
+    "auto", "none" or the direction of gravity in the cloud's frame). Raises `NoFloorError` when no floor is
+    found."""
     settings = settings or Settings()
     cloud, warning = thin_huge_cloud(cloud, settings.map.max_points, settings.map.thin_voxel)
     alignment = align_to_gravity(cloud.points, gravity, settings.gravity)

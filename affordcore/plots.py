@@ -248,9 +248,9 @@ def plot_skeletons(
     members: dict[str, np.ndarray] | None = None,
     max_members: int = 150,
 ) -> Path:
-    """One row per skeleton: front (y-z, seen from the front) and side (x-z, seen from its right) views standing
-    on the floor, left bones blue and right red, and faintly up to ``max_members`` frames of its cluster (each
-    with its own proportions, at the model's torso height). One PNG."""
+    """One row per skeleton: front (y-z, seen from the front) and side (x-z, seen from its right) views
+    standing on the floor, left bones blue and right red, and faintly up to ``max_members`` frames of its
+    cluster (each with its own proportions, at the model's torso height). One PNG."""
     plt = pyplot()
     from matplotlib.collections import LineCollection
 

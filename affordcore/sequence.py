@@ -61,7 +61,8 @@ class Sequence:
         size = self.frames[index].stat().st_size
         if size % 12:
             raise SequenceError(
-                f"{self.frames[index]}: {size} bytes is not a whole number of float32 x, y, z points (12 bytes each)"
+                f"{self.frames[index]}: {size} bytes is not a whole number of float32 x, y, z points (12 "
+                "bytes each)"
             )
         return np.fromfile(self.frames[index], dtype="<f4").reshape(-1, 3).astype(np.float64)
 

@@ -31,7 +31,8 @@ class NormalSettings(BaseModel):
     downsample: float = Field(
         0.025,
         ge=0,
-        description="voxel size the cloud is thinned to before normals are estimated (m); 0 keeps every point",
+        description="voxel size the cloud is thinned to before normals are estimated (m); 0 keeps every "
+        "point",
     )
     radius: float = Field(0.10, gt=0, description="neighbourhood radius for normal estimation (m)")
     max_neighbours: int = Field(30, ge=3, description="at most this many neighbours per normal")
@@ -53,7 +54,8 @@ class FeatureSettings(BaseModel):
     cell_size: float = Field(
         0.25,
         gt=0,
-        description="edge of one normal-cube cell (m): 0.25 gives 222 features; the paper's 0.10 gives 3030, 15.7 GB per 1.3 million training poses",
+        description="edge of one normal-cube cell (m); the paper's 0.10 has 14x the features "
+        "(docs/geometry.md)",
     )
     chunk_mb: float = Field(
         256.0, gt=0, description="feature rows are produced in chunks of at most this many MB"
@@ -63,7 +65,8 @@ class FeatureSettings(BaseModel):
 class GravitySettings(BaseModel):
     up_candidates: list[str] = Field(
         default_factory=lambda: ["+z", "+y", "-y"],
-        description="input-frame axes that may point up, tried by the automatic alignment: z-up scans, y-up scans, camera frames (y down)",
+        description="input-frame axes that may point up, tried by the automatic alignment: "
+        "z-up scans, y-up scans, camera frames (y down)",
     )
     max_tilt_deg: float = Field(
         35.0,
@@ -97,7 +100,8 @@ class MapSettings(BaseModel):
     )
     floor_margin: float = Field(
         0.3,
-        description="only cells within this distance of scanned floor are mapped (m); negative: map every cell",
+        description="only cells within this distance of scanned floor are mapped (m); negative: map every "
+        "cell",
     )
     max_points: int = Field(
         5_000_000, ge=1000, description="a larger cloud is thinned (with a warning) to about this many points"
@@ -116,17 +120,18 @@ class AssemblerSettings(BaseModel):
     max_range: float = Field(
         4.0,
         gt=0,
-        description="scan points farther than this are dropped (m): a Kinect-class depth camera is noisy beyond 4 m",
+        description="scan points farther than this are dropped (m): Kinect-class depth is noisy beyond it",
     )
     voxel_size: float = Field(
         0.05,
         gt=0,
-        description="KISS-ICP's local-map voxel (m): frames join its map thinned to half this and register thinned to 1.5x this. 5 cm (rather than 4 cm, KISS-ICP's max_range / 100) sits above Kinect-class depth steps and noise (1 to 2.5 cm at 2 to 3 m): on the 7-Scenes kitchen 4.3 / 9.9 cm mean / worst error against 5.2 / 11.4, at half the time",
+        description="KISS-ICP's local-map voxel (m), above Kinect-class depth steps and noise "
+        "(docs/services.md has the measurements behind it)",
     )
     pixel_step: int = Field(
         2,
         ge=1,
-        description="every n-th depth pixel in each direction is back-projected (2: a quarter of a 640 x 480 frame)",
+        description="depth images become one point per n x n block of pixels, at the block's mean depth",
     )
     map_voxel: float = Field(
         0.02,
@@ -136,7 +141,7 @@ class AssemblerSettings(BaseModel):
     keyframe_distance: float = Field(
         0.05,
         ge=0,
-        description="a frame joins the global map when the sensor moved this far since the last one that did (m)",
+        description="a frame joins the global map when the sensor moved this far since the last one did (m)",
     )
     keyframe_angle_deg: float = Field(5.0, ge=0, description="... or turned this far (degrees)")
     publish_period: float = Field(
@@ -160,7 +165,8 @@ class Settings(BaseSettings):
     assembler: AssemblerSettings = AssemblerSettings()
     skeleton_dirs: list[Path] = Field(
         default_factory=list,
-        description="extra folders of skeleton files (<affordance>.json); a file here overrides the built-in one of the same name",
+        description="extra folders of skeleton files (<affordance>.json); "
+        "a file here overrides the built-in one of the same name",
     )
 
     @model_validator(mode="after")
@@ -168,7 +174,8 @@ class Settings(BaseSettings):
         ratio = self.grid.step / self.voxel.resolution
         if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
             raise ValueError(
-                f"grid.step ({self.grid.step}) must be a whole multiple of voxel.resolution ({self.voxel.resolution}): "
+                f"grid.step ({self.grid.step}) must be a whole multiple of voxel.resolution "
+                f"({self.voxel.resolution}): "
                 "features are read from the voxel fields by shifting whole slabs"
             )
         return self

@@ -1,4 +1,5 @@
-"""Virtual skeletons: one file per affordance, 15 joints in the skeleton frame (torso at the origin, facing +x, z up).
+"""Virtual skeletons: one file per affordance, 15 joints in the skeleton frame (torso at the origin, facing
++x, z up).
 
 The affordance types are whatever skeleton files exist: the package's own (``affordcore/data/skeletons``)
 and any folder in ``settings.skeleton_dirs`` (a user file overrides a built-in one of the same name). Nothing
@@ -120,7 +121,8 @@ def load_skeleton(path: str | Path) -> Skeleton:
     if torso_height + array[:, 2].min() < -_FLOOR_SLACK:
         lowest = JOINTS[int(array[:, 2].argmin())]
         raise SkeletonError(
-            f"{path}: {lowest} would be {-(torso_height + array[:, 2].min()):.2f} m under the floor at torso_height {torso_height}"
+            f"{path}: {lowest} would be {-(torso_height + array[:, 2].min()):.2f} m under the floor at "
+            f"torso_height {torso_height}"
         )
     return Skeleton(name, array, float(torso_height), str(document.get("description", "")), str(path))
 

@@ -1,9 +1,10 @@
 """Skeleton models from real Kinect skeletons, the paper's way: filter, canonicalise, K-means, take a medoid.
 
-The recipe is data (``affordcore/data/skeleton_sources.json``): per affordance, the trial (posture) and actions
-of MSR DailyActivity3D whose frames describe it, and optionally the height its hands must reach. The data set is
-read in place (research-use terms: never copied). ``derive`` returns the models and the numbers behind them;
-``write_skeleton`` turns them into the package's files (``plots.plot_skeletons`` draws them). See docs/skeletons.md.
+The recipe is data (``affordcore/data/skeleton_sources.json``): per affordance, the trial (posture) and
+actions of MSR DailyActivity3D whose frames describe it, and optionally the height its hands must reach. The
+data set is read in place (research-use terms: never copied). ``derive`` returns the models and the numbers
+behind them; ``write_skeleton`` turns them into the package's files (``plots.plot_skeletons`` draws them).
+See docs/skeletons.md.
 """
 
 from __future__ import annotations
@@ -35,8 +36,8 @@ _PAIRS = [  # (left bone, right bone) indices into BONES
 
 
 def _tree(root: str = "TORSO") -> list[tuple[int, int, int]]:
-    """(parent joint, child joint, bone index) outward from the torso, breadth first (the hip-hip bone closes a
-    loop and is left out)."""
+    """(parent joint, child joint, bone index) outward from the torso, breadth first (the hip-hip bone closes
+    a loop and is left out)."""
     edges, seen, frontier = [], {root}, [root]
     while frontier:
         parent = frontier.pop(0)
@@ -91,8 +92,9 @@ class Derivation:
 
 
 def load_sources(path: str | Path = SOURCES) -> dict:
-    """The recipe: the data set's trials (posture and leg-angle bands), the adult scale, and per affordance the
-    trial, the actions, and optionally a cluster-choice rule ("choose") and a hand height ("hands_height")."""
+    """The recipe: the data set's trials (posture and leg-angle bands), the adult scale, and per affordance
+    the trial, the actions, and optionally a cluster-choice rule ("choose") and a hand height
+    ("hands_height")."""
     sources = json.loads(Path(path).read_text())
     if sources.get("format") != SOURCES_FORMAT:
         raise ValueError(f"{path}: 'format' must be {SOURCES_FORMAT!r}")
@@ -151,8 +153,8 @@ def _plan_axes(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def canonicalise(joints: np.ndarray) -> np.ndarray:
-    """z-up frames (n, 15, 3) to the skeleton frame: torso at the origin, the person's left (mean of the hip and
-    shoulder right-to-left axes, in plan) along +y, so facing +x. Only yaw is removed; any lean stays."""
+    """z-up frames (n, 15, 3) to the skeleton frame: torso at the origin, the person's left (mean of the hip
+    and shoulder right-to-left axes, in plan) along +y, so facing +x. Only yaw is removed; any lean stays."""
     centred = joints - joints[:, [_J["TORSO"]]]
     left = sum(_plan_axes(centred))
     heading = np.arctan2(left[:, 1], left[:, 0]) - np.pi / 2  # facing = left turned -90 degrees
@@ -191,7 +193,8 @@ def bone_lengths(joints: np.ndarray) -> np.ndarray:
 
 def filter_masks(frames: Frames, trials: dict) -> dict[str, np.ndarray]:
     """Per filter, which frames pass it (z-up or canonical joints; NaN fails every test). Bone lengths are
-    compared with each subject's median over the frames that have all joints; angles with the trial's bands."""
+    compared with each subject's median over the frames that have all joints; angles with the trial's
+    bands."""
     complete = np.isfinite(frames.joints).all(axis=(1, 2)) & ~(frames.joints == 0).all(axis=2).any(axis=1)
     joints = np.where(complete[:, None, None], frames.joints, np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -224,8 +227,9 @@ def filter_masks(frames: Frames, trials: dict) -> dict[str, np.ndarray]:
 
 
 def subject_scales(frames: Frames, spec: dict) -> tuple[dict[int, float], float, float]:
-    """Per subject, the factor that makes the median standing head-to-foot span (canonical z) that of an adult of
-    ``stature``; also that target span and the all-subject median span (the global factor is their ratio)."""
+    """Per subject, the factor that makes the median standing head-to-foot span (canonical z) that of an adult
+    of ``stature``; also that target span and the all-subject median span (the global factor is their
+    ratio)."""
     target = spec["stature"] - spec["head_centre_below_top"] - spec["foot_joint_above_floor"]
     standing = frames.take(frames.trial == spec["trial"])
     feet = standing.joints[:, [_J["L_FOOT"], _J["R_FOOT"]], 2].mean(axis=1)
@@ -240,11 +244,11 @@ def subject_scales(frames: Frames, spec: dict) -> tuple[dict[int, float], float,
 
 
 def cluster(features: np.ndarray, recordings: int, seed: int = SEED):
-    """K-means (n_init 10, fixed seed) for K = 2 .. min(K_MAX, recordings // 3); the K with the best silhouette
-    wins. The cap keeps about three recordings per cluster: consecutive frames of one recording are near
-    copies, so with more clusters than that K-means separates recordings rather than poses (the silhouette then
-    keeps rising with K). One thread: the same sums in the same order on every machine, and no OpenMP
-    spin-waiting on a busy one. Returns the fitted winner and the silhouette of every K."""
+    """K-means (n_init 10, fixed seed) for K = 2 .. min(K_MAX, recordings // 3); the K with the best
+    silhouette wins. The cap keeps about three recordings per cluster: consecutive frames of one recording are
+    near copies, so with more clusters than that K-means separates recordings rather than poses (the
+    silhouette then keeps rising with K). One thread: the same sums in the same order on every machine, and no
+    OpenMP spin-waiting on a busy one. Returns the fitted winner and the silhouette of every K."""
     from sklearn.cluster import KMeans
     from sklearn.metrics import silhouette_score
     from threadpoolctl import threadpool_limits
@@ -263,7 +267,8 @@ def trunk_lean_deg(joints: np.ndarray) -> np.ndarray:
 
 
 def hands_height(joints: np.ndarray, foot_clearance: float) -> np.ndarray:
-    """Height of the hands (mean of the two) above the floor, with the lower foot joint ``foot_clearance`` up."""
+    """Height of the hands (mean of the two) above the floor, with the lower foot joint ``foot_clearance``
+    up."""
     feet = joints[..., [_J["L_FOOT"], _J["R_FOOT"]], 2].min(axis=-1)
     return joints[..., [_J["L_HAND"], _J["R_HAND"]], 2].mean(axis=-1) - feet + foot_clearance
 
@@ -273,8 +278,9 @@ MEASURES = {"trunk_lean_deg": trunk_lean_deg}  # pose measures a recipe's "choos
 
 def choose_cluster(centres: np.ndarray, sizes: np.ndarray, recipe: dict, foot_clearance: float) -> int:
     """Which cluster (centres (K, 15, 3)) stands for a recipe. With "hands_height": the one whose hands are
-    closest to that height; with a rule such as "choose": {"lowest": "trunk_lean_deg"}: the one with the lowest
-    (highest) measure; both among the clusters holding at least MIN_SHARE of the frames. Otherwise the largest."""
+    closest to that height; with a rule such as "choose": {"lowest": "trunk_lean_deg"}: the one with the
+    lowest (highest) measure; both among the clusters holding at least MIN_SHARE of the frames. Otherwise the
+    largest."""
     candidates = np.flatnonzero(sizes >= MIN_SHARE * sizes.sum())
     if "hands_height" in recipe:
         score = np.abs(hands_height(centres, foot_clearance) - recipe["hands_height"])
@@ -328,9 +334,9 @@ def reach(joints: np.ndarray, height: float) -> tuple[np.ndarray, list[float]]:
 
 
 def filter_frames(frames: Frames, sources: dict) -> tuple[Frames, dict[str, dict[str, int]]]:
-    """The frames that pass every filter, and a table: filter -> group -> frames it removed, the filters applied
-    in order (a frame counts against the first it fails), with 'loaded' and 'kept' rows. Groups: all loaded
-    frames and each affordance's frames."""
+    """The frames that pass every filter, and a table: filter -> group -> frames it removed, the filters
+    applied in order (a frame counts against the first it fails), with 'loaded' and 'kept' rows. Groups: all
+    loaded frames and each affordance's frames."""
     groups = {"all": np.ones(len(frames), bool)}
     groups |= {name: frames.select(r["trial"], r["actions"]) for name, r in sources["affordances"].items()}
     kept = np.ones(len(frames), dtype=bool)
@@ -343,8 +349,8 @@ def filter_frames(frames: Frames, sources: dict) -> tuple[Frames, dict[str, dict
 
 
 def _model(name: str, recipe: dict, group: Frames, body: np.ndarray, sources: dict, body_note: str):
-    """Cluster one affordance's frames, choose a cluster, and put its medoid's pose on the adult body, feet on the
-    floor. Returns the skeleton, the numbers, and the chosen cluster's frames."""
+    """Cluster one affordance's frames, choose a cluster, and put its medoid's pose on the adult body, feet on
+    the floor. Returns the skeleton, the numbers, and the chosen cluster's frames."""
     features = group.joints.reshape(len(group), -1)
     fit, scores = cluster(features, len(np.unique(group.sequence)))
     sizes = np.bincount(fit.labels_, minlength=fit.n_clusters)
@@ -359,8 +365,9 @@ def _model(name: str, recipe: dict, group: Frames, body: np.ndarray, sources: di
         joints, turns = reach(joints, recipe["hands_height"] - torso_height)
         adapted = (
             f"; the cluster with its hands closest to {recipe['hands_height']:.2f} m (the medoid's at "
-            f"{before:.2f} m), adapted: forearms turned about the elbows by {turns[0]:.0f} and {turns[1]:.0f} "
-            f"degrees (left, right) to put both hands at {recipe['hands_height']:.2f} m, bone lengths kept"
+            f"{before:.2f} m), adapted: forearms turned about the elbows by {turns[0]:.0f} and "
+            f"{turns[1]:.0f} degrees (left, right) to put both hands at {recipe['hands_height']:.2f} m, "
+            "bone lengths kept"
         )
     frame = f"frame {group.index[pick]} of {group.sequence[pick]}"
     source = (

@@ -1,7 +1,7 @@
 """Between numpy and the wire: the afford.v1 Protocol Buffers (schemas/afford/v1) and the arrays the library
 works on. No transport here; the services move the bytes. The protobuf classes are named here as on the wire
-(Scan, DepthFrame, Pose, Status, Error), with a `Message` suffix where the library has a class of the same name
-(CloudMessage, SceneFieldsMessage, AffordanceMapMessage).
+(Scan, DepthFrame, Pose, Status, Error), with a `Message` suffix where the library has a class of the same
+name (CloudMessage, SceneFieldsMessage, AffordanceMapMessage).
 
 Every decoder checks what it is given and raises `MessageError` with a reason a person can act on (the
 services answer it on their error key and keep running).
@@ -174,7 +174,8 @@ def unpack_points(message) -> tuple[np.ndarray, np.ndarray | None]:
         numpy_type = np.dtype(_NUMPY_TYPES[field.type])
         if field.offset + numpy_type.itemsize > stride:
             raise MessageError(
-                f"field {name} (offset {field.offset}, {numpy_type.itemsize} bytes) runs past the {stride}-byte point"
+                f"field {name} (offset {field.offset}, {numpy_type.itemsize} bytes) runs past the "
+                f"{stride}-byte point"
             )
         dtype[name] = (numpy_type, field.offset)
     records = np.frombuffer(
@@ -234,7 +235,8 @@ def depth_image(message: DepthFrame) -> DepthImage:
         raise MessageError(f"depth image is {width} x {height}")
     if len(message.depth) != 2 * width * height:
         raise MessageError(
-            f"depth holds {len(message.depth)} bytes; a {width} x {height} 16-bit image needs {2 * width * height}"
+            f"depth holds {len(message.depth)} bytes; a {width} x {height} 16-bit image needs "
+            f"{2 * width * height}"
         )
     k = message.intrinsics
     if not (k.fx > 0 and k.fy > 0) or not np.isfinite([k.fx, k.fy, k.cx, k.cy]).all():
@@ -263,7 +265,8 @@ def cloud_points(message: CloudMessage) -> np.ndarray:
     """The world-frame points of a map Cloud; a cloud in another frame, or with no points, is refused."""
     if message.frame_id != WORLD:
         raise MessageError(
-            f"map clouds must be in the {WORLD!r} frame (gravity-aligned, z up, floor at 0), not {message.frame_id!r}; "
+            f"map clouds must be in the {WORLD!r} frame (gravity-aligned, z up, floor at 0), not "
+            f"{message.frame_id!r}; "
             "`afford publish --as-map` aligns a file before sending it"
         )
     points, _ = unpack_points(message)
@@ -316,7 +319,8 @@ def scene_fields(message: SceneFieldsMessage):
 def map_message(
     amap, model_id: str, fields: SceneFieldsMessage, at: float | None = None
 ) -> AffordanceMapMessage:
-    """An AffordanceMap message of a map computed from `fields` (whose frame, cloud time and count it carries on)."""
+    """An AffordanceMap message of a map computed from `fields` (whose frame, cloud time and count it carries
+    on)."""
     grid = amap.grid.as_dict()
     message = AffordanceMapMessage(
         frame_id=WORLD,
@@ -367,7 +371,8 @@ def map_arrays(message: AffordanceMapMessage) -> dict[str, np.ndarray]:
     spec = message.grid
     if len(message.confidence) != 4 * spec.nx * spec.ny:
         raise MessageError(
-            f"confidence holds {len(message.confidence)} bytes; a {spec.nx} x {spec.ny} grid needs {4 * spec.nx * spec.ny}"
+            f"confidence holds {len(message.confidence)} bytes; a {spec.nx} x {spec.ny} grid needs "
+            f"{4 * spec.nx * spec.ny}"
         )
     if len(message.positives) % 20:
         raise MessageError(

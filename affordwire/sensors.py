@@ -1,6 +1,6 @@
-"""Sensor messages to the assembler's frames: one decoder per message type, registered under the schema name its
-zenoh encoding carries. The assembler takes whatever this registry decodes; a new sensor type is one decoder
-here (and its tests)."""
+"""Sensor messages to the assembler's frames: one decoder per message type, registered under the schema name
+its zenoh encoding carries. The assembler takes whatever this registry decodes; a new sensor type is one
+decoder here (and its tests)."""
 
 from __future__ import annotations
 

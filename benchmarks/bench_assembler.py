@@ -8,11 +8,11 @@ pixels, what the service does), and, for the rows that say so, every 2nd pixel (
 
 Cost, side by side in one run on the same points: bare KISS-ICP (`KissICP(KISSConfig)` with the assembler's
 range and voxel, deskew off, `register_frame` only) against `Assembler.register` (the same registration, plus
-the global map and the keyframes; the frames' gravity passed as an IMU would). Each repeat runs both over every
-frame, in alternating order; the table has the median ms per frame of each repeat, then the median over the
-repeats, and the median of the per-repeat ratios. `Assembler.aligned_map()` (done at each map publication) is
-timed on the final map, with the frames' gravity (a floor search along it) and without (a search over the
-candidate axes, what a sensor without an IMU gets).
+the global map and the keyframes; the frames' gravity passed as an IMU would). Each repeat runs both over
+every frame, in alternating order; the table has the median ms per frame of each repeat, then the median
+over the repeats, and the median of the per-repeat ratios. `Assembler.aligned_map()` (done at each map
+publication) is timed on the final map, with the frames' gravity (a floor search along it) and without (a
+search over the candidate axes, what a sensor without an IMU gets).
 
 Trajectory error against the 7-Scenes ground truth (KinectFusion), positions anchored at the first frame.
 "KISSConfig defaults" is bare KISS-ICP with deskew off and max_range 4 m, everything else as KISSConfig has it
@@ -65,7 +65,8 @@ def every_nth_pixel(image: DepthImage, n: int, min_range: float, max_range: floa
 
 def load_frames(folder: Path, frames: int, settings: AssemblerSettings) -> dict:
     """The first `frames` frames: block-mean points with the assembler's settings, every-2nd-pixel points with
-    its range (and with KISS-ICP's default 0-4 m), the gravity an IMU would report, and the ground-truth poses."""
+    its range (and with KISS-ICP's default 0-4 m), the gravity an IMU would report, and the ground-truth
+    poses."""
     sequence = read_sequence(folder)
     loaded = {"blocks": [], "pixels": [], "pixels 0-4 m": [], "gravity": [], "truth": []}
     for index in range(min(frames, len(sequence.frames))):
@@ -116,8 +117,8 @@ def run_assembler(
 def error_row(name: str, poses: list[np.ndarray], truth: list[np.ndarray], ms: float) -> str:
     e = trajectory_errors(poses, truth)
     return (
-        f"| {name} | {e['frames']} | {e['path_m']:.2f} | {100 * e['mean_m']:.1f} | {100 * e['worst_m']:.1f} | "
-        f"{e['final_rotation_deg']:.2f} | {ms:.0f} |"
+        f"| {name} | {e['frames']} | {e['path_m']:.2f} | {100 * e['mean_m']:.1f} | "
+        f"{100 * e['worst_m']:.1f} | {e['final_rotation_deg']:.2f} | {ms:.0f} |"
     )
 
 
@@ -175,26 +176,33 @@ def main() -> None:
         auto.append(time.perf_counter() - start)
 
     print(
-        f"7-Scenes redkitchen, {len(points)} frames, {statistics.mean(len(p) for p in points):,.0f} points a frame "
-        f"({settings.pixel_step} x {settings.pixel_step} block means, {settings.min_range:g}-{settings.max_range:g} m), "
-        f"{os.cpu_count()} cores, {args.repeats} repeats, cpu/wall {min(cpu):.2f}-{max(cpu):.2f} (2.0 would be both cores busy)"
+        f"7-Scenes redkitchen, {len(points)} frames, "
+        f"{statistics.mean(len(p) for p in points):,.0f} points a frame "
+        f"({settings.pixel_step} x {settings.pixel_step} block means, "
+        f"{settings.min_range:g}-{settings.max_range:g} m), "
+        f"{os.cpu_count()} cores, {args.repeats} repeats, cpu/wall {min(cpu):.2f}-{max(cpu):.2f} "
+        "(2.0 would be both cores busy)"
     )
     print(f"assembler defaults: {', '.join(f'{k} {v:g}' for k, v in settings.model_dump().items())}\n")
     print("| per frame (median over the frames, then over the repeats) | ms |\n|---|---:|")
     print(
-        f"| bare KISS-ICP (voxel {settings.voxel_size:g} m, register_frame) | {statistics.median(bare_ms):.1f} |"
+        f"| bare KISS-ICP (voxel {settings.voxel_size:g} m, register_frame) | "
+        f"{statistics.median(bare_ms):.1f} |"
     )
     print(f"| Assembler.register (KISS-ICP + global map + keyframes) | {statistics.median(ours_ms):.1f} |")
     print(f"| ratio assembler / bare | {statistics.median(ratio):.2f} |")
     print(
         f"| Assembler.aligned_map() at the end, gravity from the frames ({len(map_points):,} points, "
-        f"{assembler.keyframes} keyframes of {assembler.frames} frames) | {1000 * statistics.median(with_gravity):.0f} |"
+        f"{assembler.keyframes} keyframes of {assembler.frames} frames) | "
+        f"{1000 * statistics.median(with_gravity):.0f} |"
     )
     print(
-        f"| the same alignment without gravity (floor search over the candidate axes) | {1000 * statistics.median(auto):.0f} |"
+        "| the same alignment without gravity (floor search over the candidate axes) | "
+        f"{1000 * statistics.median(auto):.0f} |"
     )
     print(
-        f"\npeak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:,.0f} MB (the whole process; "
+        f"\npeak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:,.0f} MB "
+        "(the whole process; "
         f"{loaded_mb:,.0f} MB once the frames were loaded)\n"
     )
 
@@ -215,16 +223,20 @@ def main() -> None:
         ("assembler defaults, block means (back_project)", ours_poses, statistics.median(ours_ms)),
     ]
     print(
-        "| trajectory | frames | path (m) | mean (cm) | worst (cm) | final rotation (deg) | ms/frame |\n|---|---:|---:|---:|---:|---:|---:|"
+        "| trajectory | frames | path (m) | mean (cm) | worst (cm) | final rotation (deg) | ms/frame |\n"
+        "|---|---:|---:|---:|---:|---:|---:|"
     )
     for name, poses, ms in rows:
         print(error_row(name, poses, truth, ms))
     print(
-        f"\nThe same trajectories, the ground truth split at its jump: frames 0-{min(GROUND_TRUTH_JUMP, len(truth)) - 1} "
+        "\nThe same trajectories, the ground truth split at its jump: "
+        f"frames 0-{min(GROUND_TRUTH_JUMP, len(truth)) - 1} "
         f"and {GROUND_TRUTH_JUMP}-{len(truth) - 1}, each anchored at its own first frame"
     )
     print(
-        "| trajectory | mean (cm) | worst (cm) | final rot. (deg) | mean (cm) | worst (cm) | final rot. (deg) |\n|---|---:|---:|---:|---:|---:|---:|"
+        "| trajectory | mean (cm) | worst (cm) | final rot. (deg) "
+        "| mean (cm) | worst (cm) | final rot. (deg) |\n"
+        "|---|---:|---:|---:|---:|---:|---:|"
     )
     for name, poses, _ in rows:
         print(split_row(name, poses, truth))

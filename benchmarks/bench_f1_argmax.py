@@ -55,7 +55,8 @@ def main() -> None:
             else:
                 shown = f"{'-':>9} {'-':>13}"
             print(
-                f"{n:>10,} {'1:' + format(ratio, ','):>8} {int((labels > 0).sum()):>10,} {sweep:>9.4f} {shown}"
+                f"{n:>10,} {'1:' + format(ratio, ','):>8} "
+                f"{int((labels > 0).sum()):>10,} {sweep:>9.4f} {shown}"
             )
     print("The sweep's cost is the sort (n log n); the double loop's grows with positives x negatives.")
 

@@ -3,8 +3,9 @@
 The room of bench_features.py (walls, door, sofas, tables, desks, counters, shelves; 100 x 100 x 3 x 63 =
 1.89 million poses per affordance), mapped with the shipped models. Stages, each the median of the repeats:
 gravity alignment, voxel fields, scoring every pose (the linear model applied to the fields, no features
-materialised) with its skeleton / confidence maps, per affordance, and writing the JSON, PNG and Rerun outputs. Side by side, one
-affordance scored the other way (materialise every feature vector, then w . f), checked equal.
+materialised) with its skeleton / confidence maps, per affordance, and writing the JSON, PNG and Rerun
+outputs. Side by side, one affordance scored the other way (materialise every feature vector, then w . f),
+checked equal.
 
     .venv/bin/python benchmarks/bench_map.py             # about 2 minutes on 2 cores
     .venv/bin/python benchmarks/bench_map.py --repeats 1
@@ -109,7 +110,8 @@ def main() -> None:
         cpu.append((time.process_time() - cpu_start) / (time.perf_counter() - wall_start))
         runs.append(seconds)
     print(
-        f"{len(cloud):,} points, {os.cpu_count()} cores, {args.repeats} repeats, cpu/wall {min(cpu):.2f}-{max(cpu):.2f} "
+        f"{len(cloud):,} points, {os.cpu_count()} cores, {args.repeats} repeats, "
+        f"cpu/wall {min(cpu):.2f}-{max(cpu):.2f} "
         f"(2.0 would be both cores busy; far below 1 means a contended machine)"
     )
     print("| stage | seconds (median) |\n|---|---:|")
@@ -117,7 +119,8 @@ def main() -> None:
         print(f"| {stage} | {statistics.median(r[stage] for r in runs):.2f} |")
     slow, fast, difference = materialised(scene, models[0], settings)
     print(
-        f"\n{models[0].affordance}: features materialised then w . f: {slow:.2f} s; applied to the fields: {fast:.2f} s "
+        f"\n{models[0].affordance}: features materialised then w . f: {slow:.2f} s; "
+        f"applied to the fields: {fast:.2f} s "
         f"({slow / fast:.1f}x); largest difference {difference:.1e} of the largest score"
     )
     print(

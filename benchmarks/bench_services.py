@@ -80,7 +80,8 @@ def one_run(folder: Path, indices: list[int], rate: float, workdir: Path) -> dic
             last_scan = time.monotonic()
             if not arrivals.done.wait(600):
                 raise RuntimeError(
-                    f"outputs missing after 600 s: {sorted(arrivals.wanted - set(arrivals.at))}\n{stack.logs()}"
+                    f"outputs missing after 600 s: {sorted(arrivals.wanted - set(arrivals.at))}\n"
+                    f"{stack.logs()}"
                 )
         finally:
             subscriber.undeclare()
@@ -108,7 +109,8 @@ def main() -> None:
         runs = [one_run(folder, indices, args.rate, Path(tmp) / f"run{k}") for k in range(args.repeats)]
     source = "7-Scenes redkitchen (real)" if folder == KITCHEN else "generated living room"
     print(
-        f"\n{source}: {len(indices)} frames (every {args.step} of the sequence) at {args.rate:g} Hz, {args.repeats} runs, "
+        f"\n{source}: {len(indices)} frames (every {args.step} of the sequence) at {args.rate:g} Hz, "
+        f"{args.repeats} runs, "
         f"{os.cpu_count()} cores; services as processes on one machine\n"
     )
     print("| from the last scan published to ... | median (s) | runs (s) |\n|---|---:|---|")

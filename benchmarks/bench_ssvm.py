@@ -30,7 +30,8 @@ from affordcore.learn.ssvm import SSVMSettings, train_ssvm
 
 
 def gaussian(rng: np.random.Generator, n: int, d: int = 100, ratio: int = 1000, shift: float = 0.35):
-    """n examples, d features, about one positive per `ratio` negatives, positives shifted in every feature."""
+    """n examples, d features, about one positive per `ratio` negatives, positives shifted in every
+    feature."""
     y = np.where(rng.random(n) < 1 / (ratio + 1), 1, -1)
     y[:5] = 1
     X = rng.normal(size=(n, d)).astype(np.float32)
@@ -87,7 +88,8 @@ def main() -> None:
     ]
     context = multiprocessing.get_context("forkserver")  # a fresh small process per run: honest peak memory
     print(
-        f"{os.cpu_count()} cores; iterations = kept (best on validation) / run; peak = the process's high-water mark"
+        f"{os.cpu_count()} cores; iterations = kept (best on validation) / run; "
+        "peak = the process's high-water mark"
     )
     print("| set-up | learner | positives | iterations | seconds | train F1 | validation F1 | peak MB |")
     print("|---|---|---:|---:|---:|---:|---:|---:|")
@@ -95,8 +97,8 @@ def main() -> None:
         with context.Pool(1) as pool:
             r = pool.apply(run, (setup, learner, C, args.quick))
         print(
-            f"| {r['setup']} | {r['learner']} | {r['positives']} | {r['iterations']} | {r['seconds']:.1f} | {r['train_f1']:.3f} "
-            f"| {r['val_f1']:.3f} | {r['peak_mb']:,.0f} |",
+            f"| {r['setup']} | {r['learner']} | {r['positives']} | {r['iterations']} | "
+            f"{r['seconds']:.1f} | {r['train_f1']:.3f} | {r['val_f1']:.3f} | {r['peak_mb']:,.0f} |",
             flush=True,
         )
 

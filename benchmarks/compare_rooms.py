@@ -59,7 +59,8 @@ def floor_plane(points: np.ndarray) -> np.ndarray:
 
 
 def voxel_stats(points: np.ndarray, height: np.ndarray) -> dict:
-    """Per occupied voxel: point count, height of the centroid, and a local plane fit (RMS residual, normal)."""
+    """Per occupied voxel: point count, height of the centroid, and a local plane fit (RMS residual,
+    normal)."""
     keys = np.floor(points / VOXEL + 0.5).astype(np.int64)
     span = keys.max(axis=0) - keys.min(axis=0) + 1
     flat = np.ravel_multi_index((keys - keys.min(axis=0)).T, span)
@@ -158,7 +159,8 @@ def measure(ply: Path, room=None) -> tuple[dict, dict]:
     up_height, up_xy = thinned[up, 2] - thinned[up, :2] @ plane[:2] - plane[2], thinned[up, :2]
     under_tops, top_cells = {}, {}
     for band_name, (lo, hi) in (("tables 0.6-0.8 m", TABLE_BAND), ("counters 0.8-1.0 m", COUNTER_BAND)):
-        # a plan cell is under a top when >= 4 up-facing points (of at most 16 at 2.5 cm) lie in the band above it
+        # a plan cell is under a top when >= 4 up-facing points (of at most 16 at 2.5 cm) lie in the band
+        # above it
         in_band = up_xy[(up_height >= lo) & (up_height < hi)]
         keys, n = np.unique(np.floor(in_band / VOXEL + 0.5).astype(int), axis=0, return_counts=True)
         top_cells[band_name] = tops = set(map(tuple, keys[n >= 4]))
@@ -494,8 +496,8 @@ def synth(out: Path, rooms: int, seed: int, scanner: str, kinds: list[str] | Non
 
 
 def pooled(rooms: list[dict]) -> dict:
-    """One source's rooms together: voxel densities and noise pooled over voxels, coverage averaged over rooms,
-    floor under table tops pooled over table-top cells."""
+    """One source's rooms together: voxel densities and noise pooled over voxels, coverage averaged over
+    rooms, floor under table tops pooled over table-top cells."""
     counts = np.concatenate([r["vox"]["count"] for r in rooms])
     noise = {c: np.concatenate([r["noise"][c] for r in rooms]) for c in rooms[0]["noise"]}
     numbers = [r["numbers"] for r in rooms]

@@ -44,7 +44,8 @@ def main() -> None:
     models = {name: load_model(path) for name, path in shipped_models().items()}
     args.figures.mkdir(parents=True, exist_ok=True)
     print(
-        "| room | affordance | labels | positive poses | P / R / F1 at the threshold | oracle-threshold F1 | places found | false skeletons |"
+        "| room | affordance | labels | positive poses | P / R / F1 at the threshold "
+        "| oracle-threshold F1 | places found | false skeletons |"
     )
     print("|---|---|---:|---:|---|---:|---:|---:|")
     for cloud_path in sorted(ROOMS.glob("*.ply")):
@@ -63,7 +64,8 @@ def main() -> None:
             oracle = tune_threshold(scores, y)[1] if (y > 0).any() else 0.0
             places = match_places(labels, model.affordance, amap.skeletons[:, [0, 1, 3]])
             print(
-                f"| {short} | {model.affordance} | {len(labels.of(model.affordance))} | {at['positives']:,} | "
+                f"| {short} | {model.affordance} | {len(labels.of(model.affordance))} | "
+                f"{at['positives']:,} | "
                 f"{at['precision']:.2f} / {at['recall']:.2f} / {at['f1']:.2f} | {oracle:.2f} | "
                 f"{int(places.found.sum())} / {len(places.found)} | {int(places.false.sum())} |"
             )

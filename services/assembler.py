@@ -1,5 +1,6 @@
 """Scan assembly: scan/** (any message affordwire.sensors decodes) in; map/pose per frame and map/cloud
-(rate-limited, and once more when the scans stop) out. Registration and the global map are affordcore.assembly's."""
+(rate-limited, and once more when the scans stop) out. Registration and the global map are
+affordcore.assembly's."""
 
 from __future__ import annotations
 
@@ -55,7 +56,8 @@ class AssemblerService:
             self.publish_map()
 
     def publish_map(self) -> None:
-        """Align the global map to gravity and publish it; until a floor is in view there is nothing to send."""
+        """Align the global map to gravity and publish it; until a floor is in view, there is nothing to
+        send."""
         try:
             points, world_from_odom = self.assembler.aligned_map(self.node.settings)
         except ValueError as error:

@@ -18,7 +18,8 @@ from .transport import Keys, declare_publisher, encoding_of, open_session, schem
 
 
 def run_router(listen: list[str], stop: threading.Event | None = None) -> None:
-    """A zenoh router on `listen` until SIGINT/SIGTERM (zenohd is not on pip or apt; docker uses eclipse/zenoh)."""
+    """A zenoh router on `listen` until SIGINT/SIGTERM (zenohd is not on pip or apt; docker uses
+    eclipse/zenoh)."""
     stop = stop or threading.Event()
     stop_on_signals(stop)
     session = open_session([], mode="router", listen=listen)
@@ -139,16 +140,22 @@ def describe(key: str, schema: str, payload: bytes) -> str:
     name = classes[schema].DESCRIPTOR.name
     if name == "Status":
         state = messages.Status.State.Name(message.state)
-        return f"{key}: {state} {message.detail} (taken {message.accepted}, rejected {message.rejected}, published {message.published})"
+        counts = f"taken {message.accepted}, rejected {message.rejected}, published {message.published}"
+        return f"{key}: {state} {message.detail} ({counts})"
     if name == "Error":
         return f"{key}: REJECTED {message.key}: {message.reason}"
     if name == "AffordanceMap":
         best = f", best {message.skeletons[0].score:.2f}" if message.skeletons else ""
-        return f"{key}: {len(message.skeletons)} places, {len(message.positives) // 20:,} poses above the threshold{best} ({message.frames} frames)"
+        poses = len(message.positives) // 20  # five float32 per pose
+        places = len(message.skeletons)
+        return f"{key}: {places} places, {poses:,} poses above the threshold{best} ({message.frames} frames)"
     if name == "SceneFields":
-        return f"{key}: fields {message.grid.nx} x {message.grid.ny} x {message.grid.nz} at {message.grid.resolution} m ({message.frames} frames)"
+        grid = message.grid
+        shape = f"{grid.nx} x {grid.ny} x {grid.nz}"
+        return f"{key}: fields {shape} at {grid.resolution} m ({message.frames} frames)"
     if name == "Cloud":
-        return f"{key}: map of {len(message.data) // max(message.point_stride, 1):,} points from {message.source} ({message.frames} frames)"
+        points = len(message.data) // max(message.point_stride, 1)
+        return f"{key}: map of {points:,} points from {message.source} ({message.frames} frames)"
     if name == "Pose":
         p = message.position
         return f"{key}: sensor at ({p.x:.2f}, {p.y:.2f}, {p.z:.2f}) in {message.frame_id}"

@@ -113,7 +113,7 @@ class Node:
             )
         )
 
-    # -- inputs ------------------------------------------------------------------------------------------------
+    # -- inputs ----------------------------------------------------------------------------------------------
 
     def subscribe(self, key: str, inbox: Inbox) -> None:
         def on_sample(sample) -> None:
@@ -127,7 +127,8 @@ class Node:
             if not inbox.offer(item):
                 self.reject(
                     item,
-                    f"{self.service} is {len(inbox)} inputs behind (AFFORD_SERVICE__MAX_QUEUE); this one was not taken",
+                    f"{self.service} is {len(inbox)} inputs behind (AFFORD_SERVICE__MAX_QUEUE); this one "
+                    "was not taken",
                 )
 
         self._declared.append(self.session.declare_subscriber(key, on_sample))
@@ -137,7 +138,8 @@ class Node:
         names = {messages.schema_name(cls): cls for cls in message_classes}
         if item.schema not in names:
             raise messages.MessageError(
-                f"expected encoding application/protobuf with schema {' or '.join(names)}, got {item.encoding!r}"
+                f"expected encoding application/protobuf with schema {' or '.join(names)}, got "
+                f"{item.encoding!r}"
             )
         return messages.parse(names[item.schema], item.payload)
 
@@ -157,7 +159,7 @@ class Node:
         print(f"[{self.service}] rejected {item.key}: {reason}", flush=True)
         self.publish_status(messages.Status.READY, f"rejected an input: {reason}")
 
-    # -- outputs -----------------------------------------------------------------------------------------------
+    # -- outputs ---------------------------------------------------------------------------------------------
 
     def answer_latest(self, key: str) -> None:
         """A queryable on `key` that replies with the latest output published there, if any."""
@@ -199,7 +201,7 @@ class Node:
             self.state, self.detail = state, detail
         put_message(self.session, self.keys.status(self.service), self._status())
 
-    # -- the work loop -----------------------------------------------------------------------------------------
+    # -- the work loop ---------------------------------------------------------------------------------------
 
     def run(
         self, inbox: Inbox, handle: Callable[[Inbound], None], idle: Callable[[], None] | None = None
@@ -256,7 +258,8 @@ class Node:
         if warning:
             print(f"[{self.service}] {warning}", flush=True)
         print(
-            f"[{self.service}] stopped: {self.counts['accepted']} inputs taken, {self.counts['rejected']} rejected, "
+            f"[{self.service}] stopped: {self.counts['accepted']} inputs taken, {self.counts['rejected']} "
+            "rejected, "
             f"{self.counts['published']} outputs published",
             flush=True,
         )

@@ -49,8 +49,8 @@ CAMERA = DepthCamera()  # Kinect v1: 640 x 480, its noise and depth steps
 
 @pytest.fixture(scope="module")
 def room_frames():
-    """(points per frame, true camera-to-world poses): 30 frames of a hand-held camera walking 1 cm and turning
-    0.8 degrees a frame, pitched 25 degrees down, in 16-bit millimetres as a sensor sends them."""
+    """(points per frame, true camera-to-world poses): 30 frames of a hand-held camera walking 1 cm and
+    turning 0.8 degrees a frame, pitched 25 degrees down, in 16-bit millimetres as a sensor sends them."""
     raycaster = Raycaster(ROOM)
     rng = np.random.default_rng(0)
     poses, frames = [], []

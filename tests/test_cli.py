@@ -42,7 +42,10 @@ def small_room(tmp_path_factory) -> str:
 
 
 def test_importing_the_cli_loads_no_heavy_library():
-    probe = "import sys, afford.app; print([m for m in ('open3d', 'scipy', 'matplotlib', 'sklearn', 'zenoh', 'rerun') if m in sys.modules])"
+    probe = (
+        "import sys, afford.app; print([m for m in "
+        "('open3d', 'scipy', 'matplotlib', 'sklearn', 'zenoh', 'rerun') if m in sys.modules])"
+    )
     result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "[]"
 

@@ -1,6 +1,6 @@
-"""End to end, as on a robot: a router and the three services as processes on free loopback ports, depth frames
-streamed with `afford publish`, the maps awaited with `afford watch`; then every recording must verify and
-hold the entities its service logs."""
+"""End to end, as on a robot: a router and the three services as processes on free loopback ports, depth
+frames streamed with `afford publish`, the maps awaited with `afford watch`; then every recording must verify
+and hold the entities its service logs."""
 
 from __future__ import annotations
 

@@ -93,7 +93,8 @@ def test_rotation_between_opposite_vectors():
 
 
 def test_rotation_between_nearly_opposite_vectors():
-    """Just off antipodal (a floor normal against a candidate axis, a noisy gravity vector) stays a rotation."""
+    """Just off antipodal (a floor normal against a candidate axis, a noisy gravity vector) stays a
+    rotation."""
     rng = np.random.default_rng(2)
     worst_orthonormal = worst_mapping = 0.0
     for eps in (1e-3, 1e-4, 1e-5, 3e-6, 1e-6, 1e-7):
@@ -386,7 +387,8 @@ def test_real_7scenes_merged_frames_find_gravity():
     alignment = align_to_gravity(world)
     error = angle_deg(up_in_input(alignment), -gravity)
     assert error < 3.0, f"up found {error:.2f} deg from -gravity (picked {alignment.up_axis})"
-    # KinectFusion's world frame is y down-ish: up is -y leaning about 25 deg toward -z, inside the 35 deg search.
+    # KinectFusion's world frame is y down-ish: up is -y leaning about 25 deg toward -z, inside the 35 deg
+    # search.
     assert alignment.up_axis == "-y"
 
     # The given gravity agrees with it on where the floor is: both put the same floor points at z ~ 0.

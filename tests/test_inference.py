@@ -1,4 +1,5 @@
-"""Scores without features: applying a linear model to the fields equals materialising features and a dot product."""
+"""Scores without features: applying a linear model to the fields equals materialising features and a dot
+product."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Affordance maps from scores: positives above the threshold, the best over theta and z, one skeleton per place."""
+"""Affordance maps from scores: positives above the threshold, the best over theta and z, one skeleton per
+place."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""affordwire.messages: numpy arrays and library objects to the afford.v1 messages and back, and a `MessageError`
-naming the problem for every message that cannot be used."""
+"""affordwire.messages: numpy arrays and library objects to the afford.v1 messages and back, and a
+`MessageError` naming the problem for every message that cannot be used."""
 
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def _scan(records: np.ndarray, types: dict[str, int]):
     return scan
 
 
-# -- names and parsing ---------------------------------------------------------------------------------------------
+# -- names and parsing ---------------------------------------------------------------------------------------
 
 
 def test_schema_names_are_the_full_protobuf_names():
@@ -61,7 +61,7 @@ def test_parse_reads_a_valid_payload():
     assert messages.parse(messages.Scan, b"") == messages.Scan()  # the empty message is valid protobuf
 
 
-# -- packed points -------------------------------------------------------------------------------------------------
+# -- packed points -------------------------------------------------------------------------------------------
 
 
 def test_points_and_times_round_trip_at_float32_precision():
@@ -207,7 +207,7 @@ def test_a_field_past_a_shorter_stride_is_refused():
         messages.unpack_points(scan)
 
 
-# -- poses and time ------------------------------------------------------------------------------------------------
+# -- poses and time ------------------------------------------------------------------------------------------
 
 
 def test_a_random_rigid_transform_round_trips_through_a_pose():
@@ -255,7 +255,7 @@ def test_a_pose_with_a_non_finite_position_is_refused():
         messages.pose_matrix(pose)
 
 
-# -- depth frames --------------------------------------------------------------------------------------------------
+# -- depth frames --------------------------------------------------------------------------------------------
 
 K = np.array([[500.0, 0.0, 2.2], [0.0, 400.0, 1.7], [0.0, 0.0, 1.0]])
 
@@ -316,7 +316,8 @@ def test_every_valid_pixel_back_projects_to_its_own_ray():
     np.testing.assert_allclose(v, np.rint(v), atol=1e-9)
     ui, vi = np.rint(u).astype(int), np.rint(v).astype(int)
     np.testing.assert_allclose(points[:, 2], depth[vi, ui] * 0.001)
-    # 2 x 2 blocks: one point per whole block (the last column is left out), at the mean of its measured depths
+    # 2 x 2 blocks: one point per whole block (the last column is left out), at the mean of its measured
+    # depths
     half = back_project_message(messages.depth_frame_message(depth, K), pixel_step=2)
     u2 = half[:, 0] / half[:, 2] * K[0, 0] + K[0, 2]
     v2 = half[:, 1] / half[:, 2] * K[1, 1] + K[1, 2]
@@ -392,7 +393,7 @@ def test_unusable_depth_frames_are_refused(changes, reason):
         back_project_message(_wire(_frame(**changes)))
 
 
-# -- clouds --------------------------------------------------------------------------------------------------------
+# -- clouds --------------------------------------------------------------------------------------------------
 
 
 def _rigid(seed: int) -> np.ndarray:
@@ -431,7 +432,7 @@ def test_a_cloud_needs_a_hundred_finite_points():
         messages.cloud_points(messages.cloud_message(points, np.eye(4), "x"))
 
 
-# -- scene fields --------------------------------------------------------------------------------------------------
+# -- scene fields --------------------------------------------------------------------------------------------
 
 
 @pytest.fixture(scope="module")
@@ -509,7 +510,7 @@ def test_unusable_scene_fields_are_refused(small_fields, spoil, reason):
         messages.scene_fields(_wire(message))
 
 
-# -- affordance maps -----------------------------------------------------------------------------------------------
+# -- affordance maps -----------------------------------------------------------------------------------------
 
 
 def _assert_documents_match(got, expected, path="document"):
@@ -530,7 +531,8 @@ def _assert_documents_match(got, expected, path="document"):
 
 @pytest.fixture(scope="module")
 def real_map():
-    """A real map of the built-in example room (thinly sampled to be quick) by the shipped sitting-relaxing model."""
+    """A real map of the built-in example room (thinly sampled to be quick) by the shipped sitting-relaxing
+    model."""
     from affordcore.example import example_room
     from affordcore.learn.model import choose_models
     from affordcore.pipeline import map_affordances, prepare_scene

@@ -91,7 +91,10 @@ def test_ply_ascii_written_by_hand(tmp_path, points, colors255):
 
 def test_ply_ascii_without_colours(tmp_path, points):
     path = tmp_path / "plain.ply"
-    header = f"ply\nformat ascii 1.0\nelement vertex {N}\nproperty double x\nproperty double y\nproperty double z\nend_header\n"
+    header = (
+        f"ply\nformat ascii 1.0\nelement vertex {N}\n"
+        "property double x\nproperty double y\nproperty double z\nend_header\n"
+    )
     path.write_text(header + "\n".join(" ".join(repr(float(v)) for v in row) for row in points) + "\n")
     _check(load_cloud(path), points, None, atol=1e-12)
 
@@ -154,7 +157,8 @@ def test_txt_with_comment_header(tmp_path, points, colors255):
 
 
 def test_txt_comma_separated(tmp_path, points):
-    """The reader accepts comma-separated rows: none of them may be lost (e.g. mistaken for a PTS count line)."""
+    """The reader accepts comma-separated rows: none of them may be lost (e.g. mistaken for a PTS count
+    line)."""
     path = tmp_path / "room.txt"
     _write_table(path, points, header="# x,y,z", delimiter=",")
     _check(load_cloud(path), points, None)
@@ -370,7 +374,10 @@ def test_ply_binary_truncated(tmp_path, points):
     _error(path, "cut.ply")
 
 
-_ASCII_PLY_HEADER = "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+_ASCII_PLY_HEADER = (
+    "ply\nformat ascii 1.0\nelement vertex 5\n"
+    "property float x\nproperty float y\nproperty float z\nend_header\n"
+)
 
 
 @pytest.mark.parametrize(

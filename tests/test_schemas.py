@@ -49,7 +49,7 @@ def generated(generator) -> dict[str, str]:
     return generator.generate()
 
 
-# -- the generated code is current -------------------------------------------------------------------------------
+# -- the generated code is current ---------------------------------------------------------------------------
 
 
 def test_checked_in_code_is_what_protoc_generates_now(generator, generated):
@@ -60,7 +60,8 @@ def test_checked_in_code_is_what_protoc_generates_now(generator, generated):
 
 
 def test_generated_modules_import_each_other_relatively(generated):
-    """protoc writes `from afford.v1 import x_pb2`; the generator rewrites it so the code lives in affordwire.proto."""
+    """protoc writes `from afford.v1 import x_pb2`; the generator rewrites it so the code lives in
+    affordwire.proto."""
     for name, text in generated.items():
         assert "from afford.v1 import" not in text, name
     assert re.search(r"^from \. import geometry_pb2", generated["maps_pb2.py"], re.MULTILINE)
@@ -121,7 +122,7 @@ def test_main_check_exit_code_and_rewrite(generator, generated, proto_copy, tmp_
     assert generator.stale(generated) == []
 
 
-# -- every .proto is in afford.v1 ----------------------------------------------------------------------------------
+# -- every .proto is in afford.v1 ----------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("stem", sorted(MODULES))
@@ -135,7 +136,7 @@ def test_every_proto_declares_package_afford_v1(stem):
         assert message.full_name == f"afford.v1.{message.name}"
 
 
-# -- the messages of the design -------------------------------------------------------------------------------------
+# -- the messages of the design ------------------------------------------------------------------------------
 
 # {message: {field: (type, message or enum full name, repeated)}}
 POINTS = {

@@ -1,4 +1,5 @@
-"""affordcore.sequence: recorded sequences on disk (7-Scenes depth frames, LiDAR scans) and the folders that are not."""
+"""affordcore.sequence: recorded sequences on disk (7-Scenes depth frames, LiDAR scans) and the folders that
+are not."""
 
 from __future__ import annotations
 
@@ -111,7 +112,7 @@ def test_depth_frames_win_over_scans_in_one_folder(tmp_path):
     assert sequence.kind == "depth" and len(sequence.frames) == 1
 
 
-# -- folders that are not sequences ---------------------------------------------------------------------------------
+# -- folders that are not sequences --------------------------------------------------------------------------
 
 
 def test_not_a_folder(tmp_path):
@@ -190,7 +191,7 @@ def test_a_scan_with_a_partial_float_is_refused(tmp_path):
         sequence.scan(0)
 
 
-# -- the real 7-Scenes frames ---------------------------------------------------------------------------------------
+# -- the real 7-Scenes frames --------------------------------------------------------------------------------
 
 
 @pytest.fixture(scope="module")

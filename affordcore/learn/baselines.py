@@ -87,7 +87,8 @@ def undersample(
 
 
 def undersampled_indices(y: np.ndarray, ratio: float | None, rng: np.random.Generator) -> np.ndarray:
-    """Sorted indices of every positive and `ratio` x as many random negatives (all of them when None or fewer)."""
+    """Sorted indices of every positive and `ratio` x as many random negatives (all of them when None or
+    fewer)."""
     positives, negatives = np.flatnonzero(y > 0), np.flatnonzero(y <= 0)
     if ratio is not None and ratio * len(positives) < len(negatives):
         negatives = rng.choice(negatives, int(round(ratio * len(positives))), replace=False)

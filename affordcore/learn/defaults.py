@@ -1,8 +1,8 @@
 """The shipped default models, rebuilt reproducibly: generate rooms, train every affordance, write the files.
 
 Training uses a 0.2 m pose grid (features do not depend on the grid step, and the positives keep their
-density): the 0.1 m grid over 12 generated rooms is 7.4 million poses per affordance, which no
-scikit-learn baseline fits in memory and which teaches a linear model nothing the 0.2 m grid does not.
+density): the 0.1 m grid over a dozen generated rooms is millions of poses per affordance, more than the
+scikit-learn baselines fit in memory, and it teaches a linear model nothing the 0.2 m grid does not.
 """
 
 from __future__ import annotations
@@ -21,9 +21,8 @@ ROOMS, SEED, KINDS, TRAIN_STEP = 12, 1, ("living", "office", "workshop"), 0.2
 
 def winners(results_json: Path) -> dict[str, str]:
     """{affordance: its winning learner} from an `afford evaluate` results.json: the best F1 over folds less
-    one standard deviation, so that a learner carried by one lucky fold does not ship (on the generated
-    rooms one affordance's best mean, 0.13 +- 0.18, came from one fold of three, and that learner's default
-    model then scored F1 0 on its own validation rooms)."""
+    one standard deviation, so that a learner carried by one lucky fold does not ship (docs/learning.md
+    shows such a case)."""
     from ..jsonfile import read_json
 
     best: dict[str, tuple[float, str]] = {}

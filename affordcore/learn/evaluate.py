@@ -191,7 +191,8 @@ def evaluate(
                 result.outcomes.append(outcome)
                 _tell(
                     on_step,
-                    f"{affordance}: {learner} at {'all data' if ratio is None else f'1:{ratio}'}: F1 {outcome.f1:.3f}",
+                    f"{affordance}: {learner} at {'all data' if ratio is None else f'1:{ratio}'}: F1 "
+                    f"{outcome.f1:.3f}",
                 )
     return result
 
@@ -222,7 +223,8 @@ def _split(
     training = stack(examples, fit_names)
     if training.positives == 0:
         raise ValueError(
-            f"fold {fold + 1}: the training rooms {', '.join(fit_names)} hold no {affordance} label; use fewer folds or more rooms"
+            f"fold {fold + 1}: the training rooms {', '.join(fit_names)} hold no {affordance} label; use "
+            "fewer folds or more rooms"
         )
     return _Split(fold, test_rooms, validation_names, training, stack(examples, validation_names))
 
@@ -237,7 +239,8 @@ def _run(
     seed: int,
     sweep: bool = False,
 ) -> Outcome:
-    """Train one learner on the split (its training set already at `ratio`) and score the fold's test rooms."""
+    """Train one learner on the split (its training set already at `ratio`) and score the fold's test
+    rooms."""
     if sweep and learner == "undersample":  # in the imbalance test the plain SVM trains at the test's ratio
         params = {**params, "ratio": None if ratio is None else float(ratio)}
     training = split.training
@@ -294,7 +297,8 @@ def results_markdown(evaluation: Evaluation) -> str:
     lines = [
         f"# Learners compared ({k}-fold over {sum(map(len, evaluation.folds))} rooms)",
         "",
-        "Pose-level precision / recall / F1 on the held-out rooms, mean over folds (F1 ± its standard deviation",
+        "Pose-level precision / recall / F1 on the held-out rooms, mean over folds (F1 ± its standard "
+        "deviation",
         "over folds), and seconds to train once.",
         "",
         "| learner | " + " | ".join(affordances) + " |",
@@ -307,7 +311,8 @@ def results_markdown(evaluation: Evaluation) -> str:
             values.append(
                 ""
                 if r is None
-                else f"{r['precision']:.2f} / {r['recall']:.2f} / **{r['f1']:.2f}** ± {r['f1_std']:.2f} ({r['train_seconds']:.0f} s)"
+                else f"{r['precision']:.2f} / {r['recall']:.2f} / **{r['f1']:.2f}** ± {r['f1_std']:.2f} "
+                f"({r['train_seconds']:.0f} s)"
             )
         lines.append(f"| {learner} | " + " | ".join(values) + " |")
     lines += [
@@ -322,7 +327,8 @@ def results_markdown(evaluation: Evaluation) -> str:
     lines += [
         "## Beside the paper (its 12 real rooms)",
         "",
-        "| affordance | paper: best SVM baseline F1 | paper: structured SVM P / R / F1 | ours: best learner F1 | ours: ssvm P / R / F1 |",
+        "| affordance | paper: best SVM baseline F1 | paper: structured SVM P / R / F1 | ours: best learner "
+        "F1 | ours: ssvm P / R / F1 |",
         "|---|---|---|---|---|",
     ]
     paper_rows = json.loads(PAPER_RESULTS.read_text())["affordances"]

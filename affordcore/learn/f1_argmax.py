@@ -49,7 +49,8 @@ class Violation:
 
 
 def most_violated(scores: np.ndarray, labels: np.ndarray) -> Violation:
-    """The exact argmax over all labellings of Delta_F1(y, y') + sum_i y'_i s_i (labels in {-1, +1} or {0, 1})."""
+    """The exact argmax over all labellings of Delta_F1(y, y') + sum_i y'_i s_i (labels in {-1, +1} or {0,
+    1})."""
     scores = np.asarray(scores, dtype=np.float64)
     positive = np.asarray(labels) > 0
     if scores.shape != positive.shape or scores.ndim != 1:

@@ -1,6 +1,6 @@
-"""The learners, registered once: training (`train.fit`), the evaluation, the command line and the docs read this
-table. A new learner is a fit function and one line here (and its tests). Nothing heavy is imported until a
-learner fits, so the command line can list them instantly."""
+"""The learners, registered once: training (`train.fit`), the evaluation, the command line and the docs read
+this table. A new learner is a fit function and one line here (and its tests). Nothing heavy is imported until
+a learner fits, so the command line can list them instantly."""
 
 from __future__ import annotations
 
@@ -48,7 +48,8 @@ def _ssvm(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> F
 
 
 def _baseline(make: Callable) -> Callable[..., Fitted]:
-    """A scikit-learn baseline as a fit function: `make(train, validation, params, rng)` returns a LinearModel."""
+    """A scikit-learn baseline as a fit function: `make(train, validation, params, rng)` returns a
+    LinearModel."""
 
     def fit(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> Fitted:
         model = make(train, validation, params, rng)

@@ -52,7 +52,8 @@ class AffordanceModel:
         return f"{self.affordance}/{self.learner}/{digest.hexdigest()[:12]}"
 
     def as_skeleton(self) -> Skeleton:
-        """The skeleton the model was trained with (maps place it, not whatever skeleton file is installed now)."""
+        """The skeleton the model was trained with (maps place it, not whatever skeleton file is installed
+        now)."""
         return Skeleton(
             self.affordance,
             np.asarray(self.skeleton["joints"], dtype=np.float64),
@@ -66,8 +67,9 @@ class AffordanceModel:
     def check_layout(self, layout: FeatureLayout, source: str = "model") -> None:
         if layout.fingerprint != self.fingerprint:
             raise ModelError(
-                f"{source}: trained on feature layout {self.fingerprint} ({_summary(self.layout)}), but the running "
-                f"code computes {layout.fingerprint} ({_summary(layout.describe())}); retrain it or set the settings to match"
+                f"{source}: trained on feature layout {self.fingerprint} ({_summary(self.layout)}), but the "
+                f"running code computes {layout.fingerprint} ({_summary(layout.describe())}); retrain it or "
+                "set the settings to match"
             )
 
     def save(self, path: str | Path) -> Path:
@@ -83,7 +85,8 @@ def load_model(path: str | Path, layout: FeatureLayout | None = None) -> Afforda
     document = read_json(path, ModelError)
     if not isinstance(document, dict) or document.get("format") != FORMAT:
         raise ModelError(
-            f"{path}: not an {FORMAT} file (format {document.get('format') if isinstance(document, dict) else None!r})"
+            f"{path}: not an {FORMAT} file (format "
+            f"{document.get('format') if isinstance(document, dict) else None!r})"
         )
     try:
         document.pop("format")

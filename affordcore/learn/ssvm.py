@@ -9,10 +9,10 @@ Gaussian examples did not converge in 300 iterations, averaged they converge in 
 
 with Delta = loss_scale x (1 - F1). `SSVMSettings.C` is SVMperf's C, for its unaveraged Psi; with w = n w_perf
 the same problem weighs the slack by C n^2, so a C means the same at every n (and the iteration count,
-governed by C and how many labels a plane flips, does not grow with n). On 25 cm-cell room features, C = 2
-(the default) beat LinearSVC on held-out rooms where C = 0.0002-0.02 stopped far short of it. Each iteration adds the most violated labelling (exact, O(n log n):
-`f1_argmax.most_violated`) to a working set and re-solves the working set's dual with OSQP, warm-started
-from the previous solution:
+governed by C and how many labels a plane flips, does not grow with n). The default C was chosen on held-out
+generated rooms (docs/learning.md). Each iteration
+adds the most violated labelling (exact, O(n log n): `f1_argmax.most_violated`) to a working set and re-solves
+the working set's dual with OSQP, warm-started from the previous solution:
 
     max_alpha  Delta . alpha - 1/2 |D^T alpha|^2    s.t.  alpha >= 0,  sum(alpha) <= C,    w = D^T alpha
 

@@ -167,7 +167,8 @@ def _summary(options: SynthOptions, reports: list[dict]) -> dict:
 
 def summary_table(summary: dict) -> str:
     rows = [
-        f"# Generated rooms (seed {summary['seed']}, {len(summary['rooms'])} rooms, scanner {summary['scanner']})",
+        f"# Generated rooms (seed {summary['seed']}, {len(summary['rooms'])} rooms, "
+        f"scanner {summary['scanner']})",
         "",
         "| affordance | labels | positive poses | negative poses | ratio |",
         "|---|---:|---:|---:|---:|",
@@ -181,6 +182,7 @@ def summary_table(summary: dict) -> str:
     for room in summary["rooms"]:
         labels = ", ".join(f"{n} {k}" for n, k in room["labels"].items() if k) or "none"
         rows.append(
-            f"| {room['room']} | {room['kind']} | {room['size_m'][0]} x {room['size_m'][1]} | {room['points']:,} | {labels} |"
+            f"| {room['room']} | {room['kind']} | {room['size_m'][0]} x {room['size_m'][1]} | "
+            f"{room['points']:,} | {labels} |"
         )
     return "\n".join(rows) + "\n"

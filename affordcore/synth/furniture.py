@@ -87,7 +87,8 @@ def sofa(rng: np.random.Generator, seats: int | None = None, armrests: bool | No
 
 
 def corner_sofa(rng: np.random.Generator) -> Piece:
-    """An L-shaped sofa: a main run and a wing at its left end, one lounge segment each (none in the corner)."""
+    """An L-shaped sofa: a main run and a wing at its left end, one lounge segment each (none in the
+    corner)."""
     main = sofa(rng, seats=int(rng.integers(2, 4)), armrests=True)
     lo, hi = main.local_bounds()
     depth, length = hi[0] - lo[0], hi[1] - lo[1]
@@ -226,7 +227,8 @@ def _seat_at_edge(
 
 
 def desk(rng: np.random.Generator, with_chair: bool | None = None, cluttered: bool = False) -> Piece:
-    """A desk against its back (-x) side, usually with an office chair in front; monitor and clutter on top."""
+    """A desk against its back (-x) side, usually with an office chair in front; monitor and clutter on
+    top."""
     with_chair = bool(rng.random() < 0.8) if with_chair is None else with_chair
     length, depth, height = rng.uniform(1.1, 1.8), rng.uniform(0.60, 0.80), rng.uniform(0.70, 0.78)
     parts = table(rng, length, depth, height, _pick(rng, WOOD + LAMINATE[:2]))
@@ -503,7 +505,8 @@ def storage_box(rng: np.random.Generator) -> Piece:
 
 
 def picture(rng: np.random.Generator) -> Piece:
-    """A framed picture or a wall shelf with things on it, hung at eye height (depth gives ICP something to hold)."""
+    """A framed picture or a wall shelf with things on it, hung at eye height (depth gives ICP something to
+    hold)."""
     width, bottom = rng.uniform(0.3, 1.2), rng.uniform(1.1, 1.6)
     if rng.random() < 0.6:
         height, depth = rng.uniform(0.3, 0.8), rng.uniform(0.02, 0.05)

@@ -45,8 +45,8 @@ class DepthCamera:
 
     @classmethod
     def qvga(cls, **changes) -> DepthCamera:
-        """The same sensor at 320 x 240 (Kinect's QVGA depth mode): a quarter of the rays, for fused room scans
-        where 1 cm fusion voxels are coarser than a VGA pixel's footprint anyway."""
+        """The same sensor at 320 x 240 (Kinect's QVGA depth mode): a quarter of the rays, for fused room
+        scans where 1 cm fusion voxels are coarser than a VGA pixel's footprint anyway."""
         return cls(width=320, height=240, fx=292.5, fy=292.5, cx=160.0, cy=120.0, lateral_px=0.25, **changes)
 
     @property
@@ -60,7 +60,8 @@ def axial_sigma(depth: np.ndarray) -> np.ndarray:
 
 
 class Raycaster:
-    """All boxes of a room as one mesh; a hit reports the box it struck (for colour) and the surface normal."""
+    """All boxes of a room as one mesh; a hit reports the box it struck (for colour) and the surface
+    normal."""
 
     def __init__(self, boxes: list[Box]):
         import open3d as o3d
@@ -119,7 +120,8 @@ def depth_frame(
         valid &= incidence > np.cos(np.radians(camera.grazing_deg))
         valid &= rng.random(depth.shape) >= camera.dropout
         depth = np.where(valid, depth, 1.0)  # placeholder where nothing returns, so the noise stays finite
-        # Nguyen's sigma was measured on real output, quantisation included: add only the rest before quantising.
+        # Nguyen's sigma was measured on real output, quantisation included: add only the rest before
+        # quantising.
         step = 2.85e-3 * depth**2
         extra = np.sqrt(np.maximum(axial_sigma(depth) ** 2 - step**2 / 12, 0.0))
         noisy = depth + rng.normal(0, 1, depth.shape) * extra
@@ -163,7 +165,8 @@ def viewpoints(
     room: Room, rng: np.random.Generator, count: int | None = None, turns: int = 3
 ) -> list[np.ndarray]:
     """Person-height cameras in free space: at each spot the person turns round in `turns` steps, the first
-    aimed at a piece of furniture, pitched 15 to 35 degrees down (the floor near walls shows, as in real scans)."""
+    aimed at a piece of furniture, pitched 15 to 35 degrees down (the floor near walls shows, as in real
+    scans)."""
     area = abs(_polygon_area(room.polygon))
     count = count or int(np.clip(round(area / 6) + 2, 3, 10))
     targets = [box.centre for box in room.furniture_boxes()] or [(*room.polygon.mean(axis=0), 0.5)]
@@ -241,7 +244,8 @@ def walkable(
     room: Room, resolution: float = 0.05, body_radius: float = 0.30
 ) -> tuple[np.ndarray, np.ndarray]:
     """Cell centres (nx, ny, 2) of a plan raster and whether a person can stand there: inside the room and at
-    least `body_radius` from every wall and every piece below head height (a table too: nobody walks through it)."""
+    least `body_radius` from every wall and every piece below head height (a table too: nobody walks through
+    it)."""
     low, high = room.polygon.min(axis=0), room.polygon.max(axis=0)
     xs, ys = np.arange(low[0], high[0], resolution), np.arange(low[1], high[1], resolution)
     cells = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1)
