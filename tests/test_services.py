@@ -5,6 +5,8 @@ the recording. Services run in threads here (fast); tests/test_end_to_end.py run
 from __future__ import annotations
 
 import queue
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -235,3 +237,58 @@ def test_a_recording_whose_viewer_is_absent_still_writes_the_whole_file(tmp_path
     )
     assert verify.returncode == 0, verify.stderr
     assert "/world/cloud" in recorded_entities(rrd)
+
+
+# -- afford publish, each kind of source ---------------------------------------------------------------------
+
+
+def _afford(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "afford", *args], capture_output=True, text=True, timeout=120
+    )
+
+
+def test_publish_as_map_sends_the_room_in_the_world_frame(router, client, tmp_path):
+    from affordcore.scene import Cloud, save_cloud
+
+    points = _box_room_scan(np.random.default_rng(5))
+    y_up = points[:, [0, 2, 1]] * [1, 1, -1] + [0, 0.8, 0]  # y up, floor at y = +0.8
+    save_cloud(tmp_path / "room.ply", Cloud(y_up))
+    clouds = _listen(client, KEYS.cloud)
+    result = _afford("publish", str(tmp_path / "room.ply"), "--as-map", "--connect", router, "--robot", ROBOT)
+    assert result.returncode == 0, result.stderr
+    assert f"as the map of robot {ROBOT} ({len(points):,} points)" in result.stdout
+    cloud = _next(clouds, messages.CloudMessage)
+    world = messages.cloud_points(cloud)
+    assert cloud.source == "room.ply" and len(world) == len(points)
+    np.testing.assert_allclose(world[:20_000, 2], 0.0, atol=1e-3)  # the floor (first rows), now at z = 0
+    np.testing.assert_allclose(world[-5_000:, 2], 0.45, atol=1e-3)  # the seat (last rows), 0.45 m above it
+    assert world[:, 2].max() == pytest.approx(2.5, abs=0.05)  # the walls stand up along z
+    transform = messages.pose_matrix(cloud.world_from_input)
+    np.testing.assert_allclose(y_up @ transform[:3, :3].T + transform[:3, 3], world, atol=1e-4)
+
+
+def test_publish_sends_a_cloud_file_as_one_scan(router, client, tmp_path):
+    from affordcore.scene import Cloud, save_cloud
+
+    points = np.random.default_rng(6).uniform(-2, 2, (500, 3))
+    save_cloud(tmp_path / "scan.npy", Cloud(points))
+    scans = _listen(client, KEYS.scan("velodyne"))
+    result = _afford(
+        "publish", str(tmp_path / "scan.npy"), "--sensor", "velodyne", "--connect", router, "--robot", ROBOT
+    )
+    assert result.returncode == 0, result.stderr
+    scan = _next(scans, messages.Scan)
+    assert scan.frame_id == "velodyne"
+    np.testing.assert_allclose(messages.unpack_points(scan)[0], points, atol=1e-6)  # float32 on the wire
+
+
+def test_publish_with_no_service_listening_says_so_and_exits_2(router, tmp_path):
+    from affordcore.scene import Cloud, save_cloud
+
+    save_cloud(tmp_path / "scan.npy", Cloud(np.zeros((10, 3))))
+    result = _afford(
+        "publish", str(tmp_path / "scan.npy"), "--connect", router, "--robot", ROBOT, "--wait", "1"
+    )
+    assert result.returncode == 2
+    assert f"nothing subscribes to afford/@v1/{ROBOT}/scan/sensor after 1 s" in result.stderr
