@@ -292,3 +292,38 @@ def test_publish_with_no_service_listening_says_so_and_exits_2(router, tmp_path)
     )
     assert result.returncode == 2
     assert f"nothing subscribes to afford/@v1/{ROBOT}/scan/sensor after 1 s" in result.stderr
+
+
+def test_afford_serve_runs_a_service_until_sigterm(router, client, tmp_path):
+    """The command docker/compose.yaml runs: up (its liveliness token seen), then a clean stop on SIGTERM with
+    its recording closed."""
+    import signal
+
+    command = [
+        sys.executable,
+        "-m",
+        "afford",
+        "serve",
+        "features",
+        "--connect",
+        router,
+        "--robot",
+        ROBOT,
+        "--rrd",
+        str(tmp_path / "features.rrd"),
+    ]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while KEYS.status("features") not in _alive(client):
+            assert process.poll() is None, process.stdout.read()
+            assert time.monotonic() < deadline, "afford serve features did not come up within 60 s"
+            time.sleep(0.3)
+        process.send_signal(signal.SIGTERM)
+        output, _ = process.communicate(timeout=30)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 0, output
+    assert "[features] stopped: 0 inputs taken, 0 rejected" in output
+    assert (tmp_path / "features.rrd").stat().st_size > 0
