@@ -62,9 +62,8 @@ class Assembler:
         self.trajectory = Trajectory()
         self._last_keyframe: np.ndarray | None = None
         self._last_guess: np.ndarray | None = None
-        self.registered_points = np.empty(
-            (0, 3)
-        )  # the last frame as KISS-ICP registered it (thinned, sensor frame)
+        # the last frame as KISS-ICP registered it (thinned, sensor frame)
+        self.registered_points = np.empty((0, 3))
         self._gravity_sum = np.zeros(3)  # gravity directions reported with the frames, in the odometry frame
         self.keyframes = 0  # frames that joined the global map
 

@@ -196,9 +196,8 @@ class _SlabSampler:
         return {
             "distance": self._lerp_z(self.fields.distance, joint_heights),  # (X, Y, 15)
             "occupancy": self._lerp_z(self.fields.occupancy, joint_heights),  # (X, Y, 15)
-            "normals": self._cell_heights(
-                self._lerp_z(self.fields.normals, sample_heights)
-            ),  # (X, Y, cells, 3)
+            # (X, Y, cells, 3)
+            "normals": self._cell_heights(self._lerp_z(self.fields.normals, sample_heights)),
         }
 
     def _cell_heights(self, samples: np.ndarray) -> np.ndarray:

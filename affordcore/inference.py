@@ -47,9 +47,8 @@ def score_poses(
         layout.samples_per_axis,
     )
     w_dist, w_coll = weights[:n_joints], weights[n_joints : 2 * n_joints]
-    w_cube = weights[2 * n_joints :].reshape(
-        cells * cells, cells, 3
-    )  # (cell column i*cells+j, height k, axis)
+    # (cell column i*cells+j, height k, axis)
+    w_cube = weights[2 * n_joints :].reshape(cells * cells, cells, 3)
     # which cell column each sample column (a, b) of the n_s x n_s sample lattice falls in
     a, b = np.divmod(np.arange(n_s * n_s), n_s)
     column_of_sample = (a // per_cell) * cells + b // per_cell
@@ -59,9 +58,8 @@ def score_poses(
         joint_planes = level["distance"] * w_dist.astype(np.float32) + level["occupancy"] * w_coll.astype(
             np.float32
         )
-        joint_planes = np.ascontiguousarray(
-            np.moveaxis(joint_planes, 2, 0)
-        )  # (joint, X, Y): contiguous reads
+        # (joint, X, Y): contiguous reads
+        joint_planes = np.ascontiguousarray(np.moveaxis(joint_planes, 2, 0))
         n = level["normals"]  # (X, Y, cells in z, 3), world frame
         along = np.einsum("xykc,qkc->qxy", n[..., :2], w_cube[..., :2], optimize=True)  # w_x n_x + w_y n_y
         across = np.einsum("xyk,qk->qxy", n[..., 1], w_cube[..., 0]) - np.einsum(

@@ -15,6 +15,7 @@ import numpy as np
 
 from .jsonfile import read_json
 
+# OpenNI / CAD-60 order (DESIGN.md)
 JOINTS = (
     "HEAD",
     "NECK",
@@ -31,7 +32,7 @@ JOINTS = (
     "R_HAND",
     "L_FOOT",
     "R_FOOT",
-)  # OpenNI / CAD-60 order (DESIGN.md)
+)
 BONES = (
     ("HEAD", "NECK"),
     ("NECK", "TORSO"),

@@ -41,10 +41,11 @@ _NUMPY_TYPES = {
 }
 
 
+# every message class, by the schema name its encoding carries
 MESSAGE_CLASSES = {
     cls.DESCRIPTOR.full_name: cls
     for cls in (Scan, DepthFrame, CloudMessage, Pose, SceneFieldsMessage, AffordanceMapMessage, Status, Error)
-}  # by schema name
+}
 
 
 class MessageError(ValueError):

@@ -36,9 +36,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
     sizes = [10_000, 100_000] if args.quick else [10_000, 100_000, 300_000, 1_300_000]
-    pair_limit = (
-        2e8 if args.quick else 1e9
-    )  # positives x negatives the double loop is given (it takes ~4 s per 1e9)
+    # positives x negatives the double loop is given (it takes ~4 s per 1e9)
+    pair_limit = 2e8 if args.quick else 1e9
     print(f"F1 argmax, {os.cpu_count()} cores, numpy {np.__version__}, median of {args.repeats}")
     print(f"{'n':>10} {'ratio':>8} {'positives':>10} {'sweep s':>9} {'double s':>9} {'double/sweep':>13}")
     rng = np.random.default_rng(0)

@@ -426,12 +426,13 @@ def figures(results: dict, out: Path, chosen: list[tuple[str, str]]) -> None:
     )
     from matplotlib.colors import ListedColormap
 
+    # codes 1 to 4; 0: outside the region
     legend = [
         ("floor points", "#c9c9c9"),
         ("no floor points", "#d62728"),
         ("table top 0.6-0.8 m, floor seen", "#1f77b4"),
         ("table top 0.6-0.8 m, no floor points", "#ff7f0e"),
-    ]  # codes 1 to 4; 0: outside the region
+    ]
     cmap = ListedColormap(["white"] + [c for _, c in legend])
     for row, pair in enumerate(chosen):
         for column, (source, name) in enumerate(zip(("real", "depth"), pair)):
@@ -607,10 +608,11 @@ def main() -> None:
             numbers, arrays = measure(ply, None if source == "real" else regenerate_room(folder, ply.stem))
             results[source][ply.stem] = {**arrays, "numbers": numbers}
 
+    # a generated room of the most similar kind beside each real one
     kinds = {
         "7scenes": "workshop",
         "nyu": "living",
-    }  # a generated room of the most similar kind beside each real one
+    }
     chosen = [
         (
             real,

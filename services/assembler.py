@@ -15,9 +15,8 @@ from affordwire.sensors import decode_sensor
 
 from .node import Inbound, Inbox, Node
 
-QUIET_BEFORE_PUBLISHING = (
-    0.5  # seconds without scans after which a pending map goes out whatever the rate limit
-)
+# seconds without scans after which a pending map goes out whatever the rate limit
+QUIET_BEFORE_PUBLISHING = 0.5
 
 
 class AssemblerService:

@@ -25,9 +25,8 @@ class FeaturesService:
         cloud = self.node.decode(item, messages.CloudMessage)
         points = messages.cloud_points(cloud)
         self.node.publish_status(messages.Status.BUSY, f"computing the fields of {len(points):,} points")
-        scene = prepare_scene(
-            Cloud(points, source=item.key), self.node.settings, gravity="none"
-        )  # already world
+        # map clouds arrive in the world frame (cloud_points checked it): no alignment here
+        scene = prepare_scene(Cloud(points, source=item.key), self.node.settings, gravity="none")
         message = messages.fields_message(scene.fields, cloud)
         self.node.publish(self.node.keys.fields, message)
         set_time(self.node.recording, messages.seconds(cloud.timestamp))

@@ -37,9 +37,8 @@ def test_best_z_is_the_best_there_is(seed):
     labels = np.where(rng.random(200) < 0.3, 1, -1)
     z = best_z(plus, minus, labels)
     breaks = np.unique((minus / plus)[minus / plus > 0])
-    grid = np.concatenate(
-        [[breaks[0] / 2], (breaks[1:] + breaks[:-1]) / 2, [breaks[-1] * 2]]
-    )  # one z per interval
+    # one z per interval
+    grid = np.concatenate([[breaks[0] / 2], (breaks[1:] + breaks[:-1]) / 2, [breaks[-1] * 2]])
     brute = max(f1_at(g * plus - minus, labels) for g in grid)
     assert z > 0 and f1_at(z * plus - minus, labels) == pytest.approx(brute)
 

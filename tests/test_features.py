@@ -102,12 +102,13 @@ def _streamed_rows(fields, skeleton, grid, layout, wanted: np.ndarray) -> np.nda
     [
         ("sitting-working", 1.0, 0.10, 0.10),  # the paper's layout
         ("standing-working", 1.0, 0.20, 0.10),  # coarse cells: 2 x 2 x 2 samples each
+        # finer voxels than the pose step (slab stride 2), 4^3 samples a cell
         (
             "sitting-relaxing",
             0.6,
             0.20,
             0.05,
-        ),  # finer voxels than the pose step (slab stride 2), 4^3 samples a cell
+        ),
     ],
 )
 def test_features_match_slow_reference_on_random_poses(affordance, cube_size, cell_size, resolution):

@@ -96,12 +96,10 @@ def test_observed_floor_is_the_scanned_floor_and_a_margin():
     from affordcore.settings import NormalSettings, VoxelSettings
 
     rng = np.random.default_rng(0)
-    floor = np.column_stack(
-        [rng.uniform(0, 2, 20000), rng.uniform(0, 4, 20000), np.zeros(20000)]
-    )  # x 0-2 scanned
-    wall = np.column_stack(
-        [np.full(8000, 4.0), rng.uniform(0, 4, 8000), rng.uniform(0, 2.4, 8000)]
-    )  # x 2-4 not
+    # x 0-2 scanned
+    floor = np.column_stack([rng.uniform(0, 2, 20000), rng.uniform(0, 4, 20000), np.zeros(20000)])
+    # x 2-4 not
+    wall = np.column_stack([np.full(8000, 4.0), rng.uniform(0, 4, 8000), rng.uniform(0, 2.4, 8000)])
     fields = compute_fields(np.concatenate([floor, wall]), VoxelSettings(), NormalSettings())
     x, y = np.array([0.55, 1.85, 2.25, 2.55, 3.05]), np.array([2.05])
     np.testing.assert_array_equal(observed_floor(fields, x, y, 0.3)[:, 0], [True, True, True, False, False])

@@ -91,6 +91,7 @@ def test_points_and_times_round_trip_at_float32_precision():
 
 def test_scan_with_extra_fields_a_larger_stride_and_float64_coordinates():
     rng = np.random.default_rng(2)
+    # 8 bytes of padding at the end
     layout = np.dtype(
         {
             "names": ["intensity", "x", "y", "z", "ring", "t"],
@@ -98,7 +99,7 @@ def test_scan_with_extra_fields_a_larger_stride_and_float64_coordinates():
             "offsets": [0, 8, 16, 24, 32, 36],
             "itemsize": 48,
         }
-    )  # 8 bytes of padding at the end
+    )
     records = np.zeros(300, dtype=layout)
     xyz = rng.normal(scale=30.0, size=(300, 3))
     records["x"], records["y"], records["z"] = xyz.T
@@ -337,9 +338,8 @@ def test_depth_scale_and_range_limits():
     frame = messages.depth_frame_message(depth, K)
     np.testing.assert_allclose(back_project_message(frame)[:, 2], [0.5, 1.0, 3.0, 8.0])
     np.testing.assert_allclose(back_project_message(frame, min_range=0.8, max_range=4.0)[:, 2], [1.0, 3.0])
-    np.testing.assert_allclose(
-        back_project_message(frame, min_range=1.0, max_range=3.0)[:, 2], [1.0, 3.0]
-    )  # inclusive
+    # inclusive
+    np.testing.assert_allclose(back_project_message(frame, min_range=1.0, max_range=3.0)[:, 2], [1.0, 3.0])
     assert back_project_message(frame, min_range=9.0).shape == (0, 3)
     frame.depth_scale = 0.0002  # e.g. a sensor counting fifths of a millimetre
     np.testing.assert_allclose(back_project_message(frame)[:, 2], [0.1, 0.2, 0.6, 1.6])

@@ -107,9 +107,8 @@ def test_stale_reports_a_proto_edit(generator, generated, proto_copy, tmp_path, 
 
 
 def test_main_check_exit_code_and_rewrite(generator, generated, proto_copy, tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(
-        generator, "ROOT", tmp_path
-    )  # main() reports where it wrote relative to the repository
+    # main() reports where it wrote relative to the repository
+    monkeypatch.setattr(generator, "ROOT", tmp_path)
     monkeypatch.setattr(sys, "argv", ["generate.py", "--check"])
     assert generator.main() == 0
     (proto_copy / "geometry_pb2.py").write_text("stale\n")

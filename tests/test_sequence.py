@@ -210,9 +210,8 @@ def test_the_real_7scenes_sequence_reads(seven_scenes):
     k = seven_scenes.intrinsics
     assert k[0, 0] == 585 and k[1, 1] == 585 and (k[0, 2], k[1, 2]) == (320, 240)
     pose = seven_scenes.pose(0)
-    np.testing.assert_allclose(
-        pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-3
-    )  # rigid (to the ground truth's 1e-4)
+    # rigid (to the ground truth's 1e-4)
+    np.testing.assert_allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-3)
     np.testing.assert_array_equal(pose[3], [0, 0, 0, 1])
 
 

@@ -127,9 +127,8 @@ def test_the_assembler_rejects_bad_scans_with_a_reason_and_keeps_registering(rou
         _send(client, KEYS.scan("cam"), wrong_size.SerializeToString(), messages.DepthFrame)
         assert "depth holds 100 bytes" in _next(errors, messages.Error).reason
 
-        client.put(
-            KEYS.scan("cam"), b"{}", encoding=encoding_of(messages.Status)
-        )  # a message of another schema
+        # a message of another schema
+        client.put(KEYS.scan("cam"), b"{}", encoding=encoding_of(messages.Status))
         assert (
             "expected encoding application/protobuf with schema afford.v1.Scan or afford.v1.DepthFrame"
             in _next(errors, messages.Error).reason

@@ -29,10 +29,11 @@ from affordcore.skeleton_models import (
 )
 
 J = {name: i for i, name in enumerate(JOINTS)}
+# README: seated thighs 55 to 78 degrees from vertical; 5 degrees of Kinect slack
 SEATED_THIGH = (
     55 - 5,
     78 + 5,
-)  # README: seated thighs 55 to 78 degrees from vertical; 5 degrees of Kinect slack
+)
 
 
 def _skeleton(seated: bool) -> np.ndarray:
@@ -118,11 +119,12 @@ def test_filters_reject_swapped_knees_and_hips_and_broken_bones():
 
 def test_filters_reject_knees_above_hips_when_seated():
     trials = load_sources()["trials"]
+    # off the origin: (0, 0, 0) is "lost"
     joints = np.repeat(_skeleton(True)[None], 10, axis=0) + [
         1.0,
         2.0,
         0.5,
-    ]  # off the origin: (0, 0, 0) is "lost"
+    ]
     joints[4, [J["L_KNEE"], J["R_KNEE"]], 2] = 0.4  # knees 0.1 m above the hips
     masks = filter_masks(_frames(joints, "e01"), trials)
     assert leg_angles(joints[4:5])["thigh"].min() > 90
@@ -210,9 +212,8 @@ def test_filter_and_cluster_report_is_consistent(derived):
     for name, info in derived.clusters.items():
         assert sum(info["sizes"]) == info["frames"] == table["kept"][name]
         assert len(derived.members[name]) == info["sizes"][info["chosen"]]
-    assert (
-        1.1 < derived.scale["factor"] < 1.3
-    )  # README: median standing head-to-foot 1.35 m, short for an adult
+    # README: median standing head-to-foot 1.35 m, short for an adult
+    assert 1.1 < derived.scale["factor"] < 1.3
 
 
 def test_kinect_left_ends_up_at_plus_y_facing_plus_x(data_file):
@@ -238,9 +239,8 @@ def test_derived_models_are_plausible(derived):
     hands = standing.joints[[J["L_HAND"], J["R_HAND"]]]
     assert ((hands[:, 2] + standing.torso_height > 0.85) & (hands[:, 2] + standing.torso_height < 1.05)).all()
     assert (hands[:, 0] > 0.2).all()
-    assert (
-        max(derived.clusters["standing-working"]["forearm_turns"]) < 30
-    )  # a real cluster nearly fits a bench
+    # a real cluster nearly fits a bench
+    assert max(derived.clusters["standing-working"]["forearm_turns"]) < 30
     head = standing.torso_height + standing.joints[J["HEAD"], 2]
     assert 1.55 < head < 1.70  # head centre of a 1.75 m adult
 

@@ -198,9 +198,8 @@ def test_split_keeps_positives_on_both_sides():
         training, validation = split_rooms(names, seed, positives=positives)
         assert sum(positives[n] for n in training) > 0 and sum(positives[n] for n in validation) > 0
         assert sorted(training + validation) == names
-    lonely = {
-        name: (5 if name == "room-3" else 0) for name in names
-    }  # one room with positives: used for both
+    # one room with positives: used for both
+    lonely = {name: (5 if name == "room-3" else 0) for name in names}
     assert split_rooms(names, 0, positives=lonely) == (names, names)
 
 

@@ -68,9 +68,8 @@ def _svc(X: np.ndarray, y: np.ndarray, C: float, class_weight=None) -> LinearMod
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)  # bounded on purpose; see above
             svc = LinearSVC(C=C, class_weight=class_weight, dual=True, max_iter=DUAL_EPOCHS).fit(standard, y)
-    weights = (
-        svc.coef_.ravel().astype(np.float64) / scale
-    )  # w . (x - mean) / scale + b = (w / scale) . x + b'
+    # w . (x - mean) / scale + b = (w / scale) . x + b'
+    weights = svc.coef_.ravel().astype(np.float64) / scale
     return LinearModel(weights, float(svc.intercept_[0]) - float(weights @ mean))
 
 
@@ -155,9 +154,8 @@ def best_z(plus: np.ndarray, minus: np.ndarray, labels: np.ndarray) -> float:
     moving = np.flatnonzero(~flat & (breaks > z0))
     order = moving[np.argsort(breaks[moving], kind="stable")]
     values = breaks[order]
-    step = np.where(
-        rising[order], 1, -1
-    )  # crossing a breakpoint upwards turns a rising example on, others off
+    # crossing a breakpoint upwards turns a rising example on, others off
+    step = np.where(rising[order], 1, -1)
     tps = tp + np.cumsum(step * positive[order])
     fps = fp + np.cumsum(step * ~positive[order])
     f1 = 1.0 - f1_loss(tps, fps, positive.sum())

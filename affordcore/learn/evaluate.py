@@ -168,9 +168,8 @@ def evaluate(
                 )
             )
             for learner in learners:
-                if (
-                    ratio is None and learner != "undersample"
-                ):  # fold 1's table run is the sweep's all-data point
+                # fold 1's table run is the sweep's all-data point
+                if ratio is None and learner != "undersample":
                     table_run = next(
                         o
                         for o in result.outcomes

@@ -20,9 +20,8 @@ Fitted = tuple["np.ndarray", float, float, dict]  # weights, bias, threshold, wh
 class Learner:
     name: str
     summary: str  # one line for --help and the docs
-    fit: Callable[
-        [RoomExamples, RoomExamples, dict, np.random.Generator], Fitted
-    ]  # train, validation, params, rng
+    # train, validation, params, rng
+    fit: Callable[[RoomExamples, RoomExamples, dict, np.random.Generator], Fitted]
 
 
 def _ssvm(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> Fitted:
@@ -30,9 +29,8 @@ def _ssvm(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> F
 
     result = train_ssvm(train.X, train.y, SSVMSettings(**params), validation=(validation.X, validation.y))
     best = result.best
-    weights = best.weights / len(
-        train.y
-    )  # in SVMperf's units (summed Psi): the same sign, scores of order one
+    # in SVMperf's units (summed Psi): the same sign, scores of order one
+    weights = best.weights / len(train.y)
     return (
         weights[:-1],
         float(weights[-1]),

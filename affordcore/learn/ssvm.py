@@ -96,9 +96,8 @@ def train_ssvm(
     start = time.perf_counter()
     for number in range(1, settings.max_iterations + 1):
         scores = decision(X, weights)
-        violator = most_violated(
-            scores / (len(y) * settings.loss_scale), y
-        )  # argmax of loss_scale Delta + Psi(y') . w
+        # argmax of loss_scale Delta + Psi(y') . w
+        violator = most_violated(scores / (len(y) * settings.loss_scale), y)
         plane = _plane(X, y, violator.labelling)
         loss = settings.loss_scale * violator.loss
         slack = max(0.0, float(np.max(losses - planes @ weights))) if len(losses) else 0.0
@@ -167,9 +166,8 @@ def _solve_working_set(planes: np.ndarray, losses: np.ndarray, C: float, warm: n
     norms = np.where(norms > 0, norms, 1.0)
     t = max(float(losses.max(initial=0.0)), 1e-12)  # the loss scale
     s = max(float(np.max(losses / norms, initial=0.0)), 1e-12)  # the weight scale that meets every plane
-    rows = np.hstack(
-        [planes / norms[:, None], (t / (s * norms))[:, None]]
-    )  # [plane_k, 1] . [w, xi] >= Delta_k, scaled
+    # [plane_k, 1] . [w, xi] >= Delta_k, scaled
+    rows = np.hstack([planes / norms[:, None], (t / (s * norms))[:, None]])
     A = sparse.vstack(
         [sparse.csc_matrix(rows), sparse.csc_matrix(([1.0], ([0], [dims])), shape=(1, dims + 1))]
     ).tocsc()
@@ -193,7 +191,6 @@ def _solve_working_set(planes: np.ndarray, losses: np.ndarray, C: float, warm: n
     solution = problem.solve(raise_error=False)
     if solution.x is None or not np.all(np.isfinite(solution.x)):
         raise RuntimeError(f"OSQP failed on the working set ({solution.info.status})")
-    alpha = (
-        np.clip(-solution.y[:k], 0.0, None) / norms
-    )  # up to one common factor: only compared with each other
+    # up to one common factor: only compared with each other
+    alpha = np.clip(-solution.y[:k], 0.0, None) / norms
     return s * solution.x[:dims], max(0.0, t * float(solution.x[dims])), alpha

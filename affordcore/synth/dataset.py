@@ -132,9 +132,8 @@ def write_sequence(room, rng: np.random.Generator, folder: Path, sensor: str, fr
     camera = DepthCamera()
     np.savetxt(folder / "camera-intrinsics.txt", camera.intrinsics, fmt="%.6f")
     np.savetxt(folder / "gravity-direction.txt", [0.0, 0.0, -1.0], fmt="%.6f")
-    to_lidar = np.array(
-        [[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]], float
-    )  # ROS axes from camera axes
+    # ROS axes from camera axes
+    to_lidar = np.array([[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]], float)
     for k, pose in enumerate(trajectory(room, rng, frames)):
         if sensor == "depth":
             depth, _ = depth_frame(raycaster, camera, pose, rng)

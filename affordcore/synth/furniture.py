@@ -208,9 +208,8 @@ def _seat_at_edge(
     Pushed in (seat reaching under the top, barely turned), pulled out, swivelled, or turned away. When it
     serves the table, its label is 0.25 m outside the edge on the chair's line, facing the table.
     """
-    state = rng.choice(
-        ["pushed-in", "pulled-out", "turned-away"], p=[0.6, 0.3, 0.1]
-    )  # real rooms: mostly pushed in
+    # real rooms: mostly pushed in
+    state = rng.choice(["pushed-in", "pulled-out", "turned-away"], p=[0.6, 0.3, 0.1])
     if state == "pushed-in":
         offset, turn = rng.uniform(0.02, 0.15), rng.normal(0, 0.08)
     elif state == "pulled-out":

@@ -277,13 +277,14 @@ def _on_boundary(polygon: np.ndarray, points: np.ndarray) -> np.ndarray:
 def _program(kind: str, rng: np.random.Generator) -> list[tuple]:
     """(builder, placement) pairs in placement order: the big pieces first, then context and distractors."""
     n = lambda low, high: int(rng.integers(low, high + 1))  # noqa: E731
+    # a dining table with its chairs
     living = (
         [(F.corner_sofa if rng.random() < 0.3 else F.sofa, "wall"), (F.coffee_table, "in-front")]
         + [(F.armchair, "free" if rng.random() < 0.5 else "wall") for _ in range(n(0, 2))]
         + [(F.tv_unit, "wall")] * n(0, 1)
         + [(F.shelf, "wall")] * n(0, 2)
         + [(F.meeting_table, "free")] * int(rng.random() < 0.5)
-    )  # a dining table with its chairs
+    )
     office = (
         [(F.desk, "wall") for _ in range(n(1, 4))]
         + [(F.meeting_table, "free")] * n(0, 1)

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+# outward-facing, vertices ordered bottom (0-3) then top (4-7), counter-clockwise from (-x, -y)
 _TRIANGLES = np.array(
     [
         [0, 2, 1],
@@ -26,7 +27,7 @@ _TRIANGLES = np.array(
         [3, 0, 4],
         [3, 4, 7],
     ]
-)  # outward-facing, vertices ordered bottom (0-3) then top (4-7), counter-clockwise from (-x, -y)
+)
 
 
 def rot2(yaw: float) -> np.ndarray:
