@@ -82,14 +82,15 @@ class Node:
         settings: ServiceSettings | None = None,
         rrd: Path | None = None,
         viewer: str | None = None,
-        models: list | None = None,
+        affordances: list[str] | None = None,
         listen: list[str] | None = None,
+        models: list | None = None,
     ):
         from affordcore.recording import open_recording
 
         self.service, self.keys = service, Keys(robot)
         self.settings = settings or ServiceSettings()
-        self.models = list(models or [])  # the robot's affordance models: inference scores with them
+        self.models = list(models or [])  # what a scoring service (inference) scores with
         self.stop_event = threading.Event()
         self.counts = {"accepted": 0, "rejected": 0, "published": 0}
         self.last_seconds = 0.0
@@ -97,8 +98,9 @@ class Node:
         self._declared: list = []
         self._lock = threading.Lock()
         recording_id = self.settings.service.recording_id or f"afford-{robot}"
-        affordances = [model.affordance for model in self.models]
-        self.recording = open_recording(rrd or Path(f"{service}.rrd"), affordances, recording_id, viewer)
+        self.recording = open_recording(
+            rrd or Path(f"{service}.rrd"), affordances or [], recording_id, viewer
+        )
         self.session = open_session(endpoints, self.settings.service.mode, listen)
         self.state, self.detail = messages.Status.STARTING, "starting"
         self._declared.append(self.session.liveliness().declare_token(self.keys.status(service)))

@@ -15,6 +15,7 @@ class ServiceSpec:
     summary: str  # what it takes and gives, for --help and the docs
     target: str  # "module:Class"; the class takes a Node
     downstream: bool  # runs AFFORD_SERVICE__DOWNSTREAM_NICE nicer, so scan assembly keeps up with the sensor
+    scores: bool = False  # scores with the robot's models, so they must match the feature settings
 
     def service_class(self) -> type:
         module, name = self.target.split(":")
@@ -29,7 +30,11 @@ SERVICES: dict[str, ServiceSpec] = {
         ),
         ServiceSpec("features", "map to voxel fields", "services.features:FeaturesService", downstream=True),
         ServiceSpec(
-            "inference", "fields to affordance maps", "services.inference:InferenceService", downstream=True
+            "inference",
+            "fields to affordance maps",
+            "services.inference:InferenceService",
+            downstream=True,
+            scores=True,
         ),
     )
 }
@@ -44,22 +49,25 @@ def run_service(
     listen: list[str] | None = None,
     model_files: list[Path] | None = None,
 ) -> None:
-    """Run one registered service until SIGINT/SIGTERM, with the settings from the environment and the given
-    models (default: the shipped ones)."""
+    """Run one registered service until SIGINT/SIGTERM, with the settings from the environment; a service that
+    scores uses the given models (default: the shipped ones)."""
+    spec = SERVICES.get(name)
+    if spec is None:
+        raise ValueError(f"unknown service {name!r}; choose one of {', '.join(SERVICES)}")
     from affordcore.features import FeatureLayout
-    from affordcore.learn.model import choose_models
+    from affordcore.learn.model import choose_models, shipped_models
 
     from .node import Node
     from .settings import ServiceSettings
 
-    spec = SERVICES.get(name)
-    if spec is None:
-        raise ValueError(f"unknown service {name!r}; choose one of {', '.join(SERVICES)}")
     settings = ServiceSettings()
     if spec.downstream:
         os.nice(settings.service.downstream_nice)
-    models = choose_models(
-        model_files or [], [], FeatureLayout.from_settings(settings.features, settings.voxel)
-    )
-    node = Node(name, robot, endpoints, settings, rrd, viewer, models, listen)
+    models = []
+    if spec.scores:  # only a scoring service loads models, and refuses those of another feature layout
+        models = choose_models(
+            model_files or [], [], FeatureLayout.from_settings(settings.features, settings.voxel)
+        )
+    affordances = [model.affordance for model in models] or list(shipped_models())  # the recording's tabs
+    node = Node(name, robot, endpoints, settings, rrd, viewer, affordances, listen, models)
     spec.service_class()(node).run()

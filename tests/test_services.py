@@ -53,7 +53,9 @@ class Running:
         models = choose_models(
             [], ["sitting-relaxing"], FeatureLayout.from_settings(settings.features, settings.voxel)
         )
-        self.node = Node(name, ROBOT, [endpoint], settings, rrd, models=models)
+        self.node = Node(
+            name, ROBOT, [endpoint], settings, rrd, affordances=["sitting-relaxing"], models=models
+        )
         self.service = service_class(self.node)
         self.thread = threading.Thread(target=self.service.run, daemon=True)
         self.thread.start()
@@ -295,7 +297,9 @@ def test_publish_with_no_service_listening_says_so_and_exits_2(router, tmp_path)
 
 def test_afford_serve_runs_a_service_until_sigterm(router, client, tmp_path):
     """The command docker/compose.yaml runs: up (its liveliness token seen), then a clean stop on SIGTERM with
-    its recording closed."""
+    its recording closed. A service that scores nothing starts whatever the feature layout: only inference
+    needs models that match it."""
+    import os
     import signal
 
     command = [
@@ -311,7 +315,8 @@ def test_afford_serve_runs_a_service_until_sigterm(router, client, tmp_path):
         "--rrd",
         str(tmp_path / "features.rrd"),
     ]
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    env = {**os.environ, "AFFORD_FEATURES__CELL_SIZE": "0.5"}  # the shipped models' layout is 0.25 m cells
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     try:
         deadline = time.monotonic() + 60
         while KEYS.status("features") not in _alive(client):
