@@ -80,7 +80,9 @@ def to_world(
     settings = settings or Settings()
     cloud, warning = thin_huge_cloud(cloud, settings.map.max_points, settings.map.thin_voxel)
     alignment = align_to_gravity(cloud.points, gravity, settings.gravity)
-    return WorldCloud(cloud.transformed(alignment.world_from_input), alignment, [warning] if warning else [])
+    if alignment.method != "none":  # "none" is the identity: no copy of every point for nothing
+        cloud = cloud.transformed(alignment.world_from_input)
+    return WorldCloud(cloud, alignment, [warning] if warning else [])
 
 
 def prepare_scene(
