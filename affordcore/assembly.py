@@ -50,11 +50,8 @@ class Assembler:
 
         self.settings = settings = settings or AssemblerSettings()
         config = KISSConfig()
-        config.data.max_range, config.data.min_range, config.data.deskew = (
-            settings.max_range,
-            settings.min_range,
-            False,
-        )
+        config.data.max_range, config.data.min_range = settings.max_range, settings.min_range
+        config.data.deskew = False
         config.mapping.voxel_size = settings.voxel_size
         config.registration.max_num_threads = 0  # all cores
         self.odometry = KissICP(config)

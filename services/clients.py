@@ -174,13 +174,8 @@ class MapWatcher:
         out: Path | None,
         echo: Callable[[str], None] = print,
     ):
-        self.keys, self.wanted, self.min_frames, self.out, self.echo = (
-            keys,
-            set(affordances),
-            min_frames,
-            out,
-            echo,
-        )
+        self.keys, self.wanted, self.min_frames = keys, set(affordances), min_frames
+        self.out, self.echo = out, echo
         self.received: dict[str, dict] = {}
         self.done = threading.Event()
         self._lock = threading.Lock()
