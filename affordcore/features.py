@@ -174,6 +174,34 @@ def compute_features(
     return out
 
 
+def features_at(
+    fields: SceneFields, skeleton: Skeleton, grid: PoseGrid, layout: FeatureLayout, index: np.ndarray
+) -> np.ndarray:
+    """Features of the given poses only (flat grid indices), (len(index), n_features) float32, rows in the
+    order given: the same values as the grid's rows from `iter_features` (normals rotated after the read
+    rather than before, so equal up to float32 rounding).
+
+    For the second stage and for sampled training sets: the poses are grouped by (z, theta) slab and each
+    slab's fixed offsets are read at the chosen (x, y) only, so the cost follows the number of poses asked
+    for, not the grid (the z interpolation of the fields is still done once per level that has a pose)."""
+    index = np.asarray(index, dtype=np.int64).ravel()
+    if len(index) and (index.min() < 0 or index.max() >= grid.size):
+        raise IndexError(f"pose indices must lie in [0, {grid.size}) for this grid")
+    sampler = _SlabSampler(fields, grid, layout)
+    out = np.empty((len(index), layout.n_features), dtype=np.float32)
+    iz, it, ix, iy = np.unravel_index(index, grid.shape)
+    slab_of = iz * len(grid.theta) + it
+    order = np.argsort(slab_of, kind="stable")
+    bounds = np.flatnonzero(np.diff(slab_of[order])) + 1
+    level, level_z = None, None
+    for rows in np.split(order, bounds) if len(order) else []:
+        z, theta = iz[rows[0]], it[rows[0]]
+        if z != level_z:
+            level, level_z = sampler.level(grid.z[z], skeleton), z
+        out[rows] = sampler.gather(level, skeleton, grid.theta[theta], ix[rows], iy[rows])
+    return out
+
+
 class _SlabSampler:
     """Reads fields at offsets that are the same for every pose of a slab."""
 
@@ -217,6 +245,43 @@ class _SlabSampler:
         # n_skeleton = R^T n_world; for row vectors that is n_world @ R.
         normals = level["normals"] @ rotation.astype(np.float32)
         return _Slab(self, level, joint_xy, sample_xy, normals.reshape(*normals.shape[:2], -1))
+
+    def gather(
+        self, level: dict, skeleton: Skeleton, theta: float, ix: np.ndarray, iy: np.ndarray
+    ) -> np.ndarray:
+        """The features of one slab's poses at grid positions (ix, iy): `_Slab.features` for a scattered
+        subset (the same corners and weights, read by index instead of by strided slice)."""
+        rotation = rotation_z(theta)
+        joint_xy = (skeleton.joints @ rotation.T)[:, :2]
+        axis = self.layout.sample_positions()
+        sample_xy = (
+            np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2) @ rotation[:2, :2].T
+        )
+        u, v = ix * self.stride, iy * self.stride
+
+        def read(plane: np.ndarray, dx: float, dy: float) -> np.ndarray:
+            total = None
+            for cu, cv, weight in self.corners(dx, dy):
+                term = plane[cu + u, cv + v] * np.float32(weight)
+                total = term if total is None else total + term
+            return total
+
+        n_joints, layout = len(JOINTS), self.layout
+        out = np.empty((len(ix), layout.n_features), dtype=np.float32)
+        for j, (dx, dy) in enumerate(joint_xy):
+            out[:, j] = read(level["distance"][:, :, j], dx, dy)
+            out[:, n_joints + j] = read(level["occupancy"][:, :, j], dx, dy)
+        n_s, per_cell, cells = layout.samples_per_axis, layout.samples_per_cell, layout.cells_per_axis
+        normals = level["normals"]  # (X, Y, cells in z, 3), world frame: rotated once the reads are summed
+        cube = np.zeros((len(ix), cells * cells, cells, 3), dtype=np.float32)
+        for s, (dx, dy) in enumerate(sample_xy):
+            a, b = divmod(s, n_s)
+            cube[:, (a // per_cell) * cells + b // per_cell] += read(normals, dx, dy)
+        if per_cell > 1:
+            cube *= np.float32(1.0 / per_cell**2)
+        # n_skeleton = R^T n_world; for row vectors that is n_world @ R
+        out[:, 2 * n_joints :] = (cube @ rotation.astype(np.float32)).reshape(len(ix), -1)
+        return out
 
     def _lerp_z(self, field: np.ndarray, heights: np.ndarray) -> np.ndarray:
         k = (np.asarray(heights) - self.fields.lattice.origin[2]) / self.res

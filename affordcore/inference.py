@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .features import FeatureLayout, _SlabSampler
+from .features import FeatureLayout, _SlabSampler, features_at
 from .fields import SceneFields
 from .grid import PoseGrid
 from .skeleton import JOINTS, Skeleton, rotation_z
@@ -111,3 +111,29 @@ def _slab_scores(
         )
         total += term
     return total
+
+
+def model_scores(
+    model, fields: SceneFields, grid: PoseGrid, layout: FeatureLayout, allowed: np.ndarray | None = None
+) -> np.ndarray:
+    """A model's score of every pose (z, theta, x, y), float32; poses outside `allowed` (nx, ny) cells hold
+    float32's lowest. A linear model scores every pose as above. A cascade's linear first stage scores every
+    pose, and its second stage rescores the best `fraction` of them from their full features (log-odds);
+    every other pose holds float32's lowest: the first stage ruled it out."""
+    skeleton = model.as_skeleton()
+    scores = score_poses(fields, skeleton, grid, layout, model.weights, model.bias)
+    lowest = np.finfo(np.float32).min
+    if allowed is not None:
+        scores[:, :, ~allowed] = lowest
+    if not model.rescorer:
+        return scores
+    flat = scores.ravel()
+    candidates = int(np.count_nonzero(flat > lowest))
+    keep = min(candidates, max(1, int(np.ceil(model.rescorer["fraction"] * candidates))))
+    if keep == 0:
+        return scores
+    best = np.argpartition(flat, len(flat) - keep)[len(flat) - keep :]
+    rescored = model.trees.log_odds(features_at(fields, skeleton, grid, layout, best))
+    flat[:] = lowest
+    flat[best] = rescored
+    return scores

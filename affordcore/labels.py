@@ -334,6 +334,19 @@ def match_places(
     theta_tolerance: float = THETA_TOLERANCE,
 ) -> PlaceMatch:
     """Place-level matching (DESIGN.md, "Metrics") of predicted skeletons, (n, 3) rows of (x, y, theta)."""
+    matches, ignored = place_matches(labels, affordance, skeletons, xy_tolerance, theta_tolerance)
+    return PlaceMatch(labels.of(affordance), matches.any(axis=1), ~matches.any(axis=0) & ~ignored, ignored)
+
+
+def place_matches(
+    labels: LabelSet,
+    affordance: str,
+    skeletons: np.ndarray,
+    xy_tolerance: float = XY_TOLERANCE,
+    theta_tolerance: float = THETA_TOLERANCE,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(n_labels, n_skeletons) bool: which skeleton (x, y, theta) matches which label of the affordance, and
+    (n_skeletons,) bool: which skeletons lie in an unlabelled region (they match nothing)."""
     skeletons = np.asarray(skeletons, dtype=np.float64).reshape(-1, 3)
     ignored = labels.unlabelled(skeletons[:, :2])
     chosen = labels.of(affordance)
@@ -344,7 +357,7 @@ def match_places(
             & (angle_gap(skeletons[:, 2], label.facing) <= theta_tolerance + _SLACK)
             & ~ignored
         )
-    return PlaceMatch(chosen, matches.any(axis=1), ~matches.any(axis=0) & ~ignored, ignored)
+    return matches, ignored
 
 
 # ---------------------------------------------------------------------------------------------- plot

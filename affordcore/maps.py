@@ -87,9 +87,11 @@ def build_map(
     threshold: float,
     nms_radius: float = 0.45,
     allowed: np.ndarray | None = None,
+    place_threshold: float | None = None,
 ) -> AffordanceMap:
     """The three outputs from the scores of every pose (shaped like the grid: z, theta, x, y); cells where
-    `allowed` (nx, ny) is False hold no positive and no skeleton (their confidence is float32's lowest)."""
+    `allowed` (nx, ny) is False hold no positive and no skeleton (their confidence is float32's lowest).
+    Places of the skeleton map must score above `place_threshold` (default: `threshold`)."""
     if allowed is not None:
         scores = np.where(allowed[None, None], scores, np.finfo(np.float32).min).astype(np.float32)
     nz, nt, nx, ny = grid.shape
@@ -104,7 +106,7 @@ def build_map(
         np.column_stack([grid.poses(above), scores.ravel()[above]]) if len(above) else np.empty((0, 5))
     )
 
-    cells = np.argwhere(confidence > threshold)
+    cells = np.argwhere(confidence > (threshold if place_threshold is None else place_threshold))
     cells = cells[np.argsort(-confidence[cells[:, 0], cells[:, 1]], kind="stable")]
     xy = np.column_stack([grid.x[cells[:, 0]], grid.y[cells[:, 1]]])
     chosen, alive = [], np.ones(len(cells), dtype=bool)

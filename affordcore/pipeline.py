@@ -111,7 +111,6 @@ def map_affordances(
     """Every model's affordance map of a room's fields: {affordance: AffordanceMap}; `on_map(affordance, map)`
     hears of each as soon as it is done. Models must match the feature layout (a `ModelError` names the model
     otherwise); each places the skeleton it was trained with."""
-    from .inference import score_poses
     from .maps import build_map
 
     settings = settings or Settings()
@@ -119,19 +118,35 @@ def map_affordances(
     for model in models:
         model.check_layout(layout, f"model {model.id}")
         skeleton = model.as_skeleton()
-        grid = pose_grid(fields, skeleton, settings)
-        scores = score_poses(fields, skeleton, grid, layout, model.weights, model.bias)
-        allowed = (
-            observed_floor(fields, grid.x, grid.y, settings.map.floor_margin)
-            if settings.map.floor_margin >= 0
-            else None
-        )
+        grid, scores = score_model(model, fields, layout, settings)
         maps[model.affordance] = build_map(
-            model.affordance, scores, grid, skeleton, model.threshold, settings.map.nms_radius, allowed
+            model.affordance,
+            scores,
+            grid,
+            skeleton,
+            model.threshold,
+            settings.map.nms_radius,
+            place_threshold=model.skeleton_threshold,
         )
         if on_map:
             on_map(model.affordance, maps[model.affordance])
     return maps
+
+
+def score_model(
+    model, fields: SceneFields, layout: FeatureLayout, settings: Settings
+) -> tuple[PoseGrid, np.ndarray]:
+    """A model's pose grid over the room and its score of every pose (`inference.model_scores`); only cells
+    near scanned floor are scored (`map.floor_margin`), the rest hold float32's lowest."""
+    from .inference import model_scores
+
+    grid = pose_grid(fields, model.as_skeleton(), settings)
+    allowed = (
+        observed_floor(fields, grid.x, grid.y, settings.map.floor_margin)
+        if settings.map.floor_margin >= 0
+        else None
+    )
+    return grid, model_scores(model, fields, grid, layout, allowed)
 
 
 def stream_features(

@@ -151,6 +151,24 @@ class AssemblerSettings(BaseModel):
     )
 
 
+class LearnSettings(BaseModel):
+    negatives_per_room: int = Field(
+        20_000,
+        ge=0,
+        description="training keeps every positive pose of a room and a seeded random sample of this many "
+        "of its negatives (0: every negative); memory grows with rooms x this",
+    )
+    rescore_fraction: float = Field(
+        0.03,
+        gt=0,
+        le=1,
+        description="the second stage rescores this fraction of a room's poses, the first stage's best",
+    )
+    workers: int = Field(
+        0, ge=0, description="processes that prepare rooms for training in parallel (0: one per core)"
+    )
+
+
 class Settings(BaseSettings):
     """All tunables of affordmap. Defaults follow DESIGN.md (10 cm voxels and grid, 63 orientations)."""
 
@@ -163,6 +181,7 @@ class Settings(BaseSettings):
     gravity: GravitySettings = GravitySettings()
     map: MapSettings = MapSettings()
     assembler: AssemblerSettings = AssemblerSettings()
+    learn: LearnSettings = LearnSettings()
     skeleton_dirs: list[Path] = Field(
         default_factory=list,
         description="extra folders of skeleton files (<affordance>.json); "

@@ -1,4 +1,5 @@
-"""Training examples from a data set folder: rows are the scored poses, labels follow the ground truth."""
+"""Training examples from a data set folder: every positive, a seeded sample of the negatives, features as
+the full grid computes them, labels as the ground truth says."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import pytest
 
 from affordcore.features import FeatureLayout, compute_features
 from affordcore.labels import ground_truth, load_labels
-from affordcore.learn.examples import data_set_rooms, load_examples
+from affordcore.learn.examples import Task, data_set_rooms, load_rooms, room_examples
 from affordcore.pipeline import prepare_scene
 from affordcore.scene import Cloud, load_cloud, save_cloud
 from affordcore.settings import GridSettings, Settings
@@ -42,22 +43,43 @@ def data_set(tmp_path_factory):
     return folder
 
 
-def test_rows_are_the_scored_poses_in_grid_order(data_set):
+def test_rows_are_every_positive_and_a_sample_of_negatives_with_their_grid_features(data_set):
     settings = Settings(grid=GridSettings(n_theta=4, theta_step=np.pi / 2))
     layout = FeatureLayout(1.0, 0.5, 0.1)
-    affordance = load_labels(data_set / "bench-room.labels.json").labels[0].affordance
-    (examples,) = list(load_examples(data_set, affordance, settings, layout))
+    labels = load_labels(data_set / "bench-room.labels.json")
+    affordance = labels.labels[0].affordance
+    (room,) = load_rooms(data_set_rooms(data_set), settings)
+    task = Task(affordance, settings, layout)
     # the same thing the slow way: every pose's features, then the ground truth's masks
     skeleton = get_skeleton(affordance)
     scene = prepare_scene(load_cloud(data_set / "bench-room.ply"), settings, "none")
     grid = scene.pose_grid(skeleton, settings)
     everything = compute_features(scene.fields, skeleton, grid, layout)
-    truth = ground_truth(load_labels(data_set / "bench-room.labels.json"), affordance, grid)
-    scored = truth.scored_mask().ravel()
+    truth = ground_truth(labels, affordance, grid)
+    scored, positive = truth.scored_mask().ravel(), truth.pose_mask().ravel()
     assert scored.sum() < grid.size  # the unlabelled region took some poses out
-    np.testing.assert_array_equal(examples.X, everything[scored])
-    np.testing.assert_array_equal(examples.y > 0, truth.pose_mask().ravel()[scored])
-    assert examples.positives > 0
+    n_negatives = int((scored & ~positive).sum())
+
+    every = room_examples(room, task, negatives=0)
+    assert every.positives == positive.sum() and len(every.y) == scored.sum()
+    np.testing.assert_allclose(
+        np.sort(every.X[every.y > 0], axis=0), np.sort(everything[positive], axis=0), atol=1e-5
+    )
+    np.testing.assert_array_equal(every.weights, 1.0)
+
+    sample = room_examples(room, task, negatives=500, rng=np.random.default_rng(3))
+    negatives = sample.X[sample.y < 0]
+    assert len(negatives) == 500 and sample.positives == positive.sum()
+    # each sampled negative is a real negative pose's row, and stands for n_negatives / 500 of them
+    rows = everything[scored & ~positive]
+
+    def keys(block):  # joints' distances and collisions are read identically by both paths
+        return {row.tobytes() for row in np.ascontiguousarray(block[:, :30])}
+
+    assert keys(negatives) <= keys(rows) and not keys(negatives) & keys(everything[positive]) - keys(rows)
+    np.testing.assert_allclose(sample.weights[sample.y < 0].sum(), n_negatives, rtol=1e-5)
+    again = room_examples(room, task, negatives=500, rng=np.random.default_rng(3))
+    np.testing.assert_array_equal(sample.X, again.X)
 
 
 def test_rooms_need_a_label_file(data_set, tmp_path):

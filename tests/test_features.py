@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from affordcore.example import box_surface_points
-from affordcore.features import FeatureLayout, ReachError, compute_features, iter_features
+from affordcore.features import FeatureLayout, ReachError, compute_features, features_at, iter_features
 from affordcore.fields import compute_fields
 from affordcore.grid import PoseGrid
 from affordcore.settings import NormalSettings, VoxelSettings
@@ -126,6 +126,12 @@ def test_features_match_slow_reference_on_random_poses(affordance, cube_size, ce
         and np.abs(reference[:, 30:]).max() > 0.5
     )
     np.testing.assert_allclose(fast, reference, atol=2e-5, rtol=1e-5)
+    # the same poses asked for one by one, in any order (shuffled, one repeated): the same rows
+    order = np.random.default_rng(1).permutation(len(wanted))
+    asked = np.append(wanted[order], wanted[order[0]])
+    picked = features_at(fields, skeleton, grid, layout, asked)
+    np.testing.assert_allclose(picked[:-1], fast[order], atol=1e-6, rtol=1e-6)
+    np.testing.assert_array_equal(picked[-1], picked[0])
 
 
 def test_place_joints_is_translation_plus_rotation_about_z():
@@ -220,6 +226,19 @@ def test_reuse_buffer_gives_the_same_values_as_fresh_chunks():
         for c in iter_features(fields, skeleton, grid, layout, chunk_mb=0.1, reuse_buffer=True)
     ]
     np.testing.assert_array_equal(np.concatenate(fresh), np.concatenate(reused))
+
+
+def test_features_at_refuses_indices_outside_the_grid_and_takes_none():
+    fields = _fields()
+    skeleton = get_skeleton("sitting-working")
+    grid = _sparse_grid(fields, skeleton, n_theta=2)
+    layout = FeatureLayout(1.0, 0.25, 0.10)
+    assert features_at(fields, skeleton, grid, layout, np.array([], dtype=int)).shape == (
+        0,
+        layout.n_features,
+    )
+    with pytest.raises(IndexError, match="pose indices"):
+        features_at(fields, skeleton, grid, layout, np.array([grid.size]))
 
 
 def test_poses_beyond_the_fields_are_a_clear_error():

@@ -14,7 +14,7 @@ from afford.app import app
 from affordcore.assembly import SensorFrame
 from affordcore.learn import learners as learner_registry
 from affordcore.learn.examples import RoomExamples
-from affordcore.learn.learners import LEARNERS, Learner
+from affordcore.learn.learners import LEARNERS, Fitted, Learner
 from affordcore.learn.train import fit
 from affordwire import messages, sensors
 from affordwire.sensors import SENSOR_DECODERS, decode_sensor
@@ -78,7 +78,7 @@ def test_every_registered_learner_is_documented():
 def test_a_learner_added_to_the_registry_trains_with_no_other_change(monkeypatch):
     def mean_difference(train, validation, params, rng):
         positive, negative = train.X[train.y > 0].mean(axis=0), train.X[train.y <= 0].mean(axis=0)
-        return positive - negative, 0.0, params.get("threshold", 0.0), {"rule": "mean difference"}
+        return Fitted(positive - negative, 0.0, params.get("threshold", 0.0), {"rule": "mean difference"})
 
     monkeypatch.setitem(
         LEARNERS, "mean-difference", Learner("mean-difference", "a test learner", mean_difference)
@@ -88,9 +88,9 @@ def test_a_learner_added_to_the_registry_trains_with_no_other_change(monkeypatch
     y = np.where(np.arange(200) < 20, 1, -1)
     X[y > 0] += 2.0
     examples = RoomExamples("room", X, y)
-    weights, bias, threshold, report = fit("mean-difference", examples, examples, {"threshold": 0.5}, seed=0)
-    np.testing.assert_allclose(weights, X[:20].mean(axis=0) - X[20:].mean(axis=0), rtol=1e-5)
-    assert (threshold, report) == (0.5, {"rule": "mean difference"})
+    fitted = fit("mean-difference", examples, examples, {"threshold": 0.5}, seed=0)
+    np.testing.assert_allclose(fitted.weights, X[:20].mean(axis=0) - X[20:].mean(axis=0), rtol=1e-5)
+    assert (fitted.threshold, fitted.report) == (0.5, {"rule": "mean difference"})
 
 
 def test_an_unknown_learner_names_the_registered_ones():

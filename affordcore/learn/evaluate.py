@@ -2,13 +2,16 @@
 
 Rooms are dealt into k folds (seeded). Each fold's rooms are the test set; the other rooms train, and a
 quarter of them (by room, `train.split_rooms`) is held out inside training to pick the structured SVM's
-iteration and zSVM's z. Test metrics are pose-level (DESIGN.md, "Metrics"), summed over the fold's rooms;
-results are means (and the standard deviation of F1) over folds.
+iteration and zSVM's z and to choose the thresholds. Test metrics are pose-level (DESIGN.md, "Metrics") over
+every pose of the fold's rooms, scored as `afford map` scores them; results are means (and the standard
+deviation of F1) over folds.
 
-The imbalance test (the paper's): on the first fold, the training rooms' negatives are undersampled to
+The imbalance test (the paper's): on the first fold, the training examples' negatives are undersampled to
 1:r for r = 1, 2, 4, ... 2048 and all, every learner is trained on that, and F1 is measured on the full test
-rooms. For `undersample` the ratio is the learner's own, so its curve is the plain SVM at each ratio.
-Features are computed once per room and affordance and held for all folds (25 cm cells: 0.9 KB a pose).
+rooms, each learner at its own threshold (the table's runs use thresholds chosen on the validation rooms).
+For `undersample` the ratio is the learner's own, so its curve is the plain SVM at each ratio. "All"
+is every positive and `learn.negatives_per_room` negatives per room (examples.py): the sample, not the grid.
+Features are computed once per room and affordance for the sampled poses only.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -24,11 +27,10 @@ import numpy as np
 from ..features import FeatureLayout
 from ..labels import load_labels
 from ..settings import Settings
-from .baselines import undersampled_indices
-from .examples import RoomExamples, data_set_rooms, room_examples
+from .examples import RoomExamples, Task, data_set_rooms, load_rooms, room_examples
 from .learners import LEARNERS
-from .ssvm import decision
-from .train import fit, metrics, split_rooms, stack
+from .thresholds import room_scores
+from .train import metrics, split_rooms, train_on_rooms
 
 SWEEP_RATIOS: tuple[int | None, ...] = (*(2**k for k in range(12)), None)  # 1:1 ... 1:2048, then all data
 
@@ -127,66 +129,37 @@ def evaluate(
     on_step: Callable[[str], None] | None = None,
 ) -> Evaluation:
     """Runs len(affordances) x (k x len(learners) + len(ratios) x len(learners)) trainings; `on_step`
-    hears each room's features and each training."""
+    hears each room's fields and each training."""
     unknown = [name for name in learners if name not in LEARNERS]
     if unknown:
         raise ValueError(f"unknown learner(s) {', '.join(unknown)}; choose from {', '.join(LEARNERS)}")
     settings = settings or Settings()
     layout = FeatureLayout.from_settings(settings.features, settings.voxel)
-    rooms = data_set_rooms(data)
-    held = {name: ",".join(load_labels(path).affordances) for name, _, path in rooms}
-    folds = deal_folds([name for name, _, _ in rooms], k, seed, held)
+    files = data_set_rooms(data)
+    held = {f.name: ",".join(load_labels(f.labels).affordances) for f in files}
+    folds = deal_folds([f.name for f in files], k, seed, held)
+    rooms = load_rooms(files, settings, lambda name: _tell(on_step, f"fields of {name}"))
     result = Evaluation(folds)
     for affordance in affordances:
-        examples = {}
-        for name, cloud, labels in rooms:
-            examples[name] = room_examples(cloud, labels, affordance, settings, layout)
-            _tell(on_step, f"{affordance}: features of {name}")
+        task = Task(affordance, settings, layout)
+        examples = {room.name: room_examples(room, task) for room in rooms}
         positives = sum(e.positives for e in examples.values())
-        total = sum(len(e.y) for e in examples.values())
+        negatives = sum(float(e.weights[e.y < 0].sum()) for e in examples.values())
         result.class_counts[affordance] = {
             "positives": positives,
-            "negatives": total - positives,
-            "ratio": (total - positives) / max(1, positives),
+            "negatives": int(round(negatives)),
+            "ratio": negatives / max(1, positives),
         }
-        for f, test_rooms in enumerate(folds):
-            split = _split(examples, test_rooms, affordance, f, seed)  # stacked once, shared by every learner
+        splits = [_split(examples, test_rooms, affordance, f, seed) for f, test_rooms in enumerate(folds)]
+        for split in splits:
             for learner in learners:
-                outcome = _run(
-                    examples, split, affordance, learner, None, (params or {}).get(learner, {}), seed
-                )
+                outcome = _run(examples, split, task, learner, None, (params or {}).get(learner, {}), seed)
                 result.outcomes.append(outcome)
-                _tell(on_step, f"{affordance}: {learner}, fold {f + 1}/{k}: F1 {outcome.f1:.3f}")
-        split = _split(examples, folds[0], affordance, 0, seed) if ratios else None
-        for ratio in ratios:
-            at_ratio = (
-                split
-                if ratio is None
-                else replace(
-                    split,
-                    training=_undersampled(split.training, ratio, np.random.default_rng([seed, 0, ratio])),
-                )
-            )
+                _tell(on_step, f"{affordance}: {learner}, fold {split.fold + 1}/{k}: F1 {outcome.f1:.3f}")
+        for ratio in ratios if splits else ():
             for learner in learners:
-                # fold 1's table run is the sweep's all-data point
-                if ratio is None and learner != "undersample":
-                    table_run = next(
-                        o
-                        for o in result.outcomes
-                        if o.affordance == affordance and o.learner == learner and o.fold == 0 and not o.sweep
-                    )
-                    result.outcomes.append(replace(table_run, sweep=True))
-                    continue
-                outcome = _run(
-                    examples,
-                    at_ratio,
-                    affordance,
-                    learner,
-                    ratio,
-                    (params or {}).get(learner, {}),
-                    seed,
-                    sweep=True,
-                )
+                learner_params = (params or {}).get(learner, {})
+                outcome = _run(examples, splits[0], task, learner, ratio, learner_params, seed, sweep=True)
                 result.outcomes.append(outcome)
                 _tell(
                     on_step,
@@ -203,13 +176,12 @@ def _tell(on_step, message: str) -> None:
 
 @dataclass
 class _Split:
-    """One fold's rooms and the stacked examples its learners train and validate on."""
+    """One fold's rooms: the test rooms, and the training rooms split into fitting and validation."""
 
     fold: int
     test_rooms: list[str]
+    fit_rooms: list[str]
     validation_rooms: list[str]
-    training: RoomExamples
-    validation: RoomExamples
 
 
 def _split(
@@ -219,55 +191,62 @@ def _split(
     fit_names, validation_names = split_rooms(
         train_names, seed + fold, positives={n: examples[n].positives for n in train_names}
     )
-    training = stack(examples, fit_names)
-    if training.positives == 0:
+    if sum(examples[n].positives for n in fit_names) == 0:
         raise ValueError(
             f"fold {fold + 1}: the training rooms {', '.join(fit_names)} hold no {affordance} label; use "
             "fewer folds or more rooms"
         )
-    return _Split(fold, test_rooms, validation_names, training, stack(examples, validation_names))
+    return _Split(fold, test_rooms, fit_names, validation_names)
 
 
 def _run(
     examples: dict[str, RoomExamples],
     split: _Split,
-    affordance: str,
+    task: Task,
     learner: str,
     ratio: int | None,
     params: dict,
     seed: int,
     sweep: bool = False,
 ) -> Outcome:
-    """Train one learner on the split (its training set already at `ratio`) and score the fold's test
-    rooms."""
+    """Train one learner on the split (its training examples undersampled to `ratio`) and score every pose of
+    the fold's test rooms as `afford map` does."""
     if sweep and learner == "undersample":  # in the imbalance test the plain SVM trains at the test's ratio
         params = {**params, "ratio": None if ratio is None else float(ratio)}
-    training = split.training
     start = time.perf_counter()
-    weights, bias, threshold, report = fit(learner, training, split.validation, params, seed)
-    report = {**report, "validation_rooms": split.validation_rooms}
+    model = train_on_rooms(
+        examples,
+        split.fit_rooms,
+        split.validation_rooms,
+        task,
+        learner,
+        params,
+        seed,
+        ratio,
+        own_threshold=sweep,
+    )
     seconds = time.perf_counter() - start
-    w = np.append(weights, bias)  # test rooms scored one by one: no copy of their features
-    scores = np.concatenate([decision(examples[name].X, w) for name in split.test_rooms])
-    scored = metrics(scores, np.concatenate([examples[name].y for name in split.test_rooms]), threshold)
+    rooms = {room.name: room for e in examples.values() for room in e.rooms}
+    scored = [room_scores(model, rooms[name], task.layout, task.settings) for name in split.test_rooms]
+    at = metrics(
+        np.concatenate([r.scores for r in scored]),
+        np.concatenate([r.labels for r in scored]),
+        model.threshold,
+    )
+    training = model.training
     return Outcome(
-        affordance,
+        task.affordance,
         learner,
         split.fold,
         ratio,
-        scored["precision"],
-        scored["recall"],
-        scored["f1"],
+        at["precision"],
+        at["recall"],
+        at["f1"],
         seconds,
-        (len(training.y) - training.positives) / training.positives,
+        training["negatives"] / max(1, training["positives"]),
         sweep,
-        report,
+        {**model.parameters.get("report", {}), "validation_rooms": split.validation_rooms},
     )
-
-
-def _undersampled(examples: RoomExamples, ratio: int, rng: np.random.Generator) -> RoomExamples:
-    keep = undersampled_indices(examples.y, ratio, rng)
-    return RoomExamples(examples.room, examples.X[keep], examples.y[keep])
 
 
 def write_outputs(evaluation: Evaluation, out: str | Path) -> list[Path]:

@@ -1,84 +1,171 @@
-"""Training examples: every scored pose of every room of a data set, its features and its label.
+"""Training examples: a data set's rooms, and a bounded sample of each room's labelled poses with features.
 
 A data set is a folder of ``<room>.ply`` clouds with ``<room>.labels.json`` beside them (`afford synth`
 writes them; the real rooms in ../shared/data/rooms have the same layout). Clouds are taken as they are
 (z-up, floor at 0: the labels are in the cloud's own frame). Poses inside unlabelled regions are left out.
-Features stream room by room and chunk by chunk into one float32 matrix per room, so a room never holds more
-than its own rows: 1.3 million poses x 222 features (25 cm cells) is 1.2 GB.
+
+Memory is bounded by design: a `Room` keeps only its voxel fields (a few MB), from which every pose can be
+scored (`inference.score_poses`) or featurised (`features.features_at`) on demand; and a room's examples are
+every positive pose plus a seeded random sample of `learn.negatives_per_room` negatives, each sampled
+negative standing for ``weight`` of them. 100 rooms at the default 20,000 negatives and 25 cm cells are
+1.8 GB of features, however fine the pose grid. Rooms are prepared in parallel processes.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from multiprocessing import get_context
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
-from ..features import FeatureLayout, iter_features
-from ..labels import ground_truth, load_labels
-from ..pipeline import prepare_scene
+from ..features import FeatureLayout, features_at
+from ..fields import SceneFields
+from ..grid import PoseGrid
+from ..labels import GroundTruth, LabelSet, ground_truth, load_labels
+from ..pipeline import pose_grid, prepare_scene
 from ..scene import load_cloud
 from ..settings import Settings
-from ..skeleton import get_skeleton
+from ..skeleton import Skeleton, get_skeleton
+
+
+class RoomFiles(NamedTuple):
+    name: str
+    cloud: Path
+    labels: Path
+
+
+@dataclass
+class Room:
+    """One labelled room, ready to score: its voxel fields and its labels (the cloud itself is let go)."""
+
+    name: str
+    fields: SceneFields
+    labels: LabelSet
+
+    def grid_and_truth(self, skeleton: Skeleton, settings: Settings) -> tuple[PoseGrid, GroundTruth]:
+        grid = pose_grid(self.fields, skeleton, settings)
+        return grid, ground_truth(self.labels, skeleton.affordance, grid)
+
+
+@dataclass
+class Task:
+    """What a learner is fitting: one affordance's skeleton on one feature layout under these settings."""
+
+    affordance: str
+    settings: Settings
+    layout: FeatureLayout
+
+    @property
+    def skeleton(self) -> Skeleton:
+        return get_skeleton(self.affordance, self.settings.skeleton_dirs)
 
 
 @dataclass
 class RoomExamples:
+    """Feature rows and labels (+1 / -1) of sampled poses, of one room or stacked over several. `weight` is
+    how many poses each row stands for (1 for positives, the sampling's inverse rate for negatives);
+    `rooms` and `task` let a learner go back to the rooms themselves (the cascade scores all their poses)."""
+
     room: str
     X: np.ndarray  # (n, n_features) float32
     y: np.ndarray  # (n,) int8 in {-1, +1}
+    weight: np.ndarray | None = None  # (n,) float32; None: every row stands for itself
+    rooms: list[Room] = field(default_factory=list)
+    task: Task | None = None
 
     @property
     def positives(self) -> int:
         return int(np.sum(self.y > 0))
 
+    @property
+    def weights(self) -> np.ndarray:
+        return np.ones(len(self.y), dtype=np.float32) if self.weight is None else self.weight
 
-def data_set_rooms(folder: str | Path) -> list[tuple[str, Path, Path]]:
+
+def data_set_rooms(folder: str | Path) -> list[RoomFiles]:
     """(room, cloud, labels) for every cloud with a label file beside it, sorted by name."""
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such data set folder")
-    rooms = [(p.stem, p, p.with_name(p.stem + ".labels.json")) for p in sorted(folder.glob("*.ply"))]
-    rooms = [r for r in rooms if r[2].exists()]
+    rooms = [RoomFiles(p.stem, p, p.with_name(p.stem + ".labels.json")) for p in sorted(folder.glob("*.ply"))]
+    rooms = [r for r in rooms if r.labels.exists()]
     if not rooms:
         raise FileNotFoundError(f"{folder}: no <room>.ply with a <room>.labels.json beside it")
     return rooms
 
 
+def load_room(files: RoomFiles, settings: Settings) -> Room:
+    labels = load_labels(files.labels)  # a bad label file fails before the cloud is read
+    scene = prepare_scene(load_cloud(files.cloud), settings, "none")
+    return Room(files.name, scene.fields, labels)
+
+
+def load_rooms(
+    rooms: list[RoomFiles], settings: Settings, on_room: Callable[[str], None] | None = None
+) -> list[Room]:
+    """Every room's fields, computed in parallel processes (`learn.workers`), in the order given."""
+    workers = min(len(rooms), settings.learn.workers or _cores())
+    if workers <= 1:
+        loaded = []
+        for files in rooms:
+            loaded.append(load_room(files, settings))
+            _tell(on_room, files.name)
+        return loaded
+    # spawn, not fork: open3d and BLAS threads do not survive a fork
+    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+        futures = [pool.submit(load_room, files, settings) for files in rooms]
+        loaded = []
+        for files, future in zip(rooms, futures):
+            loaded.append(future.result())
+            _tell(on_room, files.name)
+    return loaded
+
+
 def room_examples(
-    cloud: Path,
-    labels_path: Path,
-    affordance: str,
-    settings: Settings,
-    layout: FeatureLayout,
-    on_chunk: Callable[[int], None] | None = None,
+    room: Room, task: Task, negatives: int | None = None, rng: np.random.Generator | None = None
 ) -> RoomExamples:
-    skeleton = get_skeleton(affordance, settings.skeleton_dirs)
-    labels = load_labels(labels_path)
-    scene = prepare_scene(load_cloud(cloud), settings, "none")
-    grid = scene.pose_grid(skeleton, settings)
-    truth = ground_truth(labels, affordance, grid)
-    scored = truth.scored_mask().ravel()
-    positive = truth.pose_mask().ravel()
-    X = np.empty((int(scored.sum()), layout.n_features), dtype=np.float32)
-    row = 0
-    for chunk in iter_features(
-        scene.fields, skeleton, grid, layout, settings.features.chunk_mb, reuse_buffer=True
-    ):
-        keep = scored[chunk.start : chunk.stop]
-        X[row : row + int(keep.sum())] = chunk.values[keep]
-        row += int(keep.sum())
-        if on_chunk:
-            on_chunk(chunk.stop - chunk.start)
-    y = np.where(positive[scored], 1, -1).astype(np.int8)
-    return RoomExamples(cloud.stem, X, y)
+    """Every positive pose of the room and `negatives` of its negatives (default `learn.negatives_per_room`;
+    0 or more than there are: all), drawn with `rng` (default: seeded by the room's name)."""
+    negatives = task.settings.learn.negatives_per_room if negatives is None else negatives
+    rng = rng or np.random.default_rng(list(room.name.encode()))
+    skeleton = task.skeleton
+    grid, truth = room.grid_and_truth(skeleton, task.settings)
+    scored, positive = truth.scored_mask().ravel(), truth.pose_mask().ravel()
+    wanted_positives = np.flatnonzero(scored & positive)
+    wanted_negatives = np.flatnonzero(scored & ~positive)
+    weight = 1.0
+    if 0 < negatives < len(wanted_negatives):
+        weight = len(wanted_negatives) / negatives
+        wanted_negatives = np.sort(rng.choice(wanted_negatives, negatives, replace=False))
+    index = np.concatenate([wanted_positives, wanted_negatives])
+    X = features_at(room.fields, skeleton, grid, task.layout, index)
+    y = np.repeat(np.array([1, -1], dtype=np.int8), [len(wanted_positives), len(wanted_negatives)])
+    weights = np.where(y > 0, 1.0, weight).astype(np.float32)
+    return RoomExamples(room.name, X, y, weights, [room], task)
 
 
-def load_examples(
-    folder: str | Path, affordance: str, settings: Settings | None = None, layout: FeatureLayout | None = None
-) -> Iterator[RoomExamples]:
-    settings = settings or Settings()
-    layout = layout or FeatureLayout.from_settings(settings.features, settings.voxel)
-    for _, cloud, labels in data_set_rooms(folder):
-        yield room_examples(cloud, labels, affordance, settings, layout)
+def stack(examples: dict[str, RoomExamples], names: list[str]) -> RoomExamples:
+    chosen = [examples[n] for n in names]
+    return RoomExamples(
+        "+".join(names),
+        np.concatenate([e.X for e in chosen]),
+        np.concatenate([e.y for e in chosen]),
+        np.concatenate([e.weights for e in chosen]),
+        [room for e in chosen for room in e.rooms],
+        chosen[0].task if chosen else None,
+    )
+
+
+def _cores() -> int:
+    import os
+
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def _tell(on_room: Callable[[str], None] | None, name: str) -> None:
+    if on_room:
+        on_room(name)

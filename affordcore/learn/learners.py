@@ -5,7 +5,7 @@ a learner fits, so the command line can list them instantly."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -13,7 +13,17 @@ if TYPE_CHECKING:
 
     from .examples import RoomExamples
 
-Fitted = tuple["np.ndarray", float, float, dict]  # weights, bias, threshold, what the learner reports
+
+@dataclass
+class Fitted:
+    """What a learner returns: the linear (first) stage, its threshold, what the learner reports, and a
+    cascade's second stage."""
+
+    weights: np.ndarray
+    bias: float
+    threshold: float
+    report: dict = field(default_factory=dict)
+    rescorer: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -31,7 +41,7 @@ def _ssvm(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> F
     best = result.best
     # in SVMperf's units (summed Psi): the same sign, scores of order one
     weights = best.weights / len(train.y)
-    return (
+    return Fitted(
         weights[:-1],
         float(weights[-1]),
         0.0,
@@ -51,7 +61,7 @@ def _baseline(make: Callable) -> Callable[..., Fitted]:
 
     def fit(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> Fitted:
         model = make(train, validation, params, rng)
-        return model.weights, model.bias, model.threshold, {}
+        return Fitted(model.weights, model.bias, model.threshold)
 
     return fit
 
@@ -88,6 +98,12 @@ def _linear_tuned(train, validation, params, rng):
     return linear_tuned(train.X, train.y, params.get("C", 1.0))
 
 
+def _cascade(train, validation, params, rng) -> Fitted:
+    from .cascade import fit_cascade
+
+    return fit_cascade(train, validation, params, rng)
+
+
 LEARNERS: dict[str, Learner] = {
     learner.name: learner
     for learner in (
@@ -102,6 +118,11 @@ LEARNERS: dict[str, Learner] = {
             "linear-tuned",
             "linear SVM on all data, threshold tuned for F1 (the baseline to beat)",
             _baseline(_linear_tuned),
+        ),
+        Learner(
+            "cascade",
+            "a linear first stage over every pose, its best few percent rescored by boosted trees",
+            _cascade,
         ),
     )
 }

@@ -1,9 +1,11 @@
-"""Model files: one linear classifier per affordance, versioned and self-describing (JSON), and the default
-models the package ships (`shipped_models`, `choose_models`).
+"""Model files: one classifier per affordance, versioned and self-describing (JSON), and the default models
+the package ships (`shipped_models`, `choose_models`).
 
 A model says what it was trained for and on: the affordance and its skeleton, the feature layout (with the
 fingerprint of `FeatureLayout.describe()`), the pose grid's resolution, the learner and its parameters, the
-weights, bias and threshold, the training rooms with their class counts, and validation metrics. Loading a
+weights, bias and threshold, the training rooms with their class counts, and validation metrics. A cascade
+(`learn/cascade.py`) also holds its second stage: the fraction of poses it rescores and its trees as node
+tables (data, never pickled code); `place_threshold` is the score a skeleton-map place must beat. Loading a
 model against a feature layout other than its own is a `ModelError`, not a silent wrong answer.
 """
 
@@ -12,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import asdict, dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -19,8 +22,10 @@ import numpy as np
 from ..features import FeatureLayout
 from ..jsonfile import read_json
 from ..skeleton import Skeleton
+from ..trees import TreeEnsemble
 
-FORMAT = "affordance-model/1"
+FORMAT = "affordance-model/2"
+READABLE = ("affordance-model/1", FORMAT)  # /2 added the optional place_threshold and rescorer
 MODELS_DIR = Path(__file__).parents[1] / "data" / "models"  # the shipped default models, one per affordance
 
 
@@ -42,12 +47,17 @@ class AffordanceModel:
     grid: dict = field(default_factory=dict)  # step, theta_step, n_theta, z levels
     training: dict = field(default_factory=dict)  # rooms and class counts
     validation: dict = field(default_factory=dict)  # precision, recall, f1
+    place_threshold: float | None = None  # None: the threshold
+    rescorer: dict | None = None  # the cascade's second stage: {"fraction", "trees"}
 
     @property
     def id(self) -> str:
         """affordance/learner/hash of the weights: names exactly this model in the maps it makes."""
+        second = json.dumps([self.place_threshold, self.rescorer], sort_keys=True)
         digest = hashlib.sha256(
-            np.asarray(self.weights, dtype=np.float64).tobytes() + repr((self.bias, self.threshold)).encode()
+            np.asarray(self.weights, dtype=np.float64).tobytes()
+            + repr((self.bias, self.threshold)).encode()
+            + (second.encode() if self.place_threshold is not None or self.rescorer else b"")
         )
         return f"{self.affordance}/{self.learner}/{digest.hexdigest()[:12]}"
 
@@ -64,6 +74,15 @@ class AffordanceModel:
     def decision(self, X: np.ndarray) -> np.ndarray:
         return X @ self.weights.astype(X.dtype, copy=False) + self.bias
 
+    @property
+    def skeleton_threshold(self) -> float:
+        """The score a place of the skeleton map must beat."""
+        return self.threshold if self.place_threshold is None else self.place_threshold
+
+    @cached_property
+    def trees(self) -> TreeEnsemble | None:
+        return TreeEnsemble.from_dict(self.rescorer["trees"]) if self.rescorer else None
+
     def check_layout(self, layout: FeatureLayout, source: str = "model") -> None:
         if layout.fingerprint != self.fingerprint:
             raise ModelError(
@@ -75,7 +94,11 @@ class AffordanceModel:
     def save(self, path: str | Path) -> Path:
         path = Path(path)
         document = {"format": FORMAT, **asdict(self), "weights": [float(v) for v in self.weights]}
-        path.write_text(json.dumps(document, indent=1) + "\n")
+        rescorer = document.pop("rescorer")
+        text = json.dumps(document, indent=1)
+        if rescorer:  # thousands of tree nodes: one compact line rather than one line per number
+            text = text[: text.rindex("}")].rstrip() + ',\n "rescorer": ' + json.dumps(rescorer) + "\n}"
+        path.write_text(text + "\n")
         return path
 
 
@@ -83,7 +106,7 @@ def load_model(path: str | Path, layout: FeatureLayout | None = None) -> Afforda
     """Read a model file; with `layout`, refuse a model made for another feature layout."""
     path = Path(path)
     document = read_json(path, ModelError)
-    if not isinstance(document, dict) or document.get("format") != FORMAT:
+    if not isinstance(document, dict) or document.get("format") not in READABLE:
         raise ModelError(
             f"{path}: not an {FORMAT} file (format "
             f"{document.get('format') if isinstance(document, dict) else None!r})"
@@ -92,6 +115,7 @@ def load_model(path: str | Path, layout: FeatureLayout | None = None) -> Afforda
         document.pop("format")
         weights = np.asarray(document.pop("weights"), dtype=np.float64)
         model = AffordanceModel(weights=weights, **document)
+        _ = model.trees  # a malformed second stage fails here, not in the middle of a map
     except (KeyError, TypeError, ValueError) as error:
         raise ModelError(f"{path}: malformed model ({error})") from error
     if len(model.weights) != model.layout.get("n_features"):

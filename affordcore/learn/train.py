@@ -1,25 +1,27 @@
 """One interface to every learner: rooms in, an `AffordanceModel` out.
 
 Rooms are split by room, never by pose: a seeded quarter of them (at least one, when there are two or more)
-is held out for validation, which picks the structured SVM's iteration and zSVM's z and gives the model's
-validation metrics. With a single room, validation uses the training room (and says so).
+is held out for validation, which picks the structured SVM's iteration and zSVM's z, chooses the pose and
+place thresholds, and gives the model's validation metrics. With a single room, validation uses the training
+room (and says so).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from ..features import FeatureLayout
 from ..settings import Settings
-from ..skeleton import get_skeleton
-from .examples import RoomExamples, data_set_rooms, room_examples
+from .baselines import undersampled_indices
+from .examples import RoomExamples, Task, data_set_rooms, load_rooms, room_examples, stack
 from .f1_argmax import f1_loss
 from .learners import Fitted, get_learner
 from .model import AffordanceModel
-from .ssvm import decision
+from .thresholds import place_threshold, pose_threshold, room_scores
 
 
 def metrics(scores: np.ndarray, labels: np.ndarray, threshold: float) -> dict:
@@ -56,7 +58,7 @@ def split_rooms(
 
 
 def fit(learner: str, train: RoomExamples, validation: RoomExamples, params: dict, seed: int) -> Fitted:
-    """(weights, bias, threshold, what the learner reports) of one registered learner."""
+    """What one registered learner fits (weights, bias, threshold, report, and a cascade's second stage)."""
     return get_learner(learner).fit(train, validation, params, np.random.default_rng(seed))
 
 
@@ -69,53 +71,86 @@ def train(
     seed: int = 0,
     on_room: Callable[[str], None] | None = None,
 ) -> AffordanceModel:
+    """A model of one affordance from a data set folder: rooms split into training and validation by room."""
     get_learner(learner)  # an unknown learner fails before the rooms are read
     settings = settings or Settings()
-    layout = FeatureLayout.from_settings(settings.features, settings.voxel)
-    rooms = data_set_rooms(data)
-    examples = {}
-    for name, cloud, labels in rooms:
-        examples[name] = room_examples(cloud, labels, affordance, settings, layout)
-        if on_room:
-            on_room(name)
+    task = Task(affordance, settings, FeatureLayout.from_settings(settings.features, settings.voxel))
+    rooms = load_rooms(data_set_rooms(data), settings, on_room)
+    examples = {room.name: room_examples(room, task) for room in rooms}
     train_names, validation_names = split_rooms(
         list(examples), seed, positives={n: e.positives for n, e in examples.items()}
     )
+    if sum(examples[n].positives for n in train_names) == 0:
+        raise ValueError(f"{data}: the training rooms hold no {affordance} label")
+    return train_on_rooms(examples, train_names, validation_names, task, learner, params, seed)
+
+
+def train_on_rooms(
+    examples: dict[str, RoomExamples],
+    train_names: list[str],
+    validation_names: list[str],
+    task: Task,
+    learner: str,
+    params: dict | None = None,
+    seed: int = 0,
+    negatives_per_positive: float | None = None,
+    own_threshold: bool = False,
+) -> AffordanceModel:
+    """Fit on the training rooms' examples, then choose the pose and place thresholds on the validation
+    rooms scored as `afford map` scores them (`thresholds.py`). `negatives_per_positive` undersamples the
+    training examples further, and `own_threshold` keeps the learner's own pose threshold: the paper's
+    imbalance test, which is about how each learner's own decision rule bears the imbalance."""
     training, validation = stack(examples, train_names), stack(examples, validation_names)
     if training.positives == 0:
-        raise ValueError(f"{data}: the training rooms hold no {affordance} label")
-    weights, bias, threshold, report = fit(learner, training, validation, params or {}, seed)
-    skeleton = get_skeleton(affordance, settings.skeleton_dirs)
-    return AffordanceModel(
-        affordance=affordance,
-        layout=layout.describe(),
-        fingerprint=layout.fingerprint,
-        weights=np.asarray(weights, dtype=np.float64),
-        bias=float(bias),
-        threshold=float(threshold),
+        raise ValueError(f"the training rooms {', '.join(train_names)} hold no {task.affordance} label")
+    if negatives_per_positive is not None:
+        keep = undersampled_indices(training.y, negatives_per_positive, np.random.default_rng([seed, 1]))
+        training = replace(training, X=training.X[keep], y=training.y[keep], weight=training.weights[keep])
+    fitted = fit(learner, training, validation, params or {}, seed)
+    model = AffordanceModel(
+        affordance=task.affordance,
+        layout=task.layout.describe(),
+        fingerprint=task.layout.fingerprint,
+        weights=np.asarray(fitted.weights, dtype=np.float64),
+        bias=float(fitted.bias),
+        threshold=float(fitted.threshold),
         learner=learner,
-        parameters={**(params or {}), "seed": seed, **({"report": report} if report else {})},
-        skeleton={
-            "joints": skeleton.joints.round(4).tolist(),
-            "torso_height": skeleton.torso_height,
-            "source": skeleton.source,
-        },
-        grid=settings.grid.model_dump(),
+        parameters={**(params or {}), "seed": seed, **({"report": fitted.report} if fitted.report else {})},
+        skeleton=_skeleton_record(task),
+        grid=task.settings.grid.model_dump(),
         training={
             "rooms": train_names,
             "positives": training.positives,
             "negatives": int(len(training.y) - training.positives),
+            "negatives_stand_for": int(training.weights[training.y < 0].sum()),
         },
-        validation={
-            "rooms": validation_names,
-            **metrics(decision(validation.X, np.append(weights, bias)), validation.y, threshold),
-        },
+        rescorer=fitted.rescorer,
     )
+    rooms = {room.name: room for e in examples.values() for room in e.rooms}
+    scored = [room_scores(model, rooms[name], task.layout, task.settings) for name in validation_names]
+    tuned, f1 = pose_threshold(scored)
+    if not own_threshold:
+        model.threshold = tuned
+    model.place_threshold, places = place_threshold(scored)
+    positives = sum(int((r.labels > 0).sum()) for r in scored)
+    model.validation = {
+        "rooms": validation_names,
+        "learner_threshold": float(fitted.threshold),
+        **metrics(
+            np.concatenate([r.scores for r in scored]),
+            np.concatenate([r.labels for r in scored]),
+            model.threshold,
+        ),
+        "positives": positives,
+        **places,
+    }
+    return model
 
 
-def stack(examples: dict[str, RoomExamples], names: list[str]) -> RoomExamples:
-    return RoomExamples(
-        "+".join(names),
-        np.concatenate([examples[n].X for n in names]),
-        np.concatenate([examples[n].y for n in names]),
-    )
+def _skeleton_record(task: Task) -> dict:
+    skeleton = task.skeleton
+    return {
+        "joints": skeleton.joints.round(4).tolist(),
+        "torso_height": skeleton.torso_height,
+        "source": skeleton.source,
+    }

@@ -1,0 +1,140 @@
+"""The cascade: one of the paper's linear learners scores every pose without features, then gradient-boosted
+trees rescore its best few percent from their full features.
+
+Why: a linear score of geometric features ranks poses poorly (a seat and a desk top look alike to it), but
+its top 3 % of poses hold nearly every positive, and trees cost about 100 us a pose: too slow for millions
+of poses, cheap for the few it passes on. The trees are trained on exactly what they will see at inference:
+each training room is scored by the first stage and its top `fraction` of poses (near scanned floor, outside
+unlabelled regions) are featurised with `features.features_at` and labelled from the ground truth.
+
+Trees: scikit-learn's HistGradientBoostingClassifier (already a dependency; LightGBM would add a compiled one
+for no measured gain at these sizes), positives up-weighted to a fixed share, stored as node tables
+(`trees.TreeEnsemble`) so model files stay data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..features import features_at
+from ..pipeline import score_model
+from ..trees import TreeEnsemble
+from .examples import Room, RoomExamples, Task
+from .learners import Fitted, get_learner
+
+LOWEST = np.finfo(np.float32).min
+
+
+@dataclass(frozen=True)
+class TreeSettings:
+    """The second stage's boosting; chosen once on generated validation rooms, never on the real ones."""
+
+    max_iter: int = 150
+    learning_rate: float = 0.1
+    max_leaf_nodes: int = 31
+    max_depth: int = 8  # inference walks every tree to its depth: bounded, so rescoring stays cheap
+    min_samples_leaf: int = 40
+    l2_regularization: float = 1.0
+    positive_share: float = 0.25  # positives weighted up until they carry this share of the total weight
+
+
+def second_stage_examples(
+    rooms: list[Room],
+    task: Task,
+    weights: np.ndarray,
+    bias: float,
+    fraction: float,
+    rng: np.random.Generator,
+    max_negatives: int = 4000,
+) -> RoomExamples:
+    """The poses the trees will rescore at inference, with their features and labels, from every room."""
+    from .model import AffordanceModel
+
+    first = AffordanceModel(
+        task.affordance, {}, "", weights, bias, 0.0, "first-stage", skeleton=_skeleton(task)
+    )
+    Xs, ys, ws = [], [], []
+    for room in rooms:
+        grid, scores = score_model(first, room.fields, task.layout, task.settings)
+        _, truth = room.grid_and_truth(task.skeleton, task.settings)
+        flat = scores.ravel()
+        # unlabelled poses are neither taught as positive nor as negative
+        flat[truth.scored_mask().ravel() == 0] = LOWEST
+        live = int(np.count_nonzero(flat > LOWEST))
+        keep = min(live, int(np.ceil(fraction * live)))
+        if keep == 0:
+            continue
+        best = np.argpartition(flat, len(flat) - keep)[len(flat) - keep :]
+        label = truth.pose_mask().ravel()[best]
+        # every positive the first stage passes on, and a bounded sample of its negatives (weighted back)
+        negatives = np.flatnonzero(~label)
+        rate = min(1.0, max_negatives / max(1, len(negatives)))
+        if rate < 1.0:
+            negatives = rng.choice(negatives, max_negatives, replace=False)
+        chosen = np.concatenate([np.flatnonzero(label), negatives])
+        Xs.append(features_at(room.fields, task.skeleton, grid, task.layout, best[chosen]))
+        ys.append(np.where(label[chosen], 1, -1).astype(np.int8))
+        ws.append(np.where(label[chosen], 1.0, 1.0 / rate).astype(np.float32))
+    return RoomExamples("second-stage", np.concatenate(Xs), np.concatenate(ys), np.concatenate(ws))
+
+
+def fit_trees(examples: RoomExamples, settings: TreeSettings, seed: int) -> TreeEnsemble:
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    positive = examples.y > 0
+    weights = examples.weights
+    share = weights[positive].sum() / weights.sum()
+    up = max(1.0, settings.positive_share * (1 - share) / max(share * (1 - settings.positive_share), 1e-12))
+    model = HistGradientBoostingClassifier(
+        max_iter=settings.max_iter,
+        learning_rate=settings.learning_rate,
+        max_leaf_nodes=settings.max_leaf_nodes,
+        max_depth=settings.max_depth,
+        min_samples_leaf=settings.min_samples_leaf,
+        l2_regularization=settings.l2_regularization,
+        early_stopping=False,
+        random_state=seed,
+    )
+    model.fit(examples.X, positive.astype(int), sample_weight=np.where(positive, up, 1.0) * weights)
+    return TreeEnsemble.from_sklearn(model)
+
+
+def fit_cascade(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> Fitted:
+    """params: ``first`` (the first stage's learner, default ``linear-tuned``), ``fraction`` (default
+    `learn.rescore_fraction`), ``first_params``, and any `TreeSettings` field."""
+    task = train.task
+    if task is None or not train.rooms:
+        raise ValueError("the cascade learns from rooms: train it with `afford train` / `train.train`")
+    first_name = params.get("first", "linear-tuned")
+    if first_name == "cascade":
+        raise ValueError("a cascade's first stage must be a linear learner")
+    first = get_learner(first_name).fit(train, validation, params.get("first_params", {}), rng)
+    fraction = float(params.get("fraction", task.settings.learn.rescore_fraction))
+    trees_settings = TreeSettings(
+        **{k: v for k, v in params.items() if k in TreeSettings.__dataclass_fields__}
+    )
+    examples = second_stage_examples(train.rooms, task, first.weights, first.bias, fraction, rng)
+    trees = fit_trees(examples, trees_settings, int(rng.integers(2**31)))
+    return Fitted(
+        first.weights,
+        first.bias,
+        0.0,
+        {
+            "first": first_name,
+            "second_stage_rows": len(examples.y),
+            "second_stage_positives": examples.positives,
+            **{k: v for k, v in first.report.items() if k not in ("train_f1", "validation_f1")},
+        },
+        rescorer={"fraction": fraction, "trees": trees.to_dict()},
+    )
+
+
+def _skeleton(task: Task) -> dict:
+    skeleton = task.skeleton
+    return {
+        "joints": skeleton.joints.tolist(),
+        "torso_height": skeleton.torso_height,
+        "source": skeleton.source,
+    }

@@ -1,0 +1,103 @@
+"""Thresholds chosen on held-out rooms, as `afford map` will use them: every pose of every validation room is
+scored by the model's full path (`pipeline.score_model`: the cascade included, only cells near scanned floor),
+then
+
+* the pose threshold is the one with the best pose F1 over all those rooms' scored poses, and
+* the place threshold is the one with the best place F1 of the skeleton maps: a labelled place is found when
+  a skeleton above the threshold matches it (labels.match_places), a skeleton is false when it matches none.
+
+Greedy non-maximum suppression keeps, among the cells above any threshold t, exactly the places it keeps
+among all cells that score above t (a place is only ever suppressed by a better one). So one skeleton map per
+room at the lowest score gives every threshold's skeletons at once: the place threshold is exact, one sort.
+
+Training samples its negatives, so a learner's own threshold was fitted to the sample's class ratio, not the
+room's: this step puts every learner's threshold back on the real distribution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..labels import ground_truth, place_matches
+from ..maps import build_map
+from ..pipeline import score_model
+from ..settings import Settings
+from .baselines import tune_threshold
+from .examples import Room
+
+LOWEST = np.finfo(np.float32).min
+
+
+@dataclass
+class RoomScores:
+    """One room's scored poses (as the map scores them) against the ground truth, and its candidate places:
+    every skeleton of the map at the lowest threshold with the label it matches."""
+
+    room: str
+    scores: np.ndarray  # scored poses only (not in an unlabelled region)
+    labels: np.ndarray  # +1 / -1 per scored pose
+    place_scores: np.ndarray  # (k,) the candidate skeletons' scores
+    place_false: np.ndarray  # (k,) bool: matches no label (ignored ones are left out)
+    label_best: np.ndarray  # (n_labels,) the best score of a skeleton matching each label (LOWEST: none)
+
+
+def room_scores(model, room: Room, layout, settings: Settings, **tolerances: float) -> RoomScores:
+    """The room scored by `model` as `afford map` scores it; `tolerances` (xy_tolerance, theta_tolerance)
+    loosen the ground truth and the place matching alike."""
+    grid, scores = score_model(model, room.fields, layout, settings)
+    truth = ground_truth(room.labels, model.affordance, grid, **tolerances)
+    scored = truth.scored_mask().ravel()
+    y = np.where(truth.pose_mask().ravel()[scored], 1, -1).astype(np.int8)
+    live = scores[scores > LOWEST]
+    lowest = np.nextafter(np.float32(live.min()), LOWEST) if len(live) else LOWEST
+    # every candidate place: the skeleton map at the lowest threshold
+    skeletons = build_map(
+        model.affordance, scores, grid, model.as_skeleton(), lowest, settings.map.nms_radius
+    ).skeletons
+    matches, ignored = place_matches(room.labels, model.affordance, skeletons[:, [0, 1, 3]], **tolerances)
+    score = skeletons[:, 4]
+    label_best = np.max(np.where(matches, score, LOWEST), axis=1, initial=LOWEST)
+    counted = ~ignored
+    return RoomScores(
+        room.name, scores.ravel()[scored], y, score[counted], ~matches.any(axis=0)[counted], label_best
+    )
+
+
+def pose_threshold(rooms: list[RoomScores]) -> tuple[float, float]:
+    """(threshold, pose F1) over every scored pose of the rooms; ruled-out poses never count as positive."""
+    scores = np.concatenate([r.scores for r in rooms])
+    labels = np.concatenate([r.labels for r in rooms])
+    live = scores > LOWEST
+    if not (labels[live] > 0).any():
+        return 0.0, 0.0
+    threshold, _ = tune_threshold(scores[live], labels[live])
+    return threshold, pose_f1(scores, labels, threshold)
+
+
+def pose_f1(scores: np.ndarray, labels: np.ndarray, threshold: float) -> float:
+    predicted, positive = scores > threshold, labels > 0
+    tp = int(np.sum(predicted & positive))
+    return 2 * tp / max(1, int(positive.sum()) + int(predicted.sum()))
+
+
+def place_threshold(rooms: list[RoomScores]) -> tuple[float, dict]:
+    """(threshold, what it gives) with the best place F1 over the rooms: recall = labelled places found /
+    labelled places, precision = true skeletons / skeletons."""
+    candidates = np.unique(np.concatenate([r.place_scores for r in rooms] + [np.array([LOWEST])]))
+    best = None
+    for t in candidates:  # distinct skeleton scores: a few hundred, not poses
+        kept = sum(int(np.sum(r.place_scores > t)) for r in rooms)
+        false = sum(int(np.sum(r.place_false & (r.place_scores > t))) for r in rooms)
+        found = sum(int(np.sum(r.label_best > t)) for r in rooms)
+        labels = sum(len(r.label_best) for r in rooms)
+        recall = found / labels if labels else 0.0
+        precision = (kept - false) / kept if kept else 0.0
+        f1 = 2 * recall * precision / (recall + precision) if recall + precision else 0.0
+        # ties (rooms with no such place at all: F1 0 everywhere) go to the fewer false skeletons
+        key = (f1, -false)
+        if best is None or key > best[0]:
+            stats = {"place_f1": f1, "place_recall": recall, "false_per_room": false / max(1, len(rooms))}
+            best = (key, float(t), stats)
+    return best[1], best[2]

@@ -1,0 +1,92 @@
+"""The second stage: trees stored as data score as scikit-learn does, a cascade model file round-trips,
+and the place threshold is the best one."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from affordcore.learn.model import AffordanceModel, ModelError, load_model
+from affordcore.learn.thresholds import RoomScores, place_threshold
+from affordcore.trees import TreeEnsemble
+
+
+@pytest.fixture(scope="module")
+def boosted():
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(3000, 6)).astype(np.float32)
+    y = (X[:, 0] * X[:, 1] + 0.3 * rng.normal(size=3000) > 0.8).astype(int)
+    model = HistGradientBoostingClassifier(max_iter=40, max_depth=5, random_state=0).fit(X, y)
+    return model, X
+
+
+def test_stored_trees_score_as_scikit_learn(boosted):
+    model, X = boosted
+    trees = TreeEnsemble.from_dict(TreeEnsemble.from_sklearn(model).to_dict())
+    np.testing.assert_allclose(trees.log_odds(X, chunk=700), model.decision_function(X), atol=1e-9)
+    # NaN follows each split's missing-value side, as scikit-learn's does
+    X_nan = X[:50].copy()
+    X_nan[::3, 0] = np.nan
+    np.testing.assert_allclose(trees.log_odds(X_nan), model.decision_function(X_nan), atol=1e-9)
+
+
+def test_malformed_tree_tables_are_refused(boosted):
+    document = TreeEnsemble.from_sklearn(boosted[0]).to_dict()
+    document["nodes"]["left"][0] = 10**6
+    with pytest.raises(ValueError, match="links outside"):
+        TreeEnsemble.from_dict(document)
+
+
+def _cascade_model(trees: TreeEnsemble, n_features: int) -> AffordanceModel:
+    return AffordanceModel(
+        affordance="sitting-relaxing",
+        layout={"n_features": n_features},
+        fingerprint="f",
+        weights=np.arange(n_features, dtype=float),
+        bias=0.5,
+        threshold=0.1,
+        learner="cascade",
+        place_threshold=0.7,
+        rescorer={"fraction": 0.03, "trees": trees.to_dict()},
+    )
+
+
+def test_a_cascade_model_file_round_trips_and_a_broken_one_is_named(boosted, tmp_path):
+    model = _cascade_model(TreeEnsemble.from_sklearn(boosted[0]), 6)
+    path = model.save(tmp_path / "m.model.json")
+    back = load_model(path)
+    assert back.id == model.id and back.skeleton_threshold == 0.7
+    np.testing.assert_array_equal(back.trees.log_odds(boosted[1][:20]), model.trees.log_odds(boosted[1][:20]))
+    other = _cascade_model(TreeEnsemble.from_sklearn(boosted[0]), 6)
+    other.place_threshold = 0.8
+    assert other.id != model.id  # the id names the whole model, second stage included
+    text = path.read_text().replace('"roots": [', '"roots": [99999, ')
+    path.write_text(text)
+    with pytest.raises(ModelError, match="m.model.json"):
+        load_model(path)
+
+
+def test_the_place_threshold_maximises_place_f1():
+    # room a: two labels found by skeletons scoring 0.9 and 0.4, false skeletons at 0.6 and 0.2
+    # room b: no label, one false skeleton at 0.5
+    rooms = [
+        RoomScores("a", np.zeros(0), np.zeros(0), np.array([0.9, 0.4, 0.6, 0.2]),
+                   np.array([False, False, True, True]), np.array([0.9, 0.4])),
+        RoomScores("b", np.zeros(0), np.zeros(0), np.array([0.5]), np.array([True]), np.zeros(0)),
+    ]  # fmt: skip
+    threshold, stats = place_threshold(rooms)
+
+    def place_f1(t):
+        kept = sum(int((r.place_scores > t).sum()) for r in rooms)
+        false = sum(int((r.place_false & (r.place_scores > t)).sum()) for r in rooms)
+        found = sum(int((r.label_best > t).sum()) for r in rooms)
+        recall, precision = found / 2, (kept - false) / kept if kept else 0.0
+        return 2 * recall * precision / (recall + precision) if recall + precision else 0.0
+
+    best = max(place_f1(t) for t in np.linspace(-1, 1, 2001))
+    assert stats["place_f1"] == pytest.approx(best) and place_f1(threshold) == pytest.approx(best)
+    # with nothing to find, the threshold keeps no skeleton at all
+    threshold, stats = place_threshold(rooms[1:])
+    assert stats["false_per_room"] == 0 and threshold >= 0.5
