@@ -2,9 +2,9 @@
 two real rooms, every pose scored as `afford map` scores it.
 
 One fixed split by seed: `afford synth --rooms N --seed S` (generated once into --data, reused after), rooms
-sorted by name and dealt by index: the last `--test` are test rooms, the `--validation` before them choose
-thresholds (and the structured SVM's iteration), the rest train. Test rooms and the real rooms in
-../shared/data/rooms are never trained or tuned on. Per affordance and learner:
+taken in generation order (kinds alternate) and dealt by index: the last `--test` are test rooms, the
+`--validation` before them choose thresholds (and the structured SVM's iteration), the rest train. Test
+rooms and the real rooms in ../shared/data/rooms are never trained or tuned on. Per affordance and learner:
 
 * pose precision / recall / F1 at the model's threshold (the paper's metric) and average precision;
 * place recall (labelled places with a skeleton on them) and false skeletons per room, for the skeleton map;
@@ -132,7 +132,9 @@ def generated_rooms(args) -> list:
         print(f"generating {args.rooms} rooms into {args.data} ...")
         synthesize(options, args.data)
         stamp.write_text(wanted)
-    return data_set_rooms(args.data)
+    # by generation index, not by name: names start with the room kind, and kinds are dealt round-robin,
+    # so every part of the split holds every kind
+    return sorted(data_set_rooms(args.data), key=lambda files: int(files.name.rsplit("-", 1)[1]))
 
 
 def score_rooms(model, rooms: list, task, loose: bool = True) -> dict:
