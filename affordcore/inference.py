@@ -21,6 +21,7 @@ import numpy as np
 from .features import FeatureLayout, _SlabSampler, features_at
 from .fields import SceneFields
 from .grid import PoseGrid
+from .maps import RULED_OUT
 from .skeleton import JOINTS, Skeleton, rotation_z
 
 
@@ -122,18 +123,25 @@ def model_scores(
     every other pose holds float32's lowest: the first stage ruled it out."""
     skeleton = model.as_skeleton()
     scores = score_poses(fields, skeleton, grid, layout, model.weights, model.bias)
-    lowest = np.finfo(np.float32).min
     if allowed is not None:
-        scores[:, :, ~allowed] = lowest
+        scores[:, :, ~allowed] = RULED_OUT
     if not model.rescorer:
         return scores
     flat = scores.ravel()
-    candidates = int(np.count_nonzero(flat > lowest))
-    keep = min(candidates, max(1, int(np.ceil(model.rescorer["fraction"] * candidates))))
-    if keep == 0:
-        return scores
-    best = np.argpartition(flat, len(flat) - keep)[len(flat) - keep :]
+    best = best_poses(flat, model.rescorer["fraction"])
     rescored = model.trees.log_odds(features_at(fields, skeleton, grid, layout, best))
-    flat[:] = lowest
+    flat[:] = RULED_OUT
     flat[best] = rescored
     return scores
+
+
+def best_poses(flat_scores: np.ndarray, fraction: float) -> np.ndarray:
+    """Flat indices of the best `fraction` (rounded up) of the poses not ruled out, in no order: what the
+    second stage rescores, at inference and in training alike."""
+    candidates = int(np.count_nonzero(flat_scores > RULED_OUT))
+    keep = min(candidates, int(np.ceil(fraction * candidates)))
+    return (
+        np.argpartition(flat_scores, len(flat_scores) - keep)[len(flat_scores) - keep :]
+        if keep
+        else np.empty(0, np.int64)
+    )

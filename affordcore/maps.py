@@ -19,6 +19,7 @@ from .grid import PoseGrid
 from .skeleton import Skeleton, place_joints
 
 FORMAT = "affordance-map/1"
+RULED_OUT = np.finfo(np.float32).min  # the score of a pose that is not a candidate at all
 
 
 @dataclass
@@ -93,7 +94,7 @@ def build_map(
     `allowed` (nx, ny) is False hold no positive and no skeleton (their confidence is float32's lowest).
     Places of the skeleton map must score above `place_threshold` (default: `threshold`)."""
     if allowed is not None:
-        scores = np.where(allowed[None, None], scores, np.finfo(np.float32).min).astype(np.float32)
+        scores = np.where(allowed[None, None], scores, RULED_OUT).astype(np.float32)
     nz, nt, nx, ny = grid.shape
     flat = scores.reshape(nz * nt, nx, ny)
     best = flat.argmax(axis=0)  # per (x, y): the best (z, theta) slab

@@ -106,7 +106,20 @@ def main() -> None:
                     f"places {row['place_recall']:.2f}, false/room {row['false_per_room']:.1f}"
                 )
         del examples
-        worst_room_figures(args, models, affordance, [rooms[f.name] for f in test], files, task)
+        learner = "cascade" if (affordance, "cascade") in models else args.learners.split(",")[-1]
+        generated = next(
+            r
+            for r in results["rows"]
+            if (r["affordance"], r["learner"], r["rooms"]) == (affordance, learner, "generated")
+        )
+        worst_room_figures(
+            args,
+            models[(affordance, learner)],
+            generated["per_room"],
+            [rooms[f.name] for f in test],
+            files,
+            task,
+        )
         if args.models and (affordance, "cascade") in models:
             args.models.mkdir(parents=True, exist_ok=True)
             models[(affordance, "cascade")].save(args.models / f"{affordance}.model.json")
@@ -177,15 +190,14 @@ def score_rooms(model, rooms: list, task, loose: bool = True) -> dict:
     return row
 
 
-def worst_room_figures(args, models: dict, affordance: str, test_rooms: list, files: list, task) -> None:
-    """Plan views of the two generated test rooms where the cascade (else the last learner) errs most."""
+def worst_room_figures(args, model, per_room: dict, test_rooms: list, files: list, task) -> None:
+    """Plan views of the two generated test rooms where `model` errs most (`per_room`: its missed and false
+    places per room, from the table's run)."""
     from affordcore.pipeline import map_affordances
     from affordcore.plots import plot_map
     from affordcore.scene import load_cloud
 
-    learner = "cascade" if (affordance, "cascade") in models else args.learners.split(",")[-1]
-    model = models[(affordance, learner)]
-    per_room = score_rooms(model, test_rooms, task, loose=False)["per_room"]
+    affordance = model.affordance
     worst = sorted(per_room, key=lambda n: -(per_room[n]["missed"] + per_room[n]["false"]))[:2]
     cloud_of = {f.name: f.cloud for f in files}
     folder = args.out / "figures"

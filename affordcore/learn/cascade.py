@@ -19,12 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..features import features_at
+from ..inference import best_poses
+from ..maps import RULED_OUT
 from ..pipeline import score_model
 from ..trees import TreeEnsemble
 from .examples import Room, RoomExamples, Task
 from .learners import Fitted, get_learner
-
-LOWEST = np.finfo(np.float32).min
 
 
 @dataclass(frozen=True)
@@ -53,7 +53,7 @@ def second_stage_examples(
     from .model import AffordanceModel
 
     first = AffordanceModel(
-        task.affordance, {}, "", weights, bias, 0.0, "first-stage", skeleton=_skeleton(task)
+        task.affordance, {}, "", weights, bias, 0.0, "first-stage", skeleton=task.skeleton_record()
     )
     Xs, ys, ws = [], [], []
     for room in rooms:
@@ -61,12 +61,10 @@ def second_stage_examples(
         _, truth = room.grid_and_truth(task.skeleton, task.settings)
         flat = scores.ravel()
         # unlabelled poses are neither taught as positive nor as negative
-        flat[truth.scored_mask().ravel() == 0] = LOWEST
-        live = int(np.count_nonzero(flat > LOWEST))
-        keep = min(live, int(np.ceil(fraction * live)))
-        if keep == 0:
+        flat[truth.scored_mask().ravel() == 0] = RULED_OUT
+        best = best_poses(flat, fraction)
+        if len(best) == 0:
             continue
-        best = np.argpartition(flat, len(flat) - keep)[len(flat) - keep :]
         label = truth.pose_mask().ravel()[best]
         # every positive the first stage passes on, and a bounded sample of its negatives (weighted back)
         negatives = np.flatnonzero(~label)
@@ -129,12 +127,3 @@ def fit_cascade(train: RoomExamples, validation: RoomExamples, params: dict, rng
         },
         rescorer={"fraction": fraction, "trees": trees.to_dict()},
     )
-
-
-def _skeleton(task: Task) -> dict:
-    skeleton = task.skeleton
-    return {
-        "joints": skeleton.joints.tolist(),
-        "torso_height": skeleton.torso_height,
-        "source": skeleton.source,
-    }

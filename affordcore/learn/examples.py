@@ -63,6 +63,15 @@ class Task:
     def skeleton(self) -> Skeleton:
         return get_skeleton(self.affordance, self.settings.skeleton_dirs)
 
+    def skeleton_record(self) -> dict:
+        """The skeleton as a model file records it (maps place this one, whatever is installed later)."""
+        skeleton = self.skeleton
+        return {
+            "joints": skeleton.joints.round(4).tolist(),
+            "torso_height": skeleton.torso_height,
+            "source": skeleton.source,
+        }
+
 
 @dataclass
 class RoomExamples:

@@ -21,13 +21,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..labels import ground_truth, place_matches
-from ..maps import build_map
+from ..maps import RULED_OUT, build_map
 from ..pipeline import score_model
 from ..settings import Settings
 from .baselines import tune_threshold
 from .examples import Room
-
-LOWEST = np.finfo(np.float32).min
 
 
 @dataclass
@@ -40,7 +38,7 @@ class RoomScores:
     labels: np.ndarray  # +1 / -1 per scored pose
     place_scores: np.ndarray  # (k,) the candidate skeletons' scores
     place_false: np.ndarray  # (k,) bool: matches no label (ignored ones are left out)
-    label_best: np.ndarray  # (n_labels,) the best score of a skeleton matching each label (LOWEST: none)
+    label_best: np.ndarray  # (n_labels,) the best score of a skeleton matching each label (RULED_OUT: none)
 
 
 def room_scores(model, room: Room, layout, settings: Settings, **tolerances: float) -> RoomScores:
@@ -50,42 +48,36 @@ def room_scores(model, room: Room, layout, settings: Settings, **tolerances: flo
     truth = ground_truth(room.labels, model.affordance, grid, **tolerances)
     scored = truth.scored_mask().ravel()
     y = np.where(truth.pose_mask().ravel()[scored], 1, -1).astype(np.int8)
-    live = scores[scores > LOWEST]
-    lowest = np.nextafter(np.float32(live.min()), LOWEST) if len(live) else LOWEST
+    live = scores[scores > RULED_OUT]
+    lowest = np.nextafter(np.float32(live.min()), RULED_OUT) if len(live) else RULED_OUT
     # every candidate place: the skeleton map at the lowest threshold
     skeletons = build_map(
         model.affordance, scores, grid, model.as_skeleton(), lowest, settings.map.nms_radius
     ).skeletons
     matches, ignored = place_matches(room.labels, model.affordance, skeletons[:, [0, 1, 3]], **tolerances)
     score = skeletons[:, 4]
-    label_best = np.max(np.where(matches, score, LOWEST), axis=1, initial=LOWEST)
+    label_best = np.max(np.where(matches, score, RULED_OUT), axis=1, initial=RULED_OUT)
     counted = ~ignored
     return RoomScores(
         room.name, scores.ravel()[scored], y, score[counted], ~matches.any(axis=0)[counted], label_best
     )
 
 
-def pose_threshold(rooms: list[RoomScores]) -> tuple[float, float]:
-    """(threshold, pose F1) over every scored pose of the rooms; ruled-out poses never count as positive."""
+def pose_threshold(rooms: list[RoomScores]) -> float:
+    """The threshold with the best pose F1 over every scored pose of the rooms; ruled-out poses never count
+    as positive."""
     scores = np.concatenate([r.scores for r in rooms])
     labels = np.concatenate([r.labels for r in rooms])
-    live = scores > LOWEST
+    live = scores > RULED_OUT
     if not (labels[live] > 0).any():
-        return 0.0, 0.0
-    threshold, _ = tune_threshold(scores[live], labels[live])
-    return threshold, pose_f1(scores, labels, threshold)
-
-
-def pose_f1(scores: np.ndarray, labels: np.ndarray, threshold: float) -> float:
-    predicted, positive = scores > threshold, labels > 0
-    tp = int(np.sum(predicted & positive))
-    return 2 * tp / max(1, int(positive.sum()) + int(predicted.sum()))
+        return 0.0
+    return tune_threshold(scores[live], labels[live])[0]
 
 
 def place_threshold(rooms: list[RoomScores]) -> tuple[float, dict]:
     """(threshold, what it gives) with the best place F1 over the rooms: recall = labelled places found /
     labelled places, precision = true skeletons / skeletons."""
-    candidates = np.unique(np.concatenate([r.place_scores for r in rooms] + [np.array([LOWEST])]))
+    candidates = np.unique(np.concatenate([r.place_scores for r in rooms] + [np.array([RULED_OUT])]))
     best = None
     for t in candidates:  # distinct skeleton scores: a few hundred, not poses
         kept = sum(int(np.sum(r.place_scores > t)) for r in rooms)

@@ -116,7 +116,7 @@ def train_on_rooms(
         threshold=float(fitted.threshold),
         learner=learner,
         parameters={**(params or {}), "seed": seed, **({"report": fitted.report} if fitted.report else {})},
-        skeleton=_skeleton_record(task),
+        skeleton=task.skeleton_record(),
         grid=task.settings.grid.model_dump(),
         training={
             "rooms": train_names,
@@ -128,9 +128,8 @@ def train_on_rooms(
     )
     rooms = {room.name: room for e in examples.values() for room in e.rooms}
     scored = [room_scores(model, rooms[name], task.layout, task.settings) for name in validation_names]
-    tuned, f1 = pose_threshold(scored)
     if not own_threshold:
-        model.threshold = tuned
+        model.threshold = pose_threshold(scored)
     model.place_threshold, places = place_threshold(scored)
     positives = sum(int((r.labels > 0).sum()) for r in scored)
     model.validation = {
@@ -145,12 +144,3 @@ def train_on_rooms(
         **places,
     }
     return model
-
-
-def _skeleton_record(task: Task) -> dict:
-    skeleton = task.skeleton
-    return {
-        "joints": skeleton.joints.round(4).tolist(),
-        "torso_height": skeleton.torso_height,
-        "source": skeleton.source,
-    }
