@@ -36,6 +36,13 @@ def synth(
         "depth", "--sensor", help="what sequences hold: depth frames (7-Scenes layout) or lidar scans"
     ),
     frames: int = typer.Option(300, "--frames", min=1, help="frames per sequence"),
+    few_views: float = typer.Option(
+        0.5,
+        "--few-views",
+        min=0.0,
+        max=1.0,
+        help="share of rooms scanned from a few viewpoints, as real rooms are",
+    ),
     workers: int = typer.Option(1, "--workers", min=1, help="rooms generated in parallel processes"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
@@ -43,7 +50,9 @@ def synth(
     with user_errors():
         from affordcore.synth.dataset import SynthOptions, summary_table, synthesize
 
-        options = SynthOptions(rooms, seed, tuple(names(kinds)), scanner, sequences, sensor, frames)
+        options = SynthOptions(
+            rooms, seed, tuple(names(kinds)), scanner, sequences, sensor, frames, few_views
+        )
         with progress(quiet) as bar:
             task = bar.add_task("rooms", total=rooms)
             summary = synthesize(options, out, workers, on_room_done=lambda report: bar.advance(task))

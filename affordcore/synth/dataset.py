@@ -35,6 +35,9 @@ class SynthOptions:
     sequences: bool = False
     sensor: str = "depth"  # what a sequence holds: depth frames or LiDAR scans
     frames: int = 300
+    # share of depth-scanned rooms captured from a few viewpoints (scanner.few_viewpoints), as real rooms are;
+    # the rest are scanned from spots spread over the whole floor
+    few_views: float = 0.5
 
     def __post_init__(self) -> None:
         unknown = set(self.kinds) - set(KINDS)
@@ -44,6 +47,8 @@ class SynthOptions:
             raise ValueError(f"scanner must be one of {', '.join(SCANNERS)}, not {self.scanner!r}")
         if self.sensor not in SENSORS:
             raise ValueError(f"sensor must be one of {', '.join(SENSORS)}, not {self.sensor!r}")
+        if not 0.0 <= self.few_views <= 1.0:
+            raise ValueError(f"few_views is a share, between 0 and 1, not {self.few_views}")
         if self.rooms < 1 or self.frames < 1:
             raise ValueError("rooms and frames must be at least 1")
 
@@ -96,10 +101,15 @@ def make_room(options: SynthOptions, out: Path, index: int, seed: np.random.Seed
     rng = np.random.default_rng(seed)
     name = options.room_name(index)
     room = generate_room(options.kinds[index % len(options.kinds)], rng, name)
-    points, colors = scan_room(room, rng) if options.scanner == "depth" else sample_room_uniform(room, rng)
+    regime = "few" if rng.random() < options.few_views else "full"
+    if options.scanner == "depth":
+        points, colors = scan_room(room, rng, regime=regime)
+    else:
+        points, colors, regime = *sample_room_uniform(room, rng), "every surface"
     save_cloud(out / f"{name}.ply", Cloud(points, colors))
     labels_path = out / f"{name}.labels.json"
-    labels_path.write_text(json.dumps(room.labels(), indent=1) + "\n")
+    document = room.labels(points)
+    labels_path.write_text(json.dumps(document, indent=1) + "\n")
     labels = load_labels(labels_path)  # what was written must read back valid
     footprint = (*points[:, :2].min(axis=0), *points[:, :2].max(axis=0))
     counts = class_counts(labels, pose_grids_for_footprint(footprint))
@@ -110,7 +120,9 @@ def make_room(options: SynthOptions, out: Path, index: int, seed: np.random.Seed
         "kind": room.kind,
         "size_m": [round(float(v), 2) for v in np.ptp(room.polygon, axis=0)],
         "points": int(len(points)),
+        "views": regime,
         "pieces": [piece.kind for piece in room.pieces],
+        "unlabelled_regions": len(document["unlabelled_regions"]),
         "labels": {name: sum(label.affordance == name for label in labels.labels) for name in counts},
         "class_counts": {name: [c.positives, c.negatives] for name, c in counts.items()},
     }

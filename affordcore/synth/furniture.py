@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .shapes import Anchor, Box, Piece, boxes_overlap, rot2
+from .shapes import Anchor, Box, Piece, rot2
 
 LOUNGE, DESK_SEAT, STANDING_EDGE = "lounge-seat", "desk-seat", "standing-work-edge"
 
 SEAT_INSET = 0.25  # sofa labels stop this far from each armrest (DESIGN.md)
 DESK_LABEL_OFFSET = 0.25  # a desk seat's label is this far outside the table edge
 STANDING_OFFSET, STANDING_INSET = 0.30, 0.25  # standing labels: in front of the edge, in from its ends
+SEAT_HEIGHT = (0.35, 0.60)  # a flat top in this range, at least 0.30 m across, is somewhere to sit
 
 FABRIC = [(0.30, 0.35, 0.55), (0.55, 0.50, 0.45), (0.35, 0.45, 0.35), (0.60, 0.30, 0.30), (0.45, 0.45, 0.48)]
 WOOD = [(0.55, 0.40, 0.25), (0.70, 0.58, 0.40), (0.40, 0.28, 0.18), (0.80, 0.75, 0.65)]
@@ -128,7 +129,10 @@ def corner_sofa(rng: np.random.Generator) -> Piece:
     ]
     if wing_anchor.start[0] <= wing_anchor.end[0]:
         anchors.append(wing_anchor)
-    return Piece("corner-sofa", parts, anchors, note="L-shaped sofa")
+    piece = Piece("corner-sofa", parts, anchors, note="L-shaped sofa")
+    # the corner seat, where the two runs meet, is a seat with no label (neither run's facing fits it)
+    piece.unlabelled_seats = [((lo[0], y1 - depth), (hi[0], y1))]
+    return piece
 
 
 def armchair(rng: np.random.Generator) -> Piece:
@@ -200,35 +204,52 @@ def dining_chair(rng: np.random.Generator) -> list[Box]:
     ]
 
 
-def _seat_at_edge(
-    rng, edge_x: float, along: float, chair: list[Box], serve: bool
-) -> tuple[list[Box], Anchor | None]:
-    """A chair in front of a table edge at x = edge_x (table on the -x side), facing roughly the table.
+# How a place at a table is left (shares per place; DESIGN: the label does not depend on it). Real rooms have
+# most chairs pushed in (10 of the 11 in the two real rooms), some places without a chair.
+CHAIR_STATES = {"pushed-in": 0.50, "pulled-out": 0.25, "turned": 0.13, "missing": 0.12}
+MAX_PULL = 0.45  # the farthest a pulled-out chair's seat front stands outside the table edge (m)
+STEP_BACK = 0.03  # a chair that hits something is drawn back this far at a time until it fits
 
-    Pushed in (seat reaching under the top, barely turned), pulled out, swivelled, or turned away. When it
-    serves the table, its label is 0.25 m outside the edge on the chair's line, facing the table.
-    """
-    # real rooms: mostly pushed in
-    state = rng.choice(["pushed-in", "pulled-out", "turned-away"], p=[0.6, 0.3, 0.1])
+
+def chair_state(rng: np.random.Generator, seat_depth: float) -> tuple[str, float, float]:
+    """(state, push, swivel) of one place's chair. `push` is how far the seat's front reaches past the table
+    edge, under the top: from `seat_depth` (fully under, backrest against the edge) down to -MAX_PULL (pulled
+    out); `swivel` turns the chair away from facing the table."""
+    state = str(rng.choice(list(CHAIR_STATES), p=list(CHAIR_STATES.values())))
     if state == "pushed-in":
-        offset, turn = rng.uniform(0.02, 0.15), rng.normal(0, 0.08)
-    elif state == "pulled-out":
-        offset, turn = rng.uniform(0.35, 0.60), rng.normal(0, 0.35)
-    else:
-        offset, turn = rng.uniform(0.45, 0.65), np.pi + rng.normal(0, 0.4)
-    yaw = np.pi + turn  # facing -x, towards the table, plus the swivel
-    placed = [part.placed(edge_x + offset, along, yaw) for part in chair]
-    if not serve:
-        return placed, None
+        return state, rng.uniform(0.0, seat_depth), rng.normal(0, 0.08)
+    if state == "pulled-out":
+        return state, -rng.uniform(0.0, MAX_PULL), rng.normal(0, 0.35)
+    if state == "turned":  # sideways or away, left where someone got up
+        away = rng.random() < 0.5
+        swivel = np.pi + rng.normal(0, 0.4) if away else rng.choice([-1, 1]) * np.pi / 2 + rng.normal(0, 0.3)
+        return state, -rng.uniform(0.15, MAX_PULL), swivel
+    return state, 0.0, 0.0
+
+
+def _chair_note(state: str, push: float) -> str:
+    if state == "missing":
+        return "no chair"
+    if state == "turned":
+        return f"chair turned, {-push:.2f} m out"
+    return f"chair pushed in {push:.2f} m" if push >= 0 else f"chair pulled out {-push:.2f} m"
+
+
+def _place_anchor(edge_x: float, along: float, turn: float, note: str) -> Anchor:
+    """A place at a table edge at x = edge_x (table on the -x side): labelled where a person who pulled the
+    chair out would sit, 0.25 m outside the edge on the place's line, facing the table, whatever the chair's
+    state; turned by `turn` about the table's centre."""
     label_x = edge_x + DESK_LABEL_OFFSET
     room = _free_space(edge_x + 0.05, edge_x + 0.75, along - 0.30, along + 0.30, 1.3)
-    return placed, Anchor(DESK_SEAT, (label_x, along), (label_x, along), np.pi, [room], f"chair {state}")
+    anchor = Anchor(DESK_SEAT, (label_x, along), (label_x, along), np.pi, [room], note)
+    return _rotated_anchor(anchor, turn) if turn else anchor
 
 
-def desk(rng: np.random.Generator, with_chair: bool | None = None, cluttered: bool = False) -> Piece:
-    """A desk against its back (-x) side, usually with an office chair in front; monitor and clutter on
-    top."""
-    with_chair = bool(rng.random() < 0.8) if with_chair is None else with_chair
+def desk(rng: np.random.Generator, place: bool = True, cluttered: bool = False) -> Piece:
+    """A desk against its back (-x) side with a monitor and clutter on top. With `place`, one labelled place
+    in front, its office chair in any of the CHAIR_STATES (missing included); without, nobody works there (no
+    chair, no label: a distractor, which the room program always clutters so that it does not look like a
+    place whose chair is missing)."""
     length, depth, height = rng.uniform(1.1, 1.8), rng.uniform(0.60, 0.80), rng.uniform(0.70, 0.78)
     parts = table(rng, length, depth, height, _pick(rng, WOOD + LAMINATE[:2]))
     monitor_w = rng.uniform(0.45, 0.70)
@@ -263,47 +284,59 @@ def desk(rng: np.random.Generator, with_chair: bool | None = None, cluttered: bo
                 _pick(rng, LAMINATE),
             )
         )
-    anchors = []
-    if with_chair:
-        anchor = _add_chair(
-            rng, parts, depth / 2, rng.uniform(-length / 2 + 0.35, length / 2 - 0.35), office_chair
-        )
-        anchors += [anchor] if anchor else []
-        with_chair = anchor is not None
-    return Piece(
-        "desk", parts, anchors, note=f"desk {height:.2f} m" + (" with chair" if with_chair else ", no chair")
-    )
+    along = rng.uniform(-length / 2 + 0.35, length / 2 - 0.35)
+    anchors = [_add_chair(rng, parts, depth / 2, along, office_chair)] if place else []
+    return Piece("desk", parts, anchors, note=f"desk {height:.2f} m" + ("" if place else ", nobody's place"))
 
 
-def meeting_table(rng: np.random.Generator) -> Piece:
-    """A table with chairs along its long sides (some places empty); every chair serves it."""
+def meeting_table(rng: np.random.Generator, chair_maker=None, kind: str = "meeting-table") -> Piece:
+    """A table with places every 0.65 m or more along its long sides, every place labelled; each place's chair
+    is in one of the CHAIR_STATES (some places have none)."""
     length, depth, height = rng.uniform(1.4, 2.6), rng.uniform(0.80, 1.10), rng.uniform(0.72, 0.76)
     parts = table(rng, length, depth, height)
-    anchors = []
     places = max(1, int((length - 0.2) // 0.65))
-    chair_maker = office_chair if rng.random() < 0.5 else dining_chair
-    for side in (-1, 1):
-        for k in range(places):
-            if rng.random() < 0.25:
-                continue
-            along = -length / 2 + (k + 0.5) * length / places
-            anchor = _add_chair(rng, parts, depth / 2, along, chair_maker, turn=0.0 if side > 0 else np.pi)
-            anchors += [anchor] if anchor else []
-    return Piece("meeting-table", parts, anchors, note=f"meeting table {height:.2f} m, {len(anchors)} chairs")
+    chair_maker = chair_maker or (office_chair if rng.random() < 0.5 else dining_chair)
+    anchors = [
+        _add_chair(rng, parts, depth / 2, -length / 2 + (k + 0.5) * length / places, chair_maker, turn)
+        for turn in (0.0, np.pi)
+        for k in range(places)
+    ]
+    chairs = sum(anchor.note != "no chair" for anchor in anchors)
+    name = kind.replace("-", " ")
+    return Piece(kind, parts, anchors, note=f"{name} {height:.2f} m, {len(anchors)} places, {chairs} chairs")
+
+
+def dining_table(rng: np.random.Generator) -> Piece:
+    return meeting_table(rng, dining_chair, "dining-table")
 
 
 def _add_chair(
     rng, parts: list[Box], edge_x: float, along: float, chair_maker, turn: float = 0.0, tries: int = 10
-):
-    """Add a chair serving the edge (turned by `turn` about the table's centre) where it hits nothing already
-    there; returns its anchor, or None when every try collided (the table then has one chair fewer)."""
+) -> Anchor:
+    """A labelled place at the edge (turned by `turn` about the table's centre) and its chair, added to
+    `parts`. A chair that hits something already there (the top, a leg, a pedestal, a neighbour) is drawn back
+    until it fits, as a real one stops where its armrests meet the top; after `tries` draws in which it never
+    fits, the place has no chair."""
+    from .rooms import any_overlap
+
+    state, push = "missing", 0.0
+    # only what is near the place can stop its chair (a top, at most 2.6 m long, has its centre within 2 m)
+    place = rot2(turn) @ (edge_x, along)
+    nearby = [part for part in parts if np.hypot(*np.subtract(part.centre[:2], place)) < 2.0]
     for _ in range(tries):
-        chair, anchor = _seat_at_edge(rng, edge_x, along, chair_maker(rng), serve=True)
-        chair = [part.placed(0, 0, turn) for part in chair]
-        if not any(boxes_overlap(c, p) for c in chair for p in parts):
-            parts += chair
-            return _rotated_anchor(anchor, turn) if turn else anchor
-    return None
+        chair = chair_maker(rng)
+        seat_depth = chair[0].size[0]
+        state, push, swivel = chair_state(rng, seat_depth)
+        if state == "missing":
+            break
+        for depth in np.arange(push, -MAX_PULL - STEP_BACK, -STEP_BACK):
+            centre = edge_x + seat_depth / 2 - depth
+            placed = [part.placed(centre, along, np.pi + swivel).placed(0, 0, turn) for part in chair]
+            if not any_overlap(placed, nearby):
+                parts += placed
+                return _place_anchor(edge_x, along, turn, _chair_note(state, float(depth)))
+        state = "missing"
+    return _place_anchor(edge_x, along, turn, _chair_note(state, push))
 
 
 def _rotated_anchor(anchor: Anchor, yaw: float) -> Anchor:
@@ -321,7 +354,14 @@ def _rotated_anchor(anchor: Anchor, yaw: float) -> Anchor:
 def lone_chair(rng: np.random.Generator) -> Piece:
     """A chair with no desk: a distractor (it serves nothing)."""
     chair = office_chair(rng) if rng.random() < 0.5 else dining_chair(rng)
-    return Piece("lone-chair", chair, note="chair without a desk")
+    return _seat_everywhere(Piece("lone-chair", chair, note="chair without a desk"))
+
+
+def _seat_everywhere(piece: Piece) -> Piece:
+    """Mark the whole footprint as a seat no label describes (the room makes it an unlabelled region)."""
+    lo, hi = piece.local_bounds()
+    piece.unlabelled_seats = [(tuple(lo), tuple(hi))]
+    return piece
 
 
 # ---------------------------------------------------------------- standing work surfaces
@@ -421,7 +461,8 @@ def tv_unit(rng: np.random.Generator) -> Piece:
         Box.span((-0.05, -tv_w / 2, height + 0.05), (0.0, tv_w / 2, height + 0.05 + tv_w * 0.58), METAL[2]),
         Box.span((-0.10, -0.15, height), (0.05, 0.15, height + 0.05), METAL[2]),
     ]
-    return Piece("tv-unit", parts, note="TV unit")
+    # a seat-height top with the screen behind it like a backrest: someone could sit on its free ends
+    return _seat_everywhere(Piece("tv-unit", parts, note="TV unit"))
 
 
 def shelf(rng: np.random.Generator, low: bool | None = None) -> Piece:
@@ -476,28 +517,25 @@ def cabinet(rng: np.random.Generator) -> Piece:
 def bench(rng: np.random.Generator) -> Piece:
     """A bench without a backrest: seat height, but nothing to lean on."""
     length, depth, height = rng.uniform(1.0, 1.8), rng.uniform(0.32, 0.45), rng.uniform(0.42, 0.48)
-    return Piece("bench", table(rng, length, depth, height), note="bench without backrest")
+    return _seat_everywhere(Piece("bench", table(rng, length, depth, height), note="bench without backrest"))
 
 
 def stool(rng: np.random.Generator, high: bool | None = None) -> Piece:
     high = bool(rng.random() < 0.5) if high is None else high
     height, size = (rng.uniform(0.62, 0.75), 0.36) if high else (rng.uniform(0.42, 0.50), 0.34)
-    return Piece("stool", table(rng, size, size, height, _pick(rng, METAL + WOOD)), note="stool")
+    return _seat_everywhere(
+        Piece("stool", table(rng, size, size, height, _pick(rng, METAL + WOOD)), note="stool")
+    )
 
 
 def storage_box(rng: np.random.Generator) -> Piece:
     """A box at seat height with no backrest and no room for knees in front when against things."""
     size = rng.uniform(0.35, 0.6, 2)
     height = rng.uniform(0.38, 0.50)
-    return Piece(
-        "box",
-        [
-            Box.span(
-                (-size[0] / 2, -size[1] / 2, 0), (size[0] / 2, size[1] / 2, height), _pick(rng, WOOD + FABRIC)
-            )
-        ],
-        note="box at seat height",
+    box = Box.span(
+        (-size[0] / 2, -size[1] / 2, 0), (size[0] / 2, size[1] / 2, height), _pick(rng, WOOD + FABRIC)
     )
+    return _seat_everywhere(Piece("box", [box], note="box at seat height"))
 
 
 # ---------------------------------------------------------------- decor: what makes a room more than a box
@@ -577,6 +615,12 @@ def floor_clutter(rng: np.random.Generator) -> Piece:
                 )
             )
             z += sz
+        piece = Piece("boxes", parts, note="stack of boxes")
+        if (
+            SEAT_HEIGHT[0] <= z <= SEAT_HEIGHT[1] and min(parts[-1].size[:2]) >= 0.30
+        ):  # a top one could sit on
+            return _seat_everywhere(piece)
+        return piece
     return Piece(str(kind), parts, note=str(kind))
 
 

@@ -73,32 +73,120 @@ class Room:
     def furniture_boxes(self) -> list[Box]:
         return [part for piece in self.pieces for part in piece.world_parts()]
 
-    def labels(self) -> dict:
-        """The room's ground truth in the `affordance-labels/1` format (DESIGN.md)."""
+    def labels(self, points: np.ndarray | None = None) -> dict:
+        """The room's ground truth in the `affordance-labels/1` format (DESIGN.md).
+
+        Seats that carry no label (benches, boxes, lone chairs, a sofa's corner) get unlabelled regions. Given
+        the scanned `points`, a labelled piece the scan barely saw loses its labels to a "not scanned" region
+        (a label on furniture that is not in the cloud would teach that empty space is a place)."""
         roles = role_affordances()
-        labels = []
+        unseen = self.unseen_pieces(points) if points is not None else []
+        labels, regions = [], []
         for piece in self.pieces:
-            for anchor in piece.anchors:
-                if anchor.role not in roles:
+            if any(piece is p for p in unseen):
+                region = self._region(piece, _labelled_plan(piece), UNSEEN_MARGINS, exclude=piece)
+                if region is not None:
+                    regions.append({"polygon": region, "note": f"not scanned: {piece.note}"})
                     continue
-                start, end = piece.world_point(anchor.start), piece.world_point(anchor.end)
-                facing = float(np.angle(np.exp(1j * (anchor.facing + piece.yaw))))
-                label = {"affordance": roles[anchor.role]}
-                if anchor.is_point:
-                    label["at"] = _rounded((start + end) / 2)
-                else:
-                    label["from"], label["to"] = _rounded(start), _rounded(end)
-                label["facing"] = round(facing, 4)
-                label["note"] = f"{piece.note}; {anchor.note}"
-                labels.append(label)
+            labels += [_label(piece, anchor, roles) for anchor in piece.anchors if anchor.role in roles]
+        for piece in self.pieces:
+            for rectangle in piece.unlabelled_seats:
+                region = self._region(piece, np.array(rectangle), SEAT_MARGINS)
+                if region is not None:
+                    regions.append({"polygon": region, "note": f"a seat with no label: {piece.note}"})
         return {
             "format": "affordance-labels/1",
             "scene": f"{self.name} (procedural {self.kind} room)",
             "cloud": f"{self.name}.ply",
             "frame": "z-up, metres, floor at z = 0",
             "labels": labels,
-            "unlabelled_regions": [],
+            "unlabelled_regions": regions,
         }
+
+    def label_points(self, exclude: Piece | None = None) -> np.ndarray:
+        """(n, 2) points every 2 cm along every label (of every piece but `exclude`), in the world."""
+        roles = role_affordances()
+        points = [np.zeros((0, 2))]
+        for piece in self.pieces:
+            for anchor in piece.anchors if piece is not exclude else []:
+                if anchor.role in roles:
+                    start, end = piece.world_point(anchor.start), piece.world_point(anchor.end)
+                    steps = int(np.linalg.norm(end - start) / 0.02) + 2
+                    points.append(start + np.linspace(0, 1, steps)[:, None] * (end - start))
+        return np.vstack(points)
+
+    def _region(self, piece: Piece, rectangle: np.ndarray, margins, exclude: Piece | None = None):
+        """The piece's plan rectangle ((x0, y0), (x1, y1) in its frame) grown by the first of `margins` that
+        keeps it LABEL_GAP clear of every label (but `exclude`'s), as a world polygon; None if none does."""
+        avoid = self.label_points(exclude)
+        for margin in margins:
+            grown = rectangle + np.array([[-1.0], [1.0]]) * (margin + LABEL_GAP)
+            if not inside_polygon(_rectangle_polygon(piece, grown), avoid).any():
+                return [
+                    _rounded(p)
+                    for p in _rectangle_polygon(piece, rectangle + np.array([[-1.0], [1.0]]) * margin)
+                ]
+        return None
+
+    def unseen_pieces(self, points: np.ndarray) -> list[Piece]:
+        """Labelled pieces of whose plan less than UNSEEN_SHARE shows any scanned point above 0.1 m."""
+        above = points[points[:, 2] > 0.1, :2]
+        return [
+            piece for piece in self.pieces if piece.anchors and plan_seen_share(piece, above) < UNSEEN_SHARE
+        ]
+
+
+# A person's torso can be this far outside a seat they sit on: 0.12 m, how far the sitting skeletons' torso
+# lies behind their hips (hips on the seat, leaning back), plus 0.15 m, DESIGN's place tolerance (a skeleton
+# that close to a seat is sitting on it), rounded up; smaller ones are tried in turn until the region keeps
+# clear of every label.
+SEAT_MARGINS = (0.30, 0.25, 0.20, 0.15, 0.10, 0.05, 0.0)
+# around an unseen piece and its labels: DESIGN's place tolerance, never less than a grid step's half (the
+# labels must lie inside, not on the edge)
+UNSEEN_MARGINS = (0.15, 0.10, 0.05)
+LABEL_GAP = 0.05  # regions keep at least this far from any label
+UNSEEN_SHARE = 0.2  # a labelled piece with less of its plan seen than this is "not scanned"
+
+
+def _label(piece: Piece, anchor, roles: dict[str, str]) -> dict:
+    start, end = piece.world_point(anchor.start), piece.world_point(anchor.end)
+    facing = float(np.angle(np.exp(1j * (anchor.facing + piece.yaw))))
+    label = {"affordance": roles[anchor.role]}
+    if anchor.is_point:
+        label["at"] = _rounded((start + end) / 2)
+    else:
+        label["from"], label["to"] = _rounded(start), _rounded(end)
+    label["facing"] = round(facing, 4)
+    label["note"] = f"{piece.note}; {anchor.note}"
+    return label
+
+
+def _labelled_plan(piece: Piece) -> np.ndarray:
+    """The piece's plan rectangle in its frame, stretched over its labels' ends."""
+    lo, hi = piece.local_bounds()
+    ends = np.array([end for anchor in piece.anchors for end in (anchor.start, anchor.end)])
+    return np.array([np.minimum(lo, ends.min(axis=0)), np.maximum(hi, ends.max(axis=0))])
+
+
+def _rectangle_polygon(piece: Piece, rectangle: np.ndarray) -> np.ndarray:
+    (x0, y0), (x1, y1) = rectangle
+    return np.array([piece.world_point(p) for p in ((x0, y0), (x1, y0), (x1, y1), (x0, y1))])
+
+
+def plan_seen_share(piece: Piece, points_xy: np.ndarray, cell: float = 0.05) -> float:
+    """Of the `cell` m cells of the piece's plan that its parts cover, the share holding one of the points."""
+    lo, hi = piece.local_bounds()
+    shape = np.maximum(np.ceil((hi - lo) / cell).astype(int), 1)
+    centres = lo + (np.stack(np.indices(shape), axis=-1).reshape(-1, 2) + 0.5) * cell
+    covered = np.zeros(len(centres), bool)
+    for part in piece.parts:
+        covered |= part.contains_xy(centres)
+    local = (points_xy - (piece.x, piece.y)) @ rot2(piece.yaw)
+    index = np.floor((local - lo) / cell).astype(int)
+    inside = np.all((index >= 0) & (index < shape), axis=1)
+    seen = np.zeros(shape, bool)
+    seen[index[inside, 0], index[inside, 1]] = True
+    return float(seen.reshape(-1)[covered].mean()) if covered.any() else 1.0
 
 
 def _rounded(point) -> list[float]:
@@ -109,11 +197,13 @@ def generate_room(kind: str, rng: np.random.Generator, name: str) -> Room:
     if kind not in KINDS:
         raise ValueError(f"unknown room kind {kind!r}; choose from {', '.join(KINDS)}")
     room = _shell(kind, rng, name)
+    previous = None  # the piece the last builder made, if it found a place
     for builder, mode in _program(kind, rng):
         piece = builder(rng)
         reserve_body_space(piece)
-        anchor_piece = room.pieces[-1] if mode == "in-front" and room.pieces else None
-        _place(room, piece, mode, rng, anchor_piece)
+        if mode == "in-front" and previous is None:
+            continue  # a coffee table whose sofa found no place would stand in front of whatever came before
+        previous = piece if _place(room, piece, mode, rng, previous if mode == "in-front" else None) else None
     return room
 
 
@@ -277,19 +367,26 @@ def _on_boundary(polygon: np.ndarray, points: np.ndarray) -> np.ndarray:
 def _program(kind: str, rng: np.random.Generator) -> list[tuple]:
     """(builder, placement) pairs in placement order: the big pieces first, then context and distractors."""
     n = lambda low, high: int(rng.integers(low, high + 1))  # noqa: E731
-    # a dining table with its chairs
+    maybe = lambda share, pieces: pieces if rng.random() < share else []  # noqa: E731
+    # Every kind also gets, now and then, another kind's furniture, so that each affordance's model sees the
+    # others' furniture as negatives in every kind of room (shares in docs/synthetic-rooms.md).
+    lounge_corner = [(F.sofa if rng.random() < 0.5 else F.armchair, "wall"), (F.coffee_table, "in-front")]
     living = (
         [(F.corner_sofa if rng.random() < 0.3 else F.sofa, "wall"), (F.coffee_table, "in-front")]
+        # before the armchairs and shelves: a table ringed by places finds no room once they stand
+        + maybe(0.5, [(F.dining_table, "free")])
+        + maybe(0.3, [(F.desk, "wall")])  # an office corner
         + [(F.armchair, "free" if rng.random() < 0.5 else "wall") for _ in range(n(0, 2))]
         + [(F.tv_unit, "wall")] * n(0, 1)
         + [(F.shelf, "wall")] * n(0, 2)
-        + [(F.meeting_table, "free")] * int(rng.random() < 0.5)
     )
     office = (
         [(F.desk, "wall") for _ in range(n(1, 4))]
         + [(F.meeting_table, "free")] * n(0, 1)
         + [(F.cabinet, "wall")] * n(1, 3)
         + [(F.shelf, "wall")] * n(0, 2)
+        + maybe(0.3, lounge_corner)
+        + maybe(0.3, [(F.counter, "wall")])  # a kitchenette
     )
     workshop = (
         [(F.counter, "wall") for _ in range(n(1, 3))]
@@ -297,6 +394,8 @@ def _program(kind: str, rng: np.random.Generator) -> list[tuple]:
         + [(F.workbench, "wall")] * n(0, 1)
         + [(F.high_table, "free")] * n(0, 1)
         + [(F.cabinet, "wall")] * n(0, 2)
+        + maybe(0.35, [(F.desk, "wall")])
+        + maybe(0.25, [(F.sofa, "wall")])  # a break corner
     )
     distractors = (
         [(F.bench, "any")] * n(0, 1)
@@ -305,7 +404,7 @@ def _program(kind: str, rng: np.random.Generator) -> list[tuple]:
         + [(lambda r: F.shelf(r, low=True), "wall")] * n(0, 1)
         + [(F.stool, "any")] * n(0, 2)
         + [(lambda r: F.counter(r, cluttered=True), "wall")] * n(0, 1)
-        + [(lambda r: F.desk(r, with_chair=False, cluttered=r.random() < 0.5), "wall")] * n(0, 1)
+        + [(lambda r: F.desk(r, place=False, cluttered=True), "wall")] * n(0, 1)
         + [(lambda r: F.workbench(r, cluttered=True), "any")] * n(0, 1)
         + [(F.coffee_table, "any")] * n(0, 1)
     )
@@ -392,26 +491,45 @@ def any_overlap(boxes: list[Box], others: list[Box], tolerance: float = 1e-3) ->
     """Do any of `boxes` overlap any of `others`? Axis-aligned bounds first (vectorised), then exact tests."""
     from .shapes import boxes_overlap
 
+    return any(
+        boxes_overlap(boxes[i], others[j], tolerance) for i, j in _candidate_pairs(boxes, others, tolerance)
+    )
+
+
+def overlaps_any(boxes: list[Box], others: list[Box], tolerance: float = 1e-3) -> np.ndarray:
+    """(len(boxes),) whether each of `boxes` overlaps any of `others`."""
+    from .shapes import boxes_overlap
+
+    hit = np.zeros(len(boxes), bool)
+    for i, j in _candidate_pairs(boxes, others, tolerance):
+        hit[i] = hit[i] or boxes_overlap(boxes[i], others[j], tolerance)
+    return hit
+
+
+def _candidate_pairs(boxes: list[Box], others: list[Box], tolerance: float) -> np.ndarray:
+    """(i, j) pairs whose axis-aligned bounds overlap by more than `tolerance`."""
     if not boxes or not others:
-        return False
+        return np.zeros((0, 2), int)
     a, b = _bounds(boxes), _bounds(others)
-    candidates = np.argwhere(
+    return np.argwhere(
         np.all(
             (a[:, None, :3] < b[None, :, 3:] - tolerance) & (b[None, :, :3] < a[:, None, 3:] - tolerance),
             axis=2,
         )
     )
-    return any(boxes_overlap(boxes[i], others[j], tolerance) for i, j in candidates)
 
 
 def _bounds(boxes: list[Box]) -> np.ndarray:
     """(n, 6) axis-aligned bounds: x, y, z minima then maxima."""
-    rows = []
-    for box in boxes:
-        corners = box.corners_xy()
-        z0, z1 = box.z_range
-        rows.append([*corners.min(axis=0), z0, *corners.max(axis=0), z1])
-    return np.array(rows)
+    centre, size = np.array([box.centre for box in boxes]), np.array([box.size for box in boxes])
+    cos, sin = np.abs(np.cos([box.yaw for box in boxes])), np.abs(np.sin([box.yaw for box in boxes]))
+    half = (
+        np.column_stack(
+            [cos * size[:, 0] + sin * size[:, 1], sin * size[:, 0] + cos * size[:, 1], size[:, 2]]
+        )
+        / 2
+    )
+    return np.hstack([centre - half, centre + half])
 
 
 def world_anchor_boxes(piece: Piece) -> list[tuple]:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..scene import voxel_thin
-from .rooms import Room, any_overlap, inside_polygon
+from .rooms import Room, inside_polygon, overlaps_any
 from .shapes import Box
 
 FUSION_VOXEL = 0.01
@@ -139,20 +139,21 @@ def backproject(depth: np.ndarray, camera: DepthCamera, cam_to_world: np.ndarray
     return points
 
 
-def free_positions(room: Room, rng: np.random.Generator, count: int, clearance: float = 0.35) -> np.ndarray:
-    """Up to `count` floor positions where a person could stand with a sensor, spread out (farthest-point)."""
+def free_floor(room: Room, rng: np.random.Generator, clearance: float = 0.35) -> np.ndarray:
+    """Random floor positions (n, 2) where a person could stand with a sensor: `clearance` from everything."""
     low, high = room.polygon.min(axis=0), room.polygon.max(axis=0)
     candidates = rng.uniform(low, high, size=(400, 2))
     candidates = candidates[inside_polygon(room.polygon, candidates)]
-    furniture = room.furniture_boxes() + room.walls
-    free = [
-        p
-        for p in candidates
-        if not any_overlap([Box((p[0], p[1], 1.0), (2 * clearance, 2 * clearance, 2.0))], furniture)
-    ]
-    if not free:
+    people = [Box((p[0], p[1], 1.0), (2 * clearance, 2 * clearance, 2.0)) for p in candidates]
+    free = candidates[~overlaps_any(people, room.furniture_boxes() + room.walls)]
+    if not len(free):
         raise RuntimeError(f"{room.name}: no free floor to scan from")
-    free = np.array(free)
+    return free
+
+
+def free_positions(room: Room, rng: np.random.Generator, count: int, clearance: float = 0.35) -> np.ndarray:
+    """Up to `count` floor positions where a person could stand with a sensor, spread out (farthest-point)."""
+    free = free_floor(room, rng, clearance)
     chosen = [int(rng.integers(len(free)))]
     distance = np.linalg.norm(free - free[chosen[0]], axis=1)
     while len(chosen) < min(count, len(free)):
@@ -161,12 +162,19 @@ def free_positions(room: Room, rng: np.random.Generator, count: int, clearance: 
     return free[chosen]
 
 
+VIEW_REGIMES = ("full", "few")
+
+
 def viewpoints(
-    room: Room, rng: np.random.Generator, count: int | None = None, turns: int = 3
+    room: Room, rng: np.random.Generator, count: int | None = None, turns: int = 3, regime: str = "full"
 ) -> list[np.ndarray]:
-    """Person-height cameras in free space: at each spot the person turns round in `turns` steps, the first
-    aimed at a piece of furniture, pitched 15 to 35 degrees down (the floor near walls shows, as in real
-    scans)."""
+    """Camera poses for a room scan. ``full``: person-height cameras spread over the free floor; at each spot
+    the person turns round in `turns` steps, the first aimed at a piece of furniture, pitched 15 to 35 degrees
+    down (the floor near walls shows, as in real scans). ``few``: `few_viewpoints`."""
+    if regime == "few":
+        return few_viewpoints(room, rng, count)
+    if regime != "full":
+        raise ValueError(f"regime must be one of {', '.join(VIEW_REGIMES)}, not {regime!r}")
     area = abs(_polygon_area(room.polygon))
     count = count or int(np.clip(round(area / 6) + 2, 3, 10))
     targets = [box.centre for box in room.furniture_boxes()] or [(*room.polygon.mean(axis=0), 0.5)]
@@ -183,14 +191,51 @@ def viewpoints(
     return poses
 
 
+def few_viewpoints(room: Room, rng: np.random.Generator, count: int | None = None) -> list[np.ndarray]:
+    """A short hand-held capture, the way the real rooms were taken (the NYU room is 5 frames, the kitchen a
+    few metres of one walk): 3 to 8 frames from spots 0.4 to 1.5 m apart along a walk, the camera at one
+    person's height (1.0 to 1.7 m, drawn per room) aimed at pieces of furniture, labelled ones more often.
+    Whatever none of the frames sees (the far side of the room, the floor under most tables) is missing."""
+    count = count or int(rng.integers(3, 9))
+    free = free_floor(room, rng)
+    height = rng.uniform(1.0, 1.7)
+    pieces = [piece for piece in room.pieces if piece.anchors] or room.pieces
+    spot = free[int(rng.integers(len(free)))]
+    poses = []
+    for _ in range(count):
+        choices = pieces if rng.random() < 0.6 else room.pieces
+        piece = choices[int(rng.integers(len(choices)))] if choices else None
+        eye = np.array([*spot, height + rng.normal(0, 0.03)])
+        target = _aim(piece, eye, rng)
+        poses.append(look_at(eye, target))
+        step = np.linalg.norm(free - spot, axis=1)
+        near = np.flatnonzero((step > 0.4) & (step < 1.5))
+        spot = free[int(rng.choice(near))] if len(near) else spot
+    return poses
+
+
+def _aim(piece, eye: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A point 0.6-1.1 m up over the piece's centre (a person frames a table or a sofa by its top, not by the
+    floor under it), or (no piece, or one too close to aim at) straight ahead in a random direction, pitched
+    15-35 degrees down."""
+    if piece is not None:
+        lo, hi = piece.local_bounds()
+        target = np.array([*piece.world_point((lo + hi) / 2), rng.uniform(0.6, 1.1)])
+        if np.linalg.norm(target[:2] - eye[:2]) > 0.8:
+            return target
+    yaw, pitch = rng.uniform(0, 2 * np.pi), -np.radians(rng.uniform(15, 35))
+    return eye + np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)])
+
+
 def scan_room(
     room: Room,
     rng: np.random.Generator,
     camera: DepthCamera | None = None,
     views: int | None = None,
     registration_error: tuple[float, float] = (0.005, 0.3),
+    regime: str = "full",
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Fused, thinned points (N, 3) and colours (N, 3) of depth frames from several viewpoints.
+    """Fused, thinned points (N, 3) and colours (N, 3) of depth frames from the `regime`'s viewpoints.
 
     Each frame is fused with its pose off by `registration_error` (metres, degrees; standard deviations), as
     a real fusion's poses are: surfaces seen from two places come out slightly thick or doubled."""
@@ -198,11 +243,43 @@ def scan_room(
     boxes = room.shell_boxes() + room.furniture_boxes()
     raycaster = Raycaster(boxes)
     points, colors = [], []
-    for pose in viewpoints(room, rng, views):
+    for pose in viewpoints(room, rng, views, regime=regime):
         depth, box = depth_frame(raycaster, camera, pose, rng)
         points.append(backproject(depth, camera, perturbed(pose, rng, registration_error)))
         colors.append(raycaster.colors[box[depth > 0]])
     return voxel_thin(np.concatenate(points), FUSION_VOXEL, np.concatenate(colors))
+
+
+def floor_under_furniture(room: Room, cell: float = 0.05) -> np.ndarray:
+    """Centres (n, 2) of the `cell` m floor cells under a table top or a seat: under a furniture part whose
+    underside is 0.25-1.05 m up and that is at least 0.09 m^2 in plan, but not under anything standing on the
+    floor (legs, pedestals, a counter's body: no floor there to see)."""
+    low, high = room.polygon.min(axis=0), room.polygon.max(axis=0)
+    xs, ys = np.arange(low[0], high[0], cell) + cell / 2, np.arange(low[1], high[1], cell) + cell / 2
+    centres = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2)
+    under, standing = np.zeros(len(centres), bool), np.zeros(len(centres), bool)
+    for box in room.furniture_boxes():
+        bottom, top = box.z_range
+        if 0.25 <= bottom and top <= 1.05 and box.size[0] * box.size[1] >= 0.09:
+            under |= box.contains_xy(centres)
+        elif bottom < 0.02:
+            standing |= box.contains_xy(centres)
+    return centres[under & ~standing]
+
+
+def floor_seen_share(room: Room, points: np.ndarray, cell: float = 0.05) -> tuple[float, int]:
+    """(share of the floor cells under tables and seats holding a floor point (z < 3 cm), how many cells)."""
+    cells = floor_under_furniture(room, cell)
+    if not len(cells):
+        return float("nan"), 0
+    low = room.polygon.min(axis=0)
+    shape = np.ceil((room.polygon.max(axis=0) - low) / cell).astype(int) + 1
+    index = np.floor((points[np.abs(points[:, 2]) < 0.03, :2] - low) / cell).astype(int)
+    index = index[np.all((index >= 0) & (index < shape), axis=1)]
+    seen = np.zeros(shape, bool)
+    seen[index[:, 0], index[:, 1]] = True
+    cell_index = np.floor((cells - low) / cell).astype(int)
+    return float(seen[cell_index[:, 0], cell_index[:, 1]].mean()), len(cells)
 
 
 def perturbed(pose: np.ndarray, rng: np.random.Generator, error: tuple[float, float]) -> np.ndarray:

@@ -53,6 +53,11 @@ class Box:
         cx, cy = rot2(yaw) @ np.array(self.centre[:2]) + (x, y)
         return Box((float(cx), float(cy), self.centre[2]), self.size, self.yaw + yaw, self.color)
 
+    def contains_xy(self, xy: np.ndarray) -> np.ndarray:
+        """Whether plan points (..., 2) lie inside the box's footprint."""
+        local = (np.asarray(xy, float) - self.centre[:2]) @ rot2(self.yaw)
+        return np.all(np.abs(local) <= np.array(self.size[:2]) / 2, axis=-1)
+
     def corners_xy(self) -> np.ndarray:
         half = np.array(self.size[:2]) / 2
         square = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * half
@@ -122,6 +127,9 @@ class Piece:
     y: float = 0.0
     yaw: float = 0.0
     note: str = ""
+    # Plan rectangles ((x0, y0), (x1, y1)) in the piece's frame where a person could sit although no label
+    # says so (a bench, a box, a lone chair, a sofa's corner): the room turns them into unlabelled regions.
+    unlabelled_seats: list[tuple[tuple[float, float], tuple[float, float]]] = field(default_factory=list)
 
     def world_parts(self) -> list[Box]:
         return [part.placed(self.x, self.y, self.yaw) for part in self.parts]
