@@ -175,31 +175,107 @@ def compute_features(
 
 
 def features_at(
-    fields: SceneFields, skeleton: Skeleton, grid: PoseGrid, layout: FeatureLayout, index: np.ndarray
+    fields: SceneFields,
+    skeleton: Skeleton,
+    grid: PoseGrid,
+    layout: FeatureLayout,
+    index: np.ndarray,
+    chunk: int = 8192,
 ) -> np.ndarray:
     """Features of the given poses only (flat grid indices), (len(index), n_features) float32, rows in the
-    order given: the same values as the grid's rows from `iter_features` (normals rotated after the read
-    rather than before, so equal up to float32 rounding).
+    order given: the same values as the grid's rows from `iter_features` (normals rotated and cells summed
+    after the read rather than before, so equal up to float32 rounding).
 
-    For the second stage and for sampled training sets: the poses are grouped by (z, theta) slab and each
-    slab's fixed offsets are read at the chosen (x, y) only, so the cost follows the number of poses asked
-    for, not the grid (the z interpolation of the fields is still done once per level that has a pose)."""
+    For the second stage and for sampled training sets, so the cost follows the number of poses asked for,
+    not the grid. Every read is one gather over all poses at once: the bilinear corners and weights of each
+    joint and normal sample depend only on the pose's theta, so they are tabled per theta; the fields,
+    interpolated in z once per torso height that has a pose, are stacked by level and read at flat indices."""
     index = np.asarray(index, dtype=np.int64).ravel()
     if len(index) and (index.min() < 0 or index.max() >= grid.size):
         raise IndexError(f"pose indices must lie in [0, {grid.size}) for this grid")
-    sampler = _SlabSampler(fields, grid, layout)
     out = np.empty((len(index), layout.n_features), dtype=np.float32)
+    if not len(index):
+        return out
+    sampler = _SlabSampler(fields, grid, layout)
     iz, it, ix, iy = np.unravel_index(index, grid.shape)
-    slab_of = iz * len(grid.theta) + it
-    order = np.argsort(slab_of, kind="stable")
-    bounds = np.flatnonzero(np.diff(slab_of[order])) + 1
-    level, level_z = None, None
-    for rows in np.split(order, bounds) if len(order) else []:
-        z, theta = iz[rows[0]], it[rows[0]]
-        if z != level_z:
-            level, level_z = sampler.level(grid.z[z], skeleton), z
-        out[rows] = sampler.gather(level, skeleton, grid.theta[theta], ix[rows], iy[rows])
+    z_used, level_of = np.unique(iz, return_inverse=True)
+    theta_used, theta_of = np.unique(it, return_inverse=True)
+    reader = _PoseReader(sampler, skeleton, [grid.z[z] for z in z_used], grid.theta[theta_used])
+    for start in range(0, len(index), chunk):
+        rows = slice(start, start + chunk)
+        out[rows] = reader.features(level_of[rows], theta_of[rows], ix[rows], iy[rows])
     return out
+
+
+class _PoseReader:
+    """Bilinear reads of z-interpolated fields at scattered poses: `features_at`'s engine."""
+
+    def __init__(self, sampler: _SlabSampler, skeleton: Skeleton, torso_heights, thetas: np.ndarray):
+        self.layout, self.stride = sampler.layout, sampler.stride
+        levels = [sampler.level(z, skeleton) for z in torso_heights]
+        # (levels * X * Y, values per position): one row per voxel column of one level
+        self.fields = {
+            name: np.stack([level[name] for level in levels]).reshape(
+                len(levels) * sampler.shape[0] * sampler.shape[1], -1
+            )
+            for name in ("distance", "occupancy", "normals")
+        }
+        self.columns = sampler.shape[1]  # y extent: x steps a row index by this much
+        self.per_level = sampler.shape[0] * sampler.shape[1]
+        rotations = np.stack([rotation_z(theta) for theta in thetas])  # (T, 3, 3)
+        self.rotations = rotations.astype(np.float32)
+        axis = self.layout.sample_positions()
+        sample_xy = np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2)
+        joint_xy = np.einsum("jk,tlk->tjl", skeleton.joints, rotations)[:, :, :2]  # (T, joints, 2)
+        sample_xy = np.einsum("sk,tlk->tsl", sample_xy, rotations[:, :2, :2])  # (T, samples, 2)
+        self.joint_corners = _corner_table(sampler, joint_xy)
+        self.sample_corners = _corner_table(sampler, sample_xy)
+
+    def features(self, level: np.ndarray, theta: np.ndarray, ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
+        n_joints, layout = len(JOINTS), self.layout
+        base = level * self.per_level + (ix * self.stride) * self.columns + iy * self.stride  # (n,)
+        out = np.empty((len(base), layout.n_features), dtype=np.float32)
+        joint_of = np.arange(n_joints)
+        out[:, :n_joints] = self._read("distance", self.joint_corners, base, theta, joint_of)
+        out[:, n_joints : 2 * n_joints] = self._read("occupancy", self.joint_corners, base, theta, joint_of)
+        samples = self._read("normals", self.sample_corners, base, theta)  # (n, samples, cells in z * 3)
+        cells, per_cell = layout.cells_per_axis, layout.samples_per_cell
+        cube = samples.reshape(len(base), cells, per_cell, cells, per_cell, cells, 3).mean(axis=(2, 4))
+        # n_skeleton = R^T n_world; for row vectors that is n_world @ R
+        cube = np.matmul(cube.reshape(len(base), -1, 3), self.rotations[theta])
+        out[:, 2 * n_joints :] = cube.reshape(len(base), -1)
+        return out
+
+    def _read(
+        self, name: str, corners: tuple, base: np.ndarray, theta: np.ndarray, column=None
+    ) -> np.ndarray:
+        """Bilinear reads at every offset of a corner table, (n, offsets) for a per-joint field (`column`:
+        the field column each offset reads) or (n, offsets, values) for the normals."""
+        offsets, weights = corners  # (T, offsets, 4) row offsets, (T, offsets, 4) float32 weights
+        field = self.fields[name]
+        total = None
+        for corner in range(4):
+            rows = base[:, None] + offsets[theta, :, corner]  # (n, offsets)
+            values = field[rows, column] if column is not None else field[rows]
+            weight = weights[theta, :, corner]
+            term = values * (weight if column is not None else weight[..., None])
+            total = term if total is None else total + term
+        return total
+
+
+def _corner_table(sampler: _SlabSampler, offsets_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For offsets (T, k, 2) in metres: the four bilinear corners of each, as row offsets into a level's
+    X * Y columns (T, k, 4), and their weights (T, k, 4) float32, in `_SlabSampler.corners`' order and
+    arithmetic (a corner it drops has weight 0 here)."""
+    base, fraction = sampler.floor_and_fraction(offsets_xy[..., 0], offsets_xy[..., 1])
+    (bu, bv), (fu, fv) = base, fraction
+    rows = np.stack([bu * sampler.shape[1] + bv + du * sampler.shape[1] + dv for du, dv in CORNERS], axis=-1)
+    weights = np.stack([(fu if du else 1 - fu) * (fv if dv else 1 - fv) for du, dv in CORNERS], axis=-1)
+    weights[weights <= 1e-12] = 0.0
+    return rows, weights.astype(np.float32)
+
+
+CORNERS = ((0, 0), (1, 0), (0, 1), (1, 1))  # bilinear corners, in the order their terms are summed
 
 
 class _SlabSampler:
@@ -246,43 +322,6 @@ class _SlabSampler:
         normals = level["normals"] @ rotation.astype(np.float32)
         return _Slab(self, level, joint_xy, sample_xy, normals.reshape(*normals.shape[:2], -1))
 
-    def gather(
-        self, level: dict, skeleton: Skeleton, theta: float, ix: np.ndarray, iy: np.ndarray
-    ) -> np.ndarray:
-        """The features of one slab's poses at grid positions (ix, iy): `_Slab.features` for a scattered
-        subset (the same corners and weights, read by index instead of by strided slice)."""
-        rotation = rotation_z(theta)
-        joint_xy = (skeleton.joints @ rotation.T)[:, :2]
-        axis = self.layout.sample_positions()
-        sample_xy = (
-            np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2) @ rotation[:2, :2].T
-        )
-        u, v = ix * self.stride, iy * self.stride
-
-        def read(plane: np.ndarray, dx: float, dy: float) -> np.ndarray:
-            total = None
-            for cu, cv, weight in self.corners(dx, dy):
-                term = plane[cu + u, cv + v] * np.float32(weight)
-                total = term if total is None else total + term
-            return total
-
-        n_joints, layout = len(JOINTS), self.layout
-        out = np.empty((len(ix), layout.n_features), dtype=np.float32)
-        for j, (dx, dy) in enumerate(joint_xy):
-            out[:, j] = read(level["distance"][:, :, j], dx, dy)
-            out[:, n_joints + j] = read(level["occupancy"][:, :, j], dx, dy)
-        n_s, per_cell, cells = layout.samples_per_axis, layout.samples_per_cell, layout.cells_per_axis
-        normals = level["normals"]  # (X, Y, cells in z, 3), world frame: rotated once the reads are summed
-        cube = np.zeros((len(ix), cells * cells, cells, 3), dtype=np.float32)
-        for s, (dx, dy) in enumerate(sample_xy):
-            a, b = divmod(s, n_s)
-            cube[:, (a // per_cell) * cells + b // per_cell] += read(normals, dx, dy)
-        if per_cell > 1:
-            cube *= np.float32(1.0 / per_cell**2)
-        # n_skeleton = R^T n_world; for row vectors that is n_world @ R
-        out[:, 2 * n_joints :] = (cube @ rotation.astype(np.float32)).reshape(len(ix), -1)
-        return out
-
     def _lerp_z(self, field: np.ndarray, heights: np.ndarray) -> np.ndarray:
         k = (np.asarray(heights) - self.fields.lattice.origin[2]) / self.res
         base = np.floor(k).astype(int)
@@ -300,17 +339,28 @@ class _SlabSampler:
 
     def corners(self, dx: float, dy: float) -> list[tuple[int, int, float]]:
         """(x index, y index, weight) of the bilinear corners for pose (0, 0) shifted by (dx, dy) metres."""
+        (bu, bv), (fu, fv) = self.floor_and_fraction(np.asarray(dx), np.asarray(dy))
+        bu, bv, fu, fv = int(bu), int(bv), float(fu), float(fv)
+        weights = ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv))
+        return [(bu + cu, bv + cv, w) for cu, cv, w in weights if w > 1e-12]
+
+    def floor_and_fraction(self, dx: np.ndarray, dy: np.ndarray) -> tuple[tuple, tuple]:
+        """((floor u, floor v), (fraction u, fraction v)) in voxels for pose (0, 0) shifted by (dx, dy)
+        metres; raises ReachError when a shifted pose of the grid would read outside the fields."""
         u, v = self.u0 + dx / self.res, self.v0 + dy / self.res
-        bu, bv = int(np.floor(u)), int(np.floor(v))
-        fu, fv = u - bu, v - bv
+        bu, bv = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
         last_u, last_v = bu + 1 + (self.nx - 1) * self.stride, bv + 1 + (self.ny - 1) * self.stride
-        if bu < 0 or bv < 0 or last_u >= self.shape[0] or last_v >= self.shape[1]:
+        if (
+            np.any(bu < 0)
+            or np.any(bv < 0)
+            or np.any(last_u >= self.shape[0])
+            or np.any(last_v >= self.shape[1])
+        ):
             raise ReachError(
                 "placed skeletons reach beyond the voxel fields in x or y; compute the fields with a larger "
                 "voxel.margin"
             )
-        weights = ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv))
-        return [(bu + cu, bv + cv, w) for cu, cv, w in weights if w > 1e-12]
+        return (bu, bv), (u - bu, v - bv)
 
 
 class _Slab:
