@@ -52,17 +52,22 @@ class TreeEnsemble:
     def log_odds(self, X: np.ndarray, chunk: int = 4096) -> np.ndarray:
         """The ensemble's raw score of each row of X (n, n_features), float64; rows go in chunks so the
         (rows x trees) walk stays small."""
-        X = np.asarray(X)
+        X = np.ascontiguousarray(X)
         out = np.empty(len(X), dtype=np.float64)
+        # children[2 k] is node k's right child, children[2 k + 1] its left: one gather per level
+        children = np.column_stack([self.right, self.left]).ravel()
+        feature = np.maximum(self.feature, 0)  # leaves read any column and point back at themselves
         for start in range(0, len(X), chunk):
             rows = X[start : start + chunk]
-            node = np.broadcast_to(self.roots, (len(rows), len(self.roots))).copy()
-            row = np.arange(len(rows))[:, None]
+            flat, first = rows.ravel(), (np.arange(len(rows)) * rows.shape[1])[:, None]
+            node = np.broadcast_to(self.roots, (len(rows), len(self.roots)))
+            missing = np.isnan(flat).any()  # the NaN routing only when there is a NaN
             for _ in range(self.depth):
-                feature = self.feature[node]
-                values = rows[row, np.maximum(feature, 0)]
-                go_left = np.where(np.isnan(values), self.missing_left[node], values <= self.threshold[node])
-                node = np.where(go_left, self.left[node], self.right[node])
+                values = flat[first + feature[node]]
+                go_left = values <= self.threshold[node]
+                if missing:
+                    go_left = np.where(np.isnan(values), self.missing_left[node], go_left)
+                node = children[2 * node + go_left]
             out[start : start + chunk] = self.baseline + self.value[node].sum(axis=1)
         return out
 
