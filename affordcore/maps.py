@@ -22,6 +22,14 @@ FORMAT = "affordance-map/1"
 RULED_OUT = np.finfo(np.float32).min  # the score of a pose that is not a candidate at all
 
 
+def room_reference(scores: np.ndarray) -> float:
+    """The median score of a room's candidate poses (0 when it has none): what a relative place threshold
+    is counted from. A scan unlike the training rooms (fewer viewpoints, other noise) moves a room's scores
+    together, the places with the rest; a threshold above this median moves with them."""
+    live = scores[scores > RULED_OUT]
+    return float(np.median(live)) if len(live) else 0.0
+
+
 @dataclass
 class AffordanceMap:
     affordance: str

@@ -126,7 +126,7 @@ def map_affordances(
             skeleton,
             model.threshold,
             settings.map.nms_radius,
-            place_threshold=model.skeleton_threshold,
+            place_threshold=model.place_cut(scores),
         )
         if on_map:
             on_map(model.affordance, maps[model.affordance])

@@ -7,7 +7,9 @@ taken in generation order (kinds alternate) and dealt by index: the last `--test
 rooms and the real rooms in ../shared/data/rooms are never trained or tuned on. Per affordance and learner:
 
 * pose precision / recall / F1 at the model's threshold (the paper's metric) and average precision;
-* place recall (labelled places with a skeleton on them) and false skeletons per room, for the skeleton map;
+* place recall (labelled places with a skeleton on them) and false skeletons per room, for the skeleton map
+  (places counted from each room's median score, the models' rule, and beside it with the absolute threshold
+  that was best on the same validation rooms);
 * the same with loose tolerances (0.3 m, 0.5 rad) in place of DESIGN.md's (0.15 m, 0.4 rad);
 * a learning curve over the number of training rooms, and plan views of the worst generated test rooms.
 
@@ -176,10 +178,13 @@ def score_rooms(model, rooms: list, task, loose: bool = True) -> dict:
         scores = np.concatenate([r.scores for r in scored])
         labels = np.concatenate([r.labels for r in scored])
         at = metrics(scores, labels, model.threshold)
-        t = model.skeleton_threshold
-        found = sum(int(np.sum(r.label_best > t)) for r in scored)
+        # the model's place rule (relative to each room's median score), and the absolute threshold that
+        # was the best choice on the same validation rooms, from the same scores
+        counts = np.sum([r.places(model.place_cut_from(r.reference)) for r in scored], axis=0)
+        absolute = model.validation.get("absolute_place_threshold", model.skeleton_threshold)
+        found_abs, _, false_abs = np.sum([r.places(absolute) for r in scored], axis=0)
+        found, _, false = counts
         n_labels = sum(len(r.label_best) for r in scored)
-        false = sum(int(np.sum(r.place_false & (r.place_scores > t))) for r in scored)
         row.update(
             {
                 f"{prefix}precision": at["precision"],
@@ -191,15 +196,14 @@ def score_rooms(model, rooms: list, task, loose: bool = True) -> dict:
                 f"{prefix}places": f"{found}/{n_labels}",
                 f"{prefix}place_recall": found / n_labels if n_labels else float("nan"),
                 f"{prefix}false_per_room": false / len(rooms),
+                f"{prefix}absolute_places": f"{found_abs}/{n_labels}",
+                f"{prefix}absolute_false_per_room": false_abs / len(rooms),
             }
         )
-        row[f"{prefix}per_room"] = {
-            r.room: {
-                "missed": int(np.sum(r.label_best <= t)),
-                "false": int(np.sum(r.place_false & (r.place_scores > t))),
-            }
-            for r in scored
-        }
+        row[f"{prefix}per_room"] = {}
+        for r in scored:
+            found_here, _, false_here = r.places(model.place_cut_from(r.reference))
+            row[f"{prefix}per_room"][r.room] = {"missed": len(r.label_best) - found_here, "false": false_here}
     return row
 
 
@@ -226,8 +230,9 @@ def print_row(row: dict) -> None:
     print(
         f"{row['affordance']:17s} {row['learner']:13s} {row['rooms']:9s} P/R/F1 {row['precision']:.2f}/"
         f"{row['recall']:.2f}/{row['f1']:.2f} AP {row['ap']:.2f} places {row['places']} false/room "
-        f"{row['false_per_room']:.1f} | loose F1 {row['loose_f1']:.2f} places {row['loose_places']} "
-        f"false/room {row['loose_false_per_room']:.1f} ({row['train_seconds']:.0f} s)"
+        f"{row['false_per_room']:.1f} (absolute threshold: {row['absolute_places']}, "
+        f"{row['absolute_false_per_room']:.1f}) | loose F1 {row['loose_f1']:.2f} places "
+        f"{row['loose_places']} false/room {row['loose_false_per_room']:.1f} ({row['train_seconds']:.0f} s)"
     )
 
 
@@ -241,15 +246,16 @@ def markdown(results: dict, args) -> str:
         f"{results['seconds'] / 60:.0f} min, peak RSS {results['peak_rss_gb']:.1f} GB, "
         f"{results['cores']} cores.",
         "",
-        "| affordance | learner | rooms | pose P / R / F1 | AP | places found | false / room | loose: F1 | "
-        "loose: places | loose: false / room | paper SSVM P / R / F1 |",
-        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---|",
+        "| affordance | learner | rooms | pose P / R / F1 | AP | places found | false / room | "
+        "absolute threshold: places, false / room | loose: F1 | loose: places | loose: false / room | "
+        "paper SSVM P / R / F1 |",
+        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in results["rows"]:
         lines.append(
             f"| {r['affordance']} | {r['learner']} | {r['rooms']} | {r['precision']:.2f} / "
             f"{r['recall']:.2f} / **{r['f1']:.2f}** | {r['ap']:.2f} | {r['places']} | "
-            f"{r['false_per_room']:.1f} | "
+            f"{r['false_per_room']:.1f} | {r['absolute_places']}, {r['absolute_false_per_room']:.1f} | "
             f"{r['loose_f1']:.2f} | {r['loose_places']} | {r['loose_false_per_room']:.1f} | "
             f"{paper.get(r['affordance'], {}).get('structured_svm', '-')} |"
         )

@@ -73,8 +73,8 @@ def test_the_place_threshold_maximises_place_f1():
     # room b: no label, one false skeleton at 0.5
     rooms = [
         RoomScores("a", np.zeros(0), np.zeros(0), np.array([0.9, 0.4, 0.6, 0.2]),
-                   np.array([False, False, True, True]), np.array([0.9, 0.4])),
-        RoomScores("b", np.zeros(0), np.zeros(0), np.array([0.5]), np.array([True]), np.zeros(0)),
+                   np.array([False, False, True, True]), np.array([0.9, 0.4]), 0.0),
+        RoomScores("b", np.zeros(0), np.zeros(0), np.array([0.5]), np.array([True]), np.zeros(0), 0.0),
     ]  # fmt: skip
     threshold, stats = place_threshold(rooms)
 
@@ -90,3 +90,22 @@ def test_the_place_threshold_maximises_place_f1():
     # with nothing to find, the threshold keeps no skeleton at all
     threshold, stats = place_threshold(rooms[1:])
     assert stats["false_per_room"] == 0 and threshold >= 0.5
+
+
+def test_a_relative_place_threshold_moves_with_a_room_whose_scores_all_drop():
+    # the same two rooms, room a scanned unlike the training rooms: every score (its median too) 2 lower
+    def room(name, places, false, labels, shift):
+        return RoomScores(name, np.zeros(0), np.zeros(0), np.array(places) + shift, np.array(false),
+                          np.array(labels) + shift, shift)  # fmt: skip
+
+    same = [room("a", [0.9, 0.4, 0.6, 0.2], [False, False, True, True], [0.9, 0.4], 0.0),
+            room("b", [0.5], [True], [], 0.0)]  # fmt: skip
+    dropped = [room("a", [0.9, 0.4, 0.6, 0.2], [False, False, True, True], [0.9, 0.4], -2.0), same[1]]
+    _, absolute = place_threshold(same)
+    threshold, relative = place_threshold(dropped, relative=True)
+    assert relative == absolute  # counted from each room's median, the drop changes nothing
+    _, carried = place_threshold(dropped)
+    assert carried["place_recall"] < absolute["place_recall"] or carried["false_per_room"] > 0
+    # a model applies it the same way: the cut is the threshold above the room's median candidate score
+    found, kept, false = dropped[0].places(threshold + dropped[0].reference)
+    assert (found, kept - false) == (round(relative["place_recall"] * 2), found)

@@ -57,6 +57,7 @@ def test_another_layout_is_refused_with_both_layouts_named(tmp_path):
         (lambda d: d.pop("weights"), "malformed"),
         (lambda d: d.update(weights=[1.0, 2.0]), "2 weights for a layout of 222"),
         (lambda d: d.update(surprise=1), "malformed"),
+        (lambda d: d.update(place_reference="room-mean"), "malformed.*place_reference"),
     ],
 )
 def test_bad_files_are_named_errors(tmp_path, mutate, message):
@@ -71,3 +72,18 @@ def test_bad_files_are_named_errors(tmp_path, mutate, message):
 def test_missing_file(tmp_path):
     with pytest.raises(ModelError, match="cannot read"):
         load_model(tmp_path / "none.json")
+
+
+def test_a_relative_place_threshold_counts_from_the_room_s_median_candidate_score(tmp_path):
+    from affordcore.maps import RULED_OUT
+
+    layout = FeatureLayout(cell_size=0.25)
+    model = _model(layout)
+    model.place_threshold, model.place_reference = 0.5, "room-median"
+    scores = np.array([[RULED_OUT, 1.0], [2.0, 3.0], [RULED_OUT, RULED_OUT]], dtype=np.float32)
+    assert model.place_cut(scores) == pytest.approx(2.5)  # ruled-out poses are no candidates
+    assert model.place_cut(np.full(3, RULED_OUT, np.float32)) == pytest.approx(0.5)
+    loaded = load_model(model.save(tmp_path / "m.json"), layout)
+    assert loaded.place_cut(scores) == pytest.approx(2.5) and loaded.id == model.id
+    model.place_reference = None
+    assert model.place_cut(scores) == pytest.approx(0.5) and model.id != loaded.id

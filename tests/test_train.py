@@ -243,4 +243,7 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
     assert live.sum() == int(np.ceil(model.rescorer["fraction"] * candidates))
     assert linear[live].min() >= linear[(linear > lowest) & ~live].max()
     amap = map_affordances(room.fields, layout, [model], settings)[affordance]
-    assert (amap.skeletons[:, 4] > model.place_threshold).all()
+    # places beat the place threshold counted from the room's median candidate score
+    cut = model.place_threshold + np.median(scores[live])
+    assert model.place_reference == "room-median" and model.place_cut(scores) == pytest.approx(cut)
+    assert (amap.skeletons[:, 4] > cut).all()

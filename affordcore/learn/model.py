@@ -5,7 +5,8 @@ A model says what it was trained for and on: the affordance and its skeleton, th
 fingerprint of `FeatureLayout.describe()`), the pose grid's resolution, the learner and its parameters, the
 weights, bias and threshold, the training rooms with their class counts, and validation metrics. A cascade
 (`learn/cascade.py`) also holds its second stage: the fraction of poses it rescores and its trees as node
-tables (data, never pickled code); `place_threshold` is the score a skeleton-map place must beat. Loading a
+tables (data, never pickled code); `place_threshold` is the score a skeleton-map place must beat, counted from
+the median of the room's candidate scores when `place_reference` is "room-median". Loading a
 model against a feature layout other than its own is a `ModelError`, not a silent wrong answer.
 """
 
@@ -21,11 +22,13 @@ import numpy as np
 
 from ..features import FeatureLayout
 from ..jsonfile import read_json
+from ..maps import room_reference
 from ..skeleton import Skeleton
 from ..trees import TreeEnsemble
 
 FORMAT = "affordance-model/2"
-READABLE = ("affordance-model/1", FORMAT)  # /2 added the optional place_threshold and rescorer
+READABLE = ("affordance-model/1", FORMAT)  # /2 added the optional place_threshold, rescorer, place_reference
+PLACE_REFERENCES = (None, "room-median")
 MODELS_DIR = Path(__file__).parents[1] / "data" / "models"  # the shipped default models, one per affordance
 
 
@@ -49,11 +52,21 @@ class AffordanceModel:
     validation: dict = field(default_factory=dict)  # precision, recall, f1
     place_threshold: float | None = None  # None: the threshold
     rescorer: dict | None = None  # the cascade's second stage: {"fraction", "trees"}
+    # "room-median": place_threshold counts from the median candidate score of the room (room_reference)
+    place_reference: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.place_reference not in PLACE_REFERENCES:
+            raise ValueError(
+                f"place_reference must be one of {PLACE_REFERENCES}, not {self.place_reference!r}"
+            )
 
     @property
     def id(self) -> str:
         """affordance/learner/hash of the weights: names exactly this model in the maps it makes."""
-        second = json.dumps([self.place_threshold, self.rescorer], sort_keys=True)
+        second = json.dumps([self.place_threshold, self.rescorer], sort_keys=True) + (
+            self.place_reference or ""
+        )
         digest = hashlib.sha256(
             np.asarray(self.weights, dtype=np.float64).tobytes()
             + repr((self.bias, self.threshold)).encode()
@@ -76,8 +89,17 @@ class AffordanceModel:
 
     @property
     def skeleton_threshold(self) -> float:
-        """The score a place of the skeleton map must beat."""
+        """The place threshold: what a place of the skeleton map must beat, counted from the room's
+        reference when `place_reference` says so (`place_cut`)."""
         return self.threshold if self.place_threshold is None else self.place_threshold
+
+    def place_cut(self, scores: np.ndarray) -> float:
+        """The score a place of this room's skeleton map must beat, given every pose's score in the room."""
+        return self.place_cut_from(room_reference(scores) if self.place_reference else 0.0)
+
+    def place_cut_from(self, reference: float) -> float:
+        """`place_cut` for a room whose reference (`maps.room_reference`) is known."""
+        return self.skeleton_threshold + (reference if self.place_reference == "room-median" else 0.0)
 
     @cached_property
     def trees(self) -> TreeEnsemble | None:

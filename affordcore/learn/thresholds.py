@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..labels import ground_truth, place_matches
-from ..maps import RULED_OUT, build_map
+from ..maps import RULED_OUT, build_map, room_reference
 from ..pipeline import score_model
 from ..settings import Settings
 from .baselines import tune_threshold
@@ -39,6 +39,12 @@ class RoomScores:
     place_scores: np.ndarray  # (k,) the candidate skeletons' scores
     place_false: np.ndarray  # (k,) bool: matches no label (ignored ones are left out)
     label_best: np.ndarray  # (n_labels,) the best score of a skeleton matching each label (RULED_OUT: none)
+    reference: float  # maps.room_reference of the room's scores
+
+    def places(self, cut: float) -> tuple[int, int, int]:
+        """(labelled places found, skeletons kept, false skeletons) when places must beat `cut`."""
+        kept = self.place_scores > cut
+        return int(np.sum(self.label_best > cut)), int(kept.sum()), int(np.sum(self.place_false & kept))
 
 
 def room_scores(model, room: Room, layout, settings: Settings, **tolerances: float) -> RoomScores:
@@ -59,7 +65,13 @@ def room_scores(model, room: Room, layout, settings: Settings, **tolerances: flo
     label_best = np.max(np.where(matches, score, RULED_OUT), axis=1, initial=RULED_OUT)
     counted = ~ignored
     return RoomScores(
-        room.name, scores.ravel()[scored], y, score[counted], ~matches.any(axis=0)[counted], label_best
+        room.name,
+        scores.ravel()[scored],
+        y,
+        score[counted],
+        ~matches.any(axis=0)[counted],
+        label_best,
+        room_reference(scores),
     )
 
 
@@ -74,16 +86,16 @@ def pose_threshold(rooms: list[RoomScores]) -> float:
     return tune_threshold(scores[live], labels[live])[0]
 
 
-def place_threshold(rooms: list[RoomScores]) -> tuple[float, dict]:
+def place_threshold(rooms: list[RoomScores], relative: bool = False) -> tuple[float, dict]:
     """(threshold, what it gives) with the best place F1 over the rooms: recall = labelled places found /
-    labelled places, precision = true skeletons / skeletons."""
-    candidates = np.unique(np.concatenate([r.place_scores for r in rooms] + [np.array([RULED_OUT])]))
+    labelled places, precision = true skeletons / skeletons. `relative`: the threshold counts from each
+    room's reference (`maps.room_reference`), as a model with place_reference "room-median" applies it."""
+    shift = [r.reference if relative else 0.0 for r in rooms]
+    candidates = np.unique(np.concatenate([r.place_scores - s for r, s in zip(rooms, shift)] + [[RULED_OUT]]))
+    labels = sum(len(r.label_best) for r in rooms)
     best = None
     for t in candidates:  # distinct skeleton scores: a few hundred, not poses
-        kept = sum(int(np.sum(r.place_scores > t)) for r in rooms)
-        false = sum(int(np.sum(r.place_false & (r.place_scores > t))) for r in rooms)
-        found = sum(int(np.sum(r.label_best > t)) for r in rooms)
-        labels = sum(len(r.label_best) for r in rooms)
+        found, kept, false = np.sum([r.places(t + s) for r, s in zip(rooms, shift)], axis=0)
         recall = found / labels if labels else 0.0
         precision = (kept - false) / kept if kept else 0.0
         f1 = 2 * recall * precision / (recall + precision) if recall + precision else 0.0

@@ -130,7 +130,11 @@ def train_on_rooms(
     scored = [room_scores(model, rooms[name], task.layout, task.settings) for name in validation_names]
     if not own_threshold:
         model.threshold = pose_threshold(scored)
-    model.place_threshold, places = place_threshold(scored)
+    # places count from each room's own median score, so the threshold survives scans unlike the training
+    # rooms; the absolute threshold's choice is kept for the comparison (benchmarks/accuracy.py)
+    absolute, absolute_places = place_threshold(scored)
+    model.place_threshold, places = place_threshold(scored, relative=True)
+    model.place_reference = "room-median"
     positives = sum(int((r.labels > 0).sum()) for r in scored)
     model.validation = {
         "rooms": validation_names,
@@ -142,5 +146,7 @@ def train_on_rooms(
         ),
         "positives": positives,
         **places,
+        "absolute_place_threshold": absolute,
+        "absolute_place_f1": absolute_places["place_f1"],
     }
     return model
