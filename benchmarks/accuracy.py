@@ -51,6 +51,7 @@ def main() -> None:
     args = parser.parse_args()
 
     from affordcore.features import FeatureLayout
+    from affordcore.learn.defaults import data_record, split_by_index
     from affordcore.learn.examples import Task, data_set_rooms, load_rooms, room_examples
     from affordcore.learn.train import train_on_rooms
     from affordcore.settings import Settings
@@ -58,13 +59,14 @@ def main() -> None:
     started = time.perf_counter()
     settings = Settings()
     layout = FeatureLayout.from_settings(settings.features, settings.voxel)
-    files = generated_rooms(args)
-    test, validation = files[-args.test :], files[-args.test - args.validation : -args.test]
-    train = files[: -args.test - args.validation]
+    files = {f.name: f for f in generated_rooms(args)}
+    train, validation, test = (
+        [files[name] for name in part] for part in split_by_index(list(files), args.validation, args.test)
+    )
     print(
         f"{len(train)} training, {len(validation)} validation, {len(test)} test rooms; {os.cpu_count()} cores"
     )
-    rooms = {r.name: r for r in load_rooms(files, settings, lambda name: None)}
+    rooms = {r.name: r for r in load_rooms(list(files.values()), settings, lambda name: None)}
     real = load_rooms(data_set_rooms(REAL_ROOMS), settings) if REAL_ROOMS.is_dir() else []
     train_names, validation_names = [f.name for f in train], [f.name for f in validation]
     results: dict = {
@@ -119,12 +121,14 @@ def main() -> None:
             models[(affordance, learner)],
             generated["per_room"],
             [rooms[f.name] for f in test],
-            files,
+            list(files.values()),
             task,
         )
         if args.models and (affordance, "cascade") in models:
             args.models.mkdir(parents=True, exist_ok=True)
-            models[(affordance, "cascade")].save(args.models / f"{affordance}.model.json")
+            model = models[(affordance, "cascade")]
+            model.parameters["data"] = data_record(len(files), args.seed, [f.name for f in test])
+            model.save(args.models / f"{affordance}.model.json")
     results["seconds"] = time.perf_counter() - started
     results["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     results["cores"] = os.cpu_count()

@@ -247,3 +247,39 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
     cut = model.place_threshold + np.median(scores[live])
     assert model.place_reference == "room-median" and model.place_cut(scores) == pytest.approx(cut)
     assert (amap.skeletons[:, 4] > cut).all()
+
+
+def test_split_by_index_deals_rooms_in_generation_order_and_refuses_too_few():
+    from affordcore.learn.defaults import split_by_index
+
+    names = [f"{kind}-{i:03d}" for i, kind in enumerate(["living", "office", "workshop"] * 4)]
+    train_names, validation, test = split_by_index(sorted(names), 3, 3)
+    assert test == ["living-009", "office-010", "workshop-011"]
+    assert validation == ["living-006", "office-007", "workshop-008"] and len(train_names) == 6
+    with pytest.raises(ValueError, match="12 rooms cannot make 6 validation and 6 test rooms"):
+        split_by_index(names, 6, 6)
+
+
+@pytest.mark.slow
+def test_default_models_train_on_the_split_the_benchmark_uses_and_are_reproducible(tmp_path, monkeypatch):
+    from affordcore.learn.defaults import train_default_models
+
+    for key, value in SMALL.items():
+        monkeypatch.setenv(key, value)
+    data = tmp_path / "rooms"
+    command = [sys.executable, "-m", "afford", "synth", "--rooms", "5", "--seed", "2", "--out", str(data)]
+    result = subprocess.run(command + ["--scanner", "uniform", "--quiet"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    first = train_default_models(data, tmp_path / "a", "linear-tuned", validation=1, test=1)
+    second = train_default_models(data, tmp_path / "b", "linear-tuned", validation=1, test=1)
+    from affordcore.skeleton import skeleton_files
+
+    shipped = sorted(skeleton_files(Settings().skeleton_dirs))
+    assert [p.name for p in first] == [f"{a}.model.json" for a in shipped]
+    for a, b in zip(first, second):
+        assert a.read_bytes() == b.read_bytes(), a.name
+        model = load_model(a)
+        assert model.parameters["data"]["held_out_test_rooms"] == ["office-004"]
+        assert model.validation["rooms"] == ["living-003"]
+        assert "office-004" not in model.training["rooms"] and "living-003" not in model.training["rooms"]
+        assert model.place_reference == "room-median"
