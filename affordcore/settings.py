@@ -158,6 +158,13 @@ class LearnSettings(BaseModel):
         description="training keeps every positive pose of a room and a seeded random sample of this many "
         "of its negatives (0: every negative); memory grows with rooms x this",
     )
+    max_negatives: int = Field(
+        500_000,
+        ge=1,
+        description="a training set keeps at most this many negatives in all, a seeded random share of the "
+        "rooms' samples weighted up to stand for the rest: memory stops growing with the number of rooms "
+        "(liblinear copies its data at 16 bytes a value)",
+    )
     rescore_fraction: float = Field(
         0.03,
         gt=0,

@@ -157,13 +157,38 @@ def room_examples(
     return RoomExamples(room.name, X, y, weights, [room], task)
 
 
-def stack(examples: dict[str, RoomExamples], names: list[str]) -> RoomExamples:
+def stack(
+    examples: dict[str, RoomExamples],
+    names: list[str],
+    max_negatives: int | None = None,
+    rng: np.random.Generator | None = None,
+) -> RoomExamples:
+    """The rooms' examples as one set. With `max_negatives`, at most that many negatives in all: a uniform
+    random share of them (drawn with `rng`), weighted up by the inverse share so they still stand for every
+    negative of the rooms; only the kept rows are ever copied."""
     chosen = [examples[n] for n in names]
+    rows = [slice(None)] * len(chosen)
+    scale = 1.0
+    negatives = [np.flatnonzero(e.y <= 0) for e in chosen]
+    total = sum(len(n) for n in negatives)
+    if max_negatives is not None and total > max_negatives:
+        rng = rng or np.random.default_rng(0)
+        pick = np.zeros(total, bool)
+        pick[rng.choice(total, max_negatives, replace=False)] = True
+        picks = np.split(pick, np.cumsum([len(n) for n in negatives])[:-1])
+        rows = [
+            np.sort(np.concatenate([np.flatnonzero(e.y > 0), n[p]]))
+            for e, n, p in zip(chosen, negatives, picks)
+        ]
+        scale = total / max_negatives
+    weights = [
+        e.weights[r] * np.where(e.y[r] > 0, 1.0, scale).astype(np.float32) for e, r in zip(chosen, rows)
+    ]
     return RoomExamples(
         "+".join(names),
-        np.concatenate([e.X for e in chosen]),
-        np.concatenate([e.y for e in chosen]),
-        np.concatenate([e.weights for e in chosen]),
+        np.concatenate([e.X[r] for e, r in zip(chosen, rows)]),
+        np.concatenate([e.y[r] for e, r in zip(chosen, rows)]),
+        np.concatenate(weights),
         [room for e in chosen for room in e.rooms],
         chosen[0].task if chosen else None,
     )

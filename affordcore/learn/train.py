@@ -100,7 +100,11 @@ def train_on_rooms(
     rooms scored as `afford map` scores them (`thresholds.py`). `negatives_per_positive` undersamples the
     training examples further, and `own_threshold` keeps the learner's own pose threshold: the paper's
     imbalance test, which is about how each learner's own decision rule bears the imbalance."""
-    training, validation = stack(examples, train_names), stack(examples, validation_names)
+    # at most learn.max_negatives: memory stops growing with the number of training rooms
+    training = stack(
+        examples, train_names, task.settings.learn.max_negatives, np.random.default_rng([seed, 2])
+    )
+    validation = stack(examples, validation_names)
     if training.positives == 0:
         raise ValueError(f"the training rooms {', '.join(train_names)} hold no {task.affordance} label")
     if negatives_per_positive is not None:
