@@ -86,3 +86,27 @@ def test_rooms_need_a_label_file(data_set, tmp_path):
     assert [name for name, _, _ in data_set_rooms(data_set)] == ["bench-room"]
     with pytest.raises(FileNotFoundError, match="labels.json"):
         data_set_rooms(tmp_path)
+
+
+def test_a_stack_keeps_every_positive_and_at_most_the_negatives_asked_for_weighted_to_stand_for_all():
+    from affordcore.learn.examples import RoomExamples, stack
+
+    rng = np.random.default_rng(0)
+
+    def room(name, positives, negatives, weight):
+        y = np.r_[np.ones(positives), -np.ones(negatives)].astype(np.int8)
+        X = np.column_stack([np.arange(len(y)), np.full(len(y), len(name))]).astype(np.float32)
+        return RoomExamples(name, X, y, np.where(y > 0, 1.0, weight).astype(np.float32), [], None)
+
+    examples = {"a": room("a", 5, 300, 10.0), "bb": room("bb", 2, 100, 4.0)}
+    whole = stack(examples, ["a", "bb"])
+    capped = stack(examples, ["a", "bb"], max_negatives=80, rng=rng)
+    assert capped.positives == whole.positives == 7 and int((capped.y < 0).sum()) == 80
+    # the kept negatives stand for every negative of both rooms: their weights sum to the whole set's
+    assert capped.weights[capped.y < 0].sum() == pytest.approx(whole.weights[whole.y < 0].sum(), rel=0.1)
+    assert capped.weights[capped.y > 0].tolist() == [1.0] * 7
+    # each kept row is a real row of its room: features and labels travel together
+    for x, y in zip(capped.X, capped.y):
+        source = examples["a" if x[1] == 1 else "bb"]
+        assert source.y[int(x[0])] == y
+    assert stack(examples, ["a", "bb"], max_negatives=1000).X.shape == whole.X.shape
