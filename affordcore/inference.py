@@ -119,8 +119,8 @@ def model_scores(
 ) -> np.ndarray:
     """A model's score of every pose (z, theta, x, y), float32; poses outside `allowed` (nx, ny) cells hold
     float32's lowest. A linear model scores every pose as above. A cascade's linear first stage scores every
-    pose, and its second stage rescores the best `fraction` of them from their full features (log-odds);
-    every other pose holds float32's lowest: the first stage ruled it out."""
+    pose, and its second stage rescores the best `fraction` of them (at most `max_poses`) from their full
+    features (log-odds); every other pose holds float32's lowest: the first stage ruled it out."""
     skeleton = model.as_skeleton()
     scores = score_poses(fields, skeleton, grid, layout, model.weights, model.bias)
     if allowed is not None:
@@ -128,18 +128,18 @@ def model_scores(
     if not model.rescorer:
         return scores
     flat = scores.ravel()
-    best = best_poses(flat, model.rescorer["fraction"])
+    best = best_poses(flat, model.rescorer["fraction"], model.rescorer.get("max_poses"))
     rescored = model.trees.log_odds(features_at(fields, skeleton, grid, layout, best))
     flat[:] = RULED_OUT
     flat[best] = rescored
     return scores
 
 
-def best_poses(flat_scores: np.ndarray, fraction: float) -> np.ndarray:
-    """Flat indices of the best `fraction` (rounded up) of the poses not ruled out, in no order: what the
-    second stage rescores, at inference and in training alike."""
+def best_poses(flat_scores: np.ndarray, fraction: float, max_poses: int | None = None) -> np.ndarray:
+    """Flat indices of the best `fraction` (rounded up), and at most `max_poses`, of the poses not ruled out,
+    in no order: what the second stage rescores, at inference and in training alike."""
     candidates = int(np.count_nonzero(flat_scores > RULED_OUT))
-    keep = min(candidates, int(np.ceil(fraction * candidates)))
+    keep = min(candidates, int(np.ceil(fraction * candidates)), max_poses or candidates)
     return (
         np.argpartition(flat_scores, len(flat_scores) - keep)[len(flat_scores) - keep :]
         if keep

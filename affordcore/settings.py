@@ -171,6 +171,12 @@ class LearnSettings(BaseModel):
         le=1,
         description="the second stage rescores this fraction of a room's poses, the first stage's best",
     )
+    rescore_max_poses: int = Field(
+        12_000,
+        ge=1,
+        description="and at most this many per room and affordance: a room has a bounded number of places, "
+        "and the second stage's time stays bounded in large rooms (docs/maps.md measures it)",
+    )
     workers: int = Field(
         0, ge=0, description="processes that prepare rooms for training in parallel (0: one per core)"
     )

@@ -62,10 +62,31 @@ def test_a_cascade_model_file_round_trips_and_a_broken_one_is_named(boosted, tmp
     other = _cascade_model(TreeEnsemble.from_sklearn(boosted[0]), 6)
     other.place_threshold = 0.8
     assert other.id != model.id  # the id names the whole model, second stage included
-    text = path.read_text().replace('"roots": [', '"roots": [99999, ')
-    path.write_text(text)
-    with pytest.raises(ModelError, match="m.model.json"):
-        load_model(path)
+    good = path.read_text()
+    for broken, message in (
+        (good.replace('"roots": [', '"roots": [99999, '), "m.model.json"),
+        (good.replace('"fraction": 0.03', '"fraction": 1.5'), "fraction must lie in"),
+        (
+            good.replace('"fraction": 0.03', '"fraction": 0.03, "max_poses": -4'),
+            "max_poses must be a positive",
+        ),
+    ):
+        path.write_text(broken)
+        with pytest.raises(ModelError, match=message):
+            load_model(path)
+
+
+def test_the_second_stage_takes_the_best_fraction_of_the_candidates_and_at_most_max_poses():
+    from affordcore.inference import best_poses
+    from affordcore.maps import RULED_OUT
+
+    scores = np.random.default_rng(0).normal(size=1000).astype(np.float32)
+    scores[::2] = RULED_OUT  # 500 candidates
+    best = best_poses(scores, 0.03)
+    assert len(best) == 15 and scores[best].min() >= np.sort(scores[scores > RULED_OUT])[-15]
+    capped = best_poses(scores, 0.03, max_poses=4)
+    assert sorted(capped) == sorted(best[np.argsort(scores[best])[-4:]])
+    assert len(best_poses(np.full(10, RULED_OUT, np.float32), 0.5)) == 0
 
 
 def test_the_place_threshold_maximises_place_f1():

@@ -240,7 +240,8 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
     first = dataclasses.replace(model, rescorer=None)
     _, linear = score_model(first, room.fields, layout, settings)
     candidates = int((linear > lowest).sum())
-    assert live.sum() == int(np.ceil(model.rescorer["fraction"] * candidates))
+    wanted = int(np.ceil(model.rescorer["fraction"] * candidates))
+    assert live.sum() == min(wanted, model.rescorer["max_poses"])
     assert linear[live].min() >= linear[(linear > lowest) & ~live].max()
     amap = map_affordances(room.fields, layout, [model], settings)[affordance]
     # places beat the place threshold counted from the room's median candidate score

@@ -48,6 +48,7 @@ def second_stage_examples(
     fraction: float,
     rng: np.random.Generator,
     max_negatives: int = 4000,
+    max_poses: int | None = None,
 ) -> RoomExamples:
     """The poses the trees will rescore at inference, with their features and labels, from every room."""
     from .model import AffordanceModel
@@ -62,7 +63,7 @@ def second_stage_examples(
         flat = scores.ravel()
         # unlabelled poses are neither taught as positive nor as negative
         flat[truth.scored_mask().ravel() == 0] = RULED_OUT
-        best = best_poses(flat, fraction)
+        best = best_poses(flat, fraction, max_poses)
         if len(best) == 0:
             continue
         label = truth.pose_mask().ravel()[best]
@@ -100,8 +101,9 @@ def fit_trees(examples: RoomExamples, settings: TreeSettings, seed: int) -> Tree
 
 
 def fit_cascade(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> Fitted:
-    """params: ``first`` (the first stage's learner, default ``linear-tuned``), ``fraction`` (default
-    `learn.rescore_fraction`), ``first_params``, and any `TreeSettings` field."""
+    """params: ``first`` (the first stage's learner, default ``linear-tuned``), ``fraction`` and ``max_poses``
+    (default `learn.rescore_fraction`, `learn.rescore_max_poses`), ``first_params``, and any `TreeSettings`
+    field."""
     task = train.task
     if task is None or not train.rooms:
         raise ValueError("the cascade learns from rooms: train it with `afford train` / `train.train`")
@@ -110,10 +112,13 @@ def fit_cascade(train: RoomExamples, validation: RoomExamples, params: dict, rng
         raise ValueError("a cascade's first stage must be a linear learner")
     first = get_learner(first_name).fit(train, validation, params.get("first_params", {}), rng)
     fraction = float(params.get("fraction", task.settings.learn.rescore_fraction))
+    max_poses = int(params.get("max_poses", task.settings.learn.rescore_max_poses))
     trees_settings = TreeSettings(
         **{k: v for k, v in params.items() if k in TreeSettings.__dataclass_fields__}
     )
-    examples = second_stage_examples(train.rooms, task, first.weights, first.bias, fraction, rng)
+    examples = second_stage_examples(
+        train.rooms, task, first.weights, first.bias, fraction, rng, max_poses=max_poses
+    )
     trees = fit_trees(examples, trees_settings, int(rng.integers(2**31)))
     return Fitted(
         first.weights,
@@ -125,5 +130,5 @@ def fit_cascade(train: RoomExamples, validation: RoomExamples, params: dict, rng
             "second_stage_positives": examples.positives,
             **{k: v for k, v in first.report.items() if k not in ("train_f1", "validation_f1")},
         },
-        rescorer={"fraction": fraction, "trees": trees.to_dict()},
+        rescorer={"fraction": fraction, "max_poses": max_poses, "trees": trees.to_dict()},
     )

@@ -51,7 +51,7 @@ class AffordanceModel:
     training: dict = field(default_factory=dict)  # rooms and class counts
     validation: dict = field(default_factory=dict)  # precision, recall, f1
     place_threshold: float | None = None  # None: the threshold
-    rescorer: dict | None = None  # the cascade's second stage: {"fraction", "trees"}
+    rescorer: dict | None = None  # the cascade's second stage: {"fraction", "max_poses", "trees"}
     # "room-median": place_threshold counts from the median candidate score of the room (room_reference)
     place_reference: str | None = None
 
@@ -60,6 +60,14 @@ class AffordanceModel:
             raise ValueError(
                 f"place_reference must be one of {PLACE_REFERENCES}, not {self.place_reference!r}"
             )
+        if self.rescorer is not None:
+            fraction, max_poses = self.rescorer.get("fraction"), self.rescorer.get("max_poses")
+            if not isinstance(fraction, (int, float)) or not 0 < fraction <= 1:
+                raise ValueError(f"the rescorer's fraction must lie in (0, 1], not {fraction!r}")
+            if max_poses is not None and (not isinstance(max_poses, int) or max_poses < 1):
+                raise ValueError(
+                    f"the rescorer's max_poses must be a positive whole number, not {max_poses!r}"
+                )
 
     @property
     def id(self) -> str:
