@@ -7,9 +7,9 @@ of poses, cheap for the few it passes on. The trees are trained on exactly what 
 each training room is scored by the first stage and its top `fraction` of poses (near scanned floor, outside
 unlabelled regions) are featurised with `features.features_at` and labelled from the ground truth.
 
-Trees: scikit-learn's HistGradientBoostingClassifier (already a dependency; LightGBM would add a compiled one
-for no measured gain at these sizes), positives up-weighted to a fixed share, stored as node tables
-(`trees.TreeEnsemble`) so model files stay data.
+Trees: scikit-learn's HistGradientBoostingClassifier (already a dependency), positives up-weighted to a fixed
+share, stored as node tables (`trees.TreeEnsemble`) so model files stay data and scoring needs neither
+library. LightGBM ranks as well and fits faster (benchmarks/second_stage_trees.py, docs/benchmarks.md).
 """
 
 from __future__ import annotations
