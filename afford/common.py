@@ -15,6 +15,10 @@ GRAVITY_HELP = (
 )
 CONNECT_HELP = "zenoh endpoint of the router, e.g. tcp/192.168.1.10:7447 (repeatable)"
 ROBOT_HELP = "the robot's name: its keys are afford/@v1/<robot>/..."
+ZENOH_CONFIG_HELP = (
+    "a zenoh JSON5 config file to start from: TLS certificates, access control (docs/security.md); "
+    "default: AFFORD_SERVICE__ZENOH_CONFIG"
+)
 
 
 class UserError(Exception):

@@ -9,7 +9,16 @@ import typer
 
 from services.registry import SERVICES
 
-from .common import CONNECT_HELP, GRAVITY_HELP, ROBOT_HELP, UserError, fail, progress, user_errors
+from .common import (
+    CONNECT_HELP,
+    GRAVITY_HELP,
+    ROBOT_HELP,
+    ZENOH_CONFIG_HELP,
+    UserError,
+    fail,
+    progress,
+    user_errors,
+)
 
 app = typer.Typer()
 PANEL = "Robot"
@@ -20,12 +29,13 @@ def router(
     listen: list[str] = typer.Option(
         ["tcp/127.0.0.1:7447"], "--listen", help="endpoint to listen on (repeatable), e.g. tcp/0.0.0.0:7447"
     ),
+    zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help=ZENOH_CONFIG_HELP),
 ) -> None:
     """Run a Zenoh router for tests and single-host use (on a robot network: the eclipse/zenoh image)."""
     with user_errors():
         from services.clients import run_router
 
-        run_router(listen)
+        run_router(listen, zenoh_config=zenoh_config or _settings().service.zenoh_config)
 
 
 @app.command(rich_help_panel=PANEL)
@@ -49,13 +59,22 @@ def serve(
     model: list[Path] | None = typer.Option(
         None, "--model", help="inference: a model file (repeatable); default: the shipped models"
     ),
+    state: Path | None = typer.Option(
+        None,
+        "--state",
+        help="assembler: keep the map in this folder (checkpoint and journal) and reload it on start; "
+        "default: AFFORD_SERVICE__STATE",
+    ),
+    zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help=ZENOH_CONFIG_HELP),
 ) -> None:
     """Run one service until SIGINT/SIGTERM. Settings (AFFORD_ASSEMBLER__*, AFFORD_SERVICE__*, ...) from the
     environment."""
     with user_errors():
         from services.registry import run_service
 
-        run_service(service, robot, connect, rrd, viewer, listen, model or [])
+        run_service(
+            service, robot, connect, rrd, viewer, listen, model or [], state=state, zenoh_config=zenoh_config
+        )
 
 
 @app.command(rich_help_panel=PANEL)
@@ -89,6 +108,7 @@ def publish(
         "would read with each frame",
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+    zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help=ZENOH_CONFIG_HELP),
 ) -> None:
     """Publish a finished map, a single scan, or a recorded sequence of frames at a given rate."""
     with user_errors():
@@ -101,15 +121,15 @@ def publish(
             publish_sequence,
             scan_message,
         )
-        from services.settings import ServiceSettings
         from services.transport import Keys
 
-        keys, settings = Keys(robot), ServiceSettings()
+        keys, settings = Keys(robot), _settings(zenoh_config)
+        session_of = settings.service.mode, settings.service.zenoh_config
         try:
             if source.is_dir():
                 sequence, messages, count = folder_frames(source, first, frames, step, imu)
                 sensor = sensor or ("camera" if sequence.kind == "depth" else "lidar")
-                with connected(connect, settings.service.mode) as session, progress(quiet) as bar:
+                with connected(connect, *session_of) as session, progress(quiet) as bar:
                     task = bar.add_task(f"{sequence.kind} frames to {keys.scan(sensor)}", total=count)
                     sent = publish_sequence(
                         session, keys, messages, sensor, rate, wait, on_frame=lambda _: bar.advance(task)
@@ -122,7 +142,7 @@ def publish(
                 cloud, warnings = load_as_map(source, gravity, settings)
                 for warning in warnings:
                     typer.echo(f"warning: {warning}", err=True)
-                with connected(connect, settings.service.mode) as session:
+                with connected(connect, *session_of) as session:
                     publish_map(session, keys, cloud, wait)
                 typer.echo(
                     f"published {source} as the map of robot {robot} "
@@ -130,7 +150,7 @@ def publish(
                 )
             else:
                 scan = scan_message(source, sensor or "sensor")
-                with connected(connect, settings.service.mode) as session:
+                with connected(connect, *session_of) as session:
                     publish_sequence(session, keys, [(0, scan)], sensor or "sensor", 0, wait)
                 typer.echo(
                     f"published {source} as one scan of robot {robot} (--as-map publishes a finished room "
@@ -161,18 +181,19 @@ def watch(
         help="only maps built from at least this many scans (what afford publish printed)",
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="print only the maps' summary"),
+    zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help=ZENOH_CONFIG_HELP),
 ) -> None:
     """Print what the services of a robot publish; exit 0 once every affordance's map has arrived."""
     with user_errors():
         from affordcore.learn.model import shipped_models
         from services.clients import MapWatcher, watch_maps
-        from services.settings import ServiceSettings
         from services.transport import Keys
 
         keys = Keys(robot)
         wanted = affordance or list(shipped_models())
         watcher = MapWatcher(keys, wanted, frames, out, echo=(lambda line: None) if quiet else typer.echo)
-        arrived = watch_maps(connect, ServiceSettings().service.mode, keys, watcher, timeout)
+        service = _settings(zenoh_config).service
+        arrived = watch_maps(connect, service.mode, keys, watcher, timeout, service.zenoh_config)
         for name in sorted(watcher.received):
             document = watcher.received[name]
             typer.echo(
@@ -181,3 +202,13 @@ def watch(
             )
         if not arrived:
             fail(f"timed out after {timeout:.0f} s waiting for {', '.join(watcher.missing)}", code=1)
+
+
+def _settings(zenoh_config: Path | None = None):
+    """The services' settings from the environment, with --zenoh-config over AFFORD_SERVICE__ZENOH_CONFIG."""
+    from services.settings import ServiceSettings
+
+    settings = ServiceSettings()
+    if zenoh_config is not None:
+        settings.service.zenoh_config = zenoh_config
+    return settings

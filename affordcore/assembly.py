@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .depth import DepthImage, back_project
-from .settings import AssemblerSettings, Settings
+from .settings import AssemblerSettings, LimitSettings, Settings
 
 
 @dataclass
@@ -42,34 +42,66 @@ class Trajectory:
         return np.array([pose[:3, 3] for pose in self.poses]).reshape(-1, 3)
 
 
+@dataclass
+class FrameRecord:
+    """What one accepted frame changed: enough to replay it onto a restored assembler (affordcore.checkpoint
+    journals these)."""
+
+    index: int  # the frame's number, from 0
+    stamp: float
+    pose: np.ndarray  # odom_from_sensor, 4 x 4
+    guess: np.ndarray | None  # the pose guess it carried (world_from_sensor), if any
+    gravity: np.ndarray  # its gravity direction in the odometry frame; zeros without an IMU
+    map_points: np.ndarray | None  # (N, 3) odometry-frame points it added to the global map (keyframes)
+
+
+@dataclass
+class _Proposal:
+    """A frame registered but not yet part of anything."""
+
+    record: FrameRecord
+    frame_downsample: np.ndarray  # what KISS-ICP's local map takes
+    source: np.ndarray  # what KISS-ICP registered (thinned, sensor frame)
+    deviation: np.ndarray  # registration against prediction, for KISS-ICP's adaptive threshold
+    delta: np.ndarray  # motion since the previous frame
+
+
 class Assembler:
-    def __init__(self, settings: AssemblerSettings | None = None):
-        from kiss_icp.config import KISSConfig
-        from kiss_icp.kiss_icp import KissICP
+    def __init__(self, settings: AssemblerSettings | None = None, limits: LimitSettings | None = None):
         from kiss_icp.mapping import VoxelHashMap
 
-        self.settings = settings = settings or AssemblerSettings()
-        config = KISSConfig()
-        config.data.max_range, config.data.min_range = settings.max_range, settings.min_range
-        config.data.deskew = False
-        config.mapping.voxel_size = settings.voxel_size
-        config.registration.max_num_threads = 0  # all cores
-        self.odometry = KissICP(config)
-        self.global_map = VoxelHashMap(settings.map_voxel, max_distance=np.inf, max_points_per_voxel=1)
+        self.settings = settings or AssemblerSettings()
+        self.limits = limits or LimitSettings()
+        self.odometry = self._kiss_icp()
+        self.global_map = VoxelHashMap(self.settings.map_voxel, max_distance=np.inf, max_points_per_voxel=1)
         self.trajectory = Trajectory()
         self._last_keyframe: np.ndarray | None = None
         self._last_guess: np.ndarray | None = None
+        self._last_guess_stamp = 0.0
         # the last frame as KISS-ICP registered it (thinned, sensor frame)
         self.registered_points = np.empty((0, 3))
         self._gravity_sum = np.zeros(3)  # gravity directions reported with the frames, in the odometry frame
         self.keyframes = 0  # frames that joined the global map
 
+    def _kiss_icp(self):
+        from kiss_icp.config import KISSConfig
+        from kiss_icp.kiss_icp import KissICP
+
+        config = KISSConfig()
+        config.data.max_range, config.data.min_range = self.settings.max_range, self.settings.min_range
+        config.data.deskew = False
+        config.mapping.voxel_size = self.settings.voxel_size
+        config.registration.max_num_threads = 0  # all cores
+        return KissICP(config)
+
     @property
     def frames(self) -> int:
         return len(self.trajectory.poses)
 
-    def add(self, frame: SensorFrame, stamp: float) -> np.ndarray:
-        """Register a sensor frame (depth images back-projected as block means); returns odom_from_sensor."""
+    def add(self, frame: SensorFrame, stamp: float) -> FrameRecord:
+        """Register a sensor frame (depth images back-projected as block means) and add it to the map; returns
+        what it changed. A frame refused by the limits (time going back, a jump beyond the speed limit, a pose
+        beyond the largest extent) raises ValueError and changes nothing."""
         points = frame.points
         if frame.depth is not None:
             settings = self.settings
@@ -82,14 +114,30 @@ class Assembler:
         stamp: float,
         pose_guess: np.ndarray | None = None,
         gravity: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """Register one frame (points in the sensor frame); returns the sensor's pose, odom_from_sensor.
+    ) -> FrameRecord:
+        """Register one frame (points in the sensor frame) and add it to the map; returns its record, whose
+        `pose` is the sensor's, odom_from_sensor.
 
         `pose_guess` (world_from_sensor from the robot's own odometry) replaces KISS-ICP's constant-velocity
         prediction by the guessed motion since the previous frame. `gravity` (its direction in the sensor
         frame, from an IMU) is averaged in the odometry frame and used by `aligned_map` instead of a floor
         search over candidate axes, which fails when a hand-held camera has seen little floor."""
-        points = np.asarray(points, dtype=np.float64)
+        proposal = self._propose(np.asarray(points, dtype=np.float64), stamp, pose_guess, gravity)
+        odometry = self.odometry  # from here on nothing can fail: the frame is in
+        odometry.adaptive_threshold.update_model_deviation(proposal.deviation)
+        odometry.local_map.update(proposal.frame_downsample, proposal.record.pose)
+        odometry.last_delta, odometry.last_pose = proposal.delta, proposal.record.pose.copy()
+        self.registered_points = proposal.source
+        self.apply(proposal.record)
+        return proposal.record
+
+    def _propose(
+        self, points: np.ndarray, stamp: float, pose_guess: np.ndarray | None, gravity: np.ndarray | None
+    ) -> _Proposal:
+        """Everything KISS-ICP's register_frame does, without changing anything, and the limits' checks."""
+        from kiss_icp.voxelization import voxel_down_sample
+
+        self._check_input(points, stamp, pose_guess, gravity)
         ranges = np.linalg.norm(points, axis=1)
         points = points[(ranges >= self.settings.min_range) & (ranges <= self.settings.max_range)]
         if len(points) < 100:
@@ -97,20 +145,97 @@ class Assembler:
                 f"the frame has {len(points)} points within "
                 f"{self.settings.min_range}-{self.settings.max_range} m; at least 100 are needed"
             )
+        odometry = self.odometry
+        delta = odometry.last_delta
         if pose_guess is not None and self._last_guess is not None:
-            self.odometry.last_delta = np.linalg.inv(self._last_guess) @ pose_guess
-        self._last_guess = pose_guess
-        _, self.registered_points = self.odometry.register_frame(points, np.zeros(len(points)))
-        pose = self.odometry.last_pose.copy()
-        if gravity is not None:
-            self._gravity_sum += pose[:3, :3] @ (gravity / np.linalg.norm(gravity))
-        self.trajectory.stamps.append(stamp)
-        self.trajectory.poses.append(pose)
-        if self._is_keyframe(pose):
-            self.global_map.update(points, pose)
-            self._last_keyframe = pose
+            delta = np.linalg.inv(self._last_guess) @ pose_guess
+        frame = odometry.preprocessor.preprocess(points, np.zeros(len(points)), delta)
+        source, frame_downsample = odometry.voxelize(frame)
+        sigma = odometry.adaptive_threshold.get_threshold()
+        initial_guess = odometry.last_pose @ delta
+        pose = odometry.registration.align_points_to_map(
+            points=source,
+            voxel_map=odometry.local_map,
+            initial_guess=initial_guess,
+            max_correspondance_distance=3 * sigma,
+            kernel=sigma,
+        )
+        self._check_motion(odometry.last_pose, pose, stamp, "registration")
+        if float(np.linalg.norm(pose[:3, 3])) > self.limits.max_extent:
+            raise ValueError(
+                f"registration puts the sensor {np.linalg.norm(pose[:3, 3]):.1f} m from where it started, "
+                f"beyond AFFORD_LIMITS__MAX_EXTENT ({self.limits.max_extent:g} m)"
+            )
+        up = np.zeros(3) if gravity is None else pose[:3, :3] @ (gravity / np.linalg.norm(gravity))
+        keyframe = self._is_keyframe(pose)
+        map_points = None
+        if keyframe:  # thinned to the map's voxel: what the map would keep of them anyway
+            moved = points @ pose[:3, :3].T + pose[:3, 3]
+            map_points = voxel_down_sample(moved, self.settings.map_voxel)
+        record = FrameRecord(self.frames, stamp, pose, pose_guess, up, map_points)
+        return _Proposal(
+            record,
+            frame_downsample,
+            source,
+            np.linalg.inv(initial_guess) @ pose,
+            np.linalg.inv(odometry.last_pose) @ pose,
+        )
+
+    def _check_input(
+        self, points: np.ndarray, stamp: float, guess: np.ndarray | None, gravity: np.ndarray | None
+    ) -> None:
+        limits = self.limits
+        if points.ndim != 2 or points.shape[1] != 3 or not np.isfinite(points).all():
+            raise ValueError(f"a frame's points must be finite (N, 3), got shape {points.shape}")
+        if len(points) > limits.max_points:
+            raise ValueError(
+                f"{len(points):,} points; at most {limits.max_points:,} (AFFORD_LIMITS__MAX_POINTS)"
+            )
+        if not 0 <= stamp <= limits.latest_timestamp:
+            raise ValueError(f"frame time {stamp:.6g} s is outside 0 ... {limits.latest_timestamp:.0f} s")
+        if self.frames and stamp <= self.trajectory.stamps[-1]:
+            raise ValueError(
+                f"frame time {stamp:.6f} s is not after the last frame's ({self.trajectory.stamps[-1]:.6f} s)"
+            )
+        if gravity is not None and not (np.isfinite(gravity).all() and np.linalg.norm(gravity) > 1e-6):
+            raise ValueError(f"gravity {np.asarray(gravity).tolist()} is not a direction")
+        if guess is not None:
+            rotation = guess[:3, :3]
+            if not np.isfinite(guess).all() or not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-3):
+                raise ValueError("the pose guess is not a finite rigid transform")
+            if self._last_guess is not None:
+                self._check_motion(self._last_guess, guess, stamp, "the pose guess", self._last_guess_stamp)
+
+    def _check_motion(
+        self, before: np.ndarray, after: np.ndarray, stamp: float, what: str, since: float | None = None
+    ) -> None:
+        """Refuse a motion faster than the limits allow (at least 0.1 s of it: frames may come in bursts)."""
+        if not self.frames:
+            return
+        seconds = max(stamp - (self.trajectory.stamps[-1] if since is None else since), 0.1)
+        motion = np.linalg.inv(before) @ after
+        distance = float(np.linalg.norm(motion[:3, 3]))
+        angle = np.degrees(np.arccos(np.clip((np.trace(motion[:3, :3]) - 1) / 2, -1, 1)))
+        limits = self.limits
+        if distance > limits.max_speed * seconds or angle > limits.max_turn_rate_deg * seconds:
+            raise ValueError(
+                f"{what} moves the sensor {distance:.2f} m and {angle:.0f} degrees in {seconds:.2f} s, "
+                f"faster than AFFORD_LIMITS__MAX_SPEED ({limits.max_speed:g} m/s) or MAX_TURN_RATE_DEG "
+                f"({limits.max_turn_rate_deg:g})"
+            )
+
+    def apply(self, record: FrameRecord) -> None:
+        """Add an accepted frame to the trajectory and the global map (as registration does, and as a
+        restored assembler replays its journal)."""
+        self.trajectory.stamps.append(record.stamp)
+        self.trajectory.poses.append(record.pose)
+        self._gravity_sum += record.gravity
+        if record.guess is not None:
+            self._last_guess, self._last_guess_stamp = record.guess, record.stamp
+        if record.map_points is not None:
+            self.global_map.add_points(record.map_points)
+            self._last_keyframe = record.pose
             self.keyframes += 1
-        return pose
 
     def _is_keyframe(self, pose: np.ndarray) -> bool:
         if self._last_keyframe is None:

@@ -61,14 +61,23 @@ class SceneFields:
 def lattice_around(points: np.ndarray, settings: VoxelSettings) -> VoxelLattice:
     """A lattice covering the cloud, the floor and the space up to ``min_height``, with a margin all round."""
     res = settings.resolution
+    if len(points) == 0 or not np.isfinite(points).all():
+        raise ValueError("the fields need a non-empty cloud of finite points")
     low = points.min(axis=0)
     high = points.max(axis=0)
     low[2] = min(low[2], 0.0)
     high[2] = max(high[2], settings.min_height)
     first = np.floor((low - settings.margin) / res)
     last = np.ceil((high + settings.margin) / res)
-    shape = tuple(int(n) for n in (last - first + 1))
-    return VoxelLattice(first * res, res, shape)
+    counts = last - first + 1
+    # counted in floats: a hostile cloud's extent must not overflow the check that refuses it
+    if float(np.prod(counts)) > settings.max_voxels:
+        size = " x ".join(f"{v:.4g}" for v in high - low)
+        raise ValueError(
+            f"the cloud spans {size} m: {float(np.prod(counts)):.3g} voxels at {res} m, above "
+            f"AFFORD_VOXEL__MAX_VOXELS ({settings.max_voxels:,})"
+        )
+    return VoxelLattice(first * res, res, tuple(int(n) for n in counts))
 
 
 def compute_fields(

@@ -25,6 +25,12 @@ class VoxelSettings(BaseModel):
     min_height: float = Field(
         2.2, gt=0, description="the fields reach at least this high above the floor (m), even over a low scan"
     )
+    max_voxels: int = Field(
+        10_000_000,
+        ge=1000,
+        description="a cloud whose fields would need more voxels than this is refused before anything is "
+        "allocated (a 50 m x 50 m floor at 0.1 m is 8 million; docs/security.md gives the memory per voxel)",
+    )
 
 
 class NormalSettings(BaseModel):
@@ -149,6 +155,40 @@ class AssemblerSettings(BaseModel):
         ge=0,
         description="the map cloud is published at most this often (s), and once more after the last scan",
     )
+    checkpoint_period: float = Field(
+        10.0,
+        gt=0,
+        description="with a state folder, the whole map is rewritten there this often (s); every frame in "
+        "between is journaled as it is accepted",
+    )
+
+
+class LimitSettings(BaseModel):
+    """What input from the network may be (AFFORD_LIMITS__*): larger or stranger input is refused, before
+    anything is allocated or changed, with a message naming the limit."""
+
+    max_points: int = Field(5_000_000, ge=100, description="points in one scan or cloud message")
+    max_depth_pixels: int = Field(
+        4096 * 3072, ge=1, description="pixels in one depth image (a Kinect frame is 307,200)"
+    )
+    max_extent: float = Field(
+        100.0,
+        gt=0,
+        description="a map cloud spans at most this (m) along each axis, and the assembler's sensor stays "
+        "within this of where it started",
+    )
+    max_speed: float = Field(
+        5.0,
+        gt=0,
+        description="the sensor moves at most this fast (m/s) between frames, by its pose guess and by "
+        "registration: a larger jump is refused rather than carried into the map",
+    )
+    max_turn_rate_deg: float = Field(720.0, gt=0, description="... and turns at most this fast (degrees/s)")
+    latest_timestamp: float = Field(
+        4_102_444_800.0,
+        gt=0,
+        description="timestamps are seconds since the epoch from 0 (unset) up to this (2100-01-01)",
+    )
 
 
 class LearnSettings(BaseModel):
@@ -194,6 +234,7 @@ class Settings(BaseSettings):
     gravity: GravitySettings = GravitySettings()
     map: MapSettings = MapSettings()
     assembler: AssemblerSettings = AssemblerSettings()
+    limits: LimitSettings = LimitSettings()
     learn: LearnSettings = LearnSettings()
     skeleton_dirs: list[Path] = Field(
         default_factory=list,

@@ -14,6 +14,7 @@ import time
 import numpy as np
 
 from affordcore.depth import DepthImage
+from affordcore.settings import LimitSettings
 from affordcore.skeleton import JOINTS
 
 from .proto import geometry_pb2, maps_pb2, sensing_pb2, service_pb2
@@ -81,6 +82,18 @@ def stamp(message_timestamp, seconds: float | None = None) -> None:
 
 def seconds(message_timestamp) -> float:
     return message_timestamp.ToNanoseconds() * 1e-9
+
+
+def checked_seconds(message_timestamp, limits: LimitSettings, what: str = "timestamp") -> float:
+    """Seconds since the epoch of a Timestamp, refused outside 0 (unset) ... `limits.latest_timestamp`: a
+    time beyond it overflows the recordings' nanosecond clock and every later frame's ordering."""
+    value = message_timestamp.seconds + message_timestamp.nanos * 1e-9
+    if not 0 <= value <= limits.latest_timestamp or not 0 <= message_timestamp.nanos < 1_000_000_000:
+        raise MessageError(
+            f"{what} {value:.6g} s (nanos {message_timestamp.nanos}) is outside 0 ... "
+            f"{limits.latest_timestamp:.0f} s since the epoch (AFFORD_LIMITS__LATEST_TIMESTAMP)"
+        )
+    return value
 
 
 def set_pose(pose, matrix: np.ndarray, frame_id: str, child_frame_id: str, at: float | None = None) -> None:
@@ -151,9 +164,9 @@ def pack_points(message, points: np.ndarray, times: np.ndarray | None = None) ->
     message.data = np.ascontiguousarray(np.hstack(columns), dtype="<f4").tobytes()
 
 
-def unpack_points(message) -> tuple[np.ndarray, np.ndarray | None]:
-    """(points (N, 3) float64, per-point times t or None) of a Scan or Cloud; points with a non-finite
-    coordinate are dropped (organised clouds mark missing returns with NaN)."""
+def unpack_points(message, max_points: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """(points (N, 3) float64, per-point times t or None) of a Scan or Cloud, at most `max_points` of them;
+    points with a non-finite coordinate are dropped (organised clouds mark missing returns with NaN)."""
     fields = {field.name: field for field in message.fields}
     missing = [name for name in "xyz" if name not in fields]
     if missing:
@@ -165,6 +178,11 @@ def unpack_points(message) -> tuple[np.ndarray, np.ndarray | None]:
         raise MessageError("point_stride is 0")
     if len(message.data) % stride:
         raise MessageError(f"data is {len(message.data)} bytes, not a whole number of {stride}-byte points")
+    if max_points is not None and len(message.data) // stride > max_points:
+        raise MessageError(
+            f"{len(message.data) // stride:,} points; at most {max_points:,} are taken "
+            "(AFFORD_LIMITS__MAX_POINTS)"
+        )
     dtype = {}
     for name in ("x", "y", "z", "t"):
         if name not in fields:
@@ -229,11 +247,17 @@ def depth_frame_message(
     return message
 
 
-def depth_image(message: DepthFrame) -> DepthImage:
+def depth_image(message: DepthFrame, limits: LimitSettings | None = None) -> DepthImage:
     """The depth image a DepthFrame carries, checked (affordcore.depth.back_project turns it into points)."""
+    limits = limits or LimitSettings()
     width, height = message.width, message.height
     if width == 0 or height == 0:
         raise MessageError(f"depth image is {width} x {height}")
+    if width * height > limits.max_depth_pixels:
+        raise MessageError(
+            f"depth image is {width} x {height}; at most {limits.max_depth_pixels:,} pixels are taken "
+            "(AFFORD_LIMITS__MAX_DEPTH_PIXELS)"
+        )
     if len(message.depth) != 2 * width * height:
         raise MessageError(
             f"depth holds {len(message.depth)} bytes; a {width} x {height} 16-bit image needs "
@@ -242,8 +266,8 @@ def depth_image(message: DepthFrame) -> DepthImage:
     k = message.intrinsics
     if not (k.fx > 0 and k.fy > 0) or not np.isfinite([k.fx, k.fy, k.cx, k.cy]).all():
         raise MessageError(f"intrinsics fx={k.fx}, fy={k.fy} must be positive focal lengths in pixels")
-    if not message.depth_scale > 0:
-        raise MessageError(f"depth_scale must be positive metres per unit, got {message.depth_scale}")
+    if not 0 < message.depth_scale < 1:
+        raise MessageError(f"depth_scale must be positive metres per unit below 1, got {message.depth_scale}")
     intrinsics = np.array([[k.fx, 0, k.cx], [0, k.fy, k.cy], [0, 0, 1.0]])
     pixels = np.frombuffer(message.depth, dtype="<u2").reshape(height, width)
     return DepthImage(pixels, intrinsics, message.depth_scale, message.invalid_value)
@@ -262,17 +286,27 @@ def cloud_message(
     return message
 
 
-def cloud_points(message: CloudMessage) -> np.ndarray:
-    """The world-frame points of a map Cloud; a cloud in another frame, or with no points, is refused."""
+def cloud_points(message: CloudMessage, limits: LimitSettings | None = None) -> np.ndarray:
+    """The world-frame points of a map Cloud, checked against `limits`; a cloud in another frame, with
+    fewer than 100 points, or wider than `limits.max_extent`, is refused."""
+    limits = limits or LimitSettings()
     if message.frame_id != WORLD:
         raise MessageError(
             f"map clouds must be in the {WORLD!r} frame (gravity-aligned, z up, floor at 0), not "
             f"{message.frame_id!r}; "
             "`afford publish --as-map` aligns a file before sending it"
         )
-    points, _ = unpack_points(message)
+    checked_seconds(message.timestamp, limits)
+    pose_matrix(message.world_from_input)
+    points, _ = unpack_points(message, limits.max_points)
     if len(points) < 100:
         raise MessageError(f"the map has {len(points)} finite points; at least 100 are needed")
+    extent = points.max(axis=0) - points.min(axis=0)
+    if (extent > limits.max_extent).any():
+        raise MessageError(
+            f"the map spans {' x '.join(f'{v:.4g}' for v in extent)} m; at most {limits.max_extent:g} m "
+            "along each axis is taken (AFFORD_LIMITS__MAX_EXTENT)"
+        )
     return points
 
 
@@ -293,27 +327,50 @@ def fields_message(fields, cloud: CloudMessage, at: float | None = None) -> Scen
     return message
 
 
-def scene_fields(message: SceneFieldsMessage):
-    """The `SceneFields` a message carries (arrays are read-only views of the payload)."""
+def scene_fields(
+    message: SceneFieldsMessage, limits: LimitSettings | None = None, max_voxels: int | None = None
+):
+    """The `SceneFields` a message carries (arrays are read-only views of the payload), checked: at most
+    `max_voxels`, finite, and consistent with its grid."""
     from affordcore.fields import SceneFields, VoxelLattice
 
+    limits = limits or LimitSettings()
     grid = message.grid
     shape = (grid.nx, grid.ny, grid.nz)
-    n = int(np.prod(shape))
-    if n == 0 or not grid.resolution > 0:
+    n = int(np.prod(shape, dtype=object))  # exact: three uint32 can overflow int64
+    if n == 0 or not grid.resolution > 0 or not np.isfinite(grid.resolution):
         raise MessageError(f"voxel grid {shape} at resolution {grid.resolution} is empty")
+    if max_voxels is not None and n > max_voxels:
+        raise MessageError(
+            f"voxel grid {shape} has {n:,} voxels; at most {max_voxels:,} are taken "
+            "(AFFORD_VOXEL__MAX_VOXELS)"
+        )
+    origin = np.array([grid.origin.x, grid.origin.y, grid.origin.z])
+    if not np.isfinite(origin).all() or (np.abs(origin) > limits.max_extent).any():
+        raise MessageError(f"grid origin {origin.tolist()} is not finite or beyond AFFORD_LIMITS__MAX_EXTENT")
+    checked_seconds(message.timestamp, limits)
+    checked_seconds(message.cloud_timestamp, limits, "cloud_timestamp")
+    pose_matrix(message.world_from_input)
     for name, itemsize in (("occupancy", 1), ("distance", 4), ("normals", 12)):
         if len(getattr(message, name)) != n * itemsize:
             raise MessageError(
                 f"{name} holds {len(getattr(message, name))} bytes; a {shape} grid needs {n * itemsize}"
             )
-    lattice = VoxelLattice(np.array([grid.origin.x, grid.origin.y, grid.origin.z]), grid.resolution, shape)
-    occupancy = np.frombuffer(message.occupancy, dtype=np.uint8).reshape(shape).astype(np.float32)
+    lattice = VoxelLattice(origin, grid.resolution, shape)
+    occupancy = np.frombuffer(message.occupancy, dtype=np.uint8).reshape(shape)
     distance = np.frombuffer(message.distance, dtype="<f4").reshape(shape)
     normals = np.frombuffer(message.normals, dtype="<f4").reshape(*shape, 3)
+    if occupancy.max() > 1:
+        raise MessageError("occupancy holds values other than 0 and 1")
+    if not (np.isfinite(distance).all() and distance.min() >= 0):
+        raise MessageError("distance holds NaN, infinite or negative values")
+    lengths = np.einsum("...i,...i->...", normals, normals)  # NaN propagates: one check for both
+    if not (lengths <= 1.0 + 1e-3).all():
+        raise MessageError("normals hold NaN, infinite or longer-than-unit vectors")
     footprint = (message.x_min, message.y_min, message.x_max, message.y_max)
-    if not (footprint[2] >= footprint[0] and footprint[3] >= footprint[1]):
+    if not (np.isfinite(footprint).all() and footprint[2] >= footprint[0] and footprint[3] >= footprint[1]):
         raise MessageError(f"empty floor footprint {footprint}")
+    occupancy = occupancy.astype(np.float32)
     return SceneFields(lattice, occupancy, distance, normals, footprint)
 
 

@@ -109,7 +109,7 @@ def run_assembler(
     poses, seconds = [], []
     for index, (frame, down) in enumerate(zip(points, gravity)):
         start = time.perf_counter()
-        poses.append(assembler.register(frame, index / 30, gravity=down))
+        poses.append(assembler.register(frame, index / 30, gravity=down).pose)
         seconds.append(time.perf_counter() - start)
     return poses, seconds, assembler
 

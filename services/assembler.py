@@ -1,6 +1,7 @@
 """Scan assembly: scan/** (any message affordwire.sensors decodes) in; map/pose per frame and map/cloud
 (rate-limited, and once more when the scans stop) out. Registration and the global map are
-affordcore.assembly's."""
+affordcore.assembly's; with a state folder (`--state`) every accepted frame is journaled before its pose goes
+out, and the map checkpointed, by affordcore.checkpoint."""
 
 from __future__ import annotations
 
@@ -9,11 +10,12 @@ import time
 import numpy as np
 
 from affordcore.assembly import Assembler
+from affordcore.checkpoint import AssemblerStore
 from affordcore.recording import log_cloud, log_scan, log_trajectory, set_time
 from affordwire import messages
 from affordwire.sensors import decode_sensor
 
-from .node import Inbound, Inbox, Node
+from .node import Inbound, Node
 
 # seconds without scans after which a pending map goes out whatever the rate limit
 QUIET_BEFORE_PUBLISHING = 0.5
@@ -22,24 +24,33 @@ QUIET_BEFORE_PUBLISHING = 0.5
 class AssemblerService:
     def __init__(self, node: Node):
         self.node = node
-        self.settings = node.settings.assembler
-        self.assembler = Assembler(self.settings)
-        self.inbox = Inbox(latest_only=False, limit=node.settings.service.max_queue)
+        self.settings, self.limits = node.settings.assembler, node.settings.limits
+        self.assembler = Assembler(self.settings, self.limits)
+        state = node.settings.service.state
+        self.store = None if state is None else AssemblerStore(state)
+        restored = self.store.restore(self.assembler) if self.store else 0
+        self.last_checkpoint = time.monotonic()
         self.last_published = -np.inf
         self.last_scan = 0.0
-        self.pending = False  # frames registered since the last published map
-        self.last_stamp = 0.0
+        self.pending = restored > 0  # frames registered since the last published map
+        self.last_stamp = self.assembler.trajectory.stamps[-1] if restored else 0.0
+        if self.store:
+            print(f"[assembler] restored {restored} frames from {self.store.folder}", flush=True)
+        self.inbox = node.inbox(latest_only=False, skip_when_late=True)
         node.subscribe(node.keys.scans, self.inbox)
         for key in (node.keys.cloud, node.keys.pose):
             node.answer_latest(key)
 
     def run(self) -> None:
-        self.node.run(self.inbox, self.handle, self.idle)
+        self.node.run(self.inbox, self.handle, self.idle, self.stop)
 
     def handle(self, item: Inbound) -> None:
-        frame = decode_sensor(item.schema, item.payload)
+        frame = decode_sensor(item.schema, item.payload, self.limits)
         at = frame.stamp or item.arrived
-        pose = self.assembler.add(frame, at)
+        record = self.assembler.add(frame, at)  # a refused frame raises here and changes nothing
+        if self.store:
+            self.store.append(record)  # before anything goes out about it
+        pose = record.pose
         self.last_scan, self.pending, self.last_stamp = time.monotonic(), True, at
 
         pose_message = messages.Pose()
@@ -53,6 +64,17 @@ class AssemblerService:
     def idle(self) -> None:
         if self.pending and time.monotonic() - self.last_scan >= QUIET_BEFORE_PUBLISHING:
             self.publish_map()
+        if self.store and time.monotonic() - self.last_checkpoint >= self.settings.checkpoint_period:
+            self.store.snapshot(self.assembler)
+            self.last_checkpoint = time.monotonic()
+
+    def stop(self) -> str:
+        """At SIGTERM: checkpoint the map, so a restart takes up where this run stopped."""
+        if self.store is None:
+            return f"no state folder (--state): the map of {self.assembler.frames} frames is not kept"
+        self.store.snapshot(self.assembler)
+        self.store.close()
+        return f"checkpointed the map of {self.assembler.frames} frames to {self.store.folder}"
 
     def publish_map(self) -> None:
         """Align the global map to gravity and publish it; until a floor is in view, there is nothing to

@@ -17,12 +17,14 @@ from affordwire import messages
 from .transport import Keys, declare_publisher, encoding_of, open_session, schema_of, stop_on_signals
 
 
-def run_router(listen: list[str], stop: threading.Event | None = None) -> None:
-    """A zenoh router on `listen` until SIGINT/SIGTERM (zenohd is not on pip or apt; docker uses
-    eclipse/zenoh)."""
+def run_router(
+    listen: list[str], stop: threading.Event | None = None, zenoh_config: Path | None = None
+) -> None:
+    """A zenoh router on `listen` until SIGINT/SIGTERM, from the JSON5 `zenoh_config` when given (TLS, access
+    control: docs/security.md). zenohd is not on pip or apt; docker uses eclipse/zenoh."""
     stop = stop or threading.Event()
     stop_on_signals(stop)
-    session = open_session([], mode="router", listen=listen)
+    session = open_session([], mode="router", listen=listen, base=zenoh_config)
     print(f"router listening on {', '.join(listen)}", flush=True)
     try:
         stop.wait()
@@ -38,9 +40,9 @@ class NoSubscriber(RuntimeError):
 
 
 @contextmanager
-def connected(endpoints: list[str], mode: str) -> Iterator:
+def connected(endpoints: list[str], mode: str, zenoh_config: Path | None = None) -> Iterator:
     """A zenoh session to the router(s) at `endpoints`, closed on leaving."""
-    session = open_session(endpoints, mode)
+    session = open_session(endpoints, mode, base=zenoh_config)
     try:
         yield session
     finally:
@@ -62,10 +64,19 @@ def _publisher(session, key: str, message_class, wait: float):
     return publisher
 
 
+def _delivered(session, keys: Keys) -> None:
+    """Return once what this session put has reached the robot's services: a put only queues a sample, and
+    a session closed right after it can lose the last one (one frame in a hundred through a router). A
+    query to the services' status travels behind the samples on the same links, so its replies come after
+    them."""
+    list(session.get(keys.key("status", "*"), timeout=10.0))
+
+
 def publish_map(session, keys: Keys, cloud: messages.CloudMessage, wait: float) -> None:
     """A finished room on map/cloud, once the features service listens."""
     publisher = _publisher(session, keys.cloud, messages.CloudMessage, wait)
     publisher.put(cloud.SerializeToString())
+    _delivered(session, keys)
     publisher.undeclare()
 
 
@@ -96,6 +107,7 @@ def publish_sequence(
             sent += 1
             if on_frame:
                 on_frame(index)
+        _delivered(session, keys)
     finally:
         if publisher is not None:
             publisher.undeclare()
@@ -261,7 +273,14 @@ def folder_frames(folder: Path, first: int, frames: int, step: int, imu: bool):
     return sequence, sequence_messages(sequence, indices, imu), len(indices)
 
 
-def watch_maps(endpoints: list[str], mode: str, keys: Keys, watcher: MapWatcher, timeout: float) -> bool:
+def watch_maps(
+    endpoints: list[str],
+    mode: str,
+    keys: Keys,
+    watcher: MapWatcher,
+    timeout: float,
+    zenoh_config: Path | None = None,
+) -> bool:
     """`watch` over a session of its own."""
-    with connected(endpoints, mode) as session:
+    with connected(endpoints, mode, zenoh_config) as session:
         return watch(session, keys, watcher, timeout)

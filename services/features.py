@@ -8,22 +8,23 @@ from affordcore.recording import log_cloud, log_fields, set_time
 from affordcore.scene import Cloud
 from affordwire import messages
 
-from .node import Inbound, Inbox, Node
+from .node import Inbound, Node
 
 
 class FeaturesService:
     def __init__(self, node: Node):
         self.node = node
-        self.inbox = Inbox(latest_only=True, limit=1)  # a newer map supersedes one not yet worked on
+        self.inbox = node.inbox(latest_only=True)  # a newer map supersedes one not yet worked on
         node.subscribe(node.keys.cloud, self.inbox)
         node.answer_latest(node.keys.fields)
+        node.fetch_latest(node.keys.cloud, self.inbox)  # a map published before this service (re)started
 
     def run(self) -> None:
         self.node.run(self.inbox, self.handle)
 
     def handle(self, item: Inbound) -> None:
         cloud = self.node.decode(item, messages.CloudMessage)
-        points = messages.cloud_points(cloud)
+        points = messages.cloud_points(cloud, self.node.settings.limits)
         self.node.publish_status(messages.Status.BUSY, f"computing the fields of {len(points):,} points")
         # map clouds arrive in the world frame (cloud_points checked it): no alignment here
         scene = prepare_scene(Cloud(points, source=item.key), self.node.settings, gravity="none")

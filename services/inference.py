@@ -8,24 +8,26 @@ from affordcore.pipeline import map_affordances
 from affordcore.recording import log_map, set_time
 from affordwire import messages
 
-from .node import Inbound, Inbox, Node
+from .node import Inbound, Node
 
 
 class InferenceService:
     def __init__(self, node: Node):
         self.node, self.models = node, node.models
         self.layout = FeatureLayout.from_settings(node.settings.features, node.settings.voxel)
-        self.inbox = Inbox(latest_only=True, limit=1)
+        self.inbox = node.inbox(latest_only=True)
         node.subscribe(node.keys.fields, self.inbox)
         for model in self.models:
             node.answer_latest(node.keys.affordance(model.affordance))
+        node.fetch_latest(node.keys.fields, self.inbox)  # fields published before this service (re)started
 
     def run(self) -> None:
         self.node.run(self.inbox, self.handle)
 
     def handle(self, item: Inbound) -> None:
         message = self.node.decode(item, messages.SceneFieldsMessage)
-        fields = messages.scene_fields(message)
+        settings = self.node.settings
+        fields = messages.scene_fields(message, settings.limits, settings.voxel.max_voxels)
         if abs(fields.lattice.resolution - self.node.settings.voxel.resolution) > 1e-9:
             raise messages.MessageError(
                 f"fields at {fields.lattice.resolution} m voxels; the models here need "

@@ -72,7 +72,7 @@ class Stack:
         from .transport import Keys, open_session
 
         keys = Keys(self.robot)
-        session = open_session([self.endpoint])
+        session = open_session([self.endpoint], wait=timeout)
         deadline = time.monotonic() + timeout
         try:
             while True:

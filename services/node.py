@@ -8,9 +8,10 @@ written from one thread, and a bad input is answered on the error key while the 
 
 from __future__ import annotations
 
-import queue
 import threading
 import time
+import traceback
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,34 +42,92 @@ class Inbound:
 
 
 class Inbox:
-    """Samples waiting for the worker. `latest_only` keeps just the newest (a map superseded before it was
-    worked on is not worth the work); otherwise first in, first out, up to `limit`."""
+    """Samples waiting for the worker, bounded in count and in bytes. `latest_only` keeps just the newest (a
+    map superseded before it was worked on is not worth the work); otherwise first in, first out, and when
+    `max_lag` is set an input older than that is passed over (counted in `skipped`) if a newer one waits
+    and the one before it was taken: a sensor stream the worker cannot follow is thinned, to half its rate
+    at most, rather than left to build a lag."""
 
-    def __init__(self, latest_only: bool, limit: int):
-        self.latest_only = latest_only
-        self._queue: queue.Queue = queue.Queue(maxsize=0 if latest_only else limit)
-        self._lock = threading.Lock()
+    def __init__(self, latest_only: bool, limit: int, max_bytes: int, max_lag: float | None = None):
+        self.latest_only, self.limit, self.max_bytes, self.max_lag = latest_only, limit, max_bytes, max_lag
+        self._items: deque[Inbound] = deque()
+        self._bytes = 0
+        self._ready = threading.Condition()
+        self.skipped = 0
+        self.skipped_last: Inbound | None = None
+        self._taken_last: Inbound | None = None
 
-    def offer(self, item: Inbound) -> bool:
-        """False when the inbox is full (the caller reports it; nothing is dropped silently)."""
-        with self._lock:
+    def offer(self, item: Inbound) -> str | None:
+        """None when taken, else why not (the caller answers it on the error key: nothing is dropped
+        silently)."""
+        size = len(item.payload)
+        if size > self.max_bytes:
+            return (
+                f"the payload is {size:,} bytes, above AFFORD_SERVICE__MAX_QUEUE_BYTES ({self.max_bytes:,})"
+            )
+        with self._ready:
             if self.latest_only:
-                while not self._queue.empty():
-                    self._queue.get_nowait()
-            try:
-                self._queue.put_nowait(item)
-            except queue.Full:
-                return False
-        return True
+                self._items.clear()
+                self._bytes = 0
+            elif len(self._items) >= self.limit:
+                return (
+                    f"{len(self._items)} inputs are waiting (AFFORD_SERVICE__MAX_QUEUE); this one is refused"
+                )
+            elif self._bytes + size > self.max_bytes:
+                return (
+                    f"{self._bytes:,} bytes are waiting; this one's {size:,} would pass "
+                    f"AFFORD_SERVICE__MAX_QUEUE_BYTES ({self.max_bytes:,}); it was not taken"
+                )
+            self._items.append(item)
+            self._bytes += size
+            self._ready.notify()
+        return None
 
     def take(self, timeout: float) -> Inbound | None:
-        try:
-            return self._queue.get(timeout=timeout)
-        except queue.Empty:
-            return None
+        with self._ready:
+            if not self._items and not self._ready.wait_for(lambda: self._items, timeout):
+                return None
+            item = self._pop()
+            # never two in a row: registration bridges one missing frame, not a run of them
+            late = self.max_lag is not None and time.time() - item.arrived > self.max_lag
+            if late and self._items and self.skipped_last is not self._taken_last:
+                self.skipped += 1
+                self.skipped_last = item
+                item = self._pop()
+            self._taken_last = item
+            return item
+
+    def _pop(self) -> Inbound:
+        item = self._items.popleft()
+        self._bytes -= len(item.payload)
+        return item
+
+    def drain(self) -> int:
+        """Empty the inbox; returns how many inputs it held."""
+        with self._ready:
+            count = len(self._items)
+            self._items.clear()
+            self._bytes = 0
+            return count
 
     def __len__(self) -> int:
-        return self._queue.qsize()
+        return len(self._items)
+
+
+def _inbound(sample) -> Inbound:
+    return Inbound(
+        str(sample.key_expr), schema_of(sample), str(sample.encoding), sample.payload.to_bytes(), time.time()
+    )
+
+
+def unused_path(path: Path) -> Path:
+    """`path`, or when it exists `name-1.rrd`, `name-2.rrd`, ...: a restarted service never overwrites the
+    recording of the run before it (the one that crashed is the one worth reading)."""
+    candidate, number = path, 0
+    while candidate.exists():
+        number += 1
+        candidate = path.with_name(f"{path.stem}-{number}{path.suffix}")
+    return candidate
 
 
 class Node:
@@ -92,16 +151,19 @@ class Node:
         self.settings = settings or ServiceSettings()
         self.models = list(models or [])  # what a scoring service (inference) scores with
         self.stop_event = threading.Event()
-        self.counts = {"accepted": 0, "rejected": 0, "published": 0}
+        stop_on_signals(self.stop_event)  # from the start: a SIGTERM while starting up is a clean stop too
+        self.counts = {"accepted": 0, "rejected": 0, "published": 0, "skipped": 0, "dropped": 0}
         self.last_seconds = 0.0
         self.latest: dict[str, tuple[bytes, object]] = {}  # key: (payload, encoding) answered on get
         self._declared: list = []
         self._lock = threading.Lock()
         recording_id = self.settings.service.recording_id or f"afford-{robot}"
-        self.recording = open_recording(
-            rrd or Path(f"{service}.rrd"), affordances or [], recording_id, viewer
+        self.rrd = unused_path(Path(rrd or f"{service}.rrd"))
+        self.recording = open_recording(self.rrd, affordances or [], recording_id, viewer)
+        service_settings = self.settings.service
+        self.session = open_session(
+            endpoints, service_settings.mode, listen, service_settings.zenoh_config, None, self.stop_event
         )
-        self.session = open_session(endpoints, self.settings.service.mode, listen)
         self.state, self.detail = messages.Status.STARTING, "starting"
         self._declared.append(self.session.liveliness().declare_token(self.keys.status(service)))
         self._declared.append(
@@ -117,23 +179,33 @@ class Node:
 
     # -- inputs ----------------------------------------------------------------------------------------------
 
+    def inbox(self, latest_only: bool, skip_when_late: bool = False) -> Inbox:
+        """An inbox bounded by the service settings; `skip_when_late`: pass over inputs older than
+        AFFORD_SERVICE__MAX_LAG when newer ones wait."""
+        service = self.settings.service
+        max_lag = service.max_lag if skip_when_late else None
+        return Inbox(latest_only, service.max_queue, service.max_queue_bytes, max_lag)
+
     def subscribe(self, key: str, inbox: Inbox) -> None:
         def on_sample(sample) -> None:
-            item = Inbound(
-                str(sample.key_expr),
-                schema_of(sample),
-                str(sample.encoding),
-                sample.payload.to_bytes(),
-                time.time(),
-            )
-            if not inbox.offer(item):
-                self.reject(
-                    item,
-                    f"{self.service} is {len(inbox)} inputs behind (AFFORD_SERVICE__MAX_QUEUE); this one "
-                    "was not taken",
-                )
+            self._offer(inbox, _inbound(sample))
 
         self._declared.append(self.session.declare_subscriber(key, on_sample))
+
+    def fetch_latest(self, key: str, inbox: Inbox, timeout: float = 5.0) -> int:
+        """Ask for the latest input published on `key` (its publisher answers a get), so a service that
+        (re)starts after it went out still works on it; returns how many replies were taken."""
+        taken = 0
+        for reply in self.session.get(key, timeout=timeout):
+            if reply.ok is not None and not len(inbox):  # what the subscriber brought meanwhile is newer
+                taken += self._offer(inbox, _inbound(reply.ok))
+        return taken
+
+    def _offer(self, inbox: Inbox, item: Inbound) -> bool:
+        refusal = inbox.offer(item)
+        if refusal is not None:
+            self.reject(item, refusal)
+        return refusal is None
 
     def decode(self, item: Inbound, *message_classes):
         """The message of the class the sample's schema names, among `message_classes`, or MessageError."""
@@ -206,11 +278,16 @@ class Node:
     # -- the work loop ---------------------------------------------------------------------------------------
 
     def run(
-        self, inbox: Inbox, handle: Callable[[Inbound], None], idle: Callable[[], None] | None = None
+        self,
+        inbox: Inbox,
+        handle: Callable[[Inbound], None],
+        idle: Callable[[], None] | None = None,
+        on_stop: Callable[[], str] | None = None,
     ) -> None:
-        """Take inputs until SIGINT/SIGTERM: `handle` each (a ValueError rejects it), `idle` when none came
-        for a moment. Then close everything, the recording last."""
-        stop_on_signals(self.stop_event)
+        """Take inputs until SIGINT/SIGTERM: `handle` each, `idle` when none came for a moment; an exception
+        in either, whatever its type, is answered on the error key and the service goes on. At the stop,
+        inputs still waiting are counted as dropped and `on_stop` saves what the service holds (its return
+        says what); then everything closes, the recording last."""
         self.publish_status(messages.Status.READY, "waiting for input")
         print(
             f"[{self.service}] ready: robot {self.keys.robot}, keys {PREFIX}/{self.keys.robot}/...",
@@ -220,28 +297,59 @@ class Node:
         try:
             while not self.stop_event.is_set():
                 item = inbox.take(timeout=0.2)
+                self._note_skipped(inbox)
                 if item is not None:
                     self._handle(item, handle)
                 elif idle is not None:
-                    idle()
+                    self._guarded(Inbound("(idle)", "", "", b"", time.time()), lambda _: idle())
                 if time.monotonic() - last_status > self.settings.service.status_period:
                     self.publish_status(messages.Status.READY, f"{len(inbox)} inputs waiting")
                     last_status = time.monotonic()
         finally:
+            with self._lock:
+                self.counts["dropped"] += inbox.drain()
+            if on_stop is not None:
+                self._guarded(
+                    Inbound("(stop)", "", "", b"", time.time()),
+                    lambda _: print(f"[{self.service}] {on_stop()}", flush=True),
+                )
             self.close()
 
-    def _handle(self, item: Inbound, handle: Callable[[Inbound], None]) -> None:
+    def _note_skipped(self, inbox: Inbox) -> None:
         with self._lock:
+            newly = inbox.skipped - self.counts["skipped"]
+            self.counts["skipped"] = inbox.skipped
+        if newly:
+            last = inbox.skipped_last
+            self.publish_status(
+                messages.Status.BUSY,
+                f"skipped {newly} inputs to keep up ({inbox.skipped} in all), the last on {last.key} that "
+                f"waited {time.time() - last.arrived:.2f} s (AFFORD_SERVICE__MAX_LAG)",
+            )
+
+    def _handle(self, item: Inbound, handle: Callable[[Inbound], None]) -> None:
+        with self._lock:  # counted before its outputs go out, so a status read after them includes it
             self.counts["accepted"] += 1
         started = time.perf_counter()
-        try:
-            handle(item)
-        except (ValueError, MemoryError) as error:  # MessageError, CloudError, ModelError, no floor, ...
+        if self._guarded(item, handle):
+            self.last_seconds = time.perf_counter() - started
+        else:
             with self._lock:
                 self.counts["accepted"] -= 1
-            self.reject(item, str(error))
-            return
-        self.last_seconds = time.perf_counter() - started
+
+    def _guarded(self, item: Inbound, work: Callable[[Inbound], None]) -> bool:
+        """Run `work`; any exception is answered on the error key (ours by name, anything else with its type:
+        that one is a bug to report) and False returned. Only leaving the process gets through."""
+        try:
+            work(item)
+        except (ValueError, MemoryError) as error:  # MessageError, CloudError, ModelError, limits, no floor
+            self.reject(item, str(error) or type(error).__name__)
+            return False
+        except Exception as error:  # noqa: BLE001 - a service on a shared network must outlive its bugs
+            traceback.print_exc()
+            self.reject(item, f"internal error, {type(error).__name__}: {error}")
+            return False
+        return True
 
     def close(self) -> None:
         from affordcore.recording import close_recording
@@ -259,9 +367,10 @@ class Node:
         warning = close_recording(self.recording)
         if warning:
             print(f"[{self.service}] {warning}", flush=True)
+        counts = self.counts
         print(
-            f"[{self.service}] stopped: {self.counts['accepted']} inputs taken, {self.counts['rejected']} "
-            "rejected, "
-            f"{self.counts['published']} outputs published",
+            f"[{self.service}] stopped: {counts['accepted']} inputs taken, {counts['rejected']} rejected, "
+            f"{counts['skipped']} skipped to keep up, {counts['dropped']} dropped at the stop (waiting), "
+            f"{counts['published']} outputs published; recording {self.rrd}",
             flush=True,
         )

@@ -48,9 +48,12 @@ def run_service(
     viewer: str | None = None,
     listen: list[str] | None = None,
     model_files: list[Path] | None = None,
+    state: Path | None = None,
+    zenoh_config: Path | None = None,
 ) -> None:
-    """Run one registered service until SIGINT/SIGTERM, with the settings from the environment; a service that
-    scores uses the given models (default: the shipped ones)."""
+    """Run one registered service until SIGINT/SIGTERM, with the settings from the environment (`state` and
+    `zenoh_config` over theirs); a service that scores uses the given models (default: the shipped
+    ones)."""
     spec = SERVICES.get(name)
     if spec is None:
         raise ValueError(f"unknown service {name!r}; choose one of {', '.join(SERVICES)}")
@@ -61,6 +64,8 @@ def run_service(
     from .settings import ServiceSettings
 
     settings = ServiceSettings()
+    settings.service.state = state or settings.service.state
+    settings.service.zenoh_config = zenoh_config or settings.service.zenoh_config
     if spec.downstream:
         os.nice(settings.service.downstream_nice)
     models = []

@@ -3,6 +3,8 @@ AFFORD_* environment variables."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from pydantic import BaseModel, Field
 
 from affordcore.settings import Settings
@@ -12,9 +14,15 @@ class NodeSettings(BaseModel):
     """What every service process shares (AFFORD_SERVICE__*)."""
 
     mode: str = Field(
-        "peer",
+        "client",
         pattern="^(peer|client)$",
-        description="zenoh mode of the services and clients: peer or client (--connect names the router)",
+        description="zenoh mode of the services and clients: client talks only through the router named by "
+        "--connect, so its access control cannot be bypassed; peer also links processes directly",
+    )
+    zenoh_config: Path | None = Field(
+        None,
+        description="a zenoh JSON5 config file (TLS certificates, access control, ...) the session starts "
+        "from; --connect, --listen and the mode are set on top of it (docs/security.md)",
     )
     recording_id: str = Field(
         "",
@@ -25,8 +33,24 @@ class NodeSettings(BaseModel):
     max_queue: int = Field(
         1000,
         ge=1,
-        description="scans waiting beyond this are refused on the assembler's error key, not dropped "
-        "silently",
+        description="inputs waiting beyond this are refused on the service's error key, not dropped silently",
+    )
+    max_queue_bytes: int = Field(
+        512 * 2**20,
+        ge=2**20,
+        description="... or beyond this many bytes waiting (one payload larger than this is refused)",
+    )
+    max_lag: float = Field(
+        0.5,
+        gt=0,
+        description="the assembler passes over a scan that waited longer than this (s) when a newer one "
+        "waits (never two in a row), and says so on its status key: it follows the sensor instead of "
+        "falling behind",
+    )
+    state: Path | None = Field(
+        None,
+        description="assembler: folder of its checkpoint (map, trajectory, and a journal of every frame "
+        "since), reloaded on start; none: the map lives in memory only",
     )
     downstream_nice: int = Field(
         10,

@@ -6,7 +6,9 @@ from __future__ import annotations
 import json
 import signal
 import threading
+import time
 from dataclasses import dataclass
+from pathlib import Path
 
 from affordwire import messages
 
@@ -56,14 +58,23 @@ class Keys:
         return self.key("error", service)
 
 
-def zenoh_config(endpoints: list[str], mode: str = "peer", listen: list[str] | None = None):
-    """A zenoh config with explicit endpoints and no multicast scouting (robots share networks; tests share
-    a machine): a service talks to the router it is told about and to nothing it happens to hear."""
+def zenoh_config(
+    endpoints: list[str], mode: str = "client", listen: list[str] | None = None, base: Path | None = None
+):
+    """A zenoh config: `base` (a JSON5 file with TLS, access control, ...) when given, with explicit endpoints
+    and mode on top, and no multicast scouting (robots share networks; tests share a machine): a process
+    talks to the router it is told about and to nothing it happens to hear."""
     import zenoh
 
-    config = zenoh.Config()
+    if base is not None:
+        if not Path(base).is_file():
+            raise ValueError(f"zenoh config {base} does not exist")
+        config = zenoh.Config.from_file(str(base))
+    else:
+        config = zenoh.Config()
     config.insert_json5("mode", json.dumps(mode))
-    config.insert_json5("connect/endpoints", json.dumps(list(endpoints)))
+    if endpoints:
+        config.insert_json5("connect/endpoints", json.dumps(list(endpoints)))
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(list(listen)))
     config.insert_json5("scouting/multicast/enabled", "false")
@@ -72,11 +83,30 @@ def zenoh_config(endpoints: list[str], mode: str = "peer", listen: list[str] | N
     return config
 
 
-def open_session(endpoints: list[str], mode: str = "peer", listen: list[str] | None = None):
+def open_session(
+    endpoints: list[str],
+    mode: str = "client",
+    listen: list[str] | None = None,
+    base: Path | None = None,
+    wait: float | None = 30.0,
+    stop: threading.Event | None = None,
+):
+    """A zenoh session. A client cannot open one before its router is up, so it retries for `wait` seconds
+    (None: until `stop` is set; services start in any order on a robot), then raises the last error."""
     import zenoh
 
     zenoh.init_log_from_env_or("error")
-    return zenoh.open(zenoh_config(endpoints, mode, listen))
+    config = zenoh_config(endpoints, mode, listen, base)
+    deadline = None if wait is None else time.monotonic() + wait
+    while True:
+        try:
+            return zenoh.open(config)
+        except zenoh.ZError:
+            if mode != "client" or (stop is not None and stop.is_set()):
+                raise
+            if deadline is not None and time.monotonic() > deadline:
+                raise
+            time.sleep(0.5)
 
 
 def encoding_of(message_class):

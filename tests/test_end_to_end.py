@@ -50,6 +50,11 @@ def generated_sequence(tmp_path_factory) -> Path:
     return folder
 
 
+# every frame registered however loaded the machine: these tests check the maps; skipping frames to keep up
+# is tested on its own (tests/test_reliability.py)
+EVERY_FRAME = {"AFFORD_SERVICE__MAX_LAG": "600"}
+
+
 def _afford(*args: str, timeout: float) -> subprocess.CompletedProcess:
     return subprocess.run(AFFORD + list(args), capture_output=True, text=True, timeout=timeout)
 
@@ -133,7 +138,8 @@ def _check_maps(out: Path, frames: int, watched: str) -> dict:
 def test_generated_depth_frames_become_affordance_maps_through_the_three_services(
     generated_sequence, tmp_path
 ):
-    stack = Stack(tmp_path / "run", env={"AFFORD_SERVICE__RECORDING_ID": "e2e-generated"}).start()
+    env = {"AFFORD_SERVICE__RECORDING_ID": "e2e-generated", **EVERY_FRAME}
+    stack = Stack(tmp_path / "run", env=env).start()
     try:
         watched = _stream_and_watch(
             stack, generated_sequence, tmp_path / "maps", ["--rate", "30", "--step", "3"], frames=40
@@ -151,7 +157,7 @@ def test_generated_depth_frames_become_affordance_maps_through_the_three_service
 
 @needs_shared
 def test_the_real_kitchen_frames_become_affordance_maps_through_the_three_services(tmp_path):
-    stack = Stack(tmp_path / "run").start()
+    stack = Stack(tmp_path / "run", env=EVERY_FRAME).start()
     try:
         watched = _stream_and_watch(
             stack, KITCHEN, tmp_path / "maps", ["--rate", "30", "--step", "3"], frames=100

@@ -373,7 +373,7 @@ def _frame(**changes):
         ({"fx": -500.0}, r"fx=-500\.0"),
         ({"fy": -1.0}, r"fy=-1\.0 must be positive"),
         ({"cx": np.nan}, r"must be positive focal lengths"),
-        ({"depth_scale": 0.0}, r"depth_scale must be positive metres per unit, got 0\.0"),
+        ({"depth_scale": 0.0}, r"depth_scale must be positive metres per unit below 1, got 0\.0"),
         ({"depth_scale": -0.001}, r"depth_scale must be positive"),
     ],
     ids=[

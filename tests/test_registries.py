@@ -108,7 +108,7 @@ def test_every_registered_sensor_message_is_documented():
 
 
 def test_a_sensor_decoder_added_to_the_registry_is_taken_by_schema(monkeypatch):
-    def xyz_text(payload: bytes) -> SensorFrame:
+    def xyz_text(payload: bytes, limits) -> SensorFrame:
         return SensorFrame(
             frame_id="text", stamp=1.5, points=np.loadtxt(payload.decode().splitlines()).reshape(-1, 3)
         )

@@ -100,7 +100,7 @@ def test_stale_reports_a_proto_edit(generator, generated, proto_copy, tmp_path, 
     shutil.copytree(ROOT / "schemas" / "afford", schemas / "afford")
     path = schemas / "afford" / "v1" / "service.proto"
     path.write_text(
-        path.read_text().replace("string version = 10;", "string version = 10;\n  string host = 11;")
+        path.read_text().replace("string version = 10;", "string version = 10;\n  string host = 99;")
     )
     monkeypatch.setattr(generator, "SCHEMAS", schemas)
     assert generator.stale(generator.generate()) == ["service_pb2.py", "service_pb2.pyi"]

@@ -1,0 +1,161 @@
+"""The assembler's state on disk, so a restart loses no accepted frame.
+
+Two files in one folder: a snapshot (`state.npz`: the global map, the trajectory, the pose guess and gravity
+so far), rewritten atomically every `assembler.checkpoint_period` seconds, and a journal (`journal.bin`) to
+which every accepted frame's record is appended and flushed before anything is published about it. A restart
+loads the snapshot and replays the journal; a record cut short by a kill is a frame that was never accepted
+(its pose was not published) and is dropped. Records carry their frame number, so a journal that outlived
+its snapshot (a kill between the two writes) replays nothing twice. A flush survives the process, not the
+machine: what the operating system had not written at a power cut is lost back to the last snapshot, which
+is synced to disk.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from .assembly import Assembler, FrameRecord
+
+_LENGTH = struct.Struct("<Q")
+
+
+def _arrays(**values) -> bytes:
+    buffer = io.BytesIO()
+    np.savez(buffer, **values)
+    return buffer.getvalue()
+
+
+def _encode(record: FrameRecord) -> bytes:
+    body = _arrays(
+        index=record.index,
+        stamp=record.stamp,
+        pose=record.pose,
+        guess=np.empty((0, 4)) if record.guess is None else record.guess,
+        gravity=record.gravity,
+        map_points=np.empty((0, 3)) if record.map_points is None else record.map_points,
+        keyframe=record.map_points is not None,
+    )
+    return _LENGTH.pack(len(body)) + body
+
+
+def _decode(body: bytes) -> FrameRecord:
+    with np.load(io.BytesIO(body)) as data:
+        return FrameRecord(
+            index=int(data["index"]),
+            stamp=float(data["stamp"]),
+            pose=data["pose"],
+            guess=data["guess"] if data["guess"].size else None,
+            gravity=data["gravity"],
+            map_points=data["map_points"] if bool(data["keyframe"]) else None,
+        )
+
+
+def read_journal(path: Path) -> list[FrameRecord]:
+    """The journal's whole records, in order (a trailing partial one is left out)."""
+    records, data = [], path.read_bytes() if path.exists() else b""
+    at = 0
+    while at + _LENGTH.size <= len(data):
+        (length,) = _LENGTH.unpack_from(data, at)
+        if at + _LENGTH.size + length > len(data):
+            break
+        records.append(_decode(data[at + _LENGTH.size : at + _LENGTH.size + length]))
+        at += _LENGTH.size + length
+    return records
+
+
+class AssemblerStore:
+    """Snapshot and journal of one assembler in `folder` (created when missing)."""
+
+    def __init__(self, folder: Path):
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.snapshot_path = self.folder / "state.npz"
+        self.journal_path = self.folder / "journal.bin"
+        self._journal = None
+
+    def restore(self, assembler: Assembler) -> int:
+        """Load the snapshot and replay the journal onto a fresh `assembler`; returns the frames restored.
+        Afterwards the journal is open for `append`."""
+        if self.snapshot_path.exists():
+            with np.load(self.snapshot_path) as data:
+                _load_snapshot(assembler, data)
+        in_snapshot = assembler.frames
+        for record in read_journal(self.journal_path):
+            if record.index == assembler.frames:  # earlier ones are in the snapshot already
+                assembler.apply(record)
+        if assembler.frames:
+            _resume_odometry(assembler)
+        self._rewrite_journal_from(in_snapshot)  # the same records without a cut-short tail
+        return assembler.frames
+
+    def append(self, record: FrameRecord) -> None:
+        """Journal one accepted frame (flushed: it survives a kill of this process)."""
+        if self._journal is None:
+            self._journal = open(self.journal_path, "ab")
+        self._journal.write(_encode(record))
+        self._journal.flush()
+
+    def snapshot(self, assembler: Assembler) -> None:
+        """Write the whole state atomically and start an empty journal."""
+        temporary = self.snapshot_path.with_suffix(".tmp.npz")
+        with open(temporary, "wb") as file:
+            np.savez(file, **_snapshot(assembler))
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(temporary, self.snapshot_path)
+        self.close()
+        self.journal_path.write_bytes(b"")  # all of it is in the snapshot (a kill before this: see restore)
+
+    def close(self) -> None:
+        if self._journal is not None:
+            self._journal.close()
+            self._journal = None
+
+    def _rewrite_journal_from(self, first: int) -> None:
+        """Keep only the journal's whole records from frame `first` on (none after a snapshot)."""
+        self.close()
+        kept = [record for record in read_journal(self.journal_path) if record.index >= first]
+        temporary = self.journal_path.with_suffix(".tmp")
+        temporary.write_bytes(b"".join(_encode(record) for record in kept))
+        os.replace(temporary, self.journal_path)
+
+
+def _snapshot(assembler: Assembler) -> dict[str, np.ndarray]:
+    trajectory = assembler.trajectory
+    return {
+        "map_points": assembler.map_points(),
+        "stamps": np.array(trajectory.stamps, dtype=np.float64),
+        "poses": np.array(trajectory.poses, dtype=np.float64).reshape(-1, 4, 4),
+        "gravity_sum": assembler._gravity_sum,
+        "last_guess": np.empty((0, 4)) if assembler._last_guess is None else assembler._last_guess,
+        "last_guess_stamp": np.float64(assembler._last_guess_stamp),
+        "last_keyframe": np.empty((0, 4)) if assembler._last_keyframe is None else assembler._last_keyframe,
+        "keyframes": np.int64(assembler.keyframes),
+    }
+
+
+def _load_snapshot(assembler: Assembler, data) -> None:
+    assembler.global_map.add_points(data["map_points"])
+    assembler.trajectory.stamps = [float(t) for t in data["stamps"]]
+    assembler.trajectory.poses = list(data["poses"])
+    assembler._gravity_sum = data["gravity_sum"].copy()
+    assembler._last_guess = data["last_guess"] if data["last_guess"].size else None
+    assembler._last_guess_stamp = float(data["last_guess_stamp"])
+    assembler._last_keyframe = data["last_keyframe"] if data["last_keyframe"].size else None
+    assembler.keyframes = int(data["keyframes"])
+
+
+def _resume_odometry(assembler: Assembler) -> None:
+    """KISS-ICP starts again at the last pose, at rest, its local map refilled from the global map around
+    it (its adaptive threshold starts afresh: it adapts within a few frames)."""
+    pose = assembler.trajectory.poses[-1]
+    odometry = assembler.odometry
+    odometry.last_pose, odometry.last_delta = pose.copy(), np.eye(4)
+    points = assembler.map_points()
+    near = np.linalg.norm(points - pose[:3, 3], axis=1) <= assembler.settings.max_range
+    odometry.local_map.add_points(points[near])

@@ -1,0 +1,274 @@
+"""Hostile and unlucky input, piece by piece: the limits every message is checked against, an assembler that
+changes nothing when it refuses a frame, its checkpoint and journal, inboxes bounded in bytes that thin a
+stream they cannot follow, and a node that answers any exception on its error key. The services under fire
+as processes: tests/test_hostile.py."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from affordcore.assembly import Assembler
+from affordcore.checkpoint import AssemblerStore, read_journal
+from affordcore.fields import compute_fields
+from affordcore.settings import LimitSettings, VoxelSettings
+from affordwire import messages
+from affordwire.messages import MessageError
+from affordwire.sensors import decode_sensor
+from services.node import Inbound, Inbox, unused_path
+
+SCAN = messages.schema_name(messages.Scan)
+
+
+def _room_points(rng: np.random.Generator, n: int = 6000) -> np.ndarray:
+    """A 5 x 4 m room's floor, three walls and a table, in a frame 1.5 m above the floor: what a sensor at
+    the origin sees."""
+    floor = np.column_stack([rng.uniform(-2.5, 2.5, n), rng.uniform(-2, 2, n), np.full(n, -1.5)])
+    wall = np.column_stack([np.full(n // 2, 2.5), rng.uniform(-2, 2, n // 2), rng.uniform(-1.5, 1, n // 2)])
+    side = np.column_stack([rng.uniform(-2.5, 2.5, n // 2), np.full(n // 2, 2), rng.uniform(-1.5, 1, n // 2)])
+    back = np.column_stack(
+        [rng.uniform(-2.5, 2.5, n // 2), np.full(n // 2, -2), rng.uniform(-1.5, 1, n // 2)]
+    )
+    table = np.column_stack(
+        [rng.uniform(0.5, 1.5, n // 4), rng.uniform(-0.5, 0.5, n // 4), np.full(n // 4, -0.75)]
+    )
+    return np.vstack([floor, wall, side, back, table])
+
+
+def _moved(points: np.ndarray, x: float, yaw_deg: float = 0.0) -> np.ndarray:
+    """The same room seen from a sensor moved `x` m along x and turned `yaw_deg` (points in its frame)."""
+    yaw = np.radians(yaw_deg)
+    rotation = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    return (points - [x, 0, 0]) @ rotation
+
+
+@pytest.fixture(scope="module")
+def room():
+    return _room_points(np.random.default_rng(0))
+
+
+def _walk(assembler: Assembler, room: np.ndarray, steps: range, stamp0: float = 100.0, store=None) -> None:
+    for k in steps:
+        record = assembler.register(_moved(room, 0.04 * k, 1.0 * k), stamp0 + 0.1 * k)
+        if store is not None:
+            store.append(record)
+
+
+def _state(assembler: Assembler) -> tuple:
+    return (
+        assembler.frames,
+        assembler.keyframes,
+        len(assembler.map_points()),
+        assembler.odometry.last_pose.copy(),
+    )
+
+
+# -- the assembler refuses without changing anything ---------------------------------------------------------
+
+
+def test_a_refused_frame_leaves_the_assembler_as_it_was(room):
+    assembler = Assembler()
+    _walk(assembler, room, range(4))
+    last = assembler.trajectory.stamps[-1] + 0.1
+    assembler.register(_moved(room, 0.16, 4), last, pose_guess=np.eye(4))  # the robot's odometry starts
+    before = _state(assembler)
+    far = np.eye(4)
+    far[0, 3] = 50.0  # a guess 50 m away a tenth of a second later
+    next_frame = _moved(room, 0.2, 5)
+    refusals = {
+        "not after the last frame": lambda: assembler.register(next_frame, last),
+        "faster than AFFORD_LIMITS__MAX_SPEED": lambda: assembler.register(next_frame, last + 0.1, far),
+        "must be finite": lambda: assembler.register(np.full((500, 3), np.nan), last + 0.1),
+        "outside 0": lambda: assembler.register(next_frame, 9.3e9),
+        "not a direction": lambda: assembler.register(next_frame, last + 0.1, gravity=np.zeros(3)),
+    }
+    for reason, refuse in refusals.items():
+        with pytest.raises(ValueError, match=reason):
+            refuse()
+        after = _state(assembler)
+        assert after[:3] == before[:3], reason
+        np.testing.assert_array_equal(after[3], before[3])
+    # and it goes on registering where it was, its guesses measured from the last accepted one
+    assembler.register(next_frame, last + 0.1, pose_guess=np.eye(4))
+    assert assembler.frames == before[0] + 1
+
+
+def test_a_pose_far_beyond_the_largest_extent_is_refused(room):
+    assembler = Assembler(limits=LimitSettings(max_extent=0.1, max_speed=100))
+    _walk(assembler, room, range(2))
+    with pytest.raises(ValueError, match="MAX_EXTENT"):
+        _walk(assembler, room, range(2, 6))
+    assert assembler.frames <= 3
+
+
+# -- checkpoint and journal ----------------------------------------------------------------------------------
+
+
+def test_a_restored_assembler_has_every_journaled_frame_and_goes_on(room, tmp_path):
+    live = Assembler()
+    store = AssemblerStore(tmp_path / "state")
+    _walk(live, room, range(6), store=store)
+    store.snapshot(live)  # frames 0-5 in the snapshot, the journal empty
+    _walk(live, room, range(6, 10), store=store)  # 6-9 in the journal only
+    assert [r.index for r in read_journal(store.journal_path)] == [6, 7, 8, 9]
+    store.close()
+
+    restored = Assembler()
+    assert AssemblerStore(tmp_path / "state").restore(restored) == 10
+    assert restored.keyframes == live.keyframes
+    np.testing.assert_allclose(restored.trajectory.stamps, live.trajectory.stamps)
+    np.testing.assert_allclose(np.array(restored.trajectory.poses), np.array(live.trajectory.poses))
+    same = {tuple(p) for p in np.round(restored.map_points(), 6)} == {
+        tuple(p) for p in np.round(live.map_points(), 6)
+    }
+    assert same
+    # registration resumes from the last pose against the refilled local map
+    record = restored.register(_moved(room, 0.4, 10), 101.0)
+    assert np.linalg.norm(record.pose[:3, 3] - live.trajectory.poses[-1][:3, 3]) < 0.15
+
+
+def test_a_journal_cut_short_by_a_kill_loses_only_the_unfinished_frame(room, tmp_path):
+    live = Assembler()
+    store = AssemblerStore(tmp_path)
+    _walk(live, room, range(5), store=store)
+    store.close()
+    data = store.journal_path.read_bytes()
+    store.journal_path.write_bytes(data[:-100])  # the last record half-written
+    restored = Assembler()
+    assert AssemblerStore(tmp_path).restore(restored) == 4
+    # the cut tail is gone, so new records follow whole ones
+    assert [r.index for r in read_journal(tmp_path / "journal.bin")] == [0, 1, 2, 3]
+
+
+def test_a_journal_that_outlived_its_snapshot_replays_nothing_twice(room, tmp_path):
+    live = Assembler()
+    store = AssemblerStore(tmp_path)
+    _walk(live, room, range(5), store=store)
+    journal = store.journal_path.read_bytes()
+    store.snapshot(live)  # a kill between writing the snapshot and emptying the journal:
+    store.close()
+    store.journal_path.write_bytes(journal)
+    restored = Assembler()
+    assert AssemblerStore(tmp_path).restore(restored) == 5
+    assert restored.keyframes == live.keyframes
+
+
+# -- messages against the limits -----------------------------------------------------------------------------
+
+
+def _scan(points: np.ndarray, at: float = 1.7e9) -> messages.Scan:
+    scan = messages.Scan(frame_id="lidar")
+    messages.pack_points(scan, points)
+    messages.stamp(scan.timestamp, at)
+    return scan
+
+
+@pytest.mark.parametrize("seconds", [-1.0, 9.3e9, 2e11])
+def test_timestamps_outside_the_sane_range_are_refused(room, seconds):
+    scan = _scan(room)
+    scan.timestamp.seconds = int(seconds)
+    with pytest.raises(MessageError, match="LATEST_TIMESTAMP"):
+        decode_sensor(SCAN, scan.SerializeToString())
+
+
+def test_sizes_beyond_the_limits_are_refused_before_they_are_read(room):
+    limits = LimitSettings(max_points=1000, max_depth_pixels=100)
+    with pytest.raises(MessageError, match="MAX_POINTS"):
+        decode_sensor(SCAN, _scan(room).SerializeToString(), limits)
+    depth = messages.depth_frame_message(np.zeros((20, 30), np.uint16), np.diag([500.0, 500.0, 1.0]))
+    with pytest.raises(MessageError, match="MAX_DEPTH_PIXELS"):
+        decode_sensor(messages.schema_name(messages.DepthFrame), depth.SerializeToString(), limits)
+    wide = np.vstack([room, [[300.0, 0, 0]]])
+    with pytest.raises(MessageError, match="MAX_EXTENT"):
+        messages.cloud_points(messages.cloud_message(wide, np.eye(4), "x", at=1.7e9))
+
+
+def test_fields_grids_are_capped_before_allocation():
+    points = np.array([[0.0, 0, 0], [60, 60, 0], [30, 30, 1]])
+    with pytest.raises(ValueError, match="MAX_VOXELS"):
+        compute_fields(points, VoxelSettings(max_voxels=1_000_000))
+    with pytest.raises(ValueError, match="finite"):
+        compute_fields(np.array([[0.0, 0, np.nan]] * 10))
+
+
+@pytest.fixture(scope="module")
+def fields_message(room):
+    cloud = messages.cloud_message(_moved(room, 0, 0) + [0, 0, 1.5], np.eye(4), "test", at=1.7e9)
+    fields = compute_fields(messages.cloud_points(cloud))
+    return messages.fields_message(fields, cloud, at=1.7e9)
+
+
+@pytest.mark.parametrize(
+    "spoil, reason",
+    [
+        (
+            lambda m: setattr(m, "distance", np.full(len(m.distance) // 4, np.nan, "<f4").tobytes()),
+            "distance",
+        ),
+        (lambda m: setattr(m, "normals", np.full(len(m.normals) // 4, np.inf, "<f4").tobytes()), "normals"),
+        (lambda m: setattr(m, "occupancy", b"\x07" * len(m.occupancy)), "occupancy"),
+        (lambda m: setattr(m.grid.origin, "x", float("nan")), "origin"),
+        (lambda m: setattr(m.grid, "nx", 2**31), "MAX_VOXELS"),
+        (lambda m: setattr(m.cloud_timestamp, "seconds", 10**10), "LATEST_TIMESTAMP"),
+        (lambda m: setattr(m, "x_max", float("nan")), "footprint"),
+    ],
+)
+def test_fields_that_would_poison_the_maps_are_refused(fields_message, spoil, reason):
+    message = messages.SceneFieldsMessage()
+    message.CopyFrom(fields_message)
+    spoil(message)
+    with pytest.raises(MessageError, match=reason):
+        messages.scene_fields(message, LimitSettings(), 10_000_000)
+
+
+# -- inboxes -------------------------------------------------------------------------------------------------
+
+
+def _item(size: int = 10, age: float = 0.0) -> Inbound:
+    return Inbound("k", "s", "e", b"x" * size, time.time() - age)
+
+
+def test_an_inbox_is_bounded_in_bytes_as_well_as_count():
+    inbox = Inbox(latest_only=False, limit=100, max_bytes=1000)
+    assert inbox.offer(_item(600)) is None
+    assert "MAX_QUEUE_BYTES" in inbox.offer(_item(600))
+    assert "MAX_QUEUE_BYTES" in inbox.offer(_item(2000))  # larger than the whole inbox
+    assert inbox.take(0.1) is not None and inbox.offer(_item(600)) is None  # taking frees the bytes
+    small = Inbox(latest_only=False, limit=2, max_bytes=1000)
+    assert small.offer(_item()) is None and small.offer(_item()) is None
+    assert "MAX_QUEUE" in small.offer(_item())
+
+
+def test_a_late_stream_is_thinned_never_two_frames_in_a_row():
+    inbox = Inbox(latest_only=False, limit=100, max_bytes=10**6, max_lag=0.5)
+    items = [_item(age=5.0) for _ in range(9)] + [_item()]
+    for item in items:
+        inbox.offer(item)
+    taken = []
+    while (item := inbox.take(0.05)) is not None:
+        taken.append(items.index(item))
+    assert taken == [0, 2, 4, 6, 8, 9]
+    assert inbox.skipped == 4 and inbox.skipped_last is items[7]
+    fresh = Inbox(latest_only=False, limit=100, max_bytes=10**6, max_lag=0.5)
+    for _ in range(3):
+        fresh.offer(_item())
+    assert [fresh.take(0.05) is not None for _ in range(3)] == [True] * 3 and fresh.skipped == 0
+
+
+def test_a_latest_only_inbox_keeps_the_newest():
+    inbox = Inbox(latest_only=True, limit=1, max_bytes=10**6)
+    first, second = _item(), _item()
+    inbox.offer(first)
+    inbox.offer(second)
+    assert inbox.take(0.05) is second and inbox.take(0.05) is None
+
+
+def test_a_recording_is_never_overwritten(tmp_path):
+    path = tmp_path / "features.rrd"
+    assert unused_path(path) == path
+    path.write_bytes(b"crashed run")
+    assert unused_path(path) == tmp_path / "features-1.rrd"
+    (tmp_path / "features-1.rrd").write_bytes(b"")
+    assert unused_path(path) == tmp_path / "features-2.rrd"
