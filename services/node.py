@@ -43,10 +43,10 @@ class Inbound:
 
 class Inbox:
     """Samples waiting for the worker, bounded in count and in bytes. `latest_only` keeps just the newest (a
-    map superseded before it was worked on is not worth the work); otherwise first in, first out, and when
-    `max_lag` is set an input older than that is passed over (counted in `skipped`) if a newer one waits
-    and the one before it was taken: a sensor stream the worker cannot follow is thinned, to half its rate
-    at most, rather than left to build a lag."""
+    map superseded before it was worked on is not worth the work; it is counted in `skipped`); otherwise
+    first in, first out, and when `max_lag` is set an input older than that is passed over (counted too) if
+    a newer one waits and the one before it was taken: a sensor stream the worker cannot follow is thinned,
+    to half its rate at most, rather than left to build a lag."""
 
     def __init__(self, latest_only: bool, limit: int, max_bytes: int, max_lag: float | None = None):
         self.latest_only, self.limit, self.max_bytes, self.max_lag = latest_only, limit, max_bytes, max_lag
@@ -66,7 +66,10 @@ class Inbox:
                 f"the payload is {size:,} bytes, above AFFORD_SERVICE__MAX_QUEUE_BYTES ({self.max_bytes:,})"
             )
         with self._ready:
-            if self.latest_only:
+            if self.latest_only:  # the one waiting is superseded: passed over, and counted
+                if self._items:
+                    self.skipped += len(self._items)
+                    self.skipped_last = self._items[-1]
                 self._items.clear()
                 self._bytes = 0
             elif len(self._items) >= self.limit:
@@ -330,12 +333,16 @@ class Node:
     def _handle(self, item: Inbound, handle: Callable[[Inbound], None]) -> None:
         with self._lock:  # counted before its outputs go out, so a status read after them includes it
             self.counts["accepted"] += 1
+            self.state, self.detail = messages.Status.BUSY, f"working on an input from {item.key}"
         started = time.perf_counter()
         if self._guarded(item, handle):
             self.last_seconds = time.perf_counter() - started
         else:
             with self._lock:
                 self.counts["accepted"] -= 1
+        with self._lock:  # a handler that said nothing more leaves the service ready
+            if self.state == messages.Status.BUSY:
+                self.state, self.detail = messages.Status.READY, "waiting for input"
 
     def _guarded(self, item: Inbound, work: Callable[[Inbound], None]) -> bool:
         """Run `work`; any exception is answered on the error key (ours by name, anything else with its type:

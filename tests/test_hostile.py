@@ -1,0 +1,279 @@
+"""The three services as processes under fire: a seeded generator sends each of them a thousand hostile inputs
+on its input key (random bytes, truncated and bit-flipped real messages, wrong or missing encodings, NaN and
+infinite values, timestamps out of range, absurd sizes and extents, pose jumps, inconsistent point fields and
+grids), one at a time. Every input must be answered (an output, or a reason on the service's error key), no
+process may exit, and afterwards a valid stream still yields all three affordance maps."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator
+
+import numpy as np
+import pytest
+
+from affordcore.fields import compute_fields
+from affordwire import messages
+from services.launch import Stack
+from services.transport import Keys, encoding_of, open_session
+
+pytestmark = pytest.mark.slow
+
+PER_KEY = 1000  # hostile inputs per input key
+ROBOT = "fuzzbot"
+KEYS = Keys(ROBOT)
+ANSWER_TIMEOUT = 60.0  # seconds an input may take to be answered (a valid cloud is computed)
+
+
+def _room(rng: np.random.Generator, n: int = 3000) -> np.ndarray:
+    """A 3 x 2.5 m room (floor, two walls, a 0.45 m seat) in the world frame."""
+    floor = np.column_stack([rng.uniform(0, 3, n), rng.uniform(0, 2.5, n), np.zeros(n)])
+    wall = np.column_stack([np.zeros(n // 2), rng.uniform(0, 2.5, n // 2), rng.uniform(0, 2.4, n // 2)])
+    side = np.column_stack([rng.uniform(0, 3, n // 2), np.zeros(n // 2), rng.uniform(0, 2.4, n // 2)])
+    seat = np.column_stack([rng.uniform(1, 1.6, n // 4), rng.uniform(1, 1.5, n // 4), np.full(n // 4, 0.45)])
+    return np.vstack([floor, wall, side, seat])
+
+
+# -- what the generator mutates ------------------------------------------------------------------------------
+
+
+def _valid_inputs(rng: np.random.Generator) -> dict[str, tuple[object, type]]:
+    """One valid message per input key (the scan is the room from a sensor 1.2 m above its middle)."""
+    room = _room(rng)
+    scan = messages.Scan(frame_id="lidar")
+    messages.pack_points(scan, room - [1.5, 1.25, 1.2])
+    messages.stamp(scan.timestamp)
+    depth = messages.depth_frame_message(
+        np.full((48, 64), 2000, np.uint16), np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
+    )
+    cloud = messages.cloud_message(room, np.eye(4), "fuzz", frames=1)
+    fields = messages.fields_message(compute_fields(room), cloud)
+    return {
+        "scan": (scan, messages.Scan),
+        "depth": (depth, messages.DepthFrame),
+        "cloud": (cloud, messages.CloudMessage),
+        "fields": (fields, messages.SceneFieldsMessage),
+    }
+
+
+def _bad_floats(rng: np.random.Generator, data: bytes) -> bytes:
+    values = np.frombuffer(data, dtype="<f4").copy()
+    if len(values):
+        picks = rng.integers(0, len(values), max(1, len(values) // 50))
+        values[picks] = rng.choice([np.nan, np.inf, -np.inf, 3e38, -3e38], len(picks))
+    return values.tobytes()
+
+
+def _message_mutations(message, rng: np.random.Generator) -> list[Callable[[object], None]]:
+    """Field-level spoilers for the message's type (each changes one copy in place)."""
+    huge = lambda: int(rng.choice([0, 2**31 - 1, 2**32 - 1, 10**6]))  # noqa: E731
+    stamps = [
+        lambda m: setattr(m.timestamp, "seconds", int(rng.choice([-(2**40), 9_300_000_000, 10**11, -1]))),
+        lambda m: setattr(m.timestamp, "nanos", int(rng.choice([-5, 2**31 - 1]))),
+    ]
+    pose = lambda field: [  # noqa: E731
+        lambda m: setattr(getattr(m, field).position, "x", float(rng.choice([np.nan, 1e30, 50.0, -1e6]))),
+        lambda m: setattr(getattr(m, field).orientation, "w", float(rng.choice([np.nan, 0.3, 7.0]))),
+    ]
+    points = [
+        lambda m: setattr(m, "data", _bad_floats(rng, m.data)),
+        lambda m: setattr(m, "point_stride", huge()),
+        lambda m: setattr(m.fields[0], "offset", huge()),
+        lambda m: setattr(m.fields[int(rng.integers(0, 3))], "type", int(rng.integers(0, 20))),
+        lambda m: setattr(m.fields[int(rng.integers(0, 3))], "name", "w"),
+        lambda m: setattr(m, "data", m.data[: int(rng.integers(0, len(m.data)))]),
+        lambda m: m.fields.add(name="x", offset=int(rng.integers(0, 64)), type=int(rng.integers(0, 9))),
+    ]
+    if isinstance(message, messages.Scan):
+        return (
+            stamps
+            + points
+            + pose("pose_guess")
+            + [lambda m: setattr(m.gravity, "z", float(rng.choice([0.0, np.nan, np.inf])))]
+        )
+    if isinstance(message, messages.DepthFrame):
+        return stamps + [
+            lambda m: setattr(m, "width", huge()),
+            lambda m: setattr(m, "height", huge()),
+            lambda m: setattr(m, "depth", m.depth[: int(rng.integers(0, len(m.depth)))]),
+            lambda m: setattr(m.intrinsics, "fx", float(rng.choice([0.0, -1.0, np.nan, np.inf]))),
+            lambda m: setattr(m, "depth_scale", float(rng.choice([0.0, -1.0, np.nan, 1e30]))),
+            lambda m: setattr(m.gravity, "x", float(rng.choice([np.nan, np.inf]))),
+        ]
+    if isinstance(message, messages.CloudMessage):
+        return (
+            stamps
+            + points
+            + pose("world_from_input")
+            + [
+                lambda m: setattr(m, "frame_id", str(rng.choice(["odom", "", "map"]))),
+                lambda m: setattr(m, "data", (np.frombuffer(m.data, "<f4") * 1e4).astype("<f4").tobytes()),
+            ]
+        )
+    grid = [
+        lambda m: setattr(m.grid, "nx", huge()),
+        lambda m: setattr(m.grid, "nz", huge()),
+        lambda m: setattr(m.grid, "resolution", float(rng.choice([0.0, -0.1, np.nan, 0.05, 1e30]))),
+        lambda m: setattr(m.grid.origin, "y", float(rng.choice([np.nan, np.inf, 1e9]))),
+        lambda m: setattr(m, "distance", _bad_floats(rng, m.distance)),
+        lambda m: setattr(m, "normals", _bad_floats(rng, m.normals)),
+        lambda m: setattr(m, "occupancy", bytes(rng.integers(0, 256, len(m.occupancy), dtype=np.uint8))),
+        lambda m: setattr(m, "x_max", float(rng.choice([np.nan, -1e9]))),
+        lambda m: setattr(m.cloud_timestamp, "seconds", 10**11),
+    ]
+    return stamps + pose("world_from_input") + grid
+
+
+def hostile_inputs(
+    message, message_class, rng: np.random.Generator, count: int
+) -> Iterator[tuple[bytes, object, str]]:
+    """`count` (payload, encoding, kind) made from one valid message: a seeded mix of every kind of damage."""
+    valid = message.SerializeToString()
+    right = encoding_of(message_class)
+    others = [encoding_of(cls) for cls in messages.MESSAGE_CLASSES.values() if cls is not message_class]
+    spoilers = _message_mutations(message, rng)
+    kinds = ["random bytes", "truncated", "bit flips", "wrong encoding", "spoiled field"]
+    for index in range(count):
+        kind = kinds[index % len(kinds)]
+        payload, encoding = valid, right
+        if kind == "random bytes":
+            payload = rng.bytes(int(rng.integers(0, 4096)))
+        elif kind == "truncated":
+            payload = valid[: int(rng.integers(0, len(valid)))]
+        elif kind == "bit flips":
+            flipped = bytearray(valid)
+            for bit in rng.integers(0, 8 * len(valid), int(rng.integers(1, 17))):
+                flipped[bit // 8] ^= 1 << (bit % 8)
+            payload = bytes(flipped)
+        elif kind == "wrong encoding":
+            encoding = rng.choice(others + ["application/protobuf", "text/plain", "application/json", ""])
+        else:
+            spoiled = message_class()
+            spoiled.CopyFrom(message)
+            spoilers[int(rng.integers(0, len(spoilers)))](spoiled)
+            payload = spoiled.SerializeToString()
+        yield payload, encoding, kind
+
+
+# -- firing at the services ----------------------------------------------------------------------------------
+
+
+def _status(session, service: str) -> messages.Status:
+    for reply in session.get(KEYS.status(service), timeout=5):
+        if reply.ok is not None:
+            return messages.parse(messages.Status, reply.ok.payload.to_bytes())
+    raise AssertionError(f"{service} did not answer a get on its status")
+
+
+def _answered(status: messages.Status) -> int:
+    """Inputs taken, refused, or passed over (superseded by a newer one, which the service says)."""
+    return status.accepted + status.rejected + status.skipped
+
+
+class Counter:
+    def __init__(self, session, key: str):
+        self.count = 0
+        self._subscriber = session.declare_subscriber(key, self._take)
+
+    def _take(self, _sample) -> None:
+        self.count += 1
+
+
+def _fire(session, stack: Stack, service: str, key: str, inputs) -> dict:
+    """Send each input and wait until the service has taken or refused it and is idle again; returns the
+    counts."""
+    _settle(session)
+    before = _status(session, service)
+    errors = Counter(session, KEYS.error(service))
+    sent, kinds = 0, {}
+    for payload, encoding, kind in inputs:
+        session.put(key, payload, encoding=encoding)
+        sent += 1
+        kinds[kind] = kinds.get(kind, 0) + 1
+        deadline = time.monotonic() + ANSWER_TIMEOUT
+        while True:
+            status = _status(session, service)
+            answered = _answered(status) - _answered(before)
+            if answered >= sent and status.state != messages.Status.BUSY:
+                break
+            dead = {n: p.returncode for n, p in stack.processes.items() if p.poll() is not None}
+            assert not dead, f"processes exited {dead} after a {kind} input; logs: {stack.logs()}"
+            assert time.monotonic() < deadline, f"input {sent} ({kind}) unanswered after {ANSWER_TIMEOUT} s"
+            time.sleep(0.002)
+    rejected = status.rejected - before.rejected
+    assert _eventually(lambda: errors.count == rejected), (errors.count, rejected)
+    skipped = status.skipped - before.skipped  # superseded (the assembler's own maps reach features too)
+    accepted = status.accepted - before.accepted
+    return {"sent": sent, "accepted": accepted, "rejected": rejected, "skipped": skipped, "kinds": kinds}
+
+
+def _settle(session, quiet: float = 2.0, timeout: float = 120.0) -> None:
+    """Until no service has worked for `quiet` seconds: what an earlier phase set off (the assembler's map of
+    the frames it took goes on to features and inference) must not be counted as this phase's answers."""
+
+    def snapshot():
+        states = [_status(session, name) for name in ("assembler", "features", "inference")]
+        return [(s.state, _answered(s), s.published) for s in states]
+
+    deadline = time.monotonic() + timeout
+    last, since = snapshot(), time.monotonic()
+    while time.monotonic() - since < quiet:
+        assert time.monotonic() < deadline, "the services did not settle"
+        time.sleep(0.2)
+        now = snapshot()
+        if now != last or any(state == messages.Status.BUSY for state, _, _ in now):
+            last, since = now, time.monotonic()
+
+
+def _eventually(condition, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory):
+    stack = Stack(tmp_path_factory.mktemp("hostile"), robot=ROBOT).start()
+    session = open_session([stack.endpoint])
+    yield stack, session
+    session.close()
+    codes = stack.stop()
+    assert all(code == 0 for code in codes.values()), (codes, stack.logs())
+
+
+@pytest.mark.parametrize(
+    "service, key, inputs",
+    [
+        ("assembler", KEYS.scan("lidar"), ["scan", "depth"]),
+        ("features", KEYS.cloud, ["cloud"]),
+        ("inference", KEYS.fields, ["fields"]),
+    ],
+)
+def test_a_thousand_hostile_inputs_per_key_are_all_answered_and_nothing_exits(stack, service, key, inputs):
+    stack, session = stack
+    rng = np.random.default_rng(sum(map(ord, service)))
+    valid = _valid_inputs(rng)
+    per_kind = math.ceil(PER_KEY / len(inputs))
+    streams = [hostile_inputs(*valid[name], rng, per_kind) for name in inputs]
+    counts = _fire(session, stack, service, key, (item for stream in streams for item in stream))
+    print(f"{service}: {counts}")
+    assert counts["sent"] >= PER_KEY
+    # most of it is worth refusing (bit flips in point data make valid clouds of odd points: those are taken)
+    assert counts["rejected"] >= 0.75 * counts["sent"]
+
+
+def test_after_the_fire_a_valid_room_still_yields_all_three_maps(stack):
+    """Run last in this module: the services that took the hostile inputs map a valid cloud."""
+    stack, session = stack
+    room = _room(np.random.default_rng(7), 20_000)
+    maps = Counter(session, KEYS.affordance("*"))
+    session.put(
+        KEYS.cloud,
+        messages.cloud_message(room, np.eye(4), "valid").SerializeToString(),
+        encoding=encoding_of(messages.CloudMessage),
+    )
+    assert _eventually(lambda: maps.count >= 3, timeout=120), stack.logs()
