@@ -215,7 +215,7 @@ class Assembler:
         seconds = max(stamp - (self.trajectory.stamps[-1] if since is None else since), 0.1)
         motion = np.linalg.inv(before) @ after
         distance = float(np.linalg.norm(motion[:3, 3]))
-        angle = np.degrees(np.arccos(np.clip((np.trace(motion[:3, :3]) - 1) / 2, -1, 1)))
+        angle = rotation_angle_deg(motion[:3, :3])
         limits = self.limits
         if distance > limits.max_speed * seconds or angle > limits.max_turn_rate_deg * seconds:
             raise ValueError(
@@ -237,11 +237,46 @@ class Assembler:
             self._last_keyframe = record.pose
             self.keyframes += 1
 
+    def state_arrays(self) -> dict[str, np.ndarray]:
+        """Everything `load_state` needs to rebuild this assembler's map and trajectory (affordcore.checkpoint
+        saves it)."""
+        trajectory = self.trajectory
+        return {
+            "map_points": self.map_points(),
+            "stamps": np.array(trajectory.stamps, dtype=np.float64),
+            "poses": np.array(trajectory.poses, dtype=np.float64).reshape(-1, 4, 4),
+            "gravity_sum": self._gravity_sum,
+            "last_guess": np.empty((0, 4)) if self._last_guess is None else self._last_guess,
+            "last_guess_stamp": np.float64(self._last_guess_stamp),
+            "last_keyframe": np.empty((0, 4)) if self._last_keyframe is None else self._last_keyframe,
+            "keyframes": np.int64(self.keyframes),
+        }
+
+    def load_state(self, data) -> None:
+        """Take the state `state_arrays` gave, on a fresh assembler."""
+        self.global_map.add_points(data["map_points"])
+        self.trajectory.stamps = [float(t) for t in data["stamps"]]
+        self.trajectory.poses = list(data["poses"])
+        self._gravity_sum = data["gravity_sum"].copy()
+        self._last_guess = data["last_guess"] if data["last_guess"].size else None
+        self._last_guess_stamp = float(data["last_guess_stamp"])
+        self._last_keyframe = data["last_keyframe"] if data["last_keyframe"].size else None
+        self.keyframes = int(data["keyframes"])
+
+    def resume(self) -> None:
+        """After a restore: KISS-ICP starts again at the last pose, at rest, its local map refilled from the
+        global map around it (its adaptive threshold starts afresh: it adapts within a few frames)."""
+        pose = self.trajectory.poses[-1]
+        self.odometry.last_pose, self.odometry.last_delta = pose.copy(), np.eye(4)
+        points = self.map_points()
+        near = np.linalg.norm(points - pose[:3, 3], axis=1) <= self.settings.max_range
+        self.odometry.local_map.add_points(points[near])
+
     def _is_keyframe(self, pose: np.ndarray) -> bool:
         if self._last_keyframe is None:
             return True
         motion = np.linalg.inv(self._last_keyframe) @ pose
-        angle = np.degrees(np.arccos(np.clip((np.trace(motion[:3, :3]) - 1) / 2, -1, 1)))
+        angle = rotation_angle_deg(motion[:3, :3])
         return (
             np.linalg.norm(motion[:3, 3]) >= self.settings.keyframe_distance
             or angle >= self.settings.keyframe_angle_deg
@@ -263,6 +298,11 @@ class Assembler:
         return world.cloud.points, world.alignment.world_from_input
 
 
+def rotation_angle_deg(rotation: np.ndarray) -> float:
+    """The angle of a 3 x 3 rotation, in degrees."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1, 1))))
+
+
 def trajectory_errors(estimated: list[np.ndarray], truth: list[np.ndarray]) -> dict[str, float]:
     """Position and final rotation error of an odometry trajectory against ground truth, both anchored at the
     first frame (the estimate starts at the identity; ground truth is world_from_camera)."""
@@ -270,7 +310,7 @@ def trajectory_errors(estimated: list[np.ndarray], truth: list[np.ndarray]) -> d
     anchored = truth[0] @ np.asarray(estimated)
     position = np.linalg.norm(anchored[:, :3, 3] - truth[:, :3, 3], axis=1)
     final = anchored[-1, :3, :3].T @ truth[-1, :3, :3]
-    rotation = np.degrees(np.arccos(np.clip((np.trace(final) - 1) / 2, -1, 1)))
+    rotation = rotation_angle_deg(final)
     path = np.linalg.norm(np.diff(truth[:, :3, 3], axis=0), axis=1).sum()
     return {
         "frames": len(truth),

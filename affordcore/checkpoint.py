@@ -83,14 +83,15 @@ class AssemblerStore:
         Afterwards the journal is open for `append`."""
         if self.snapshot_path.exists():
             with np.load(self.snapshot_path) as data:
-                _load_snapshot(assembler, data)
+                assembler.load_state(data)
         in_snapshot = assembler.frames
-        for record in read_journal(self.journal_path):
-            if record.index == assembler.frames:  # earlier ones are in the snapshot already
+        records = [record for record in read_journal(self.journal_path) if record.index >= in_snapshot]
+        for record in records:
+            if record.index == assembler.frames:
                 assembler.apply(record)
         if assembler.frames:
-            _resume_odometry(assembler)
-        self._rewrite_journal_from(in_snapshot)  # the same records without a cut-short tail
+            assembler.resume()
+        self._rewrite_journal(records)  # the same records without a cut-short tail
         return assembler.frames
 
     def append(self, record: FrameRecord) -> None:
@@ -104,7 +105,7 @@ class AssemblerStore:
         """Write the whole state atomically and start an empty journal."""
         temporary = self.snapshot_path.with_suffix(".tmp.npz")
         with open(temporary, "wb") as file:
-            np.savez(file, **_snapshot(assembler))
+            np.savez(file, **assembler.state_arrays())
             file.flush()
             os.fsync(file.fileno())
         os.replace(temporary, self.snapshot_path)
@@ -116,46 +117,8 @@ class AssemblerStore:
             self._journal.close()
             self._journal = None
 
-    def _rewrite_journal_from(self, first: int) -> None:
-        """Keep only the journal's whole records from frame `first` on (none after a snapshot)."""
+    def _rewrite_journal(self, records: list[FrameRecord]) -> None:
         self.close()
-        kept = [record for record in read_journal(self.journal_path) if record.index >= first]
         temporary = self.journal_path.with_suffix(".tmp")
-        temporary.write_bytes(b"".join(_encode(record) for record in kept))
+        temporary.write_bytes(b"".join(_encode(record) for record in records))
         os.replace(temporary, self.journal_path)
-
-
-def _snapshot(assembler: Assembler) -> dict[str, np.ndarray]:
-    trajectory = assembler.trajectory
-    return {
-        "map_points": assembler.map_points(),
-        "stamps": np.array(trajectory.stamps, dtype=np.float64),
-        "poses": np.array(trajectory.poses, dtype=np.float64).reshape(-1, 4, 4),
-        "gravity_sum": assembler._gravity_sum,
-        "last_guess": np.empty((0, 4)) if assembler._last_guess is None else assembler._last_guess,
-        "last_guess_stamp": np.float64(assembler._last_guess_stamp),
-        "last_keyframe": np.empty((0, 4)) if assembler._last_keyframe is None else assembler._last_keyframe,
-        "keyframes": np.int64(assembler.keyframes),
-    }
-
-
-def _load_snapshot(assembler: Assembler, data) -> None:
-    assembler.global_map.add_points(data["map_points"])
-    assembler.trajectory.stamps = [float(t) for t in data["stamps"]]
-    assembler.trajectory.poses = list(data["poses"])
-    assembler._gravity_sum = data["gravity_sum"].copy()
-    assembler._last_guess = data["last_guess"] if data["last_guess"].size else None
-    assembler._last_guess_stamp = float(data["last_guess_stamp"])
-    assembler._last_keyframe = data["last_keyframe"] if data["last_keyframe"].size else None
-    assembler.keyframes = int(data["keyframes"])
-
-
-def _resume_odometry(assembler: Assembler) -> None:
-    """KISS-ICP starts again at the last pose, at rest, its local map refilled from the global map around
-    it (its adaptive threshold starts afresh: it adapts within a few frames)."""
-    pose = assembler.trajectory.poses[-1]
-    odometry = assembler.odometry
-    odometry.last_pose, odometry.last_delta = pose.copy(), np.eye(4)
-    points = assembler.map_points()
-    near = np.linalg.norm(points - pose[:3, 3], axis=1) <= assembler.settings.max_range
-    odometry.local_map.add_points(points[near])

@@ -35,11 +35,15 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np
 from lightgbm import LGBMClassifier
-from sklearn.ensemble import HistGradientBoostingClassifier
 from sklearn.metrics import average_precision_score
 
 from affordcore.features import FeatureLayout
-from affordcore.learn.cascade import TreeSettings, second_stage_examples
+from affordcore.learn.cascade import (
+    TreeSettings,
+    second_stage_examples,
+    tree_classifier,
+    tree_sample_weights,
+)
 from affordcore.learn.examples import Task, data_set_rooms, load_rooms, room_examples, stack
 from affordcore.learn.learners import get_learner
 from affordcore.settings import Settings
@@ -50,26 +54,9 @@ def room_range(text: str) -> range:
     return range(int(first), int(last or first) + 1)
 
 
-def sample_weights(y: np.ndarray, weights: np.ndarray, trees: TreeSettings) -> np.ndarray:
-    """As `fit_trees`: positives weighted up until they carry `positive_share` of the total weight."""
-    positive = y > 0
-    share = weights[positive].sum() / weights.sum()
-    up = max(1.0, trees.positive_share * (1 - share) / max(share * (1 - trees.positive_share), 1e-12))
-    return np.where(positive, up, 1.0) * weights
-
-
 def models(trees: TreeSettings, seed: int) -> dict:
     return {
-        "sklearn HGB": lambda: HistGradientBoostingClassifier(
-            max_iter=trees.max_iter,
-            learning_rate=trees.learning_rate,
-            max_leaf_nodes=trees.max_leaf_nodes,
-            max_depth=trees.max_depth,
-            min_samples_leaf=trees.min_samples_leaf,
-            l2_regularization=trees.l2_regularization,
-            early_stopping=False,
-            random_state=seed,
-        ),
+        "sklearn HGB": lambda: tree_classifier(trees, seed),  # what the cascade fits
         "LightGBM": lambda: LGBMClassifier(
             n_estimators=trees.max_iter,
             learning_rate=trees.learning_rate,
@@ -122,7 +109,7 @@ def main() -> None:
         test_set = second_stage_examples(
             test_rooms, task, first.weights, first.bias, fraction, rng, max_poses=max_poses
         )
-        weight = sample_weights(fit_set.y, fit_set.weights, trees)
+        weight = tree_sample_weights(fit_set.y, fit_set.weights, trees)
         target = (fit_set.y > 0).astype(int)
         print(
             f"{affordance}: second stage {len(fit_set.y):,} training rows ({fit_set.positives:,} positive), "

@@ -55,7 +55,7 @@ class Inbox:
         self._ready = threading.Condition()
         self.skipped = 0
         self.skipped_last: Inbound | None = None
-        self._taken_last: Inbound | None = None
+        self._taken_any = False
 
     def offer(self, item: Inbound) -> str | None:
         """None when taken, else why not (the caller answers it on the error key: nothing is dropped
@@ -91,13 +91,14 @@ class Inbox:
             if not self._items and not self._ready.wait_for(lambda: self._items, timeout):
                 return None
             item = self._pop()
-            # never two in a row: registration bridges one missing frame, not a run of them
+            # at most one skip per take, so never two in a row (registration bridges one missing frame, not a
+            # run of them); the stream's first frame is always taken
             late = self.max_lag is not None and time.time() - item.arrived > self.max_lag
-            if late and self._items and self.skipped_last is not self._taken_last:
+            if late and self._items and self._taken_any:
                 self.skipped += 1
                 self.skipped_last = item
                 item = self._pop()
-            self._taken_last = item
+            self._taken_any = True
             return item
 
     def _pop(self) -> Inbound:

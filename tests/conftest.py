@@ -6,6 +6,8 @@ read in place, never copied, and tests that need it skip cleanly when it is abse
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -35,3 +37,13 @@ def imbalanced_gaussian(n: int, d: int, ratio: int, shift: float, seed: int):
     X = rng.normal(size=(n, d)).astype(np.float32)
     X[y > 0] += shift
     return X, y
+
+
+def eventually(condition: Callable[[], bool], timeout: float = 10.0, poll: float = 0.2) -> bool:
+    """Whether `condition` holds within `timeout` seconds, checked every `poll` seconds."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(poll)
+    return True

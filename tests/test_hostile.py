@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
+from conftest import eventually
 
 from affordcore.fields import compute_fields
 from affordwire import messages
@@ -202,7 +203,7 @@ def _fire(session, stack: Stack, service: str, key: str, inputs) -> dict:
             assert time.monotonic() < deadline, f"input {sent} ({kind}) unanswered after {ANSWER_TIMEOUT} s"
             time.sleep(0.002)
     rejected = status.rejected - before.rejected
-    assert _eventually(lambda: errors.count == rejected), (errors.count, rejected)
+    assert eventually(lambda: errors.count == rejected, poll=0.05), (errors.count, rejected)
     skipped = status.skipped - before.skipped  # superseded (the assembler's own maps reach features too)
     accepted = status.accepted - before.accepted
     return {"sent": sent, "accepted": accepted, "rejected": rejected, "skipped": skipped, "kinds": kinds}
@@ -224,15 +225,6 @@ def _settle(session, quiet: float = 2.0, timeout: float = 120.0) -> None:
         now = snapshot()
         if now != last or any(state == messages.Status.BUSY for state, _, _ in now):
             last, since = now, time.monotonic()
-
-
-def _eventually(condition, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.05)
-    return True
 
 
 @pytest.fixture(scope="module")
@@ -276,4 +268,4 @@ def test_after_the_fire_a_valid_room_still_yields_all_three_maps(stack):
         messages.cloud_message(room, np.eye(4), "valid").SerializeToString(),
         encoding=encoding_of(messages.CloudMessage),
     )
-    assert _eventually(lambda: maps.count >= 3, timeout=120), stack.logs()
+    assert eventually(lambda: maps.count >= 3, timeout=120, poll=0.05), stack.logs()

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import eventually
 
 from affordcore.features import FeatureLayout
 from affordcore.learn.model import choose_models
@@ -92,15 +93,6 @@ def _alive(session) -> list[str]:
         for r in session.liveliness().get(KEYS.key("status", "*"), timeout=2)
         if r.ok is not None
     ]
-
-
-def _eventually(condition, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.2)
-    return True
 
 
 def _box_room_scan(rng: np.random.Generator, n: int = 20_000) -> np.ndarray:
@@ -183,10 +175,10 @@ def test_features_serve_the_latest_fields_to_a_late_get_and_refuse_unaligned_map
         seat = fields.lattice.voxel_of(np.array([[1.5, 1.3, 0.45]]))[0]
         assert fields.occupancy[tuple(seat)] == 1 and fields.distance[tuple(seat)] == 0
 
-        assert _eventually(lambda: _alive(client) == [KEYS.status("features")]), _alive(client)
+        assert eventually(lambda: _alive(client) == [KEYS.status("features")]), _alive(client)
     finally:
         running.stop()
-    assert _eventually(lambda: _alive(client) == []), "the liveliness token outlived the service"
+    assert eventually(lambda: _alive(client) == []), "the liveliness token outlived the service"
     assert {"/world/cloud", "/world/fields/occupied", "/world/fields/normals"} <= recorded_entities(
         tmp_path / "features.rrd"
     )

@@ -79,14 +79,19 @@ def second_stage_examples(
     return RoomExamples("second-stage", np.concatenate(Xs), np.concatenate(ys), np.concatenate(ws))
 
 
-def fit_trees(examples: RoomExamples, settings: TreeSettings, seed: int) -> TreeEnsemble:
-    from sklearn.ensemble import HistGradientBoostingClassifier
-
-    positive = examples.y > 0
-    weights = examples.weights
+def tree_sample_weights(y: np.ndarray, weights: np.ndarray, settings: TreeSettings) -> np.ndarray:
+    """The examples' weights with the positives weighted up until they carry `positive_share` of the total."""
+    positive = y > 0
     share = weights[positive].sum() / weights.sum()
     up = max(1.0, settings.positive_share * (1 - share) / max(share * (1 - settings.positive_share), 1e-12))
-    model = HistGradientBoostingClassifier(
+    return np.where(positive, up, 1.0) * weights
+
+
+def tree_classifier(settings: TreeSettings, seed: int):
+    """The unfitted scikit-learn model `fit_trees` fits."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    return HistGradientBoostingClassifier(
         max_iter=settings.max_iter,
         learning_rate=settings.learning_rate,
         max_leaf_nodes=settings.max_leaf_nodes,
@@ -96,7 +101,12 @@ def fit_trees(examples: RoomExamples, settings: TreeSettings, seed: int) -> Tree
         early_stopping=False,
         random_state=seed,
     )
-    model.fit(examples.X, positive.astype(int), sample_weight=np.where(positive, up, 1.0) * weights)
+
+
+def fit_trees(examples: RoomExamples, settings: TreeSettings, seed: int) -> TreeEnsemble:
+    model = tree_classifier(settings, seed)
+    weights = tree_sample_weights(examples.y, examples.weights, settings)
+    model.fit(examples.X, (examples.y > 0).astype(int), sample_weight=weights)
     return TreeEnsemble.from_sklearn(model)
 
 
