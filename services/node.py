@@ -39,6 +39,11 @@ class Inbound:
     encoding: str
     payload: bytes
     arrived: float
+    is_input: bool = True  # False: the service's own work (idle, stop), answered alike but not counted
+
+
+def _own_work(what: str) -> Inbound:
+    return Inbound(f"({what})", "", "", b"", time.time(), is_input=False)
 
 
 class Inbox:
@@ -222,7 +227,8 @@ class Node:
         return messages.parse(names[item.schema], item.payload)
 
     def reject(self, item: Inbound, reason: str) -> None:
-        """Answer a bad input on error/<service>; the service keeps running."""
+        """Answer a bad input (or a failure of the service's own work) on error/<service>; the service keeps
+        running. Only inputs count in Status.rejected."""
         error = messages.Error(
             service=self.service,
             key=item.key,
@@ -231,11 +237,15 @@ class Node:
             reason=reason,
         )
         messages.stamp(error.timestamp)
-        with self._lock:
-            self.counts["rejected"] += 1
+        if item.is_input:
+            with self._lock:
+                self.counts["rejected"] += 1
         put_message(self.session, self.keys.error(self.service), error)
-        print(f"[{self.service}] rejected {item.key}: {reason}", flush=True)
-        self.publish_status(messages.Status.READY, f"rejected an input: {reason}")
+        print(
+            f"[{self.service}] {'rejected' if item.is_input else 'failed'} {item.key}: {reason}", flush=True
+        )
+        what = "rejected an input" if item.is_input else f"failed {item.key}"
+        self.publish_status(messages.Status.READY, f"{what}: {reason}")
 
     # -- outputs ---------------------------------------------------------------------------------------------
 
@@ -305,7 +315,7 @@ class Node:
                 if item is not None:
                     self._handle(item, handle)
                 elif idle is not None:
-                    self._guarded(Inbound("(idle)", "", "", b"", time.time()), lambda _: idle())
+                    self._guarded(_own_work("idle"), lambda _: idle())
                 if time.monotonic() - last_status > self.settings.service.status_period:
                     self.publish_status(messages.Status.READY, f"{len(inbox)} inputs waiting")
                     last_status = time.monotonic()
@@ -314,7 +324,7 @@ class Node:
                 self.counts["dropped"] += inbox.drain()
             if on_stop is not None:
                 self._guarded(
-                    Inbound("(stop)", "", "", b"", time.time()),
+                    _own_work("stop"),
                     lambda _: print(f"[{self.service}] {on_stop()}", flush=True),
                 )
             self.close()

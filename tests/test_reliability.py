@@ -272,3 +272,42 @@ def test_a_recording_is_never_overwritten(tmp_path):
     assert unused_path(path) == tmp_path / "features-1.rrd"
     (tmp_path / "features-1.rrd").write_bytes(b"")
     assert unused_path(path) == tmp_path / "features-2.rrd"
+
+
+def test_a_failure_of_the_services_own_work_is_answered_but_not_counted_as_a_rejected_input(tmp_path):
+    """The idle work failing, whatever the exception, is answered on the error key; rejected counts inputs."""
+    import threading
+
+    from affordwire.messages import Error
+    from services.launch import free_port
+    from services.node import Node
+    from services.transport import Keys, open_session
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_session([], mode="router", listen=[endpoint])
+    client = open_session([endpoint])
+    errors: list[Error] = []
+    client.declare_subscriber(
+        Keys("idlebot").error("probe"), lambda s: errors.append(messages.parse(Error, s.payload.to_bytes()))
+    )
+    node = Node("probe", "idlebot", [endpoint], rrd=tmp_path / "probe.rrd")
+
+    def idle() -> None:
+        node.stop_event.set()
+        raise ZeroDivisionError("idle went wrong")
+
+    inbox = node.inbox(latest_only=True)
+    thread = threading.Thread(target=node.run, args=(inbox, lambda item: None, idle))
+    thread.start()
+    thread.join(30)
+    try:
+        assert not thread.is_alive()
+        deadline = time.monotonic() + 5
+        while not errors and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert errors and errors[0].key == "(idle)"
+        assert errors[0].reason == "internal error, ZeroDivisionError: idle went wrong"
+        assert node.counts["rejected"] == 0
+    finally:
+        client.close()
+        router.close()
