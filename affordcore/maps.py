@@ -4,9 +4,9 @@
 * confidence map: over the floor plan, each (x, y) cell's best score over theta and z, and the theta and z
   that reached it;
 * skeleton map: one skeleton per place. Greedy non-maximum suppression over the confidence map's cells above
-  the threshold: the best cell becomes a skeleton (at its best theta and z, with placed joints), and every
-  cell within `nms_radius` of it is suppressed, whatever its theta. Places are the loop, not poses: each
-  step is one vectorised distance test over the remaining cells.
+  the place threshold (the model's, or its cut for this room): the best cell becomes a skeleton (at its best
+  theta and z, with placed joints), and every cell within `nms_radius` of it is suppressed, whatever its
+  theta. Places are the loop, not poses: each step is one vectorised distance test over the remaining cells.
 """
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ class AffordanceMap:
     positives: np.ndarray  # (n, 5): x, y, z, theta, score, best first
     skeletons: np.ndarray  # (k, 5): x, y, z, theta, score, best first
     joints: np.ndarray  # (k, 15, 3) placed joints of the skeletons
+    place_threshold: float  # what a place of the skeleton map scored above (the room's cut)
 
     def to_json(self, model_id: str, world_from_input: np.ndarray) -> dict:
         return map_document(
@@ -53,6 +54,7 @@ class AffordanceMap:
             self.joints,
             self.positives,
             world_from_input,
+            self.place_threshold,
         )
 
 
@@ -65,6 +67,7 @@ def map_document(
     joints: np.ndarray,
     positives: np.ndarray,
     world_from_input: np.ndarray,
+    place_threshold: float,
 ) -> dict:
     """The affordance-map/1 JSON document (what `afford map` writes and `afford watch` saves)."""
 
@@ -80,6 +83,7 @@ def map_document(
         "affordance": affordance,
         "model": model_id,
         "threshold": float(threshold),
+        "place_threshold": float(place_threshold),
         "frame": "world: gravity-aligned, z up, floor at z = 0, metres",
         "world_from_input": np.asarray(world_from_input, dtype=float).round(9).tolist(),
         "grid": grid,
@@ -115,7 +119,8 @@ def build_map(
         np.column_stack([grid.poses(above), scores.ravel()[above]]) if len(above) else np.empty((0, 5))
     )
 
-    cells = np.argwhere(confidence > (threshold if place_threshold is None else place_threshold))
+    place_threshold = threshold if place_threshold is None else place_threshold
+    cells = np.argwhere(confidence > place_threshold)
     cells = cells[np.argsort(-confidence[cells[:, 0], cells[:, 1]], kind="stable")]
     xy = np.column_stack([grid.x[cells[:, 0]], grid.y[cells[:, 1]]])
     chosen, alive = [], np.ones(len(cells), dtype=bool)
@@ -146,4 +151,5 @@ def build_map(
         positives,
         skeletons,
         joints,
+        float(place_threshold),
     )

@@ -385,6 +385,7 @@ def map_message(
         affordance=amap.affordance,
         model=model_id,
         threshold=amap.threshold,
+        place_threshold=amap.place_threshold,
         positives=np.ascontiguousarray(amap.positives, dtype="<f4").tobytes(),
         confidence=np.ascontiguousarray(amap.confidence, dtype="<f4").tobytes(),
     )
@@ -462,4 +463,5 @@ def map_document_of(message: AffordanceMapMessage) -> dict:
         arrays["joints"],
         arrays["positives"],
         pose_matrix(message.world_from_input),
+        message.place_threshold,
     )

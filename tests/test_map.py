@@ -67,7 +67,7 @@ def test_map_writes_json_png_and_a_verified_recording(mapped):
         for skeleton in document["skeletons"]:
             assert (
                 np.array(skeleton["joints"]).shape == (15, 3)
-                and skeleton["score"] > document["threshold"] - 1e-4
+                and skeleton["score"] > document["place_threshold"] - 1e-4
             )
         assert (out / f"{affordance}.png").stat().st_size > 20_000
     verify = subprocess.run(

@@ -76,6 +76,19 @@ def test_json_holds_the_grid_and_every_positive():
     }
 
 
+def test_places_beat_the_place_threshold_and_positives_the_pose_threshold():
+    """A room's cut (the place threshold) decides the skeletons; the pose threshold still decides positives,
+    and the document carries both so a reader can tell why a skeleton is there."""
+    grid = _grid()
+    scores = np.maximum(_bump(grid, 0.45, 0.45, 0, 0, 1.0), _bump(grid, 1.55, 0.45, 0, 0, 3.0))
+    low = build_map("a", scores, grid, get_skeleton("sitting-working"), threshold=0.5)
+    high = build_map("a", scores, grid, get_skeleton("sitting-working"), threshold=0.5, place_threshold=2.0)
+    assert len(low.skeletons) == 2 and len(high.skeletons) == 1 and high.skeletons[0, 4] > 2.0
+    np.testing.assert_array_equal(low.positives, high.positives)
+    document = high.to_json("m", np.eye(4))
+    assert document["threshold"] == 0.5 and document["place_threshold"] == 2.0
+
+
 def _rz(theta: float) -> np.ndarray:
     c, s = np.cos(theta), np.sin(theta)
     return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])

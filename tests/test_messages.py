@@ -593,7 +593,9 @@ def _fields_message():
 def test_a_map_from_random_scores_round_trips():
     grid = _small_grid()
     scores = np.random.default_rng(10).normal(size=grid.shape)
-    amap = build_map("sitting-working", scores, grid, get_skeleton("sitting-working"), threshold=1.5)
+    amap = build_map(
+        "sitting-working", scores, grid, get_skeleton("sitting-working"), threshold=1.5, place_threshold=2.0
+    )
     fields = _fields_message()
     message = _wire(messages.map_message(amap, "m-1", fields))
     _assert_documents_match(

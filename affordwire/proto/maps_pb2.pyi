@@ -111,7 +111,7 @@ class PlacedSkeleton(_message.Message):
     def __init__(self, x: _Optional[float] = ..., y: _Optional[float] = ..., z: _Optional[float] = ..., theta: _Optional[float] = ..., score: _Optional[float] = ..., joints: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class AffordanceMap(_message.Message):
-    __slots__ = ("timestamp", "frame_id", "affordance", "model", "threshold", "grid", "skeletons", "positives", "confidence", "world_from_input", "cloud_timestamp", "frames")
+    __slots__ = ("timestamp", "frame_id", "affordance", "model", "threshold", "grid", "skeletons", "positives", "confidence", "world_from_input", "cloud_timestamp", "frames", "place_threshold")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
     AFFORDANCE_FIELD_NUMBER: _ClassVar[int]
@@ -124,6 +124,7 @@ class AffordanceMap(_message.Message):
     WORLD_FROM_INPUT_FIELD_NUMBER: _ClassVar[int]
     CLOUD_TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAMES_FIELD_NUMBER: _ClassVar[int]
+    PLACE_THRESHOLD_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     frame_id: str
     affordance: str
@@ -136,4 +137,5 @@ class AffordanceMap(_message.Message):
     world_from_input: _geometry_pb2.Pose
     cloud_timestamp: _timestamp_pb2.Timestamp
     frames: int
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., affordance: _Optional[str] = ..., model: _Optional[str] = ..., threshold: _Optional[float] = ..., grid: _Optional[_Union[PoseGridSpec, _Mapping]] = ..., skeletons: _Optional[_Iterable[_Union[PlacedSkeleton, _Mapping]]] = ..., positives: _Optional[bytes] = ..., confidence: _Optional[bytes] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ...) -> None: ...
+    place_threshold: float
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., affordance: _Optional[str] = ..., model: _Optional[str] = ..., threshold: _Optional[float] = ..., grid: _Optional[_Union[PoseGridSpec, _Mapping]] = ..., skeletons: _Optional[_Iterable[_Union[PlacedSkeleton, _Mapping]]] = ..., positives: _Optional[bytes] = ..., confidence: _Optional[bytes] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ..., place_threshold: _Optional[float] = ...) -> None: ...
