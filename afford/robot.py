@@ -26,8 +26,11 @@ PANEL = "Robot"
 
 @app.command(rich_help_panel=PANEL)
 def router(
-    listen: list[str] = typer.Option(
-        ["tcp/127.0.0.1:7447"], "--listen", help="endpoint to listen on (repeatable), e.g. tcp/0.0.0.0:7447"
+    listen: list[str] | None = typer.Option(
+        None,
+        "--listen",
+        help="endpoint to listen on (repeatable), e.g. tcp/0.0.0.0:7447; default: the --zenoh-config's, "
+        "or tcp/127.0.0.1:7447",
     ),
     zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help=ZENOH_CONFIG_HELP),
 ) -> None:
@@ -35,7 +38,47 @@ def router(
     with user_errors():
         from services.clients import run_router
 
-        run_router(listen, zenoh_config=zenoh_config or _settings().service.zenoh_config)
+        config = zenoh_config or _settings().service.zenoh_config
+        run_router(listen or ([] if config else ["tcp/127.0.0.1:7447"]), zenoh_config=config)
+
+
+@app.command(rich_help_panel=PANEL)
+def certs(
+    out: Path = typer.Argument(..., help="folder for the site's CA, certificates, keys and zenoh configs"),
+    sensor: list[str] = typer.Option(
+        ["robot"], "--sensor", help="a client that may publish scans on scan/** (repeatable)"
+    ),
+    mapper: list[str] = typer.Option(
+        [], "--mapper", help="a client that may publish a finished room on map/cloud (repeatable)"
+    ),
+    viewer: list[str] = typer.Option(
+        ["viewer"], "--viewer", help="a read-only client, e.g. for afford watch (repeatable)"
+    ),
+    router_host: list[str] = typer.Option(
+        ["localhost", "127.0.0.1"],
+        "--router-host",
+        help="a name or address clients reach the router at: its certificate names it (repeatable)",
+    ),
+    connect: str = typer.Option(
+        "tls/localhost:7447", "--connect", help="the router endpoint the clients' configs connect to"
+    ),
+    listen: str = typer.Option("tls/0.0.0.0:7447", "--listen", help="the endpoint the router listens on"),
+    mount: Path | None = typer.Option(
+        None, "--mount", help="where OUT is found at run time, e.g. /certs in a container; default: OUT"
+    ),
+    days: int = typer.Option(825, "--days", min=1, help="certificates stay valid this many days"),
+) -> None:
+    """Make a secured site for a test network: a CA (kept when OUT has one), a certificate per identity, the
+    router's config (mutual TLS, access control) and one client config per identity (docs/security.md)."""
+    with user_errors():
+        from services.security import Site, write_site
+
+        site = Site(sensor, mapper, viewer, router_host, connect, listen)
+        write_site(site, out, mount, days)
+        typer.echo(
+            f"site in {out}: router.json5 for afford router, <name>.json5 for each of "
+            f"{', '.join(site.clients())} (--zenoh-config); keep ca.key off the robots"
+        )
 
 
 @app.command(rich_help_panel=PANEL)

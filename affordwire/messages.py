@@ -370,6 +370,15 @@ def scene_fields(
     footprint = (message.x_min, message.y_min, message.x_max, message.y_max)
     if not (np.isfinite(footprint).all() and footprint[2] >= footprint[0] and footprint[3] >= footprint[1]):
         raise MessageError(f"empty floor footprint {footprint}")
+    # the floor lies inside the fields computed around it: a footprint beyond them would only grow the pose
+    # grid (the work of every affordance) over space the fields know nothing of
+    low, high = origin[:2] - grid.resolution, origin[:2] + grid.resolution * (np.array(shape[:2]) + 1)
+    if footprint[0] < low[0] or footprint[1] < low[1] or footprint[2] > high[0] or footprint[3] > high[1]:
+        raise MessageError(
+            f"floor footprint {tuple(round(v, 3) for v in footprint)} reaches beyond the voxel grid "
+            f"({low[0] + grid.resolution:.3f}, {low[1] + grid.resolution:.3f}) ... "
+            f"({high[0] - grid.resolution:.3f}, {high[1] - grid.resolution:.3f})"
+        )
     occupancy = occupancy.astype(np.float32)
     return SceneFields(lattice, occupancy, distance, normals, footprint)
 

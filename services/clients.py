@@ -25,7 +25,7 @@ def run_router(
     stop = stop or threading.Event()
     stop_on_signals(stop)
     session = open_session([], mode="router", listen=listen, base=zenoh_config)
-    print(f"router listening on {', '.join(listen)}", flush=True)
+    print(f"router listening on {', '.join(listen) or 'the endpoints of ' + str(zenoh_config)}", flush=True)
     try:
         stop.wait()
     finally:

@@ -34,63 +34,110 @@ class Stack:
     """Router + services on free loopback ports; each writes `<folder>/<service>.rrd` and `<service>.log`.
 
     `start()` returns once every service has declared its liveliness token; `stop()` sends SIGTERM (the
-    services close their recordings) and returns the exit codes."""
+    services close their recordings) and returns the exit codes; `kill` and `restart` one service, as a crash
+    and a supervisor would. With `site` (a folder `afford certs` wrote) every process uses its identity's
+    config there: mutual TLS through the router, under its access control, and the stack's own session
+    is `identity`'s."""
 
     def __init__(
-        self, folder: Path, robot: str = "robot1", env: dict[str, str] | None = None, services=tuple(SERVICES)
+        self,
+        folder: Path,
+        robot: str = "robot1",
+        env: dict[str, str] | None = None,
+        services=tuple(SERVICES),
+        site: Path | None = None,
+        identity: str = "viewer",
     ):
         self.folder, self.robot, self.services = Path(folder), robot, tuple(services)
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.site, self.identity = site, identity
+        self.endpoint = f"{'tls/localhost' if site else 'tcp/127.0.0.1'}:{free_port()}"
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self.processes: dict[str, subprocess.Popen] = {}
 
+    def config(self, identity: str) -> str | None:
+        """The zenoh config file of `identity` in the site, if the stack is secured."""
+        return str(self.site / f"{identity}.json5") if self.site else None
+
     def _spawn(self, name: str, command: list[str]) -> None:
         self.folder.mkdir(parents=True, exist_ok=True)
-        with open(self.folder / f"{name}.log", "w") as log:  # the child keeps its own descriptor
+        with open(self.folder / f"{name}.log", "a") as log:  # the child keeps its own descriptor
             self.processes[name] = subprocess.Popen(
                 command, stdout=log, stderr=subprocess.STDOUT, env=self.env
             )
 
-    def start(self, timeout: float = 60.0) -> Stack:
-        self._spawn("router", python_call("services.clients:run_router", [self.endpoint]))
-        for service in self.services:
-            self._spawn(
+    def _spawn_service(self, service: str) -> None:
+        self._spawn(
+            service,
+            python_call(
+                "services.registry:run_service",
                 service,
-                python_call(
-                    "services.registry:run_service",
-                    service,
-                    self.robot,
-                    [self.endpoint],
-                    rrd=str(self.folder / f"{service}.rrd"),
-                ),
-            )
+                self.robot,
+                [self.endpoint],
+                rrd=str(self.folder / f"{service}.rrd"),
+                zenoh_config=self.config(service),
+            ),
+        )
+
+    def start(self, timeout: float = 60.0) -> Stack:
+        self._spawn(
+            "router",
+            python_call("services.clients:run_router", [self.endpoint], zenoh_config=self.config("router")),
+        )
+        for service in self.services:
+            self._spawn_service(service)
         self.wait_ready(timeout)
         return self
 
-    def wait_ready(self, timeout: float) -> None:
-        """Until every service's liveliness token is seen through the router."""
-        from .transport import Keys, open_session
+    def session(self, wait: float = 30.0):
+        """A new zenoh session of the stack's identity through its router (close it when done)."""
+        from .transport import open_session
 
-        keys = Keys(self.robot)
-        session = open_session([self.endpoint], wait=timeout)
+        config = self.config(self.identity)
+        return open_session([self.endpoint], wait=wait, base=Path(config) if config else None)
+
+    def kill(self, service: str, timeout: float = 30.0) -> int:
+        """SIGKILL one service, as a crash would (no checkpoint, no recording footer), and wait until the
+        router has seen its liveliness token go."""
+        process = self.processes[service]
+        process.kill()
+        code = process.wait(timeout)
         deadline = time.monotonic() + timeout
+        while service in self.alive() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        return code
+
+    def restart(self, service: str, timeout: float = 60.0) -> None:
+        """Start a service again (its log goes on; its recording is a new file beside the old one)."""
+        self._spawn_service(service)
+        self.wait_ready(timeout)
+
+    def alive(self) -> set[str]:
+        """The services whose liveliness token the router holds now."""
+        from .transport import Keys
+
+        session = self.session()
         try:
-            while True:
-                alive = {
-                    str(reply.ok.key_expr).rsplit("/", 1)[-1]
-                    for reply in session.liveliness().get(keys.key("status", "*"), timeout=2.0)
-                    if reply.ok is not None
-                }
-                if set(self.services) <= alive:
-                    return
-                dead = {name: p.returncode for name, p in self.processes.items() if p.poll() is not None}
-                if dead or time.monotonic() > deadline:
-                    raise RuntimeError(
-                        f"services not ready (alive: {sorted(alive)}, exited: {dead}); logs: {self.logs()}"
-                    )
-                time.sleep(0.3)
+            return {
+                str(reply.ok.key_expr).rsplit("/", 1)[-1]
+                for reply in session.liveliness().get(Keys(self.robot).key("status", "*"), timeout=2.0)
+                if reply.ok is not None
+            }
         finally:
             session.close()
+
+    def wait_ready(self, timeout: float) -> None:
+        """Until every service's liveliness token is seen through the router."""
+        deadline = time.monotonic() + timeout
+        while True:
+            alive = self.alive()
+            if set(self.services) <= alive:
+                return
+            dead = {name: p.returncode for name, p in self.processes.items() if p.poll() is not None}
+            if dead or time.monotonic() > deadline:
+                raise RuntimeError(
+                    f"services not ready (alive: {sorted(alive)}, exited: {dead}); logs: {self.logs()}"
+                )
+            time.sleep(0.3)
 
     def stop(self, timeout: float = 30.0) -> dict[str, int]:
         """SIGTERM the services, then the router; returns each process's exit code (killed ones: -9)."""

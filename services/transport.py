@@ -70,6 +70,7 @@ def zenoh_config(
         if not Path(base).is_file():
             raise ValueError(f"zenoh config {base} does not exist")
         config = zenoh.Config.from_file(str(base))
+        _anchor_tls_files(config, Path(base).parent)
     else:
         config = zenoh.Config()
     config.insert_json5("mode", json.dumps(mode))
@@ -81,6 +82,31 @@ def zenoh_config(
     if mode != "router":  # keep trying while the router is not up yet (services may start first)
         config.insert_json5("connect/exit_on_failure", "false")
     return config
+
+
+TLS_FILES = (
+    "root_ca_certificate",
+    "listen_certificate",
+    "listen_private_key",
+    "connect_certificate",
+    "connect_private_key",
+)
+
+
+def _anchor_tls_files(config, folder: Path) -> None:
+    """Relative certificate and key paths in a config file name files beside it (as `afford certs` writes
+    them, so a site folder works wherever it is copied); zenoh itself would read them from the working
+    directory."""
+    import zenoh
+
+    for name in TLS_FILES:
+        key = f"transport/link/tls/{name}"
+        try:
+            value = json.loads(config.get_json(key))
+        except (zenoh.ZError, ValueError):
+            continue
+        if isinstance(value, str) and value and not Path(value).is_absolute():
+            config.insert_json5(key, json.dumps(str((folder / value).absolute())))
 
 
 def open_session(

@@ -31,6 +31,8 @@ COMPOSE = ROOT / "docker" / "compose.yaml"
 PYPROJECT = ROOT / "pyproject.toml"
 
 ROUTER = "router"
+CERTS = "certs"  # the one-shot service that makes the site (afford certs) in the SITE volume
+SITE = "site"
 SERVICES = tuple(REGISTERED)
 VOLUME = "recordings"
 RECORDING_ID = "AFFORD_SERVICE__RECORDING_ID"
@@ -114,11 +116,12 @@ def _published_ports(service: dict) -> dict[int, int]:
 
 
 def _router_port(compose: dict) -> int:
-    command = compose["services"][ROUTER]["command"]
-    listen = _option(command, "-l", "--listen")
-    assert listen, f"the router's command {command} has no -l/--listen endpoint"
-    match = re.fullmatch(r"tcp/[^:]+:(\d+)", listen)
-    assert match, f"the router listens on {listen!r}, expected tcp/<host>:<port>"
+    """The port the router listens on: what the site's router.json5 says, i.e. `afford certs --listen`."""
+    command = compose["services"][CERTS]["command"]
+    listen = _option(command, "--listen")
+    assert listen, f"the certs command {command} sets no --listen endpoint for the router"
+    match = re.fullmatch(r"tls/[^:]+:(\d+)", listen)
+    assert match, f"the router listens on {listen!r}, expected tls/<host>:<port>"
     return int(match.group(1))
 
 
@@ -232,7 +235,9 @@ def test_the_compose_file_follows_the_compose_spec():
 
 def test_the_compose_file_runs_a_pinned_router_and_the_three_services(compose):
     services = compose["services"]
-    assert set(services) == {ROUTER, *SERVICES}, "a new service needs adding to SERVICES (and its checks)"
+    assert set(services) == {CERTS, ROUTER, *SERVICES}, (
+        "a new service needs adding to SERVICES (and its checks)"
+    )
     image = services[ROUTER]["image"]
     match = re.fullmatch(r"eclipse/zenoh:(\d+)\.\d+\.\d+", image)
     assert match, f"the router image {image!r} is not eclipse/zenoh pinned to a version (never `latest`)"
@@ -265,7 +270,7 @@ def test_each_service_serves_itself_through_the_router_into_the_recordings_volum
     command = service["command"]
     assert isinstance(command, list), f"{name}: give the command as a list, so no shell splits it"
     assert command[:2] == ["serve", name], f"{name} runs {command[:2]}, not ['serve', '{name}']"
-    assert _option(command, "--connect") == f"tcp/{ROUTER}:{_router_port(compose)}"
+    assert _option(command, "--connect") == f"tls/{ROUTER}:{_router_port(compose)}"
     assert _interpolate(_option(command, "--robot") or "")
     assert VOLUME in (compose.get("volumes") or {}), f"the `{VOLUME}` volume is not declared"
     mount = _mounts(service).get(VOLUME)
@@ -297,7 +302,30 @@ def _subcommand(command: list[str]) -> list[str]:
     return command[:first_option]
 
 
-@pytest.mark.parametrize("name", SERVICES)
+def test_the_router_and_the_services_use_the_site_certs_makes(compose):
+    services = compose["services"]
+    certs = services[CERTS]["command"]
+    site = _mounts(services[CERTS]).get(SITE)
+    assert SITE in (compose.get("volumes") or {}) and site, f"{CERTS} does not mount the `{SITE}` volume"
+    assert certs[:2] == ["certs", site] and _option(certs, "--mount") == site
+    hosts = [certs[i + 1] for i, arg in enumerate(certs[:-1]) if arg == "--router-host"]
+    assert {ROUTER, "localhost"} <= set(hosts), (
+        "the router's certificate must name how containers and host reach it"
+    )
+    assert _option(certs, "--connect") == f"tls/{ROUTER}:{_router_port(compose)}"
+    router = services[ROUTER]
+    assert router["depends_on"][CERTS]["condition"] == "service_completed_successfully"
+    mount = _mounts(router).get(SITE)
+    assert _option(router["command"], "-c", "--config") == f"{mount}/router.json5"
+    for name in SERVICES:
+        mount = _mounts(services[name]).get(SITE)
+        assert mount and f"{SITE}:{mount}:ro" in services[name]["volumes"], (
+            f"{name}: mount the site read-only"
+        )
+        assert _option(services[name]["command"], "--zenoh-config") == f"{mount}/{name}.json5"
+
+
+@pytest.mark.parametrize("name", [*SERVICES, CERTS])
 def test_the_cli_has_the_command_compose_runs(compose, name):
     command = [_interpolate(arg) for arg in compose["services"][name]["command"]]
     args = _subcommand(command) + ["--help"]
@@ -313,7 +341,7 @@ def test_the_cli_has_the_command_compose_runs(compose, name):
     assert not missing, f"`afford {' '.join(args)}` does not list {missing}:\n{result.output}"
 
 
-@pytest.mark.parametrize("name", SERVICES)
+@pytest.mark.parametrize("name", [*SERVICES, CERTS])
 def test_the_cli_parses_the_whole_command_compose_runs(compose, name):
     """Parses, without running it, the command as compose runs it with no environment set: an unknown
     option, a value the CLI rejects (a service name its choice lacks) or a missing required one fails here.

@@ -36,20 +36,6 @@ ENTITIES = {
 }
 
 
-@pytest.fixture(scope="module")
-def generated_sequence(tmp_path_factory) -> Path:
-    """A generated living room seen by a virtual Kinect along a hand-held path (120 frames, published every
-    third: 40 frames over 0.84 m of walk, enough to see the floor of a cluttered room)."""
-    from affordcore.synth.dataset import write_sequence
-    from affordcore.synth.rooms import generate_room
-
-    rng = np.random.default_rng(3)
-    room = generate_room("living", rng, "living-e2e")
-    folder = tmp_path_factory.mktemp("sequence") / "living-e2e.sequence"
-    write_sequence(room, rng, folder, "depth", frames=120)
-    return folder
-
-
 # every frame registered however loaded the machine: these tests check the maps; skipping frames to keep up
 # is tested on its own (tests/test_reliability.py)
 EVERY_FRAME = {"AFFORD_SERVICE__MAX_LAG": "600"}

@@ -490,6 +490,7 @@ def test_scene_fields_round_trip_with_what_the_cloud_carried(small_fields):
         (lambda m: setattr(m.grid, "resolution", 0.0), r"at resolution 0\.0 is empty"),
         (lambda m: setattr(m.grid, "nx", 0), r"voxel grid \(0, \d+, \d+\) .* is empty"),
         (lambda m: setattr(m, "x_max", m.x_min - 1), r"empty floor footprint"),
+        (lambda m: setattr(m, "y_max", m.y_max + 60), r"floor footprint .* reaches beyond the voxel grid"),
     ],
     ids=[
         "occupancy short",
@@ -499,6 +500,7 @@ def test_scene_fields_round_trip_with_what_the_cloud_carried(small_fields):
         "resolution 0",
         "nx 0",
         "footprint",
+        "footprint beyond the grid",
     ],
 )
 def test_unusable_scene_fields_are_refused(small_fields, spoil, reason):
