@@ -146,7 +146,7 @@ class Assembler:
                 f"{self.settings.min_range}-{self.settings.max_range} m; at least 100 are needed"
             )
         odometry = self.odometry
-        delta = odometry.last_delta
+        delta = self._predicted_motion(stamp)
         if pose_guess is not None and self._last_guess is not None:
             delta = np.linalg.inv(self._last_guess) @ pose_guess
         frame = odometry.preprocessor.preprocess(points, np.zeros(len(points)), delta)
@@ -180,6 +180,16 @@ class Assembler:
             np.linalg.inv(initial_guess) @ pose,
             np.linalg.inv(odometry.last_pose) @ pose,
         )
+
+    def _predicted_motion(self, stamp: float) -> np.ndarray:
+        """KISS-ICP's constant-velocity prediction, constant in time rather than per frame: the last motion
+        scaled to the time since the last frame. A stream thinned to keep up (services pass over late frames)
+        has uneven gaps; predicting one frame's motion across three would count as model deviation, widen
+        KISS-ICP's adaptive threshold and slow every registration after it."""
+        delta, stamps = self.odometry.last_delta, self.trajectory.stamps
+        if len(stamps) < 2 or not stamps[-1] > stamps[-2]:
+            return delta
+        return scaled_motion(delta, (stamp - stamps[-1]) / (stamps[-1] - stamps[-2]))
 
     def _check_input(
         self, points: np.ndarray, stamp: float, guess: np.ndarray | None, gravity: np.ndarray | None
@@ -296,6 +306,18 @@ class Assembler:
         known = self._gravity_sum if np.linalg.norm(self._gravity_sum) > 0 else "auto"
         world = to_world(Cloud(self.map_points(), source="assembler map"), settings, known)
         return world.cloud.points, world.alignment.world_from_input
+
+
+def scaled_motion(delta: np.ndarray, ratio: float) -> np.ndarray:
+    """A rigid motion scaled by `ratio` (rotation angle and translation alike; clipped to 0 ... 10 so one
+    stalled stamp cannot fling the guess across the room)."""
+    from scipy.spatial.transform import Rotation
+
+    ratio = float(np.clip(ratio, 0.0, 10.0))
+    scaled = np.eye(4)
+    scaled[:3, :3] = Rotation.from_rotvec(Rotation.from_matrix(delta[:3, :3]).as_rotvec() * ratio).as_matrix()
+    scaled[:3, 3] = delta[:3, 3] * ratio
+    return scaled
 
 
 def rotation_angle_deg(rotation: np.ndarray) -> float:

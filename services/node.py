@@ -50,17 +50,26 @@ class Inbox:
     """Samples waiting for the worker, bounded in count and in bytes. `latest_only` keeps just the newest (a
     map superseded before it was worked on is not worth the work; it is counted in `skipped`); otherwise
     first in, first out, and when `max_lag` is set an input older than that is passed over (counted too) if
-    a newer one waits and the one before it was taken: a sensor stream the worker cannot follow is thinned,
-    to half its rate at most, rather than left to build a lag."""
+    a newer one waits that arrived within `max_gap` seconds of the last one taken: a sensor stream the worker
+    cannot follow is thinned rather than left to build a lag, and the frames taken are never more than
+    `max_gap` apart (registration bridges a short gap, not a long one)."""
 
-    def __init__(self, latest_only: bool, limit: int, max_bytes: int, max_lag: float | None = None):
+    def __init__(
+        self,
+        latest_only: bool,
+        limit: int,
+        max_bytes: int,
+        max_lag: float | None = None,
+        max_gap: float = 0.0,
+    ):
         self.latest_only, self.limit, self.max_bytes, self.max_lag = latest_only, limit, max_bytes, max_lag
+        self.max_gap = max_gap
         self._items: deque[Inbound] = deque()
         self._bytes = 0
         self._ready = threading.Condition()
         self.skipped = 0
         self.skipped_last: Inbound | None = None
-        self._taken_any = False
+        self._last_taken: float | None = None  # arrival time of the last input taken
 
     def offer(self, item: Inbound) -> str | None:
         """None when taken, else why not (the caller answers it on the error key: nothing is dropped
@@ -96,15 +105,22 @@ class Inbox:
             if not self._items and not self._ready.wait_for(lambda: self._items, timeout):
                 return None
             item = self._pop()
-            # at most one skip per take, so never two in a row (registration bridges one missing frame, not a
-            # run of them); the stream's first frame is always taken
-            late = self.max_lag is not None and time.time() - item.arrived > self.max_lag
-            if late and self._items and self._taken_any:
+            while self._passed_over(item):  # the stream's first input is always taken
                 self.skipped += 1
                 self.skipped_last = item
                 item = self._pop()
-            self._taken_any = True
+            self._last_taken = item.arrived
             return item
+
+    def _passed_over(self, item: Inbound) -> bool:
+        """Late, and the next one waiting is still within `max_gap` of the last input taken."""
+        late = self.max_lag is not None and time.time() - item.arrived > self.max_lag
+        return (
+            late
+            and bool(self._items)
+            and self._last_taken is not None
+            and self._items[0].arrived - self._last_taken <= self.max_gap
+        )
 
     def _pop(self) -> Inbound:
         item = self._items.popleft()
@@ -193,7 +209,7 @@ class Node:
         AFFORD_SERVICE__MAX_LAG when newer ones wait."""
         service = self.settings.service
         max_lag = service.max_lag if skip_when_late else None
-        return Inbox(latest_only, service.max_queue, service.max_queue_bytes, max_lag)
+        return Inbox(latest_only, service.max_queue, service.max_queue_bytes, max_lag, service.max_gap)
 
     def subscribe(self, key: str, inbox: Inbox) -> None:
         def on_sample(sample) -> None:

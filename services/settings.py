@@ -44,8 +44,14 @@ class NodeSettings(BaseModel):
         0.5,
         gt=0,
         description="the assembler passes over a scan that waited longer than this (s) when a newer one "
-        "waits (never two in a row), and says so on its status key: it follows the sensor instead of "
-        "falling behind",
+        "waits, and says so on its status key: it follows the sensor instead of falling behind",
+    )
+    max_gap: float = Field(
+        0.5,
+        gt=0,
+        description="... as long as the next one waiting arrived within this many seconds of the last scan "
+        "taken: the frames registered are never further apart (registration bridges a short gap, its "
+        "motion guess spanning the gap's time, not a long one)",
     )
     state: Path | None = Field(
         None,

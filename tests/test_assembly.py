@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import SHARED_DATA
 
-from affordcore.assembly import Assembler, trajectory_errors
+from affordcore.assembly import Assembler, rotation_angle_deg, scaled_motion, trajectory_errors
 from affordcore.depth import DepthImage, back_project
 from affordcore.example import box_surface_points
 from affordcore.settings import AssemblerSettings
@@ -87,6 +87,31 @@ def test_the_assembler_follows_a_known_path(room_frames, room_run):
     assert errors["path_m"] == pytest.approx(0.29, abs=0.01)
     assert errors["mean_m"] < 0.02 and errors["worst_m"] < 0.035, errors
     assert errors["final_rotation_deg"] < 1.2, errors
+
+
+def test_the_motion_prediction_spans_the_time_since_the_last_frame(room_frames):
+    """Across a gap (frames passed over to keep up) KISS-ICP's constant-velocity guess covers the gap's time,
+    not one frame: the camera turns 0.8 degrees a frame, so three frames ahead the guess turns 2.4."""
+    frames, truth = room_frames
+    assembler = Assembler()
+    for k in range(3):
+        assembler.register(frames[k], k / 30)
+    guess = assembler._predicted_motion(5 / 30)  # the next frame taken is frame 5
+    true_motion = np.linalg.inv(truth[2]) @ truth[5]
+    assert rotation_angle_deg(guess[:3, :3]) == pytest.approx(2.4, abs=0.5)
+    assert np.linalg.norm(guess[:3, 3] - true_motion[:3, 3]) < 0.01
+    record = assembler.register(frames[5], 5 / 30)
+    assert np.linalg.norm(record.pose[:3, 3] - (np.linalg.inv(truth[0]) @ truth[5])[:3, 3]) < 0.02
+
+
+def test_a_scaled_motion_scales_its_angle_and_its_translation():
+    delta = _turn_z(2.0)
+    delta[:3, 3] = [0.1, -0.05, 0.0]
+    tripled = scaled_motion(delta, 3.0)
+    assert rotation_angle_deg(tripled[:3, :3]) == pytest.approx(6.0)
+    np.testing.assert_allclose(tripled[:3, 3], [0.3, -0.15, 0.0])
+    np.testing.assert_allclose(scaled_motion(delta, 1.0), delta, atol=1e-12)
+    assert rotation_angle_deg(scaled_motion(delta, 1e6)[:3, :3]) == pytest.approx(20.0)  # clipped at 10x
 
 
 def test_the_aligned_map_has_the_floor_at_zero_and_z_up(room_frames, room_run):

@@ -241,16 +241,21 @@ def test_an_inbox_is_bounded_in_bytes_as_well_as_count():
     assert "MAX_QUEUE" in small.offer(_item())
 
 
-def test_a_late_stream_is_thinned_never_two_frames_in_a_row():
-    inbox = Inbox(latest_only=False, limit=100, max_bytes=10**6, max_lag=0.5)
-    items = [_item(age=5.0) for _ in range(9)] + [_item()]
+@pytest.mark.parametrize(
+    ("max_gap", "expected"),
+    [(0.15, list(range(10))), (0.25, [0, 2, 4, 6, 8, 9]), (0.35, [0, 3, 6, 8, 9])],
+)
+def test_a_late_stream_is_thinned_with_frames_taken_at_most_max_gap_apart(max_gap, expected):
+    inbox = Inbox(latest_only=False, limit=100, max_bytes=10**6, max_lag=0.5, max_gap=max_gap)
+    items = [_item(age=5.0 - 0.1 * k) for k in range(9)] + [_item()]  # 10 Hz, all but the last late
     for item in items:
         inbox.offer(item)
     taken = []
     while (item := inbox.take(0.05)) is not None:
         taken.append(items.index(item))
-    assert taken == [0, 2, 4, 6, 8, 9]
-    assert inbox.skipped == 4 and inbox.skipped_last is items[7]
+    assert taken == expected  # the first always, the last because nothing newer waits
+    assert inbox.skipped == 10 - len(expected)
+    assert max(np.diff([items[k].arrived for k in taken[:-1]])) < max_gap  # never further apart
     fresh = Inbox(latest_only=False, limit=100, max_bytes=10**6, max_lag=0.5)
     for _ in range(3):
         fresh.offer(_item())
