@@ -14,3 +14,23 @@ app = typer.Typer(
 )
 for theme in (room, learning, skeletons, robot, config):
     app.add_typer(theme.app)
+
+
+def _version(value: bool) -> None:
+    if value:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            typer.echo(f"affordmap {version('affordmap')}")
+        except PackageNotFoundError:  # run from a source tree that was never installed
+            typer.echo("affordmap (not installed)")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    show_version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="print the version and exit"
+    ),
+) -> None:
+    """affordmap: where people can sit, relax, work and stand in a 3D room, from its point cloud."""

@@ -57,6 +57,13 @@ def test_help_lists_the_subcommands():
         assert command in result.stdout
 
 
+def test_version_is_the_installed_package_s():
+    from importlib.metadata import version
+
+    result = afford("--version")
+    assert result.returncode == 0 and result.stdout.strip() == f"affordmap {version('affordmap')}"
+
+
 def test_features_json_contract(small_room):
     result = afford("features", small_room, "--affordance", "sitting-working", "--json")
     assert result.returncode == 0, result.stderr
