@@ -125,11 +125,31 @@ class Stack:
         finally:
             session.close()
 
+    def ready(self) -> set[str]:
+        """The services that answer a get on their status with a state past STARTING (a restarted assembler
+        has reloaded its map by then)."""
+        from affordwire import messages
+
+        from .transport import Keys
+
+        session = self.session()
+        try:
+            states = {
+                str(reply.ok.key_expr).rsplit("/", 1)[-1]: messages.parse(
+                    messages.Status, reply.ok.payload.to_bytes()
+                ).state
+                for reply in session.get(Keys(self.robot).key("status", "*"), timeout=2.0)
+                if reply.ok is not None
+            }
+        finally:
+            session.close()
+        return {name for name, state in states.items() if state != messages.Status.STARTING}
+
     def wait_ready(self, timeout: float) -> None:
-        """Until every service's liveliness token is seen through the router."""
+        """Until every service answers through the router, past starting."""
         deadline = time.monotonic() + timeout
         while True:
-            alive = self.alive()
+            alive = self.ready()
             if set(self.services) <= alive:
                 return
             dead = {name: p.returncode for name, p in self.processes.items() if p.poll() is not None}

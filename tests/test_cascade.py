@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from affordcore.learn.model import AffordanceModel, ModelError, load_model
-from affordcore.learn.thresholds import RoomScores, place_threshold
+from affordcore.learn.thresholds import RoomScores, place_floor, place_threshold
 from affordcore.trees import TreeEnsemble
 
 
@@ -130,3 +130,20 @@ def test_a_relative_place_threshold_moves_with_a_room_whose_scores_all_drop():
     # a model applies it the same way: the cut is the threshold above the room's median candidate score
     found, kept, false = dropped[0].places(threshold + dropped[0].reference)
     assert (found, kept - false) == (round(relative["place_recall"] * 2), found)
+
+
+def test_a_place_floor_stops_phantoms_in_a_room_whose_scores_all_run_low():
+    # room a holds two places, room b none: its median is far lower, so the relative cut (0.1 above each
+    # median) lets its best non-places through; an absolute floor keeps them out and keeps a's places
+    def room(name, places, false, labels, reference):
+        return RoomScores(name, np.zeros(0), np.zeros(0), np.array(places), np.array(false),
+                          np.array(labels), reference)  # fmt: skip
+
+    rooms = [room("a", [2.0, 1.8, 1.2], [False, False, True], [2.0, 1.8], 1.0),
+             room("b", [0.9, 0.7], [True, True], [], 0.0)]  # fmt: skip
+    relative, before = place_threshold(rooms, relative=True)
+    assert before["false_per_room"] > 0  # b's 0.9 and 0.7 beat its median + the relative threshold
+    floor, after = place_floor(rooms, relative)
+    assert after["place_f1"] == 1.0 and after["false_per_room"] == 0 and 0.9 <= floor < 1.8
+    # where the relative cut alone is best, there is no floor
+    assert place_floor(rooms[:1], place_threshold(rooms[:1], relative=True)[0])[0] is None

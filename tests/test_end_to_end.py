@@ -121,6 +121,43 @@ def _check_maps(out: Path, frames: int, watched: str) -> dict:
     return documents
 
 
+def _latest_cloud(stack: Stack):
+    """The assembler's latest map cloud, by a get on map/cloud (what the last maps were computed from)."""
+    from affordwire import messages
+    from services.transport import Keys
+
+    session = stack.session()
+    try:
+        for reply in session.get(Keys(stack.robot).cloud, timeout=10.0):
+            if reply.ok is not None:
+                return messages.parse(messages.CloudMessage, reply.ok.payload.to_bytes())
+    finally:
+        session.close()
+    raise AssertionError("the assembler did not answer a get on map/cloud")
+
+
+def _assert_same_as_afford_map(cloud, documents: dict) -> None:
+    """The services' maps are what `afford map`'s path computes from the same cloud: the same places at the
+    same scores, the same cut, whatever the models find in this scan."""
+    from affordcore.learn.model import choose_models
+    from affordcore.pipeline import map_affordances, prepare_scene
+    from affordcore.scene import Cloud
+    from affordcore.settings import Settings
+    from affordwire import messages
+
+    settings = Settings()
+    scene = prepare_scene(Cloud(messages.cloud_points(cloud)), settings, gravity="none")
+    maps = map_affordances(scene.fields, scene.layout, choose_models([], [], scene.layout), settings)
+    for name in AFFORDANCES:
+        expected = maps[name].to_json("", np.eye(4))
+        got = documents[name]
+        assert got["place_threshold"] == pytest.approx(expected["place_threshold"], abs=1e-3), name
+        rows = [[s[k] for k in ("x", "y", "z", "theta", "score")] for s in got["skeletons"]]
+        want = [[s[k] for k in ("x", "y", "z", "theta", "score")] for s in expected["skeletons"]]
+        assert np.allclose(np.array(rows).reshape(-1, 5), np.array(want).reshape(-1, 5), atol=1e-3), name
+        assert len(got["positives"]) == len(expected["positives"]), name
+
+
 def test_generated_depth_frames_become_affordance_maps_through_the_three_services(
     generated_sequence, tmp_path
 ):
@@ -130,13 +167,12 @@ def test_generated_depth_frames_become_affordance_maps_through_the_three_service
         watched = _stream_and_watch(
             stack, generated_sequence, tmp_path / "maps", ["--rate", "30", "--step", "3"], frames=40
         )
+        cloud = _latest_cloud(stack)
     finally:
         codes = stack.stop()
     assert codes == {"assembler": 0, "features": 0, "inference": 0, "router": 0}, stack.logs()
-    documents = _check_maps(tmp_path / "maps", 40, watched)
-    assert sum(len(d["skeletons"]) for d in documents.values()) > 0, (
-        "a living room with sofas and no place at all"
-    )
+    assert cloud.frames == 40
+    _assert_same_as_afford_map(cloud, _check_maps(tmp_path / "maps", 40, watched))
     _check_recordings(tmp_path / "run", "e2e-generated")
     assert "0 rejected" in (tmp_path / "run" / "assembler.log").read_text()
 
@@ -148,10 +184,10 @@ def test_the_real_kitchen_frames_become_affordance_maps_through_the_three_servic
         watched = _stream_and_watch(
             stack, KITCHEN, tmp_path / "maps", ["--rate", "30", "--step", "3"], frames=100
         )
+        cloud = _latest_cloud(stack)
     finally:
         codes = stack.stop()
     assert codes == {"assembler": 0, "features": 0, "inference": 0, "router": 0}, stack.logs()
-    documents = _check_maps(tmp_path / "maps", 100, watched)
-    standing = documents["standing-working"]["skeletons"]
-    assert standing, "the kitchen's counters offer standing work"
+    assert cloud.frames == 100
+    _assert_same_as_afford_map(cloud, _check_maps(tmp_path / "maps", 100, watched))
     _check_recordings(tmp_path / "run", f"afford-{stack.robot}")

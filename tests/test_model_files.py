@@ -87,3 +87,15 @@ def test_a_relative_place_threshold_counts_from_the_room_s_median_candidate_scor
     assert loaded.place_cut(scores) == pytest.approx(2.5) and loaded.id == model.id
     model.place_reference = None
     assert model.place_cut(scores) == pytest.approx(0.5) and model.id != loaded.id
+
+
+def test_a_place_floor_raises_a_low_room_s_cut_and_travels_with_the_model(tmp_path):
+    layout = FeatureLayout(cell_size=0.25)
+    model = _model(layout)
+    model.place_threshold, model.place_reference = 0.5, "room-median"
+    unfloored = model.id
+    model.place_floor = 1.0
+    assert model.place_cut_from(2.0) == pytest.approx(2.5)  # above the floor: the relative cut
+    assert model.place_cut_from(-3.0) == pytest.approx(1.0)  # a room whose scores run low: the floor
+    loaded = load_model(model.save(tmp_path / "m.json"), layout)
+    assert loaded.place_floor == 1.0 and loaded.id == model.id != unfloored

@@ -6,7 +6,8 @@ fingerprint of `FeatureLayout.describe()`), the pose grid's resolution, the lear
 weights, bias and threshold, the training rooms with their class counts, and validation metrics. A cascade
 (`learn/cascade.py`) also holds its second stage: the fraction of poses it rescores and its trees as node
 tables (data, never pickled code); `place_threshold` is the score a skeleton-map place must beat, counted from
-the median of the room's candidate scores when `place_reference` is "room-median". Loading a
+the median of the room's candidate scores when `place_reference` is "room-median", and never below
+`place_floor` when the model has one. Loading a
 model against a feature layout other than its own is a `ModelError`, not a silent wrong answer.
 """
 
@@ -27,7 +28,8 @@ from ..skeleton import Skeleton
 from ..trees import TreeEnsemble
 
 FORMAT = "affordance-model/2"
-READABLE = ("affordance-model/1", FORMAT)  # /2 added the optional place_threshold, rescorer, place_reference
+# /2 added the optional place_threshold, rescorer, place_reference, place_floor
+READABLE = ("affordance-model/1", FORMAT)
 PLACE_REFERENCES = (None, "room-median")
 MODELS_DIR = Path(__file__).parents[1] / "data" / "models"  # the shipped default models, one per affordance
 
@@ -54,6 +56,7 @@ class AffordanceModel:
     rescorer: dict | None = None  # the cascade's second stage: {"fraction", "max_poses", "trees"}
     # "room-median": place_threshold counts from the median candidate score of the room (room_reference)
     place_reference: str | None = None
+    place_floor: float | None = None  # and a place must also beat this absolute score (None: no floor)
 
     def __post_init__(self) -> None:
         if self.place_reference not in PLACE_REFERENCES:
@@ -72,7 +75,8 @@ class AffordanceModel:
     @property
     def id(self) -> str:
         """affordance/learner/hash of the weights: names exactly this model in the maps it makes."""
-        second = json.dumps([self.place_threshold, self.rescorer], sort_keys=True) + (
+        floor = [] if self.place_floor is None else [self.place_floor]  # ids of models without one unchanged
+        second = json.dumps([self.place_threshold, self.rescorer, *floor], sort_keys=True) + (
             self.place_reference or ""
         )
         digest = hashlib.sha256(
@@ -107,7 +111,8 @@ class AffordanceModel:
 
     def place_cut_from(self, reference: float) -> float:
         """`place_cut` for a room whose reference (`maps.room_reference`) is known."""
-        return self.skeleton_threshold + (reference if self.place_reference == "room-median" else 0.0)
+        cut = self.skeleton_threshold + (reference if self.place_reference == "room-median" else 0.0)
+        return cut if self.place_floor is None else max(cut, self.place_floor)
 
     @cached_property
     def trees(self) -> TreeEnsemble | None:

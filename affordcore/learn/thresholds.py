@@ -92,10 +92,27 @@ def place_threshold(rooms: list[RoomScores], relative: bool = False) -> tuple[fl
     room's reference (`maps.room_reference`), as a model with place_reference "room-median" applies it."""
     shift = [r.reference if relative else 0.0 for r in rooms]
     candidates = np.unique(np.concatenate([r.place_scores - s for r, s in zip(rooms, shift)] + [[RULED_OUT]]))
+    return _best_cut(rooms, candidates, lambda t: [t + s for s in shift])
+
+
+def place_floor(rooms: list[RoomScores], relative_threshold: float) -> tuple[float | None, dict]:
+    """(floor, what it gives): the absolute score a place must also beat under a relative threshold (each
+    room's cut is the larger of `relative_threshold` + its reference and the floor), with the best place F1
+    over the rooms; None when no floor does better than none. A room whose scores run high keeps its places,
+    a room whose best scores are low (few such places, or none) gets no phantom ones."""
+    relative = [relative_threshold + r.reference for r in rooms]
+    candidates = np.unique(np.concatenate([r.place_scores for r in rooms] + [[RULED_OUT]]))
+    floor, stats = _best_cut(rooms, candidates, lambda f: [max(c, f) for c in relative])
+    return (None if floor == RULED_OUT else floor), stats
+
+
+def _best_cut(rooms: list[RoomScores], candidates: np.ndarray, cuts_of) -> tuple[float, dict]:
+    """The candidate (ascending) whose per-room cuts `cuts_of(candidate)` give the best place F1; ties go to
+    the fewer false skeletons, then to the lower candidate."""
     labels = sum(len(r.label_best) for r in rooms)
     best = None
     for t in candidates:  # distinct skeleton scores: a few hundred, not poses
-        found, kept, false = np.sum([r.places(t + s) for r, s in zip(rooms, shift)], axis=0)
+        found, kept, false = np.sum([r.places(c) for r, c in zip(rooms, cuts_of(t))], axis=0)
         recall = found / labels if labels else 0.0
         precision = (kept - false) / kept if kept else 0.0
         f1 = 2 * recall * precision / (recall + precision) if recall + precision else 0.0

@@ -21,7 +21,7 @@ from .examples import RoomExamples, Task, data_set_rooms, load_rooms, room_examp
 from .f1_argmax import f1_loss
 from .learners import Fitted, get_learner
 from .model import AffordanceModel
-from .thresholds import place_threshold, pose_threshold, room_scores
+from .thresholds import place_floor, place_threshold, pose_threshold, room_scores
 
 
 def metrics(scores: np.ndarray, labels: np.ndarray, threshold: float) -> dict:
@@ -137,8 +137,11 @@ def train_on_rooms(
     # places count from each room's own median score, so the threshold survives scans unlike the training
     # rooms; the absolute threshold's choice is kept for the comparison (benchmarks/accuracy.py)
     absolute, absolute_places = place_threshold(scored)
-    model.place_threshold, places = place_threshold(scored, relative=True)
+    model.place_threshold, relative_places = place_threshold(scored, relative=True)
     model.place_reference = "room-median"
+    # ... floored by an absolute score where that does better: a room with few or none of the affordance's
+    # places has a low median, and the relative cut alone lets its best non-places through
+    model.place_floor, places = place_floor(scored, model.place_threshold)
     positives = sum(int((r.labels > 0).sum()) for r in scored)
     model.validation = {
         "rooms": validation_names,
@@ -152,5 +155,6 @@ def train_on_rooms(
         **places,
         "absolute_place_threshold": absolute,
         "absolute_place_f1": absolute_places["place_f1"],
+        "relative_place_f1": relative_places["place_f1"],
     }
     return model
