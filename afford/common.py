@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import typer
 
@@ -60,6 +61,21 @@ def progress(quiet: bool):
         transient=True,
         disable=quiet,
     )
+
+
+def output_folder(path: Path, option: str = "--out") -> Path:
+    """`path` as a folder outputs can be written to, made if missing; checked before any work starts, so a
+    bad --out costs a message, not the minutes of work before it."""
+    if path.exists() and not path.is_dir():
+        raise UserError(f"{option} {path} is a file; give a folder (it is made if missing)")
+    path.mkdir(parents=True, exist_ok=True)
+    probe = path / ".afford-write-check"
+    try:
+        probe.touch()
+        probe.unlink()
+    except OSError as error:
+        raise UserError(f"{option} {path} is not writable: {error.strerror}") from None
+    return path
 
 
 def peak_rss_mb() -> float:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from .common import GRAVITY_HELP, peak_rss_mb, progress, user_errors
+from .common import GRAVITY_HELP, output_folder, peak_rss_mb, progress, user_errors
 
 app = typer.Typer()
 PANEL = "Room"
@@ -53,6 +53,7 @@ def map_room(
     from affordcore.scene import load_cloud
     from affordcore.settings import Settings
 
+    output_folder(out)
     settings = Settings()
     start = time.perf_counter()
     models = choose_models(

@@ -97,6 +97,7 @@ def test_features_can_write_the_matrix(small_room, tmp_path, monkeypatch):
         (["features", "{room}", "-a", "flying"], "unknown affordance 'flying'"),
         (["features", "{room}", "-a", "sitting-working", "--gravity", "1,2"], "three numbers"),
         (["align", "{bad}"], "unknown cloud format"),
+        (["map", "{room}", "--out", "{bad}"], "is a file; give a folder"),
     ],
 )
 def test_bad_input_is_one_clear_line_and_exit_2(small_room, tmp_path, args, message):
