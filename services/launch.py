@@ -88,11 +88,12 @@ class Stack:
         self.wait_ready(timeout)
         return self
 
-    def session(self, wait: float = 30.0):
-        """A new zenoh session of the stack's identity through its router (close it when done)."""
+    def session(self, wait: float = 30.0, identity: str | None = None):
+        """A new zenoh session through the stack's router (close it when done), as `identity` in a secured
+        stack (default: the stack's own)."""
         from .transport import open_session
 
-        config = self.config(self.identity)
+        config = self.config(identity or self.identity)
         return open_session([self.endpoint], wait=wait, base=Path(config) if config else None)
 
     def kill(self, service: str, timeout: float = 30.0) -> int:

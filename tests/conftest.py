@@ -6,6 +6,8 @@ read in place, never copied, and tests that need it skip cleanly when it is abse
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -37,6 +39,16 @@ def imbalanced_gaussian(n: int, d: int, ratio: int, shift: float, seed: int):
     X = rng.normal(size=(n, d)).astype(np.float32)
     X[y > 0] += shift
     return X, y
+
+
+def rrd_verify(path) -> subprocess.CompletedProcess:
+    """`rerun rrd verify` on a recording, with this interpreter's rerun (returncode 0: it verifies)."""
+    return subprocess.run(
+        [sys.executable, "-m", "rerun", "rrd", "verify", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def eventually(condition: Callable[[], bool], timeout: float = 10.0, poll: float = 0.2) -> bool:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SHARED_DATA, needs_shared
+from conftest import SHARED_DATA, needs_shared, rrd_verify
 
 from affordcore.recording import recorded_entities
 from services.launch import Stack
@@ -90,12 +90,7 @@ def _check_recordings(folder: Path, recording_id: str) -> None:
 
     for service, entities in ENTITIES.items():
         rrd = folder / f"{service}.rrd"
-        verify = subprocess.run(
-            [sys.executable, "-m", "rerun", "rrd", "verify", str(rrd)],
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
+        verify = rrd_verify(rrd)
         assert verify.returncode == 0, f"{rrd}: {verify.stdout}{verify.stderr}"
         missing = entities - recorded_entities(rrd)
         assert not missing, f"{service}.rrd lacks {sorted(missing)}"

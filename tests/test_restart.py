@@ -14,7 +14,7 @@ import subprocess
 import sys
 
 import pytest
-from conftest import eventually
+from conftest import eventually, rrd_verify
 
 from services.launch import Stack
 from services.transport import Keys
@@ -121,10 +121,5 @@ def test_killed_services_restart_and_lose_no_accepted_frame(generated_sequence, 
         )
         assert merge.returncode == 0, merge.stderr
         for rrd in (repaired, restarted):
-            verify = subprocess.run(
-                [sys.executable, "-m", "rerun", "rrd", "verify", str(rrd)],
-                capture_output=True,
-                text=True,
-                timeout=120,
-            )
+            verify = rrd_verify(rrd)
             assert verify.returncode == 0, f"{rrd}: {verify.stderr}"

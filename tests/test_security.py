@@ -21,7 +21,7 @@ from conftest import eventually
 
 from services.launch import Stack
 from services.security import Site, client_config, write_site
-from services.transport import Keys, open_session
+from services.transport import Keys
 
 pytestmark = pytest.mark.slow
 ROBOT = "robot1"
@@ -59,10 +59,6 @@ def _open(config: dict, stack: Stack, tmp_path, name: str):
         return error
 
 
-def _session(stack: Stack, identity: str):
-    return open_session([stack.endpoint], base=stack.site / f"{identity}.json5", wait=10)
-
-
 def test_afford_certs_keeps_the_site_ca_and_grants_a_new_sensor(tmp_path):
     afford = [sys.executable, "-m", "afford", "certs", str(tmp_path)]
     first = subprocess.run(afford, capture_output=True, text=True, timeout=60)
@@ -82,7 +78,7 @@ def test_afford_certs_keeps_the_site_ca_and_grants_a_new_sensor(tmp_path):
 
 
 def test_a_secured_site_starts_and_answers_through_the_router(stack):
-    session = _session(stack, "viewer")
+    session = stack.session(wait=10, identity="viewer")
     try:
         replies = [r for r in session.get(KEYS.key("status", "*"), timeout=5.0) if r.ok is not None]
     finally:
@@ -126,7 +122,7 @@ def test_plain_tcp_no_certificate_and_a_foreign_ca_are_refused(stack, site, tmp_
 
 def test_only_owners_write_their_keys_and_a_viewer_writes_nothing(stack):
     viewer, intruder, robot, assembler = (
-        _session(stack, name) for name in ("viewer", "intruder", "robot", "assembler")
+        stack.session(wait=10, identity=name) for name in ("viewer", "intruder", "robot", "assembler")
     )
     seen: list[tuple[str, bytes]] = []
     subscriber = viewer.declare_subscriber(
