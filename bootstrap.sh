@@ -60,7 +60,7 @@ stamp=$(cat pyproject.toml | sha256sum | cut -d' ' -f1)
 if [ "$(cat .venv/.afford-stamp 2>/dev/null)" != "$stamp" ]; then
   echo "bootstrap: installing affordmap and its dependencies into .venv (a minute or two)" >&2
   .venv/bin/python -m pip install --quiet --upgrade pip
-  .venv/bin/python -m pip install --quiet -e ".[test]"
+  .venv/bin/python -m pip install --quiet -e ".[all,test]"
   echo "$stamp" > .venv/.afford-stamp
 fi
 
