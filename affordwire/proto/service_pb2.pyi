@@ -50,17 +50,19 @@ class Status(_message.Message):
     def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., service: _Optional[str] = ..., robot: _Optional[str] = ..., state: _Optional[_Union[Status.State, str]] = ..., detail: _Optional[str] = ..., accepted: _Optional[int] = ..., rejected: _Optional[int] = ..., published: _Optional[int] = ..., last_seconds: _Optional[float] = ..., version: _Optional[str] = ..., skipped: _Optional[int] = ..., dropped: _Optional[int] = ...) -> None: ...
 
 class Error(_message.Message):
-    __slots__ = ("timestamp", "service", "key", "encoding", "payload_bytes", "reason")
+    __slots__ = ("timestamp", "service", "key", "encoding", "payload_bytes", "reason", "input_timestamp")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     SERVICE_FIELD_NUMBER: _ClassVar[int]
     KEY_FIELD_NUMBER: _ClassVar[int]
     ENCODING_FIELD_NUMBER: _ClassVar[int]
     PAYLOAD_BYTES_FIELD_NUMBER: _ClassVar[int]
     REASON_FIELD_NUMBER: _ClassVar[int]
+    INPUT_TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     service: str
     key: str
     encoding: str
     payload_bytes: int
     reason: str
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., service: _Optional[str] = ..., key: _Optional[str] = ..., encoding: _Optional[str] = ..., payload_bytes: _Optional[int] = ..., reason: _Optional[str] = ...) -> None: ...
+    input_timestamp: _timestamp_pb2.Timestamp
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., service: _Optional[str] = ..., key: _Optional[str] = ..., encoding: _Optional[str] = ..., payload_bytes: _Optional[int] = ..., reason: _Optional[str] = ..., input_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ...) -> None: ...
