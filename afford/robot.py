@@ -124,7 +124,9 @@ def serve(
 def publish(
     source: Path = typer.Argument(
         ...,
-        help="a cloud file, or a folder of depth frames (7-Scenes layout) or of scan-NNNNNN.bin LiDAR scans",
+        help="a cloud file; a folder of depth frames (7-Scenes layout), of scan-NNNNNN.bin LiDAR scans or of "
+        "PLY/PCD scans (in name order); or a ROS 2 recording: a rosbag2 folder (sqlite3 or MCAP) or an .mcap "
+        "file",
     ),
     connect: list[str] = typer.Option(..., "--connect", help=CONNECT_HELP),
     robot: str = typer.Option(..., "--robot", help=ROBOT_HELP),
@@ -148,7 +150,11 @@ def publish(
         True,
         "--imu/--no-imu",
         help="a folder with gravity-direction.txt and poses: send the gravity direction an IMU "
-        "would read with each frame",
+        "would read with each frame; a recording: the gravity of its Imu topic",
+    ),
+    topic: str = typer.Option("", "--topic", help="a recording's PointCloud2 topic (default: its only one)"),
+    imu_topic: str = typer.Option(
+        "", "--imu-topic", help="a recording's Imu topic giving each scan its gravity (default: its only one)"
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
     zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help=ZENOH_CONFIG_HELP),
@@ -168,8 +174,30 @@ def publish(
 
         keys, settings = Keys(robot), _settings(zenoh_config)
         session_of = settings.service.mode, settings.service.zenoh_config
+        from services.ros import is_recording
+
+        if (topic or imu_topic) and not is_recording(source):
+            raise UserError(f"--topic and --imu-topic are for ROS 2 recordings; {source} is not one")
         try:
-            if source.is_dir():
+            if is_recording(source):
+                from services.ros import recording_frames
+
+                stats, scans, count = recording_frames(
+                    source, topic, imu_topic, imu, first, frames, step, settings.ros, settings.limits
+                )
+                sensor = sensor or "lidar"
+                with connected(connect, *session_of) as session, progress(quiet) as bar:
+                    task = bar.add_task(f"{stats.topic} to {keys.scan(sensor)}", total=count)
+                    sent = publish_sequence(
+                        session, keys, scans, sensor, rate, wait, on_frame=lambda _: bar.advance(task)
+                    )
+                for note in stats.notes():
+                    typer.echo(f"warning: {note}", err=True)
+                typer.echo(
+                    f"published {stats.describe(sent, source)} "
+                    f"(afford watch --frames {sent} waits for the maps of all of them)"
+                )
+            elif source.is_dir():
                 sequence, messages, count = folder_frames(source, first, frames, step, imu)
                 sensor = sensor or ("camera" if sequence.kind == "depth" else "lidar")
                 with connected(connect, *session_of) as session, progress(quiet) as bar:
@@ -189,7 +217,9 @@ def publish(
                     publish_map(session, keys, cloud, wait)
                 typer.echo(
                     f"published {source} as the map of robot {robot} "
-                    f"({len(cloud.data) // cloud.point_stride:,} points)"
+                    f"({len(cloud.data) // cloud.point_stride:,} points), stamped "
+                    f"{cloud.timestamp.seconds}.{cloud.timestamp.nanos:09d} (afford watch --since that "
+                    "waits for its maps)"
                 )
             else:
                 scan = scan_message(source, sensor or "sensor")
@@ -223,10 +253,17 @@ def watch(
         min=0,
         help="only maps built from at least this many scans (what afford publish printed)",
     ),
+    since: str | None = typer.Option(
+        None,
+        "--since",
+        help="only maps of a cloud stamped at or after this time (seconds since the epoch, as afford publish "
+        "--as-map prints it); default: the newest cloud the features service has",
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="print only the maps' summary"),
     zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help=ZENOH_CONFIG_HELP),
 ) -> None:
-    """Print what the services of a robot publish; exit 0 once every affordance's map has arrived."""
+    """Print what the services of a robot publish; exit 0 once every affordance has a map of the newest cloud
+    (never an older cloud's), exit 1 when that cloud is refused or on timeout."""
     with user_errors():
         from affordcore.learn.model import shipped_models
         from services.clients import MapWatcher, watch_maps
@@ -234,9 +271,12 @@ def watch(
 
         keys = Keys(robot)
         wanted = affordance or list(shipped_models())
-        watcher = MapWatcher(keys, wanted, frames, out, echo=(lambda line: None) if quiet else typer.echo)
+        echo = (lambda line: None) if quiet else typer.echo
+        watcher = MapWatcher(keys, wanted, frames, out, echo, since=_nanoseconds(since) if since else 0)
         service = _settings(zenoh_config).service
         arrived = watch_maps(connect, service.mode, keys, watcher, timeout, service.zenoh_config)
+        if watcher.refused is not None:
+            fail(f"the features service refused the cloud: {watcher.refused}", code=1)
         for name in sorted(watcher.received):
             document = watcher.received[name]
             typer.echo(
@@ -245,6 +285,22 @@ def watch(
             )
         if not arrived:
             fail(f"timed out after {timeout:.0f} s waiting for {', '.join(watcher.missing)}", code=1)
+
+
+def _nanoseconds(text: str) -> int:
+    """Seconds since the epoch, exactly, as nanoseconds (a float would lose the last digits, and the watch
+    compares stamps exactly)."""
+    from decimal import Decimal, InvalidOperation
+
+    try:
+        value = Decimal(text)
+    except InvalidOperation:
+        raise UserError(
+            f"--since must be seconds since the epoch, e.g. 1764000000.123456789, not {text!r}"
+        ) from None
+    if not value.is_finite() or value < 0:
+        raise UserError(f"--since must be seconds since the epoch, not {text!r}")
+    return int(value * 1_000_000_000)
 
 
 def _settings(zenoh_config: Path | None = None):

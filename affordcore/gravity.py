@@ -120,6 +120,36 @@ def align_to_gravity(
     )
 
 
+def check_levelled(points: np.ndarray, settings: GravitySettings | None = None) -> float:
+    """A cloud said to be in the world frame has its floor at z = 0: the points within
+    ``ransac_threshold`` of that plane cover at least ``min_floor_area`` and almost nothing lies under it.
+    Returns the floor area; raises `NoFloorError` saying what is wrong (a cloud with its floor elsewhere
+    would be scored against air and come back as empty maps, which looks like an answer)."""
+    settings = settings or GravitySettings()
+    sample = voxel_thin(points, settings.sample_voxel)[0]
+    z = sample[:, 2]
+    up = np.array([0.0, 0.0, 1.0])
+    area = _area(sample[np.abs(z) <= settings.ransac_threshold], up)
+    below = float(np.mean(z < -_BELOW_MARGIN))
+    wrong = []
+    if area < settings.min_floor_area:
+        wrong.append(
+            f"only {area:.2f} m^2 of points lie at z = 0 (at least {settings.min_floor_area:g} needed)"
+        )
+    if below > settings.max_below_fraction:
+        wrong.append(
+            f"{below:.1%} of the points lie more than {_BELOW_MARGIN * 100:.0f} cm under z = 0 "
+            f"(at most {settings.max_below_fraction:.0%})"
+        )
+    if wrong:
+        raise NoFloorError(
+            f"a 'world' cloud has its floor at z = 0, but {' and '.join(wrong)}; 1 % of its points lie under "
+            f"z = {np.quantile(z, 0.01):+.2f} m. Send it in its own frame (any frame_id but 'world') and it "
+            "is levelled for you"
+        )
+    return area
+
+
 def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
     # The horizontal-surface score is a fraction of points: a coarser copy scores as well, and normal
     # estimation, a large share of an auto alignment, costs far less on it.

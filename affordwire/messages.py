@@ -287,15 +287,9 @@ def cloud_message(
 
 
 def cloud_points(message: CloudMessage, limits: LimitSettings | None = None) -> np.ndarray:
-    """The world-frame points of a map Cloud, checked against `limits`; a cloud in another frame, with
-    fewer than 100 points, or wider than `limits.max_extent`, is refused."""
+    """The points of a map Cloud in its own frame (`is_levelled` says whether that is the world frame),
+    checked against `limits`: fewer than 100 points, or wider than `limits.max_extent`, is refused."""
     limits = limits or LimitSettings()
-    if message.frame_id != WORLD:
-        raise MessageError(
-            f"map clouds must be in the {WORLD!r} frame (gravity-aligned, z up, floor at 0), not "
-            f"{message.frame_id!r}; "
-            "`afford publish --as-map` aligns a file before sending it"
-        )
     checked_seconds(message.timestamp, limits)
     pose_matrix(message.world_from_input)
     points, _ = unpack_points(message, limits.max_points)
@@ -310,8 +304,17 @@ def cloud_points(message: CloudMessage, limits: LimitSettings | None = None) -> 
     return points
 
 
-def fields_message(fields, cloud: CloudMessage, at: float | None = None) -> SceneFieldsMessage:
-    """SceneFields of the map `cloud` (whose frame, time and frame count it carries on)."""
+def is_levelled(message: CloudMessage) -> bool:
+    """A Cloud in the world frame is levelled (z up, floor at 0) by its sender; any other is levelled by the
+    features service."""
+    return message.frame_id == WORLD
+
+
+def fields_message(
+    fields, cloud: CloudMessage, world_from_input: np.ndarray | None = None, at: float | None = None
+) -> SceneFieldsMessage:
+    """SceneFields of the map `cloud` (whose time and frame count it carries on), with `world_from_input`
+    (default: the cloud's own, for a cloud that came levelled)."""
     lattice = fields.lattice
     message = SceneFieldsMessage(
         frame_id=WORLD,
@@ -323,7 +326,11 @@ def fields_message(fields, cloud: CloudMessage, at: float | None = None) -> Scen
     message.grid.resolution = lattice.resolution
     message.grid.nx, message.grid.ny, message.grid.nz = lattice.shape
     message.x_min, message.y_min, message.x_max, message.y_max = fields.footprint
-    _carry_source(message, cloud.world_from_input, cloud.timestamp, cloud.frames, at)
+    pose = cloud.world_from_input
+    if world_from_input is not None:
+        pose = Pose()
+        set_pose(pose, world_from_input, WORLD, "input", seconds(cloud.timestamp))
+    _carry_source(message, pose, cloud.timestamp, cloud.frames, at)
     return message
 
 

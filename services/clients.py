@@ -90,7 +90,7 @@ def publish_sequence(
     on_frame: Callable[[int], None] | None = None,
 ) -> int:
     """Publish (index, message) pairs on scan/<sensor> at `rate` Hz (0: as fast as the network takes them);
-    each message is stamped when it is sent. Returns how many were sent."""
+    each message without a timestamp is stamped when it is sent. Returns how many were sent."""
     publisher = None
     period = 1.0 / rate if rate > 0 else 0.0
     sent, start = 0, time.monotonic()
@@ -102,7 +102,8 @@ def publish_sequence(
             delay = start + sent * period - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            messages.stamp(message.timestamp)
+            if not message.HasField("timestamp"):  # a recording's messages keep the times they were taken
+                messages.stamp(message.timestamp)
             publisher.put(message.SerializeToString(), encoding=encoding_of(type(message)))
             sent += 1
             if on_frame:
@@ -175,8 +176,10 @@ def describe(key: str, schema: str, payload: bytes) -> str:
 
 
 class MapWatcher:
-    """Collects the affordance maps of one robot; `done` once every wanted affordance has a map of at least
-    `min_frames` scans."""
+    """Collects the affordance maps of one robot; `done` once every wanted affordance has a map of a cloud no
+    older than `since` (nanoseconds since the epoch; `watch` sets it to the newest cloud the features service
+    has when 0) and of at least `min_frames` scans. A refusal of that very cloud ends the watch too
+    (`refused` says why)."""
 
     def __init__(
         self,
@@ -185,10 +188,12 @@ class MapWatcher:
         min_frames: int,
         out: Path | None,
         echo: Callable[[str], None] = print,
+        since: int = 0,
     ):
         self.keys, self.wanted, self.min_frames = keys, set(affordances), min_frames
-        self.out, self.echo = out, echo
+        self.out, self.echo, self.since = out, echo, since
         self.received: dict[str, dict] = {}
+        self.refused: str | None = None
         self.done = threading.Event()
         self._lock = threading.Lock()
 
@@ -197,6 +202,8 @@ class MapWatcher:
         self.echo(describe(key, schema, payload))
         if schema == messages.schema_name(messages.AffordanceMapMessage):
             self._take_map(payload)
+        elif schema == messages.schema_name(messages.Error) and key == self.keys.error("features"):
+            self._take_refusal(payload)
 
     def _take_map(self, payload: bytes) -> None:
         try:
@@ -205,6 +212,8 @@ class MapWatcher:
         except messages.MessageError as error:
             self.echo(f"unreadable map: {error}")
             return
+        if message.cloud_timestamp.ToNanoseconds() < self.since:
+            return  # the answer to an older cloud than the one waited for
         if message.frames < self.min_frames:
             return
         with self._lock:
@@ -215,16 +224,50 @@ class MapWatcher:
             if self.wanted <= set(self.received):
                 self.done.set()
 
+    def _take_refusal(self, payload: bytes) -> None:
+        try:
+            error = messages.parse(messages.Error, payload)
+        except messages.MessageError:
+            return
+        if self.since and error.input_timestamp.ToNanoseconds() == self.since:
+            self.refuse(error.reason)
+
+    def refuse(self, reason: str) -> None:
+        self.refused = reason
+        self.done.set()
+
     @property
     def missing(self) -> list[str]:
         return sorted(self.wanted - set(self.received))
 
 
+def newest_cloud(session, keys: Keys, timeout: float = 5.0) -> tuple[int, str]:
+    """(nanoseconds, refusal) of the newest cloud the robot's features service has received, taken or
+    waiting, and why it was refused ("" if not); (0, "") when the service does not answer."""
+    for reply in session.get(keys.status("features"), timeout=timeout):
+        if reply.ok is None or schema_of(reply.ok) != messages.schema_name(messages.Status):
+            continue
+        try:
+            status = messages.parse(messages.Status, reply.ok.payload.to_bytes())
+        except messages.MessageError:
+            continue
+        return status.newest_input.ToNanoseconds(), status.newest_input_refused
+    return 0, ""
+
+
 def watch(session, keys: Keys, watcher: MapWatcher, timeout: float) -> bool:
     """Print everything under the robot's keys and collect maps until `watcher` is done or `timeout` passes.
-    Maps published before the watch began are fetched with a get (a late joiner catches up)."""
-    subscriber = session.declare_subscriber(keys.key("**"), watcher.on_sample)
+    Without a `since` of its own, the watcher waits for maps of the newest cloud the features service has
+    (never an older cloud's, which the inference service still answers with). Maps published before the
+    watch began are fetched with a get (a late joiner catches up)."""
     import zenoh
+
+    newest, refused = newest_cloud(session, keys, min(timeout, 5.0))
+    watcher.since = watcher.since or newest
+    if refused and newest == watcher.since:
+        watcher.refuse(refused)
+        return True
+    subscriber = session.declare_subscriber(keys.key("**"), watcher.on_sample)
 
     def on_liveliness(sample) -> None:
         watcher.echo(

@@ -1,8 +1,12 @@
 """Feature extraction: map/cloud in, fields out (occupancy, distance transform and normals of the room, which
-every affordance's scores are read from), by affordcore.pipeline's one path from a cloud to its fields."""
+every affordance's scores are read from), by affordcore.pipeline's one path from a cloud to its fields. A
+cloud in the world frame must be levelled already (checked); one in any other frame is levelled here, by the
+same alignment `afford map` uses, and its fields carry the world_from_input that did it. No floor: refused
+on error/features, never answered with empty maps."""
 
 from __future__ import annotations
 
+from affordcore.gravity import check_levelled
 from affordcore.pipeline import prepare_scene
 from affordcore.recording import log_cloud, log_fields, set_time
 from affordcore.scene import Cloud
@@ -24,16 +28,29 @@ class FeaturesService:
 
     def handle(self, item: Inbound) -> None:
         cloud = self.node.decode(item, messages.CloudMessage)
-        points = messages.cloud_points(cloud, self.node.settings.limits)
-        self.node.publish_status(messages.Status.BUSY, f"computing the fields of {len(points):,} points")
-        # map clouds arrive in the world frame (cloud_points checked it): no alignment here
-        scene = prepare_scene(Cloud(points, source=item.key), self.node.settings, gravity="none")
-        message = messages.fields_message(scene.fields, cloud)
+        settings = self.node.settings
+        points = messages.cloud_points(cloud, settings.limits)
+        levelled = messages.is_levelled(cloud)
+        what = (
+            "computing the fields"
+            if levelled
+            else f"levelling (frame {cloud.frame_id or 'unnamed'!r}) and computing the fields"
+        )
+        self.node.publish_status(messages.Status.BUSY, f"{what} of {len(points):,} points")
+        if levelled:
+            check_levelled(points, settings.gravity)  # NoFloorError: refused, with what is wrong
+        scene = prepare_scene(
+            Cloud(points, source=item.key), settings, gravity="none" if levelled else "auto"
+        )
+        # the Cloud's own world_from_input takes its source to the cloud's frame; levelling goes on from there
+        world_from_input = scene.alignment.world_from_input @ messages.pose_matrix(cloud.world_from_input)
+        message = messages.fields_message(scene.fields, cloud, world_from_input)
         self.node.publish(self.node.keys.fields, message)
         set_time(self.node.recording, messages.seconds(cloud.timestamp))
         log_cloud(self.node.recording, scene.cloud.points)
         log_fields(self.node.recording, scene.fields)
+        levelling = "" if levelled else f"; {scene.alignment.describe()}"
         self.node.publish_status(
             messages.Status.READY,
-            f"published fields {scene.fields.lattice.shape} of a {cloud.frames}-frame map",
+            f"published fields {scene.fields.lattice.shape} of a {cloud.frames}-frame map{levelling}",
         )

@@ -40,6 +40,7 @@ class Inbound:
     payload: bytes
     arrived: float
     is_input: bool = True  # False: the service's own work (idle, stop), answered alike but not counted
+    input_timestamp: object = None  # the message's own Timestamp once decoded: a refusal carries it back
 
 
 def _own_work(what: str) -> Inbound:
@@ -179,6 +180,8 @@ class Node:
         stop_on_signals(self.stop_event)  # from the start: a SIGTERM while starting up is a clean stop too
         self.counts = {"accepted": 0, "rejected": 0, "published": 0, "skipped": 0, "dropped": 0}
         self.last_seconds = 0.0
+        self.newest_input = 0  # nanoseconds: the newest timestamp among the inputs received (Status)
+        self.newest_input_refused = ""  # and why that input was refused, if it was
         self.latest: dict[str, tuple[bytes, object]] = {}  # key: (payload, encoding) answered on get
         self._declared: list = []
         self._lock = threading.Lock()
@@ -211,9 +214,15 @@ class Node:
         max_lag = service.max_lag if skip_when_late else None
         return Inbox(latest_only, service.max_queue, service.max_queue_bytes, max_lag, service.max_gap)
 
-    def subscribe(self, key: str, inbox: Inbox) -> None:
+    def subscribe(self, key: str, inbox: Inbox, schema: str | None = None) -> None:
+        """Samples on `key` into `inbox`; `schema` tags each as that schema whatever its encoding says (ROS 2
+        publishers send CDR with no afford schema: services/ros.py names what the subscription is for)."""
+
         def on_sample(sample) -> None:
-            self._offer(inbox, _inbound(sample))
+            item = _inbound(sample)
+            if schema is not None:
+                item.schema = schema
+            self._offer(inbox, item)
 
         self._declared.append(self.session.declare_subscriber(key, on_sample))
 
@@ -230,7 +239,25 @@ class Node:
         refusal = inbox.offer(item)
         if refusal is not None:
             self.reject(item, refusal)
+        else:
+            self._note_input_time(item)
         return refusal is None
+
+    def _note_input_time(self, item: Inbound) -> None:
+        """Keep the newest timestamp of the inputs received, taken or still waiting: a client that just
+        published reads it from the status to know which answer is the newest (afford watch). Read by
+        decoding the message; one that does not decode is refused later, by the worker."""
+        cls = messages.MESSAGE_CLASSES.get(item.schema)
+        if cls is None or "timestamp" not in cls.DESCRIPTOR.fields_by_name:
+            return
+        try:
+            stamp = messages.parse(cls, item.payload).timestamp
+            messages.checked_seconds(stamp, self.settings.limits)  # a forged far-future time is no bar
+        except ValueError:  # MessageError
+            return
+        with self._lock:
+            if stamp.ToNanoseconds() > self.newest_input:
+                self.newest_input, self.newest_input_refused = stamp.ToNanoseconds(), ""
 
     def decode(self, item: Inbound, *message_classes):
         """The message of the class the sample's schema names, among `message_classes`, or MessageError."""
@@ -240,7 +267,10 @@ class Node:
                 f"expected encoding application/protobuf with schema {' or '.join(names)}, got "
                 f"{item.encoding!r}"
             )
-        return messages.parse(names[item.schema], item.payload)
+        message = messages.parse(names[item.schema], item.payload)
+        if "timestamp" in message.DESCRIPTOR.fields_by_name:
+            item.input_timestamp = message.timestamp
+        return message
 
     def reject(self, item: Inbound, reason: str) -> None:
         """Answer a bad input (or a failure of the service's own work) on error/<service>; the service keeps
@@ -253,6 +283,11 @@ class Node:
             reason=reason,
         )
         messages.stamp(error.timestamp)
+        if item.input_timestamp is not None:
+            error.input_timestamp.CopyFrom(item.input_timestamp)
+            with self._lock:
+                if item.input_timestamp.ToNanoseconds() == self.newest_input:
+                    self.newest_input_refused = reason
         if item.is_input:
             with self._lock:
                 self.counts["rejected"] += 1
@@ -297,6 +332,8 @@ class Node:
                 version=version(),
                 **self.counts,
             )
+            status.newest_input.FromNanoseconds(self.newest_input)
+            status.newest_input_refused = self.newest_input_refused
         messages.stamp(status.timestamp)
         return status
 

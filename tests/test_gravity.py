@@ -8,7 +8,7 @@ import pytest
 from conftest import SHARED_DATA, needs_shared
 
 from affordcore.example import box_surface_points, example_room
-from affordcore.gravity import Alignment, NoFloorError, align_to_gravity, rotation_between
+from affordcore.gravity import Alignment, NoFloorError, align_to_gravity, check_levelled, rotation_between
 from affordcore.settings import GravitySettings
 
 Z = np.array([0.0, 0.0, 1.0])
@@ -240,6 +240,28 @@ def test_bad_gravity_argument(gravity):
 def test_unknown_up_candidate(room):
     with pytest.raises(ValueError, match="'up'"):
         align_to_gravity(room[::20], settings=GravitySettings(up_candidates=["+z", "up"]))
+
+
+# --- a cloud said to be levelled ---------------------------------------------------------------------------
+
+
+def test_a_levelled_room_passes_the_check(room):
+    assert check_levelled(room) > 20.0  # m^2 of floor at z = 0 (the room is 6 m x 5 m, furniture on it)
+
+
+@pytest.mark.parametrize(
+    "move, wrong",
+    [
+        (lambda p: p + [0.0, 0.0, 0.8], r"only 0.00 m\^2 of points lie at z = 0"),
+        (lambda p: p - [0.0, 0.0, 0.5], r"of the points lie more than 5 cm under z = 0"),  # the floor under 0
+        (lambda p: p[:, [0, 2, 1]], r"more than 5 cm under z = 0"),  # y up: a wall at 0, the room under it
+    ],
+    ids=["floor-above-zero", "floor-below-zero", "y-up"],
+)
+def test_a_room_not_levelled_fails_the_check_with_what_is_wrong(room, move, wrong):
+    with pytest.raises(NoFloorError, match=wrong) as info:
+        check_levelled(move(room))
+    assert "any frame_id but 'world'" in str(info.value)  # and what to do instead
 
 
 # --- no floor -----------------------------------------------------------------------------------------------

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -415,11 +417,30 @@ def test_a_cloud_round_trips_with_its_frame_and_source():
     np.testing.assert_allclose(messages.pose_matrix(cloud.world_from_input), transform, atol=1e-12)
 
 
-def test_a_cloud_not_in_the_world_frame_is_refused():
-    cloud = messages.cloud_message(np.zeros((200, 3)), np.eye(4), "scan")
-    cloud.frame_id = "camera"
-    with pytest.raises(MessageError, match=r"must be in the 'world' frame .* not 'camera'"):
-        messages.cloud_points(cloud)
+@pytest.mark.parametrize("frame, levelled", [("world", True), ("camera", False), ("", False)])
+def test_a_cloud_in_any_frame_is_read_and_only_a_world_one_counts_as_levelled(frame, levelled):
+    points = np.random.default_rng(4).uniform(0, 4, (200, 3))
+    cloud = messages.cloud_message(points, np.eye(4), "scan")
+    cloud.frame_id = frame
+    np.testing.assert_allclose(messages.cloud_points(_wire(cloud)), points, atol=1e-6)
+    assert messages.is_levelled(cloud) is levelled
+
+
+def test_fields_carry_the_world_from_input_they_are_given_else_the_clouds():
+    cloud = messages.cloud_message(np.zeros((200, 3)), _rigid(8), "scan", at=40.0)
+    fields = SimpleNamespace(
+        lattice=SimpleNamespace(origin=np.zeros(3), resolution=0.1, shape=(2, 2, 2)),
+        occupancy=np.zeros((2, 2, 2)),
+        distance=np.zeros((2, 2, 2)),
+        normals=np.zeros((2, 2, 2, 3)),
+        footprint=(0.0, 0.0, 0.1, 0.1),
+    )
+    levelling = _rigid(9)
+    given = _wire(messages.fields_message(fields, cloud, levelling))
+    np.testing.assert_allclose(messages.pose_matrix(given.world_from_input), levelling, atol=1e-9)
+    assert given.cloud_timestamp == cloud.timestamp  # what ties the answer to the cloud
+    kept = _wire(messages.fields_message(fields, cloud))
+    np.testing.assert_allclose(messages.pose_matrix(kept.world_from_input), _rigid(8), atol=1e-9)
 
 
 def test_a_cloud_needs_a_hundred_finite_points():

@@ -148,32 +148,65 @@ def test_the_assembler_rejects_bad_scans_with_a_reason_and_keeps_registering(rou
         running.stop()
 
 
-def test_features_serve_the_latest_fields_to_a_late_get_and_refuse_unaligned_maps(router, client, tmp_path):
+def _status(client, service: str) -> messages.Status:
+    replies = [r.ok for r in client.get(KEYS.status(service), timeout=5) if r.ok is not None]
+    return messages.parse(messages.Status, replies[0].payload.to_bytes())
+
+
+def _fields_of(client, cloud: messages.CloudMessage, timeout: float = 60):
+    """The fields the features service answers a get with, once they are those of `cloud`."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for reply in client.get(KEYS.fields, timeout=2):
+            if reply.ok is not None:
+                message = messages.parse(messages.SceneFieldsMessage, reply.ok.payload.to_bytes())
+                if message.cloud_timestamp == cloud.timestamp:
+                    return message
+        time.sleep(0.2)
+    raise AssertionError("the fields of the cloud never arrived")
+
+
+def test_features_level_a_cloud_in_its_own_frame_refuse_a_world_one_without_a_floor_and_serve_the_latest(
+    router, client, tmp_path
+):
+    from scipy.spatial.transform import Rotation
+
     from services.features import FeaturesService
 
     errors = _listen(client, KEYS.error("features"))
     running = Running(FeaturesService, "features", router, tmp_path / "features.rrd")
     try:
         assert not list(client.get(KEYS.fields, timeout=2)), "no fields before any map"
-        unaligned = messages.cloud_message(_box_room_scan(np.random.default_rng(1)), np.eye(4), "file")
-        unaligned.frame_id = "camera"
-        _send(client, KEYS.cloud, unaligned.SerializeToString(), messages.CloudMessage)
-        assert "map clouds must be in the 'world' frame" in _next(errors, messages.Error).reason
+        room = _box_room_scan(np.random.default_rng(1))
+        raised = messages.cloud_message(room + [0, 0, 0.8], np.eye(4), "file", at=1_700_000_001.5)
+        _send(client, KEYS.cloud, raised.SerializeToString(), messages.CloudMessage)
+        error = _next(errors, messages.Error)
+        assert "floor at z = 0, but only 0.00 m^2 of points lie at z = 0" in error.reason
+        assert error.input_timestamp == raised.timestamp, "the refusal names the cloud it answers"
+        status = _status(client, "features")
+        assert status.newest_input == raised.timestamp and status.newest_input_refused == error.reason
 
-        cloud = messages.cloud_message(_box_room_scan(np.random.default_rng(2)), np.eye(4), "file", frames=7)
+        # the same room y-up with its floor 1.2 m below the frame's origin, sent in its own frame: levelled
+        camera_from_world = np.eye(4)
+        camera_from_world[:3, :3] = Rotation.from_euler("x", -90, degrees=True).as_matrix()  # z up -> y up
+        camera_from_world[:3, 3] = [0.3, -1.2, 0.5]
+        in_camera = room @ camera_from_world[:3, :3].T + camera_from_world[:3, 3]
+        cloud = messages.cloud_message(in_camera, np.eye(4), "file", frames=7, at=1_700_000_002.5)
+        cloud.frame_id = "camera"
         _send(client, KEYS.cloud, cloud.SerializeToString(), messages.CloudMessage)
-        deadline = time.monotonic() + 60
-        replies = []
-        while not replies and time.monotonic() < deadline:
-            replies = [r.ok for r in client.get(KEYS.fields, timeout=2) if r.ok is not None]
-            time.sleep(0.2)
-        assert replies, "the fields never arrived"
-        fields_message = messages.parse(messages.SceneFieldsMessage, replies[0].payload.to_bytes())
+        fields_message = _fields_of(client, cloud)
         fields = messages.scene_fields(fields_message)
         assert fields_message.frames == 7
-        assert fields.footprint == pytest.approx((0, 0, 4, 3), abs=0.01)
-        seat = fields.lattice.voxel_of(np.array([[1.5, 1.3, 0.45]]))[0]
+        world_from_camera = messages.pose_matrix(fields_message.world_from_input)
+        # levelling finds up and the floor; where the room is in plan (x, y, yaw) stays the camera's
+        world = in_camera @ world_from_camera[:3, :3].T + world_from_camera[:3, 3]
+        assert np.abs(world[room[:, 2] == 0, 2]).max() < 0.02, "the floor is at z = 0"
+        np.testing.assert_allclose(world[:, 2], room[:, 2], atol=0.02)
+        seat = fields.lattice.voxel_of(world[[-1]])[0]
         assert fields.occupancy[tuple(seat)] == 1 and fields.distance[tuple(seat)] == 0
+        status = _status(client, "features")
+        assert status.newest_input == cloud.timestamp and status.newest_input_refused == ""
+        assert "gravity alignment (auto): up = input +y" in status.detail
 
         assert eventually(lambda: _alive(client) == [KEYS.status("features")]), _alive(client)
     finally:

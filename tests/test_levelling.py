@@ -1,0 +1,107 @@
+"""The services level what they are given, as a client in any language sends it: a room in its own frame (y
+up, floor off the origin) comes back with the same maps as the levelled room; a 'world' cloud whose floor is
+not at z = 0 is refused with the reason, never answered with empty maps; and `afford watch` waits for the
+maps of the newest cloud, never returning an older cloud's."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from affordcore.example import example_room
+from affordwire import messages
+from services.clients import publish_map
+from services.launch import Stack
+from services.transport import Keys
+
+pytestmark = pytest.mark.slow
+AFFORD = [sys.executable, "-m", "afford"]
+AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")
+
+
+def _watch(stack: Stack, *args: str) -> subprocess.CompletedProcess:
+    command = ["watch", "--connect", stack.endpoint, "--robot", stack.robot, "--timeout", "240", "-q", *args]
+    return subprocess.run(AFFORD + command, capture_output=True, text=True, timeout=300)
+
+
+def _places(folder) -> dict[str, np.ndarray]:
+    """Per affordance: (k, 5) rows x, y, z, theta, score of the skeleton map, and its world_from_input."""
+    places = {}
+    for name in AFFORDANCES:
+        document = json.loads((folder / f"{name}.json").read_text())
+        rows = [[s[k] for k in ("x", "y", "z", "theta", "score")] for s in document["skeletons"]]
+        places[name] = (np.array(rows).reshape(-1, 5), np.array(document["world_from_input"]))
+    return places
+
+
+def _in_plan(rows: np.ndarray, transform: np.ndarray) -> np.ndarray:
+    """Places moved by a transform about z (x, y and the facing change; height and score do not)."""
+    moved = rows.copy()
+    moved[:, :3] = rows[:, :3] @ transform[:3, :3].T + transform[:3, 3]
+    moved[:, 3] = rows[:, 3] + np.arctan2(transform[1, 0], transform[0, 0])
+    return moved
+
+
+def test_an_unlevelled_room_gives_the_maps_of_the_levelled_one_and_a_bad_world_cloud_is_refused(tmp_path):
+    room = example_room().points
+    # y up, the floor 1.1 m under the frame's origin. Levelling finds up and the floor, not the heading: the
+    # room keeps its turn about z and its place in plan, and the maps on a square grid depend on the turn (a
+    # room turned 30 deg is voxelised differently), so the frame differs from the world by whole cells in plan
+    camera_from_world = np.eye(4)
+    camera_from_world[:3, :3] = Rotation.from_euler("x", -90, degrees=True).as_matrix()
+    camera_from_world[:3, 3] = [0.4, 1.1, -2.0]
+    keys = Keys("levelbot")
+
+    with Stack(tmp_path / "run", robot="levelbot") as stack:
+        session = stack.session()
+        try:
+            levelled = messages.cloud_message(room, np.eye(4), "example")
+            publish_map(session, keys, levelled, wait=30)
+            stamp = f"{levelled.timestamp.seconds}.{levelled.timestamp.nanos:09d}"
+            first = _watch(stack, "--since", stamp, "--out", str(tmp_path / "levelled"))
+            assert first.returncode == 0, first.stdout + first.stderr + stack.logs()
+
+            unlevelled = messages.cloud_message(
+                room @ camera_from_world[:3, :3].T + camera_from_world[:3, 3], np.eye(4), "example"
+            )
+            unlevelled.frame_id = "camera"
+            publish_map(session, keys, unlevelled, wait=30)
+            second = _watch(stack, "--out", str(tmp_path / "unlevelled"))  # the newest cloud's, not the first
+            assert second.returncode == 0, second.stdout + second.stderr + stack.logs()
+
+            raised = messages.cloud_message(room + [0.0, 0.0, 0.8], np.eye(4), "example")
+            publish_map(session, keys, raised, wait=30)
+            started = time.monotonic()
+            third = _watch(stack, "--out", str(tmp_path / "raised"))
+            waited = time.monotonic() - started
+        finally:
+            session.close()
+
+    levelled_places, unlevelled_places = _places(tmp_path / "levelled"), _places(tmp_path / "unlevelled")
+    for name in AFFORDANCES:
+        rows, world_from_input = levelled_places[name]
+        assert np.allclose(world_from_input, np.eye(4)), "a levelled cloud keeps its frame"
+        got, world_from_camera = unlevelled_places[name]
+        # the levelled room's world to the unlevelled room's: a turn about z and a shift in plan only
+        plan = world_from_camera @ camera_from_world
+        assert np.allclose(plan[2], [0, 0, 1, 0], atol=0.01), plan
+        assert len(got) == len(rows), f"{name}: {len(got)} places, levelled {len(rows)}"
+        expected = _in_plan(rows, plan)
+        np.testing.assert_allclose(got[:, :3], expected[:, :3], atol=0.11, err_msg=name)  # a grid step
+        turn = np.angle(np.exp(1j * (got[:, 3] - expected[:, 3])))
+        assert np.abs(turn).max() < 0.21, f"{name}: facings differ by {turn}"  # two steps: near-equal scores
+        # the levelling's fitted floor is a hair off the exact one: points near a voxel's boundary cross it,
+        # scores move a little, places do not
+        np.testing.assert_allclose(got[:, 4], expected[:, 4], rtol=0.1, err_msg=name)
+    assert sum(len(rows) for rows, _ in levelled_places.values()) >= 3, "the room has places to compare"
+
+    assert third.returncode == 1, third.stdout + third.stderr
+    assert "refused the cloud: a 'world' cloud has its floor at z = 0" in third.stderr
+    assert not (tmp_path / "raised").exists(), "no map of an older cloud was taken for the refused one's"
+    assert waited < 30, f"the refusal took {waited:.0f} s to report"
