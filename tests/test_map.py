@@ -78,6 +78,10 @@ def test_map_writes_json_png_and_a_verified_recording(mapped):
     assert "/world/cloud" in entities
     for affordance in AFFORDANCES:
         assert {f"/world/{affordance}/confidence", f"/world/{affordance}/skeletons"} <= entities
+        # one keypoint entity per skeleton of the JSON map, no more (tests/test_recording.py reads them)
+        count = len(json.loads((out / f"{affordance}.json").read_text())["skeletons"])
+        assert {f"/world/{affordance}/skeletons/{rank}" for rank in range(count)} <= entities
+        assert f"/world/{affordance}/skeletons/{count}" not in entities
 
 
 def test_the_example_sofa_is_found(mapped):

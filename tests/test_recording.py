@@ -1,0 +1,207 @@
+"""The Rerun recording as its users read it: skeletons as keypoints of an AnnotationContext (joint names,
+bones, a class and colour per affordance), confidence as scalar values with a colormap and its range.
+
+Every test writes a recording through the real logging functions and reads the .rrd back."""
+
+from __future__ import annotations
+
+import matplotlib
+import numpy as np
+import pyarrow as pa
+import pytest
+import rerun as rr
+from rerun.chunk import RrdReader
+
+from affordcore.grid import PoseGrid
+from affordcore.maps import build_map
+from affordcore.recording import (
+    affordance_colors,
+    close_recording,
+    log_map,
+    open_recording,
+    recorded_entities,
+    set_time,
+)
+from affordcore.skeleton import BONE_ENDS, JOINTS, get_skeleton
+
+
+def _map(affordance: str, places: list[tuple[int, int, float]], skeleton: str = "sitting-relaxing"):
+    """A small map with one skeleton per (ix, iy, score) place (they are far apart: no suppression)."""
+    grid = PoseGrid(
+        np.arange(30) * 0.1 + 0.05, np.arange(12) * 0.1 - 0.55, np.array([0.5, 0.6]), np.arange(4) * 1.5
+    )
+    scores = np.full(grid.shape, -3.0, dtype=np.float32)
+    scores[0, 0, 29, 0] = -0.5  # below the threshold: no cell, no skeleton
+    for ix, iy, score in places:
+        scores[1, 2, ix, iy] = score
+        scores[0, 1, ix, iy + 1] = score / 4  # a weaker neighbour: a cell above the threshold, no place
+    return build_map(affordance, scores, grid, get_skeleton(skeleton), threshold=0.1)
+
+
+def _rows(path, entity: str) -> list[dict]:
+    """Every logged row of one entity, in log order: its components (Archetype:field -> value), whether it is
+    static and its `stamp` (ns, None when static)."""
+    rows = []
+    for chunk in RrdReader(str(path)).stream().to_chunks():
+        if chunk.entity_path != entity or chunk.is_empty:
+            continue
+        batch = chunk.to_record_batch()
+        stamps = batch.column("stamp").cast(pa.int64()) if "stamp" in batch.schema.names else None
+        for i in range(batch.num_rows):
+            row = {
+                name: column[i].as_py()
+                for name, column in zip(batch.schema.names, batch.columns)
+                if ":" in name and column[i].is_valid
+            }
+            row["static"], row["stamp"] = chunk.is_static, stamps[i].as_py() if stamps is not None else None
+            rows.append(row)
+    return rows
+
+
+def _last(path, entity: str, component: str):
+    values = [row[component] for row in _rows(path, entity) if component in row]
+    assert values, f"{entity} has no {component}"
+    return values[-1]
+
+
+@pytest.fixture
+def recorded(tmp_path):
+    """Two affordances the recording was opened with and one it was not (a user's skeleton file)."""
+    relaxing = _map("sitting-relaxing", [(5, 3, 2.0), (20, 8, 1.0)])
+    working = _map("standing-working", [(12, 5, 1.5)], "standing-working")
+    extra = _map("lying-down", [(25, 2, 0.7)])
+    path = tmp_path / "map.rrd"
+    recording = open_recording(path, ["sitting-relaxing", "standing-working"])
+    set_time(recording, 10.0)
+    for amap in (relaxing, working, extra):
+        log_map(recording, amap)
+    assert close_recording(recording) is None
+    return path, {amap.affordance: amap for amap in (relaxing, working, extra)}
+
+
+def test_the_annotation_context_names_the_joints_connects_the_bones_and_has_a_class_per_affordance(recorded):
+    path, _ = recorded
+    contexts = [row for row in _rows(path, "/world") if "AnnotationContext:context" in row]
+    assert contexts and all(row["static"] for row in contexts)
+    classes = contexts[-1]["AnnotationContext:context"][0]  # the last static write is what the viewer uses
+    # class ids in the order the recording was opened with, the affordance it did not know appended
+    assert [(c["class_id"], c["class_description"]["info"]["label"]) for c in classes] == [
+        (1, "sitting-relaxing"),
+        (2, "standing-working"),
+        (3, "lying-down"),
+    ]
+    colors = [c["class_description"]["info"]["color"] for c in classes]
+    assert None not in colors and len(set(colors)) == 3
+    for entry in classes:
+        description = entry["class_description"]
+        assert description["info"]["id"] == entry["class_id"]
+        assert [(k["id"], k["label"]) for k in description["keypoint_annotations"]] == list(enumerate(JOINTS))
+        connections = {(c["keypoint0"], c["keypoint1"]) for c in description["keypoint_connections"]}
+        assert connections == {tuple(pair) for pair in BONE_ENDS.tolist()} and len(connections) == 15
+        named = {(JOINTS[a], JOINTS[b]) for a, b in connections}
+        assert ("HEAD", "NECK") in named and ("L_KNEE", "L_FOOT") in named
+
+
+def test_each_skeleton_is_one_entity_of_keypoints_with_its_affordance_class(recorded):
+    path, maps = recorded
+    entities = recorded_entities(path)
+    for class_id, (affordance, amap) in enumerate(maps.items(), start=1):
+        assert len(amap.joints) == {"sitting-relaxing": 2, "standing-working": 1, "lying-down": 1}[affordance]
+        for rank, joints in enumerate(amap.joints):
+            entity = f"/world/{affordance}/skeletons/{rank}"
+            assert _last(path, entity, "Points3D:class_ids") == [class_id]
+            assert _last(path, entity, "Points3D:keypoint_ids") == list(range(15))
+            np.testing.assert_allclose(_last(path, entity, "Points3D:positions"), joints, atol=1e-5)
+        assert f"/world/{affordance}/skeletons/{len(amap.joints)}" not in entities
+        # the skeleton map's summary and the places, in the affordance's colour (its class)
+        assert _last(path, f"/world/{affordance}/skeletons", "affordmap.SkeletonMap:count") == [
+            len(amap.joints)
+        ]
+        assert _last(path, f"/world/{affordance}/places", "Points3D:class_ids") == [class_id]
+        np.testing.assert_allclose(
+            _last(path, f"/world/{affordance}/places", "Points3D:positions"),
+            amap.joints[:, JOINTS.index("TORSO")],
+            atol=1e-5,
+        )
+    # the two skeletons of one map are not the same pose
+    first, second = (
+        np.array(_last(path, f"/world/sitting-relaxing/skeletons/{rank}", "Points3D:positions"))
+        for rank in (0, 1)
+    )
+    assert np.linalg.norm(first - second, axis=1).min() > 1.0
+
+
+def test_a_map_with_fewer_skeletons_clears_the_ones_it_no_longer_has(tmp_path):
+    path = tmp_path / "map.rrd"
+    recording = open_recording(path, ["sitting-relaxing"])
+    set_time(recording, 1.0)
+    log_map(recording, _map("sitting-relaxing", [(5, 3, 2.0), (20, 8, 1.0), (12, 1, 0.5)]))
+    set_time(recording, 2.0)
+    log_map(recording, _map("sitting-relaxing", [(7, 7, 1.0)]))
+    close_recording(recording)
+    for rank, cleared in ((0, False), (1, True), (2, True)):
+        rows = _rows(path, f"/world/sitting-relaxing/skeletons/{rank}")
+        at_two = [row for row in rows if row["stamp"] == 2_000_000_000]
+        assert len(at_two) == 1, rows
+        if cleared:
+            assert at_two[0]["Clear:is_recursive"] == [False] and "Points3D:positions" not in at_two[0]
+        else:
+            assert at_two[0]["Points3D:keypoint_ids"] == list(range(15))
+    assert _last(path, "/world/sitting-relaxing/skeletons", "affordmap.SkeletonMap:count") == [1]
+
+
+def test_confidence_is_the_scalar_value_with_its_colormap_and_range(recorded):
+    path, maps = recorded
+    amap = maps["sitting-relaxing"]
+    entity = "/world/sitting-relaxing/confidence"
+    ix, iy = np.nonzero(amap.confidence > amap.threshold)
+    values = np.array(_last(path, entity, "affordmap.Confidence:value"))
+    np.testing.assert_allclose(values, amap.confidence[ix, iy], rtol=1e-6)
+    assert len(values) == 4 and values.max() == pytest.approx(2.0)  # two places and their weaker neighbours
+    low, high = _last(path, entity, "affordmap.Confidence:value_range")[0]
+    assert (low, high) == pytest.approx((amap.threshold, 2.0))
+    assert _last(path, entity, "affordmap.Confidence:colormap") == [rr.components.Colormap.Viridis.value]
+    # the colours are viridis over that range: the best cell the top of the map, the others in between
+    viridis = matplotlib.colormaps["viridis"]
+    packed = np.array(_last(path, entity, "Points3D:colors"), dtype=np.uint32)
+    rgb = np.column_stack([(packed >> shift) & 0xFF for shift in (24, 16, 8)])
+    expected = (viridis((values - low) / (high - low))[:, :3] * 255).astype(np.uint8)
+    np.testing.assert_array_equal(rgb, expected)
+    assert np.array_equal(rgb[values.argmax()], (np.array(viridis(1.0)[:3]) * 255).astype(np.uint8))
+    # the legend in the scene: the colormap's ends labelled with the range's ends
+    labels = _last(path, "/world/sitting-relaxing/legend", "Points3D:labels")
+    assert labels[0] == f"sitting-relaxing confidence {low:.2f}" and labels[-1] == f"{high:.2f}"
+    legend = np.array(_last(path, "/world/sitting-relaxing/legend", "Points3D:colors"), dtype=np.uint32)
+    assert ((legend[-1] >> 24) & 0xFF, (legend[-1] >> 16) & 0xFF) == tuple(
+        (np.array(viridis(1.0)[:2]) * 255).astype(np.uint8)
+    )
+    # each affordance's legend has its own place (the "every affordance" view shows all three)
+    starts = {
+        tuple(np.round(_last(path, f"/world/{name}/legend", "Points3D:positions")[0], 3)) for name in maps
+    }
+    assert len(starts) == 3
+
+
+def test_an_empty_map_records_an_empty_skeleton_map_and_a_valid_range(tmp_path):
+    path = tmp_path / "map.rrd"
+    recording = open_recording(path, ["standing-working"])
+    log_map(recording, _map("standing-working", [], "standing-working"))
+    close_recording(recording)
+    assert _last(path, "/world/standing-working/skeletons", "affordmap.SkeletonMap:count") == [0]
+    assert _last(path, "/world/standing-working/confidence", "affordmap.Confidence:value") == []
+    # no cell above the threshold: the range is the threshold and one above it
+    (range_,) = _last(path, "/world/standing-working/confidence", "affordmap.Confidence:value_range")
+    assert range_ == pytest.approx([0.1, 1.1])
+    assert not any("/skeletons/" in entity for entity in recorded_entities(path))
+
+
+def test_affordance_colours_are_distinct_and_the_same_for_the_same_list():
+    names = [f"affordance-{i}" for i in range(12)]
+    colors = affordance_colors(names)
+    assert colors.shape == (12, 3) and colors.dtype == np.uint8
+    assert len({tuple(c) for c in colors[:10]}) == 10
+    np.testing.assert_array_equal(affordance_colors(names), colors)
+    np.testing.assert_array_equal(
+        affordance_colors(names[:3]), colors[:3]
+    )  # by order, not by the list's length
+    assert affordance_colors([]).shape == (0, 3)
