@@ -5,7 +5,8 @@
 #   bash bootstrap.sh test [ARGS]   sets up, then runs ruff, the import contracts and the whole test suite (CI)
 #
 # Needs only Python >= 3.11. Missing system libraries (open3d needs libGL, libEGL and libusb) are
-# installed with apt-get when running as root; otherwise the script stops and prints the line to run.
+# installed with apt-get when running as root; otherwise the script stops and prints the line to run. As root,
+# `test` also installs protoc and the protobuf C++ headers (the C++ client test; it skips without them).
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -37,6 +38,12 @@ have_lib 'libusb-1.0.so.0 '   || missing+=(libusb-1.0-0)
 have_lib 'libgomp.so.1 '      || missing+=(libgomp1)
 if [ ! -x .venv/bin/python ] && ! "$PY" -c 'import ensurepip, venv' 2>/dev/null; then
   missing+=("python3-venv")
+fi
+# For the tests only, and only where apt-get runs as root: protoc and the protobuf C++ headers, with which
+# tests/test_cpp_client.py builds a C++ client from schemas/ (elsewhere that test skips and says why).
+if [ "$job" = test ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+  command -v protoc >/dev/null 2>&1                  || missing+=(protobuf-compiler)
+  [ -e /usr/include/google/protobuf/message.h ]      || missing+=(libprotobuf-dev)
 fi
 if [ ${#missing[@]} -gt 0 ]; then
   line="apt-get update && apt-get install -y --no-install-recommends ${missing[*]}"

@@ -135,6 +135,62 @@ def test_every_proto_declares_package_afford_v1(stem):
         assert message.full_name == f"afford.v1.{message.name}"
 
 
+# -- self-contained: a client in any language needs only these files ---------------------------------------
+
+
+@pytest.mark.parametrize("stem", sorted(MODULES))
+def test_every_proto_sets_the_package_options_of_other_languages(stem):
+    text = (PROTOS / f"{stem}.proto").read_text()
+    assert re.findall(r"^option (\w+) = ", text, re.MULTILINE) == [
+        "csharp_namespace",
+        "go_package",
+        "java_multiple_files",
+        "java_outer_classname",
+        "java_package",
+    ]
+    options = MODULES[stem].DESCRIPTOR.GetOptions()  # as protoc read them
+    assert options.java_package == "affordmap.afford.v1" and options.java_multiple_files
+    assert options.java_outer_classname == f"{stem.capitalize()}Proto"  # never a message's name
+    assert options.go_package == "affordmap/afford/v1;affordv1"
+    assert options.csharp_namespace == "Affordmap.Afford.V1"
+    assert options.java_outer_classname not in MODULES[stem].DESCRIPTOR.message_types_by_name
+
+
+def _comments(stem: str) -> str:
+    """The comments of a .proto, joined into one line of text."""
+    text = (PROTOS / f"{stem}.proto").read_text()
+    return " ".join(" ".join(re.findall(r"//[ \t]*(.*)$", text, re.MULTILINE)).split())
+
+
+def test_the_protos_refer_to_nothing_outside_them():
+    for stem in MODULES:
+        text = (PROTOS / f"{stem}.proto").read_text()
+        assert "DESIGN.md" not in text, f"{stem}.proto refers to DESIGN.md, which is not in the repository"
+
+
+def test_maps_proto_states_the_joint_order_of_the_skeletons():
+    from affordcore.skeleton import JOINTS
+
+    numbered = ", ".join(f"{index} {name}" for index, name in enumerate(JOINTS))
+    assert numbered in _comments("maps")
+    assert "15 joints x (x, y, z) = 45 floats" in _comments("maps")
+
+
+def test_geometry_proto_states_the_units_and_frames():
+    comments = _comments("geometry")
+    for convention in (
+        "Units: metres, seconds, radians",
+        "little-endian",
+        "z up, with the floor at z = 0",
+        "(parent_from_child)",
+        "a Pose left unset (all zero, quaternion included) is the identity",
+        "counter-clockwise from world +x",
+        '"application/protobuf;afford.v1.Cloud"',
+        "congestion control BLOCK",
+    ):
+        assert convention in comments, convention
+
+
 # -- the messages of the design ------------------------------------------------------------------------------
 
 # {message: {field: (type, message or enum full name, repeated)}}
@@ -242,6 +298,7 @@ DESIGN = {
         "encoding": (STRING, None, False),
         "payload_bytes": (UINT64, None, False),
         "reason": (STRING, None, False),
+        "input_timestamp": (MESSAGE, TIMESTAMP, False),  # how a client knows a refusal answers its cloud
     },
 }
 
