@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from . import config, learning, robot, room, skeletons
+from . import config, learning, robot, room, skeletons, stack
 
 app = typer.Typer(
     help="affordmap: where people can sit, relax, work and stand in a 3D room, from its point cloud.",
@@ -12,7 +12,7 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-for theme in (room, learning, skeletons, robot, config):
+for theme in (room, learning, skeletons, robot, stack, config):
     app.add_typer(theme.app)
 
 

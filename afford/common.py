@@ -3,6 +3,7 @@ texts."""
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -22,8 +23,56 @@ ZENOH_CONFIG_HELP = (
 )
 
 
+# The optional dependency groups (pyproject.toml) and the modules each brings: `pip install affordmap` maps a
+# room; a command that needs more names the group to install.
+EXTRAS = {
+    "services": ("zenoh", "google.protobuf", "kiss_icp", "cryptography"),
+    "ros": ("rosbags",),
+    "learn": ("sklearn", "osqp"),
+}
+
+
 class UserError(Exception):
     """Bad input: reported as one line on stderr with exit code 2, never a traceback."""
+
+
+def _command() -> str:
+    """The command being run, e.g. `afford serve` (for messages)."""
+    try:
+        from typer.main import get_current_context
+
+        context = get_current_context()
+        below_root = context.command_path[len(context.find_root().command_path) :].strip()
+        return f"afford {below_root}".strip()
+    except Exception:  # no click context (called outside a command): say it plainly
+        return "this command"
+
+
+def _extra_of(module: str) -> str | None:
+    """The optional dependency group that installs `module` (a dotted name, or its first part)."""
+    for extra, modules in EXTRAS.items():
+        for name in modules:
+            if module == name or module.startswith(name + ".") or name.startswith(module + "."):
+                return extra
+    return None
+
+
+def missing_extra_message(extra: str) -> str:
+    return f"{_command()} needs the {extra} extra: pip install 'affordmap[{extra}]'"
+
+
+def require_extra(extra: str) -> None:
+    """Fail (one line, exit 2) before any work when a module of the optional dependency group `extra` is not
+    installed."""
+    from importlib.util import find_spec
+
+    for module in EXTRAS[extra]:
+        try:
+            found = find_spec(module) is not None
+        except (ImportError, ValueError):  # a missing parent package (google for google.protobuf)
+            found = False
+        if not found:
+            raise UserError(missing_extra_message(extra))
 
 
 @contextmanager
@@ -40,6 +89,11 @@ def user_errors() -> Iterator[None]:
         )
     except (UserError, ValueError, OSError, MemoryError) as error:
         fail(str(error))
+    except ModuleNotFoundError as error:  # an optional dependency group that is not installed
+        extra = _extra_of(error.name or "")
+        if extra is None:
+            raise
+        fail(missing_extra_message(extra))
 
 
 def fail(message: str, code: int = 2) -> None:
@@ -68,13 +122,30 @@ def output_folder(path: Path, option: str = "--out") -> Path:
     bad --out costs a message, not the minutes of work before it."""
     if path.exists() and not path.is_dir():
         raise UserError(f"{option} {path} is a file; give a folder (it is made if missing)")
-    path.mkdir(parents=True, exist_ok=True)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise UserError(f"{option} {path} cannot be made: {error.strerror}") from None
     probe = path / ".afford-write-check"
     try:
         probe.touch()
         probe.unlink()
     except OSError as error:
         raise UserError(f"{option} {path} is not writable: {error.strerror}") from None
+    return path
+
+
+def output_file(path: Path, option: str = "--out") -> Path:
+    """`path` as a file an output can be written to (its folder made if missing), checked before any work
+    starts, as `output_folder` checks a folder."""
+    if path.is_dir():
+        raise UserError(f"{option} {path} is a folder; give a file name")
+    parent = path.parent
+    if parent.exists() and not parent.is_dir():
+        raise UserError(f"{option} {path}: {parent} is a file, not a folder")
+    output_folder(parent, option=f"{option} {path}: the folder")
+    if path.exists() and not os.access(path, os.W_OK):
+        raise UserError(f"{option} {path} is not writable")
     return path
 
 

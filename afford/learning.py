@@ -9,7 +9,7 @@ import typer
 
 from affordcore.learn.learners import LEARNERS
 
-from .common import UserError, names, progress, user_errors
+from .common import UserError, names, output_file, output_folder, progress, require_extra, user_errors
 
 app = typer.Typer()
 models_app = typer.Typer(help="The shipped default models, one per affordance type.", no_args_is_help=True)
@@ -50,6 +50,7 @@ def synth(
     with user_errors():
         from affordcore.synth.dataset import SynthOptions, summary_table, synthesize
 
+        output_folder(out)
         options = SynthOptions(
             rooms, seed, tuple(names(kinds)), scanner, sequences, sensor, frames, few_views
         )
@@ -78,6 +79,8 @@ def train(
         from affordcore.learn.train import train as train_model
         from affordcore.settings import Settings
 
+        require_extra("learn")
+        output_file(out)
         rooms = data_set_rooms(data)
         with progress(quiet) as bar:
             task = bar.add_task("rooms", total=len(rooms))
@@ -125,6 +128,8 @@ def evaluate(
         from affordcore.settings import Settings
         from affordcore.skeleton import skeleton_files
 
+        require_extra("learn")
+        output_folder(out)
         settings = Settings()
         chosen = names(learners)
         kinds = names(affordances) if affordances else sorted(skeleton_files(settings.skeleton_dirs))
@@ -198,6 +203,8 @@ def models_rebuild(
         from affordcore.learn.defaults import rebuild_default_models, winners
         from affordcore.learn.model import MODELS_DIR
 
+        require_extra("learn")
+        output_folder(out or MODELS_DIR, "--out" if out else "--out (default: the package's model folder)")
         chosen = winners(evaluation) if evaluation else learner
         written = rebuild_default_models(out or MODELS_DIR, chosen, rooms, seed, workers, on_step=typer.echo)
         typer.echo("written: " + ", ".join(str(p) for p in written))

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from .common import GRAVITY_HELP, output_folder, peak_rss_mb, progress, user_errors
+from .common import GRAVITY_HELP, UserError, output_file, output_folder, peak_rss_mb, progress, user_errors
 
 app = typer.Typer()
 PANEL = "Room"
@@ -50,7 +50,6 @@ def map_room(
     from affordcore.learn.model import choose_models
     from affordcore.outputs import summary_line, write_map_outputs
     from affordcore.pipeline import map_affordances, parse_gravity, prepare_scene
-    from affordcore.scene import load_cloud
     from affordcore.settings import Settings
 
     output_folder(out)
@@ -59,9 +58,8 @@ def map_room(
     models = choose_models(
         model_files, affordances, FeatureLayout.from_settings(settings.features, settings.voxel)
     )
-    scene = prepare_scene(load_cloud(cloud_path), settings, parse_gravity(gravity))
-    for warning in scene.warnings:
-        typer.echo(f"warning: {warning}", err=True)
+    scene = prepare_scene(_loaded(cloud_path), settings, parse_gravity(gravity))
+    _warn(scene.warnings)
     typer.echo(f"{cloud_path}: {len(scene.cloud):,} points; {scene.alignment.describe()}")
     with progress(quiet) as bar:
         task = bar.add_task("affordance maps", total=len(models))
@@ -76,6 +74,23 @@ def map_room(
     return written
 
 
+def _loaded(path: Path):
+    """The cloud at `path`; what loading did to it (points that are not finite, dropped) goes to stderr."""
+    from affordcore.scene import load_cloud
+
+    cloud = load_cloud(path)
+    _warn(cloud.notes)
+    return cloud
+
+
+def _warn(warnings: list[str]) -> None:
+    for warning in warnings:
+        typer.echo(f"warning: {warning}", err=True)
+
+
+CLOUD_SUFFIXES = (".ply", ".pcd", ".npy")  # what save_cloud writes
+
+
 @app.command(rich_help_panel=PANEL)
 def demo(
     out: Path = typer.Option(Path("afford-demo"), "--out", help="folder for the outputs"),
@@ -86,7 +101,7 @@ def demo(
         from affordcore.example import example_room
         from affordcore.scene import save_cloud
 
-        out.mkdir(parents=True, exist_ok=True)
+        output_folder(out)
         cloud_path = out / "example-room.ply"
         save_cloud(cloud_path, example_room())
         map_room(cloud_path, out, [], [], "auto", out / "map.rrd", quiet)
@@ -103,14 +118,17 @@ def align(
     """Bring a cloud into the world frame (z up, floor at z = 0) and say what was done."""
     with user_errors():
         from affordcore.pipeline import parse_gravity, to_world
-        from affordcore.scene import load_cloud, save_cloud
+        from affordcore.scene import save_cloud
         from affordcore.settings import Settings
 
-        loaded = load_cloud(cloud)
+        if out:
+            if out.suffix.lower() not in CLOUD_SUFFIXES:
+                raise UserError(f"--out {out}: the aligned cloud is written as {', '.join(CLOUD_SUFFIXES)}")
+            output_file(out)
+        loaded = _loaded(cloud)
         world = to_world(loaded, Settings(), parse_gravity(gravity))
         alignment = world.alignment
-        for warning in world.warnings:
-            typer.echo(f"warning: {warning}", err=True)
+        _warn(world.warnings)
         if out:
             save_cloud(out, world.cloud)
         if as_json:
@@ -125,9 +143,7 @@ def align(
                 )
             )
             return
-        typer.echo(
-            f"{cloud}: {len(loaded)} points" + (f" ({'; '.join(loaded.notes)})" if loaded.notes else "")
-        )
+        typer.echo(f"{cloud}: {len(loaded)} points")
         typer.echo(alignment.describe())
         for candidate in alignment.candidates:
             chosen = candidate.valid and candidate.axis == alignment.up_axis
@@ -157,14 +173,16 @@ def features(
     """Compute every grid pose's features for one affordance (distance, collision, normal cube)."""
     with user_errors():
         from affordcore.pipeline import parse_gravity, prepare_scene, stream_features
-        from affordcore.scene import load_cloud
         from affordcore.settings import Settings
         from affordcore.skeleton import get_skeleton
 
+        if out:
+            output_file(out)
         start = time.perf_counter()
         settings = Settings()
         skeleton = get_skeleton(affordance, settings.skeleton_dirs)
-        scene = prepare_scene(load_cloud(cloud), settings, parse_gravity(gravity))
+        scene = prepare_scene(_loaded(cloud), settings, parse_gravity(gravity))
+        _warn(scene.warnings)
         prepared = time.perf_counter()
         with progress(quiet) as bar:
             task = bar.add_task(f"features {affordance}", total=scene.pose_grid(skeleton, settings).size)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from .common import UserError, user_errors
+from .common import UserError, output_file, output_folder, require_extra, user_errors
 
 app = typer.Typer()
 skeletons_app = typer.Typer(help="The virtual skeletons, one per affordance type.", no_args_is_help=True)
@@ -39,6 +39,7 @@ def skeletons_show(
         from affordcore.settings import Settings
         from affordcore.skeleton import all_skeletons, get_skeleton
 
+        output_file(out)
         folders = Settings().skeleton_dirs
         skeletons = (
             [get_skeleton(name, folders) for name in affordance] if affordance else all_skeletons(folders)
@@ -63,6 +64,12 @@ def skeletons_derive(
         from affordcore.skeleton import BUILTIN_DIR
         from affordcore.skeleton_models import default_data_path, derive, write_skeleton
 
+        require_extra("learn")  # K-means and silhouettes: scikit-learn
+        output_folder(
+            out or BUILTIN_DIR, "--out" if out else "--out (default: the package's skeleton folder)"
+        )
+        if png:
+            output_file(png, "--png")
         data = data or default_data_path()
         if not data.is_file():
             raise UserError(

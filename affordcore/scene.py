@@ -4,7 +4,8 @@ Formats: PLY (plyfile: it fails loudly on a truncated or malformed file, where o
 number of points filled with garbage), PCD (open3d; binary, ASCII, binary_compressed), XYZ / PTS / TXT text
 (``x y z``, ``x y z r g b``, or PTS ``x y z intensity r g b`` with an optional point-count first line),
 NPY (an (N, 3) or (N, 6) array) and raw little-endian float32 BIN (``x y z`` or ``x y z r g b`` per point).
-Colours come back as floats in [0, 1]. Points with a NaN or infinite coordinate are dropped and counted.
+Colours come back as floats in [0, 1]. Points with a NaN or infinite coordinate are dropped, counted and
+noted (`Cloud.notes`).
 """
 
 from __future__ import annotations
@@ -99,8 +100,8 @@ def _finish(path: Path, points: np.ndarray, colors: np.ndarray | None) -> Cloud:
         detail = f" (all {dropped} points had NaN or infinite coordinates)" if dropped else ""
         raise CloudError(f"{path}: the cloud has no points{detail}")
     cloud = Cloud(points, colors, str(path), dropped)
-    if dropped:
-        cloud.notes.append(f"dropped {dropped} points with NaN or infinite coordinates")
+    if dropped:  # said, never silent: a reader that writes NaN for no return (organised scans) loses points
+        cloud.notes.append(f"dropped {dropped:,} of {len(finite):,} points that are not finite (NaN or inf)")
     return cloud
 
 

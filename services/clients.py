@@ -291,9 +291,11 @@ def load_as_map(path: Path, gravity: str, settings) -> tuple[messages.CloudMessa
     from affordcore.pipeline import parse_gravity, to_world
     from affordcore.scene import load_cloud
 
-    world = to_world(load_cloud(path), settings, parse_gravity(gravity))
+    cloud = load_cloud(path)
+    world = to_world(cloud, settings, parse_gravity(gravity))
     points = world.cloud.points.astype(np.float32)
-    return messages.cloud_message(points, world.alignment.world_from_input, source=path.name), world.warnings
+    message = messages.cloud_message(points, world.alignment.world_from_input, source=path.name)
+    return message, cloud.notes + world.warnings  # points not finite, dropped; thinning
 
 
 def scan_message(path: Path, sensor: str) -> messages.Scan:

@@ -1,7 +1,8 @@
 """A router and the registered services as child processes on one host: what the end-to-end test, the latency
 benchmark and a person trying the services on a laptop need. Each child makes the call `afford router` and
 `afford serve` make (`run_router`, `run_service`). On robots, run each `afford serve` on its own (or
-docker/compose.yaml)."""
+docker/compose.yaml). `afford up` runs a Stack in the foreground; `afford status` asks what `query_status`
+asks."""
 
 from __future__ import annotations
 
@@ -10,7 +11,9 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from .registry import SERVICES
@@ -20,6 +23,28 @@ def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         return probe.getsockname()[1]
+
+
+def query_status(session, robot: str, timeout: float = 2.0) -> dict:
+    """{service: its Status message now}, from a get on afford/@v1/<robot>/status/* (each service answers with
+    its state at that moment); a service that does not answer within `timeout` seconds is absent."""
+    from affordwire import messages
+
+    from .transport import Keys
+
+    return {
+        str(reply.ok.key_expr).rsplit("/", 1)[-1]: messages.parse(
+            messages.Status, reply.ok.payload.to_bytes()
+        )
+        for reply in session.get(Keys(robot).key("status", "*"), timeout=timeout)
+        if reply.ok is not None
+    }
+
+
+def loopback(endpoint: str) -> str:
+    """The endpoint a client on this host connects to for a router listening on `endpoint` (a wildcard
+    address, 0.0.0.0 or [::], is reached on loopback)."""
+    return endpoint.replace("/0.0.0.0:", "/127.0.0.1:").replace("/[::]:", "/[::1]:")
 
 
 def python_call(target: str, *args, **kwargs) -> list[str]:
@@ -37,7 +62,12 @@ class Stack:
     services close their recordings) and returns the exit codes; `kill` and `restart` one service, as a crash
     and a supervisor would. With `site` (a folder `afford certs` wrote) every process uses its identity's
     config there: mutual TLS through the router, under its access control, and the stack's own session
-    is `identity`'s."""
+    is `identity`'s.
+
+    `listen` (default: a free loopback port) is where the router listens, `state` the assembler's state
+    folder; with `echo`, each child's output goes line by line to `echo(name, line)` as well as to its log;
+    `own_group` starts each child in its own process group, so a Ctrl-C at a terminal reaches only the
+    parent, which then stops them in order (`stop`)."""
 
     def __init__(
         self,
@@ -47,12 +77,19 @@ class Stack:
         services=tuple(SERVICES),
         site: Path | None = None,
         identity: str = "viewer",
+        listen: str | None = None,
+        state: Path | None = None,
+        echo: Callable[[str, str], None] | None = None,
+        own_group: bool = False,
     ):
         self.folder, self.robot, self.services = Path(folder), robot, tuple(services)
         self.site, self.identity = site, identity
-        self.endpoint = f"{'tls/localhost' if site else 'tcp/127.0.0.1'}:{free_port()}"
+        self.listen = listen or f"{'tls/localhost' if site else 'tcp/127.0.0.1'}:{free_port()}"
+        self.endpoint = loopback(self.listen)  # where the services and the stack's sessions connect
+        self.state, self.echo, self.own_group = state, echo, own_group
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self.processes: dict[str, subprocess.Popen] = {}
+        self._readers: list[threading.Thread] = []
 
     def config(self, identity: str) -> str | None:
         """The zenoh config file of `identity` in the site, if the stack is secured."""
@@ -60,10 +97,28 @@ class Stack:
 
     def _spawn(self, name: str, command: list[str]) -> None:
         self.folder.mkdir(parents=True, exist_ok=True)
-        with open(self.folder / f"{name}.log", "a") as log:  # the child keeps its own descriptor
-            self.processes[name] = subprocess.Popen(
-                command, stdout=log, stderr=subprocess.STDOUT, env=self.env
-            )
+        group = {"process_group": 0} if self.own_group else {}
+        if self.echo is None:
+            with open(self.folder / f"{name}.log", "a") as log:  # the child keeps its own descriptor
+                self.processes[name] = subprocess.Popen(
+                    command, stdout=log, stderr=subprocess.STDOUT, env=self.env, **group
+                )
+            return
+        process = subprocess.Popen(
+            command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=self.env, text=True, **group
+        )
+        self.processes[name] = process
+        reader = threading.Thread(target=self._forward, args=(name, process), daemon=True)
+        reader.start()
+        self._readers.append(reader)
+
+    def _forward(self, name: str, process: subprocess.Popen) -> None:
+        """A child's output, line by line, to its log and to `echo` (until the child closes it)."""
+        with open(self.folder / f"{name}.log", "a") as log:
+            for line in process.stdout:
+                log.write(line)
+                log.flush()
+                self.echo(name, line.rstrip("\n"))
 
     def _spawn_service(self, service: str) -> None:
         self._spawn(
@@ -75,17 +130,19 @@ class Stack:
                 [self.endpoint],
                 rrd=str(self.folder / f"{service}.rrd"),
                 zenoh_config=self.config(service),
+                **({"state": str(self.state)} if self.state and service == "assembler" else {}),
             ),
         )
 
-    def start(self, timeout: float = 60.0) -> Stack:
+    def start(self, timeout: float = 60.0, cancel: threading.Event | None = None) -> Stack:
+        """Start the router and the services and wait until every service is ready (or `cancel` is set)."""
         self._spawn(
             "router",
-            python_call("services.clients:run_router", [self.endpoint], zenoh_config=self.config("router")),
+            python_call("services.clients:run_router", [self.listen], zenoh_config=self.config("router")),
         )
         for service in self.services:
             self._spawn_service(service)
-        self.wait_ready(timeout)
+        self.wait_ready(timeout, cancel)
         return self
 
     def session(self, wait: float = 30.0, identity: str | None = None):
@@ -126,34 +183,40 @@ class Stack:
         finally:
             session.close()
 
-    def ready(self) -> set[str]:
+    def ready(self, wait: float = 30.0) -> set[str]:
         """The services that answer a get on their status with a state past STARTING (a restarted assembler
         has reloaded its map by then)."""
         from affordwire import messages
 
-        from .transport import Keys
-
-        session = self.session()
+        session = self.session(wait)
         try:
-            states = {
-                str(reply.ok.key_expr).rsplit("/", 1)[-1]: messages.parse(
-                    messages.Status, reply.ok.payload.to_bytes()
-                ).state
-                for reply in session.get(Keys(self.robot).key("status", "*"), timeout=2.0)
-                if reply.ok is not None
-            }
+            states = query_status(session, self.robot)
         finally:
             session.close()
-        return {name for name, state in states.items() if state != messages.Status.STARTING}
+        return {name for name, status in states.items() if status.state != messages.Status.STARTING}
 
-    def wait_ready(self, timeout: float) -> None:
-        """Until every service answers through the router, past starting."""
+    def exited(self) -> dict[str, int]:
+        """The children that are no longer running, with their exit codes."""
+        return {name: p.returncode for name, p in self.processes.items() if p.poll() is not None}
+
+    def wait_ready(self, timeout: float, cancel: threading.Event | None = None) -> bool:
+        """Until every service answers through the router, past starting (True), or `cancel` is set (False).
+        Raises RuntimeError when a child exits or the time runs out first."""
+        from zenoh import ZError
+
         deadline = time.monotonic() + timeout
         while True:
-            alive = self.ready()
-            if set(self.services) <= alive:
-                return
-            dead = {name: p.returncode for name, p in self.processes.items() if p.poll() is not None}
+            if cancel is not None and cancel.is_set():
+                return False
+            dead = self.exited()
+            if not dead:
+                try:
+                    alive = self.ready(wait=2.0)
+                except ZError:  # the router does not take connections (yet): look again, unless it died
+                    alive = set()
+                if set(self.services) <= alive:
+                    return True
+                dead = self.exited()
             if dead or time.monotonic() > deadline:
                 raise RuntimeError(
                     f"services not ready (alive: {sorted(alive)}, exited: {dead}); logs: {self.logs()}"
@@ -161,19 +224,23 @@ class Stack:
             time.sleep(0.3)
 
     def stop(self, timeout: float = 30.0) -> dict[str, int]:
-        """SIGTERM the services, then the router; returns each process's exit code (killed ones: -9)."""
+        """SIGTERM the services (together), then the router once they are gone; returns each process's exit
+        code (those still running after `timeout` seconds are killed: -9)."""
         codes = {}
-        for name in (*self.services, "router"):
-            process = self.processes.get(name)
-            if process is None:
-                continue
-            if process.poll() is None:
-                process.send_signal(signal.SIGTERM)
-            try:
-                codes[name] = process.wait(timeout)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                codes[name] = -9
+        for group in (self.services, ("router",)):
+            running = {name: self.processes[name] for name in group if name in self.processes}
+            for process in running.values():
+                if process.poll() is None:
+                    process.send_signal(signal.SIGTERM)
+            for name, process in running.items():
+                try:
+                    codes[name] = process.wait(timeout)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    process.wait()
+                    codes[name] = -9
+        for reader in self._readers:  # the children's last lines (a service's "stopped: ...") are out
+            reader.join(timeout=5)
         return codes
 
     def logs(self) -> str:

@@ -155,3 +155,71 @@ def test_skeletons_list_names_every_affordance():
     assert result.returncode == 0
     for skeleton in all_skeletons():
         assert skeleton.affordance in result.stdout
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        # the --out error comes first, though the input does not exist: checked before any work
+        (["synth", "--rooms", "1", "--out", "{file}"], "--out {file} is a file; give a folder"),
+        (["evaluate", "--data", "/nonexistent", "--out", "{file}"], "--out {file} is a file; give a folder"),
+        (
+            ["train", "--data", "/nonexistent", "-a", "sitting-working", "--out", "{file}/model.json"],
+            "--out {file}/model.json: {file} is a file, not a folder",
+        ),
+        (["features", "/nonexistent.ply", "-a", "sitting-working", "--out", "{folder}"], "is a folder"),
+        (["align", "/nonexistent.ply", "--out", "{folder}/aligned.txt"], "written as .ply, .pcd, .npy"),
+        (["align", "/nonexistent.ply", "--out", "{file}/aligned.ply"], "{file} is a file, not a folder"),
+        (["skeletons", "show", "--out", "{folder}"], "--out {folder} is a folder; give a file name"),
+        (["models", "rebuild", "--out", "{file}"], "--out {file} is a file; give a folder"),
+    ],
+)
+def test_out_is_checked_before_the_work(tmp_path, args, message):
+    file, folder = tmp_path / "taken.txt", tmp_path / "folder"
+    file.write_text("x")
+    folder.mkdir()
+    result = afford(*[a.format(file=file, folder=folder) for a in args])
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stderr.startswith("error: --out "), result.stderr
+    assert message.format(file=file, folder=folder) in result.stderr
+    assert result.stderr.count("\n") == 1, result.stderr  # one line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["folder", "taken.txt"]  # nothing written
+    assert not list(folder.iterdir())
+
+
+def test_an_out_that_cannot_be_written_is_one_line(tmp_path):
+    import os
+
+    if os.geteuid() != 0:  # root writes anywhere a mode allows nothing; /sys refuses even root
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        result = afford("synth", "--rooms", "1", "--out", str(locked / "rooms"))
+        assert result.returncode == 2 and "cannot be made: Permission denied" in result.stderr
+    result = afford("synth", "--rooms", "1", "--out", "/sys/afford-rooms")
+    assert result.returncode == 2, result.stderr
+    assert result.stderr == "error: --out /sys/afford-rooms cannot be made: Operation not permitted\n"
+
+
+def test_points_that_are_not_finite_are_counted_on_stderr(small_room, tmp_path):
+    from affordcore.scene import load_cloud
+
+    points = load_cloud(small_room).points
+    bad = np.full((len(points) // 10, 3), np.nan)
+    bad[::7] = [np.inf, 0.0, 1.0]  # inf counts too
+    path = tmp_path / "holes.npy"
+    np.save(path, np.concatenate([points, bad])[np.random.default_rng(1).permutation(len(points) + len(bad))])
+    warning = (
+        f"warning: dropped {len(bad):,} of {len(points) + len(bad):,} points that are not finite (NaN or inf)"
+    )
+    mapped = afford("map", str(path), "--out", str(tmp_path / "maps"), "-a", "sitting-working", "--quiet")
+    assert mapped.returncode == 0, mapped.stderr
+    assert warning in mapped.stderr.splitlines(), mapped.stderr
+    assert f"{len(points):,} points" in mapped.stdout
+    aligned = afford("align", str(path), "--json")
+    assert aligned.returncode == 0 and warning in aligned.stderr.splitlines(), aligned.stderr
+    assert json.loads(aligned.stdout)["dropped_nonfinite"] == len(bad)  # stdout stays one JSON object
+    features = afford("features", str(path), "-a", "sitting-working", "--json", "--quiet")
+    assert features.returncode == 0 and warning in features.stderr.splitlines(), features.stderr
+    json.loads(features.stdout)
+    clean = afford("align", small_room)
+    assert "not finite" not in clean.stderr

@@ -2,7 +2,8 @@
 
 hadolint lints the Dockerfile, the compose-spec JSON schema (vendored by check-jsonschema) validates the
 compose file, and the compose file's wiring is checked against itself, the Dockerfile, pyproject.toml and,
-most importantly, the `afford` command line: every command compose runs must exist in and parse with the CLI.
+most importantly, the `afford` command line: every command compose runs (the services' and their health
+checks') must exist in and parse with the CLI.
 The tools come with the `test` extra; a test skips only when its tool is missing.
 """
 
@@ -341,12 +342,21 @@ def test_the_cli_has_the_command_compose_runs(compose, name):
     assert not missing, f"`afford {' '.join(args)}` does not list {missing}:\n{result.output}"
 
 
-@pytest.mark.parametrize("name", [*SERVICES, CERTS])
+def _compose_command(compose: dict, name: str) -> list[str]:
+    """The afford arguments of a service's command, or of its health check (`<service>:health`)."""
+    if name.endswith(":health"):
+        test = compose["services"][name.split(":")[0]]["healthcheck"]["test"]
+        assert test[:2] == ["CMD", "afford"], f"{name}: run afford itself (exec form, no shell): {test}"
+        return test[2:]
+    return compose["services"][name]["command"]
+
+
+@pytest.mark.parametrize("name", [*SERVICES, CERTS, *(f"{name}:health" for name in SERVICES)])
 def test_the_cli_parses_the_whole_command_compose_runs(compose, name):
     """Parses, without running it, the command as compose runs it with no environment set: an unknown
     option, a value the CLI rejects (a service name its choice lacks) or a missing required one fails here.
     (`--help` alone would not catch a bad positional value: it exits before the arguments are checked.)"""
-    full = [_interpolate(arg) for arg in compose["services"][name]["command"]]
+    full = [_interpolate(arg) for arg in _compose_command(compose, name)]
     args = list(full)
     # Duck-typed: newer Typer releases carry their own copy of Click, older ones use Click itself.
     command = typer.main.get_command(cli.app)
@@ -362,3 +372,84 @@ def test_the_cli_parses_the_whole_command_compose_runs(compose, name):
         if not hasattr(error, "format_message"):  # not a usage error but a bug: show it in full
             raise
         pytest.fail(f"`afford {' '.join(full)}` does not parse: {error.format_message()}")
+
+
+# --------------------------------------------------------------------------------------------------------
+# health checks and start order
+
+
+@pytest.mark.parametrize("name", SERVICES)
+def test_each_service_starts_after_the_site_and_a_healthy_router(compose, name):
+    depends = compose["services"][name].get("depends_on")
+    assert isinstance(depends, dict), f"{name}: depends_on needs conditions, not a bare list: {depends}"
+    assert depends.get(CERTS, {}).get("condition") == "service_completed_successfully"
+    assert depends.get(ROUTER, {}).get("condition") == "service_healthy"
+    # a service waiting on another service's health would only delay it: each fetches what it missed
+    assert set(depends) == {CERTS, ROUTER}, f"{name} waits on {sorted(depends)}"
+
+
+@pytest.mark.parametrize("name", SERVICES)
+def test_each_service_is_healthy_when_its_status_says_so_through_the_router(compose, name):
+    service = compose["services"][name]
+    check = service.get("healthcheck")
+    assert check and not check.get("disable"), f"{name} has no health check"
+    test = [_interpolate(arg) for arg in check["test"]]
+    assert test[:4] == ["CMD", "afford", "status", "--connect"], test
+    command = [_interpolate(arg) for arg in service["command"]]
+    # the same router, robot and identity as the service itself
+    for option in ("--connect", "--robot", "--zenoh-config"):
+        assert _option(test, option) == _option(command, option), f"{name}: health check's {option}"
+    assert _option(test, "--service") == name
+    assert _option(test, "--zenoh-config") == f"{_mounts(service)[SITE]}/{name}.json5"
+    seconds = {key: _seconds(check[key]) for key in ("interval", "timeout", "start_period")}
+    status_timeout = float(_option(test, "--timeout") or 5)
+    assert status_timeout + 5 <= seconds["timeout"], "the check's timeout must cover afford status's own"
+    assert seconds["start_period"] >= 30, "loading models takes a while: give the start a grace period"
+
+
+def test_a_site_identity_may_ask_a_service_for_its_status():
+    """The health check asks as the service's identity; the site's access control must let it (any site
+    identity queries the whole key space) and let the service answer on its own status key."""
+    from services.security import Site, access_control
+    from services.transport import PREFIX
+
+    acl = access_control(Site())
+    rules = {rule["id"]: rule for rule in acl["rules"]}
+    assert "query" in rules["read"]["messages"] and rules["read"]["key_exprs"] == [f"{PREFIX}/**"]
+    policies = {policy["id"]: policy for policy in acl["policies"]}
+    assert "read" in policies["site"]["rules"]
+    for name in SERVICES:
+        write = rules[f"write-{name}"]
+        assert "reply" in write["messages"] and f"{PREFIX}/*/status/{name}" in write["key_exprs"]
+
+
+def _seconds(duration: str) -> float:
+    """A compose duration (`30s`, `1m30s`, `500ms`) in seconds."""
+    units = {"h": 3600, "m": 60, "s": 1, "ms": 0.001, "us": 1e-6}
+    parts = re.findall(r"(\d+(?:\.\d+)?)(ms|us|h|m|s)", str(duration))
+    assert parts and "".join(n + u for n, u in parts) == str(duration), f"not a duration: {duration!r}"
+    return sum(float(number) * units[unit] for number, unit in parts)
+
+
+def test_the_router_is_healthy_once_it_listens_on_its_port(compose):
+    """zenohd's image has BusyBox but no afford: the check reads the kernel's socket table for a listening
+    socket on the router's port. Run here against a real listening socket (and a closed one) to show the
+    pattern matches what the kernel writes."""
+    import socket
+
+    check = compose["services"][ROUTER].get("healthcheck")
+    assert check, "the router has no health check, so nothing can wait for it to be healthy"
+    kind, script = check["test"][0], check["test"][1]
+    assert kind == "CMD-SHELL" and len(check["test"]) == 2
+    port = _router_port(compose)
+    assert f":{port:04X} " in script, f"the check does not look for port {port} (hex {port:04X}): {script}"
+    if not Path("/proc/net/tcp").is_file() or shutil.which("sh") is None:
+        pytest.skip("no /proc/net/tcp or sh to try the check on")
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        probe = script.replace(f":{port:04X} ", f":{listener.getsockname()[1]:04X} ")
+        listening = subprocess.run(["sh", "-c", probe], timeout=10)
+    closed = subprocess.run(["sh", "-c", probe], timeout=10)
+    assert listening.returncode == 0, f"{probe!r} does not find a listening socket"
+    assert closed.returncode != 0, f"{probe!r} finds a socket that is closed"
