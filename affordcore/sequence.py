@@ -4,17 +4,21 @@
 millimetres; 0, and 65535 in the 7-Scenes README, mean no measurement), ``camera-intrinsics.txt`` (3 x 3)
 and optionally ``frame-NNNNNN.pose.txt`` (4 x 4 camera-to-world ground truth) and ``gravity-direction.txt``
 (gravity, "down", in the world frame). LiDAR: ``scan-NNNNNN.bin``
-(float32 x, y, z in the sensor frame) with optional ``scan-NNNNNN.pose.txt``.
+(float32 x, y, z in the sensor frame) with optional ``scan-NNNNNN.pose.txt``. Cloud files: any ``*.ply`` or
+``*.pcd`` files, one scan each in the sensor frame, in natural name order (``scan2`` before ``scan10``), as
+kiss-icp's generic dataset reads a folder; an optional ``<stem>.pose.txt`` beside each.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 DEPTH_SCALE = 0.001  # millimetres
+CLOUD_SUFFIXES = (".ply", ".pcd")
 INVALID_DEPTH = 65535
 
 
@@ -25,7 +29,7 @@ class SequenceError(ValueError):
 @dataclass
 class Sequence:
     folder: Path
-    kind: str  # "depth" or "lidar"
+    kind: str  # "depth", "lidar" (scan-NNNNNN.bin) or "cloud" (PLY/PCD files)
     frames: list[Path]
     intrinsics: np.ndarray | None  # 3 x 3 for depth
 
@@ -57,7 +61,11 @@ class Sequence:
         return image.astype(np.uint16)
 
     def scan(self, index: int) -> np.ndarray:
-        """The points (N, 3) of a LiDAR scan."""
+        """The points (N, 3) of a LiDAR scan or cloud file (NaN or infinite points dropped)."""
+        if self.frames[index].suffix.lower() in CLOUD_SUFFIXES:
+            from .scene import load_cloud
+
+            return load_cloud(self.frames[index]).points
         size = self.frames[index].stat().st_size
         if size % 12:
             raise SequenceError(
@@ -88,4 +96,18 @@ def read_sequence(folder: str | Path) -> Sequence:
         return Sequence(folder, "depth", depth, intrinsics)
     if scans:
         return Sequence(folder, "lidar", scans, None)
-    raise SequenceError(f"{folder}: no frame-NNNNNN.depth.png (7-Scenes layout) or scan-NNNNNN.bin files")
+    clouds = sorted(
+        (path for path in folder.iterdir() if path.suffix.lower() in CLOUD_SUFFIXES and path.is_file()),
+        key=_natural_order,
+    )
+    if clouds:
+        return Sequence(folder, "cloud", clouds, None)
+    raise SequenceError(
+        f"{folder}: no frame-NNNNNN.depth.png (7-Scenes layout), scan-NNNNNN.bin, .ply or .pcd files"
+    )
+
+
+def _natural_order(path: Path) -> list:
+    """scan2.ply before scan10.ply: digits compare as numbers (kiss-icp sorts its folders so, with natsort).
+    Splitting on digit runs puts text at even and numbers at odd places, so like compares with like."""
+    return [int(part) if index % 2 else part for index, part in enumerate(re.split(r"(\d+)", path.name))]

@@ -84,6 +84,12 @@ def seconds(message_timestamp) -> float:
     return message_timestamp.ToNanoseconds() * 1e-9
 
 
+def nanoseconds(message_timestamp) -> int:
+    """A Timestamp as an exact integer, whatever it holds: protobuf's ToNanoseconds raises on nanos outside
+    0 ... 1e9 (a hostile message's), and a comparison of stamps must never take a service down."""
+    return message_timestamp.seconds * 1_000_000_000 + message_timestamp.nanos
+
+
 def checked_seconds(message_timestamp, limits: LimitSettings, what: str = "timestamp") -> float:
     """Seconds since the epoch of a Timestamp, refused outside 0 (unset) ... `limits.latest_timestamp`: a
     time beyond it overflows the recordings' nanosecond clock and every later frame's ordering."""

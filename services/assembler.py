@@ -16,6 +16,7 @@ from affordwire import messages
 from affordwire.sensors import decode_sensor
 
 from .node import Inbound, Node
+from .ros import RosInput
 
 # seconds without scans after which a pending map goes out whatever the rate limit
 QUIET_BEFORE_PUBLISHING = 0.5
@@ -38,14 +39,23 @@ class AssemblerService:
             print(f"[assembler] restored {restored} frames from {self.store.folder}", flush=True)
         self.inbox = node.inbox(latest_only=False, skip_when_late=True)
         node.subscribe(node.keys.scans, self.inbox)
+        # ROS 2 clouds (and Imu gravity) too, when AFFORD_ROS__POINTS names a topic (services/ros.py)
+        self.ros = RosInput(node, self.inbox) if RosInput.wanted(node.settings.ros) else None
         for key in (node.keys.cloud, node.keys.pose):
             node.answer_latest(key)
 
     def run(self) -> None:
-        self.node.run(self.inbox, self.handle, self.idle, self.stop)
+        try:
+            self.node.run(self.inbox, self.handle, self.idle, self.stop)
+        finally:
+            if self.ros is not None:
+                print(f"[assembler] {self.ros.summary()}", flush=True)
 
     def handle(self, item: Inbound) -> None:
-        frame = decode_sensor(item.schema, item.payload, self.limits)
+        if self.ros is not None and self.ros.takes(item):
+            frame = self.ros.frame(item)
+        else:
+            frame = decode_sensor(item.schema, item.payload, self.limits)
         at = frame.stamp or item.arrived
         record = self.assembler.add(frame, at)  # a refused frame raises here and changes nothing
         if self.store:

@@ -212,7 +212,7 @@ class MapWatcher:
         except messages.MessageError as error:
             self.echo(f"unreadable map: {error}")
             return
-        if message.cloud_timestamp.ToNanoseconds() < self.since:
+        if messages.nanoseconds(message.cloud_timestamp) < self.since:
             return  # the answer to an older cloud than the one waited for
         if message.frames < self.min_frames:
             return
@@ -229,7 +229,7 @@ class MapWatcher:
             error = messages.parse(messages.Error, payload)
         except messages.MessageError:
             return
-        if self.since and error.input_timestamp.ToNanoseconds() == self.since:
+        if self.since and messages.nanoseconds(error.input_timestamp) == self.since:
             self.refuse(error.reason)
 
     def refuse(self, reason: str) -> None:
@@ -251,7 +251,7 @@ def newest_cloud(session, keys: Keys, timeout: float = 5.0) -> tuple[int, str]:
             status = messages.parse(messages.Status, reply.ok.payload.to_bytes())
         except messages.MessageError:
             continue
-        return status.newest_input.ToNanoseconds(), status.newest_input_refused
+        return messages.nanoseconds(status.newest_input), status.newest_input_refused
     return 0, ""
 
 

@@ -256,8 +256,8 @@ class Node:
         except ValueError:  # MessageError
             return
         with self._lock:
-            if stamp.ToNanoseconds() > self.newest_input:
-                self.newest_input, self.newest_input_refused = stamp.ToNanoseconds(), ""
+            if messages.nanoseconds(stamp) > self.newest_input:
+                self.newest_input, self.newest_input_refused = messages.nanoseconds(stamp), ""
 
     def decode(self, item: Inbound, *message_classes):
         """The message of the class the sample's schema names, among `message_classes`, or MessageError."""
@@ -286,7 +286,7 @@ class Node:
         if item.input_timestamp is not None:
             error.input_timestamp.CopyFrom(item.input_timestamp)
             with self._lock:
-                if item.input_timestamp.ToNanoseconds() == self.newest_input:
+                if messages.nanoseconds(item.input_timestamp) == self.newest_input:
                     self.newest_input_refused = reason
         if item.is_input:
             with self._lock:

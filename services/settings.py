@@ -3,9 +3,11 @@ AFFORD_* environment variables."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
+from typing import Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, field_validator
 
 from affordcore.settings import Settings
 
@@ -67,7 +69,62 @@ class NodeSettings(BaseModel):
     )
 
 
+class RosSettings(BaseModel):
+    """ROS 2 robots (AFFORD_ROS__*): the topics the assembler takes as its robot publishes them over Zenoh,
+    with rmw_zenoh or through zenoh-plugin-ros2dds (docs/ros.md). Needs the `[ros]` extra."""
+
+    points: str = Field(
+        "",
+        description="sensor_msgs/msg/PointCloud2 topic the assembler takes scans from, with its namespace, "
+        "e.g. /points or /robot1/points; empty: no ROS 2 input",
+    )
+    imu: str = Field(
+        "",
+        description="sensor_msgs/msg/Imu topic whose linear acceleration gives each scan the gravity "
+        "measured nearest its time; empty: none (the map is levelled by its floor)",
+    )
+    domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID: the first chunk of rmw_zenoh's keys")
+    key_formats: list[Literal["rmw_zenoh", "ros2dds"]] = Field(
+        ["rmw_zenoh", "ros2dds"],
+        min_length=1,
+        description="which key formats to subscribe to: rmw_zenoh's <domain_id>/<topic>/<type>/<type "
+        "hash> (any hash) and zenoh-plugin-ros2dds's <topic>",
+    )
+    cloud_from_imu: list[float] | None = Field(
+        None,
+        description="rotation (quaternion x, y, z, w) from the IMU's frame to the cloud's, e.g. "
+        "'[0,0,0.7071068,0.7071068]'; none: the IMU is taken to be mounted as the cloud's sensor (no tf "
+        "is read)",
+    )
+    imu_max_age: float = Field(
+        0.5,
+        gt=0,
+        description="a scan gets the Imu reading nearest its header stamp only within this many seconds",
+    )
+
+    @field_validator("points", "imu")
+    @classmethod
+    def _ros_name(cls, topic: str) -> str:
+        """Checked before the service starts: a wildcard or space would subscribe to what it should not."""
+        if topic and not re.fullmatch(r"/?[A-Za-z0-9_~{}]+(/[A-Za-z0-9_~{}]+)*/?", topic):
+            raise ValueError(
+                f"ROS topic {topic!r} is not a ROS 2 name (letters, digits and _ between slashes, e.g. "
+                "/robot1/points)"
+            )
+        return topic
+
+    @field_validator("cloud_from_imu")
+    @classmethod
+    def _unit_quaternion(cls, quaternion: list[float] | None) -> list[float] | None:
+        if quaternion is not None and (
+            len(quaternion) != 4 or not abs(sum(q * q for q in quaternion) ** 0.5 - 1) <= 1e-3  # NaN too
+        ):
+            raise ValueError(f"cloud_from_imu {quaternion} is not a unit quaternion [x, y, z, w]")
+        return quaternion
+
+
 class ServiceSettings(Settings):
     """Everything a service process reads: the library's settings and `service` (AFFORD_SERVICE__*)."""
 
     service: NodeSettings = NodeSettings()
+    ros: RosSettings = RosSettings()

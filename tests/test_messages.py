@@ -690,3 +690,10 @@ def test_unusable_maps_are_refused(spoil, reason):
     spoil(message)
     with pytest.raises(MessageError, match=reason):
         messages.map_document_of(_wire(message))
+
+
+@pytest.mark.parametrize("seconds, nanos", [(5, 2147483647), (5, -5), (-3, 0), (10**11, 999_999_999)])
+def test_any_timestamp_compares_as_exact_nanoseconds_without_raising(seconds, nanos):
+    stamp = messages.Error().timestamp
+    stamp.seconds, stamp.nanos = seconds, nanos  # what a hostile message may hold
+    assert messages.nanoseconds(stamp) == seconds * 1_000_000_000 + nanos

@@ -125,10 +125,10 @@ def test_not_a_folder(tmp_path):
 
 def test_a_folder_without_frames(tmp_path):
     (tmp_path / "frame-000000.color.jpg").write_bytes(b"colour only")
-    (tmp_path / "scan-000000.pcd").write_bytes(b"another format")
+    (tmp_path / "scan-000000.las").write_bytes(b"another format")
     np.savetxt(tmp_path / "camera-intrinsics.txt", K)
     with pytest.raises(
-        SequenceError, match=rf"{tmp_path.name}: no frame-NNNNNN\.depth\.png .* or scan-NNNNNN\.bin files"
+        SequenceError, match=rf"{tmp_path.name}: no frame-NNNNNN\.depth\.png .* \.ply or \.pcd files"
     ):
         read_sequence(tmp_path)
 

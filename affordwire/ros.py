@@ -1,0 +1,276 @@
+"""ROS 2 sensor messages to arrays: `sensor_msgs/msg/PointCloud2` to points, `sensor_msgs/msg/Imu` to the
+direction of gravity. Bytes in, numpy out, no transport: the assembler's ROS 2 subscriptions
+(services/ros.py) and `afford publish`'s bag reader both decode here.
+
+The payload is what a ROS 2 publisher puts on the wire: CDR with its 4-byte encapsulation header (rmw_zenoh
+and zenoh-plugin-ros2dds both forward it as is). It is parsed by `rosbags` (the `[ros]` extra, imported only
+here and only when a ROS message arrives, so the core installs without it). Every message is hostile until
+checked: anything unusable raises `MessageError` with the reason, before an array is allocated for it.
+
+Conventions (docs/ros.md):
+
+* PointCloud2: any `PointField` datatype (INT8 ... FLOAT64) for x, y and z, either byte order
+  (`is_bigendian`), fields anywhere within `point_step`, rows padded to `row_step`; organised clouds mark
+  missing returns with NaN, which are dropped and counted (`RosCloud.nonfinite`).
+* Imu: `linear_acceleration` is the specific force (REP 145): at rest it points up, +9.81 m/s^2 along the
+  up axis. Gravity, the down direction the assembler wants (`SensorFrame.gravity`), is therefore
+  -a / |a|, in the IMU's frame.
+"""
+
+from __future__ import annotations
+
+import functools
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from affordcore.settings import LimitSettings
+
+from .messages import MessageError
+
+POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+IMU = "sensor_msgs/msg/Imu"
+INSTALL = "pip install 'affordmap[ros]'"
+
+# sensor_msgs/msg/PointField datatypes (INT8 = 1 ... FLOAT64 = 8) as numpy kinds; the byte order is the
+# message's
+POINT_FIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
+STANDARD_GRAVITY = 9.80665
+# an Imu message is a few hundred bytes; a larger one is refused before it is parsed on the network thread
+MAX_IMU_BYTES = 64 * 1024
+MAX_FRAME_ID = 1024  # characters of a header's frame_id (it goes into logs and the pose messages)
+
+
+class RosUnavailable(ImportError, ValueError):
+    """The `rosbags` library is not installed. A ValueError too, so the command line reports it as one line
+    (exit 2) instead of a traceback."""
+
+
+@functools.cache
+def typestore():
+    """rosbags' type store of ROS 2 messages. sensor_msgs' PointCloud2 and Imu have had one definition (and
+    so one CDR layout) from Humble to the latest distribution, so one store reads every robot's."""
+    try:
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError as error:
+        raise RosUnavailable(
+            f"ROS 2 messages (PointCloud2, Imu, rosbag2, MCAP) need the rosbags library: {INSTALL} ({error})"
+        ) from None
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def deserialize(payload: bytes, typename: str):
+    """The message of ROS type `typename` in CDR bytes, or `MessageError` saying why not."""
+    store = typestore()
+    if len(payload) < 4:
+        raise MessageError(f"a CDR {typename} needs at least its 4-byte header; got {len(payload)} bytes")
+    try:
+        return store.deserialize_cdr(payload, typename)
+    except Exception as error:  # SerdeError mostly; whatever a malformed payload provokes in the parser
+        raise MessageError(
+            f"payload of {len(payload):,} bytes is not a CDR {typename}: {type(error).__name__}: {error}"
+        ) from None
+
+
+def serialize(message, typename: str) -> bytes:
+    """CDR bytes (little-endian, with the encapsulation header) of a rosbags message object."""
+    return bytes(typestore().serialize_cdr(message, typename))
+
+
+def _header(message, limits: LimitSettings, what: str) -> tuple[float, str]:
+    """(seconds, frame_id) of a std_msgs/Header, checked as every timestamp is (0 ... latest_timestamp)."""
+    stamp = message.header.stamp
+    seconds = stamp.sec + stamp.nanosec * 1e-9
+    if not (0 <= stamp.nanosec < 1_000_000_000 and 0 <= seconds <= limits.latest_timestamp):
+        raise MessageError(
+            f"{what} header stamp {stamp.sec} s {stamp.nanosec} ns is outside 0 ... "
+            f"{limits.latest_timestamp:.0f} s since the epoch (AFFORD_LIMITS__LATEST_TIMESTAMP)"
+        )
+    frame_id = message.header.frame_id
+    if len(frame_id) > MAX_FRAME_ID:
+        raise MessageError(f"{what} frame_id is {len(frame_id):,} characters; at most {MAX_FRAME_ID}")
+    return seconds, frame_id
+
+
+# -- PointCloud2 ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class RosCloud:
+    """The points of one PointCloud2: finite (N, 3) float64 in the message's frame, and what was dropped."""
+
+    points: np.ndarray
+    stamp: float  # header stamp, seconds since the epoch
+    frame_id: str
+    nonfinite: int  # points with a NaN or infinite coordinate (organised clouds' missing returns), dropped
+    total: int  # width x height
+
+
+def pointcloud2(payload: bytes, limits: LimitSettings | None = None) -> RosCloud:
+    """The points of a CDR sensor_msgs/msg/PointCloud2."""
+    return cloud_of(deserialize(payload, POINTCLOUD2), limits)
+
+
+def cloud_of(message, limits: LimitSettings | None = None) -> RosCloud:
+    """The points of a PointCloud2 message object (from `deserialize`, or a bag reader's). The layout is
+    checked first (sizes, fields, strides against the data's length); then x, y and z are read in place
+    through one strided structured view: no loop over points, no copy of the rest of each point."""
+    limits = limits or LimitSettings()
+    stamp, frame_id = _header(message, limits, "PointCloud2")
+    height, width = int(message.height), int(message.width)
+    point_step, row_step = int(message.point_step), int(message.row_step)
+    total = height * width
+    if total > limits.max_points:
+        raise MessageError(
+            f"PointCloud2 of {width:,} x {height:,} = {total:,} points; at most {limits.max_points:,} are "
+            "taken (AFFORD_LIMITS__MAX_POINTS)"
+        )
+    data = message.data
+    if total == 0:
+        return RosCloud(np.empty((0, 3)), stamp, frame_id, 0, 0)
+    if point_step == 0:
+        raise MessageError("PointCloud2 point_step is 0")
+    if row_step < width * point_step:
+        raise MessageError(
+            f"PointCloud2 row_step {row_step} is less than width x point_step ({width} x {point_step})"
+        )
+    needed, whole = (height - 1) * row_step + width * point_step, height * row_step
+    if not needed <= len(data) <= whole:
+        raise MessageError(
+            f"PointCloud2 data is {len(data):,} bytes; height x row_step ({height} x {row_step}) is {whole:,}"
+        )
+    order = ">" if message.is_bigendian else "<"
+    fields = _xyz_fields(message.fields, point_step, order)
+    view = np.ndarray(
+        shape=(height, width),
+        dtype=np.dtype(
+            {
+                "names": list(fields),
+                "formats": [kind for kind, _ in fields.values()],
+                "offsets": [offset for _, offset in fields.values()],
+                "itemsize": point_step,
+            }
+        ),
+        buffer=np.frombuffer(data, dtype=np.uint8),
+        strides=(row_step, point_step),
+    )
+    points = np.stack([view[name].astype(np.float64).ravel() for name in "xyz"], axis=1)
+    finite = np.isfinite(points).all(axis=1)
+    nonfinite = int(total - np.count_nonzero(finite))
+    return RosCloud(points[finite] if nonfinite else points, stamp, frame_id, nonfinite, total)
+
+
+def _xyz_fields(point_fields, point_step: int, order: str) -> dict[str, tuple[str, int]]:
+    """x, y, z as (numpy type, offset), each checked to lie within the point."""
+    named: dict[str, object] = {}
+    for field in point_fields:
+        if field.name in ("x", "y", "z") and field.name in named:
+            raise MessageError(f"PointCloud2 has two fields named {field.name}")
+        named.setdefault(field.name, field)
+    missing = [name for name in "xyz" if name not in named]
+    if missing:
+        raise MessageError(
+            f"PointCloud2 needs fields x, y, z; missing {', '.join(missing)} "
+            f"(has {', '.join(repr(name) for name in named) or 'none'})"
+        )
+    layout = {}
+    for name in "xyz":
+        field = named[name]
+        kind = POINT_FIELD_TYPES.get(int(field.datatype))
+        if kind is None:
+            raise MessageError(
+                f"PointCloud2 field {name} has datatype {field.datatype}; PointField's are 1 (INT8) ... "
+                "8 (FLOAT64)"
+            )
+        if field.count < 1:
+            raise MessageError(f"PointCloud2 field {name} has count {field.count}; a coordinate needs 1")
+        numpy_type = np.dtype(order + kind)
+        if field.offset + numpy_type.itemsize > point_step:
+            raise MessageError(
+                f"PointCloud2 field {name} (offset {field.offset}, {numpy_type.itemsize} bytes) runs past "
+                f"the {point_step}-byte point_step"
+            )
+        layout[name] = (numpy_type.str, int(field.offset))
+    return layout
+
+
+# -- Imu -----------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class RosGravity:
+    """One Imu reading's gravity: the unit down direction in the IMU's frame, at the header's time."""
+
+    down: np.ndarray
+    stamp: float
+    frame_id: str
+
+
+def imu(payload: bytes, limits: LimitSettings | None = None) -> RosGravity:
+    """The gravity a CDR sensor_msgs/msg/Imu measures."""
+    if len(payload) > MAX_IMU_BYTES:
+        raise MessageError(f"an Imu of {len(payload):,} bytes; at most {MAX_IMU_BYTES:,} are parsed")
+    return gravity_of(deserialize(payload, IMU), limits)
+
+
+def gravity_of(message, limits: LimitSettings | None = None) -> RosGravity:
+    """Gravity from an Imu message object: its linear acceleration points up at rest (REP 145), so down is
+    -a / |a|. A reading whose magnitude is far from g (a shock, or an IMU that reports in g instead of
+    m/s^2) says little about which way is down and is refused."""
+    stamp, frame_id = _header(message, limits or LimitSettings(), "Imu")
+    if message.linear_acceleration_covariance[0] == -1:  # REP 145 / sensor_msgs: "no estimate"
+        raise MessageError("the Imu carries no linear acceleration (linear_acceleration_covariance[0] = -1)")
+    a = message.linear_acceleration
+    acceleration = np.array([a.x, a.y, a.z], dtype=np.float64)
+    norm = float(np.linalg.norm(acceleration))
+    if not np.isfinite(norm) or not 0.5 * STANDARD_GRAVITY <= norm <= 2 * STANDARD_GRAVITY:
+        raise MessageError(
+            f"Imu linear acceleration {acceleration.tolist()} (|a| = {norm:.3g}) is not gravity at rest: "
+            "expected about 9.81 m/s^2 (sensor_msgs/Imu is in m/s^2, pointing up at rest)"
+        )
+    return RosGravity(-acceleration / norm, stamp, frame_id)
+
+
+def rotation_of(quaternion) -> np.ndarray:
+    """3 x 3 rotation of a unit quaternion (x, y, z, w), as ROS writes them."""
+    q = np.asarray(quaternion, dtype=np.float64).reshape(-1)
+    if q.shape != (4,) or not np.isfinite(q).all() or abs(np.linalg.norm(q) - 1) > 1e-3:
+        raise ValueError(f"{np.asarray(quaternion).tolist()} is not a unit quaternion (x, y, z, w)")
+    x, y, z, w = q / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+class GravityTrack:
+    """The latest IMU readings, so that each cloud gets the gravity measured nearest its own time (an IMU
+    runs at hundreds of Hz, a depth camera or LiDAR at 10-30). Readings come from the network thread,
+    clouds are handled on the worker: hence the lock."""
+
+    def __init__(self, keep: int = 2048):
+        self._readings: deque[tuple[float, np.ndarray]] = deque(maxlen=keep)
+        self._lock = threading.Lock()
+
+    def add(self, stamp: float, down: np.ndarray) -> None:
+        with self._lock:
+            self._readings.append((stamp, np.asarray(down, dtype=np.float64)))
+
+    def at(self, stamp: float, max_age: float) -> np.ndarray | None:
+        """The reading nearest `stamp`, if one lies within `max_age` seconds of it."""
+        with self._lock:
+            if not self._readings:
+                return None
+            stamps = np.fromiter((s for s, _ in self._readings), dtype=np.float64, count=len(self._readings))
+            nearest = int(np.argmin(np.abs(stamps - stamp)))
+            if abs(stamps[nearest] - stamp) > max_age:
+                return None
+            return self._readings[nearest][1].copy()
+
+    def __len__(self) -> int:
+        return len(self._readings)

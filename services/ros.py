@@ -1,0 +1,313 @@
+"""ROS 2 robots in: the assembler's subscriptions to `sensor_msgs/msg/PointCloud2` and `sensor_msgs/msg/Imu`
+as a robot publishes them over Zenoh, and rosbag2 / MCAP recordings read for `afford publish`.
+
+Two key formats carry ROS 2 topics over Zenoh (docs/ros.md):
+
+* rmw_zenoh (ROS 2's Zenoh middleware): ``<domain_id>/<topic>/<type>/<type hash>``, the topic without its
+  leading slash (namespace included), the type in DDS form (``sensor_msgs::msg::dds_::PointCloud2_``) and
+  the hash ``RIHS01_<sha256>`` (or ``TypeHashNotSupported`` on Humble). The subscription takes any hash, so
+  the hash of the robot's distribution need not be configured.
+* zenoh-plugin-ros2dds (the DDS bridge): ``<topic>``, the topic without its leading slash, prefixed with the
+  bridge's namespace when one is configured.
+
+Both carry the message as CDR, decoded by affordwire.ros. Clouds go through the assembler's inbox like any
+scan; Imu readings are decoded on arrival (a few hundred bytes, at hundreds of Hz: they would flood the scan
+inbox) into a `GravityTrack`, and each cloud takes the reading nearest its own stamp.
+
+The IMU's `frame_id` is not looked up (there is no tf here): unless `AFFORD_ROS__CLOUD_FROM_IMU` gives the
+rotation from the IMU's frame to the cloud's, the IMU is taken to be mounted with the cloud sensor's axes, and
+a difference of frame names is said once on the log.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from affordcore.assembly import SensorFrame
+from affordwire import messages, ros
+
+from .node import Inbound, Inbox, Node
+from .settings import RosSettings
+
+# the schema a ROS subscription tags its samples with (they carry no afford schema of their own)
+POINTS_SCHEMA = f"ros2:{ros.POINTCLOUD2}"
+IMU_SCHEMA = f"ros2:{ros.IMU}"
+
+
+def dds_type(typename: str) -> str:
+    """rmw_zenoh's type chunk: sensor_msgs/msg/PointCloud2 -> sensor_msgs::msg::dds_::PointCloud2_."""
+    package, kind, name = typename.split("/")
+    return f"{package}::{kind}::dds_::{name}_"
+
+
+def topic_keys(topic: str, typename: str, settings: RosSettings) -> list[str]:
+    """The key expressions a ROS 2 topic (checked by RosSettings: no wildcards) is published on, in the
+    formats `settings.key_formats` names."""
+    name = topic.strip("/")
+    keys = []
+    if "rmw_zenoh" in settings.key_formats:
+        keys.append(f"{settings.domain_id}/{name}/{dds_type(typename)}/*")
+    if "ros2dds" in settings.key_formats:
+        keys.append(name)
+    return keys
+
+
+def imu_rotation(settings: RosSettings) -> np.ndarray | None:
+    """cloud_from_imu as a 3 x 3 rotation, None when the IMU is mounted as the cloud sensor."""
+    return None if settings.cloud_from_imu is None else ros.rotation_of(settings.cloud_from_imu)
+
+
+@dataclass
+class Counts:
+    clouds: int = 0
+    points: int = 0
+    nonfinite: int = 0  # dropped for a NaN or infinite coordinate
+    imu: int = 0
+    with_gravity: int = 0
+
+
+class RosInput:
+    """The assembler's ROS 2 topics (AFFORD_ROS__POINTS, AFFORD_ROS__IMU). `frame` turns a cloud sample
+    into the assembler's SensorFrame with the gravity of the Imu reading nearest its stamp."""
+
+    def __init__(self, node: Node, inbox: Inbox):
+        self.node, self.settings, self.limits = node, node.settings.ros, node.settings.limits
+        ros.typestore()  # RosUnavailable (pip install affordmap[ros]) at the start, not at the first cloud
+        self.rotation = imu_rotation(self.settings)
+        self.gravity = ros.GravityTrack()
+        self.counts = Counts()
+        self.imu_frame: str | None = None
+        self._warned_frames = self._warned_nonfinite = False
+        self.point_keys = topic_keys(self.settings.points, ros.POINTCLOUD2, self.settings)
+        self.imu_keys = topic_keys(self.settings.imu, ros.IMU, self.settings) if self.settings.imu else []
+        for key in self.point_keys:
+            node.subscribe(key, inbox, schema=POINTS_SCHEMA)
+        # kept referenced for the life of the service; the session's close undeclares them
+        self._imu_subscribers = [node.session.declare_subscriber(key, self._on_imu) for key in self.imu_keys]
+        print(
+            f"[{node.service}] ROS 2 in: PointCloud2 on {', '.join(self.point_keys)}"
+            + (f"; Imu on {', '.join(self.imu_keys)}" if self.imu_keys else "; no Imu (AFFORD_ROS__IMU)"),
+            flush=True,
+        )
+
+    @staticmethod
+    def wanted(settings: RosSettings) -> bool:
+        return bool(settings.points)
+
+    def takes(self, item: Inbound) -> bool:
+        return item.schema == POINTS_SCHEMA
+
+    def _on_imu(self, sample) -> None:
+        """On zenoh's thread: keep the reading's gravity, or answer why not on the error key (an exception
+        must not escape into zenoh)."""
+        payload = sample.payload.to_bytes()
+        try:
+            reading = ros.imu(payload, self.limits)
+            down = reading.down if self.rotation is None else self.rotation @ reading.down
+            self.gravity.add(reading.stamp, down)
+            self.imu_frame = reading.frame_id
+            self.counts.imu += 1
+        except Exception as error:  # noqa: BLE001 - a bad reading is refused; the service goes on
+            reason = str(error) if isinstance(error, ValueError) else f"{type(error).__name__}: {error}"
+            item = Inbound(str(sample.key_expr), IMU_SCHEMA, str(sample.encoding), payload, time.time())
+            self.node.reject(item, reason)
+
+    def frame(self, item: Inbound) -> SensorFrame:
+        """The SensorFrame of a PointCloud2 sample; MessageError when it is unusable."""
+        cloud = ros.pointcloud2(item.payload, self.limits)
+        gravity = self.gravity.at(cloud.stamp, self.settings.imu_max_age) if self.imu_keys else None
+        self.counts.clouds += 1
+        self.counts.points += cloud.total
+        self.counts.nonfinite += cloud.nonfinite
+        self.counts.with_gravity += gravity is not None
+        if cloud.nonfinite and not self._warned_nonfinite:
+            self._warned_nonfinite = True
+            print(
+                f"[{self.node.service}] {item.key}: dropped {cloud.nonfinite:,} of {cloud.total:,} points "
+                "with NaN or infinite coordinates (an organised cloud's missing returns); counted from here "
+                "on and reported at the stop",
+                flush=True,
+            )
+        self._check_frames(cloud.frame_id)
+        return SensorFrame(
+            frame_id=cloud.frame_id or "sensor", stamp=cloud.stamp, points=cloud.points, gravity=gravity
+        )
+
+    def _check_frames(self, cloud_frame: str) -> None:
+        imu_frame = self.imu_frame
+        if self._warned_frames or imu_frame is None or self.rotation is not None or imu_frame == cloud_frame:
+            return
+        self._warned_frames = True
+        print(
+            f"[{self.node.service}] the Imu is in frame {imu_frame!r}, the clouds in {cloud_frame!r}: taken "
+            "to be mounted alike (no tf is read); set AFFORD_ROS__CLOUD_FROM_IMU to the rotation between "
+            "them otherwise",
+            flush=True,
+        )
+
+    def summary(self) -> str:
+        c = self.counts
+        return (
+            f"ROS 2: {c.clouds} clouds decoded ({c.points:,} points, {c.nonfinite:,} of them NaN or "
+            f"infinite and dropped), {c.with_gravity} with an Imu gravity; {c.imu} Imu readings taken"
+        )
+
+
+# -- recordings (afford publish) -----------------------------------------------------------------------------
+
+
+class RecordingError(ValueError):
+    """A recording that cannot be streamed as asked; the message names the topics it has."""
+
+
+def is_recording(path: Path) -> bool:
+    """A rosbag2 folder (metadata.yaml), or a single MCAP or sqlite3 storage file."""
+    path = Path(path)
+    if path.is_dir():
+        return (path / "metadata.yaml").is_file()
+    return path.suffix.lower() in (".mcap", ".db3")
+
+
+@dataclass
+class RecordingStats:
+    """What streaming a recording skipped, to be reported."""
+
+    topic: str = ""
+    imu_topic: str | None = None
+    refused: int = 0  # PointCloud2 messages that are unusable (MessageError)
+    first_refusal: str = ""
+    bad_imu: int = 0
+    nonfinite: int = 0
+    with_gravity: int = 0
+
+    def describe(self, sent: int, path: Path) -> str:
+        gravity = f", {self.with_gravity} with gravity from {self.imu_topic}" if self.imu_topic else ""
+        return f"{sent} scans of {self.topic} from {path}{gravity}"
+
+    def notes(self) -> list[str]:
+        """What a person streaming the recording should hear about."""
+        said = []
+        if self.refused:
+            said.append(f"{self.refused} unusable PointCloud2 messages were left out ({self.first_refusal})")
+        if self.bad_imu:
+            said.append(f"{self.bad_imu} unusable Imu messages of {self.imu_topic} were left out")
+        if self.nonfinite:
+            said.append(f"dropped {self.nonfinite:,} points with NaN or infinite coordinates")
+        return said
+
+
+def _topics_of(reader, typename: str) -> list[str]:
+    return sorted(topic for topic, info in reader.topics.items() if info.msgtype == typename)
+
+
+def _choose(reader, path: Path, typename: str, wanted: str, option: str) -> str:
+    topics = _topics_of(reader, typename)
+    listed = ", ".join(topics) or "none"
+    if wanted:
+        if wanted not in topics:
+            raise RecordingError(
+                f"{path}: no {typename} topic {wanted!r} ({option}); its {typename} topics: {listed}"
+            )
+        return wanted
+    if len(topics) != 1:
+        every = ", ".join(f"{topic} ({info.msgtype})" for topic, info in sorted(reader.topics.items()))
+        raise RecordingError(
+            f"{path}: {'no' if not topics else len(topics)} {typename} topics"
+            + (f" ({listed}); choose one with {option}" if topics else f"; it has {every or 'no topics'}")
+        )
+    return topics[0]
+
+
+def recording_frames(
+    path: Path,
+    topic: str = "",
+    imu_topic: str = "",
+    imu: bool = True,
+    first: int = 0,
+    frames: int = 0,
+    step: int = 1,
+    settings: RosSettings | None = None,
+    limits=None,
+) -> tuple[RecordingStats, Iterator[tuple[int, messages.Scan]], int]:
+    """(stats, (index, Scan) pairs, how many) of a rosbag2 folder (sqlite3 or MCAP storage) or a single MCAP
+    file, read by rosbags' AnyReader. `topic` is the PointCloud2 topic (default: the only one), `imu_topic`
+    an Imu topic giving each scan its gravity (default: the only one, if any; none with `imu` False). Each
+    Scan keeps its header stamp (the bag's receive time when the header has none): the assembler's motion
+    limits use the recorded times, whatever the rate of the replay. RecordingError when the topics are not
+    as asked."""
+    try:
+        from rosbags.highlevel import AnyReader
+    except ImportError:
+        ros.typestore()  # raises RosUnavailable naming the extra
+        raise
+    from affordcore.settings import LimitSettings
+
+    settings, limits = settings or RosSettings(), limits or LimitSettings()
+    path = Path(path)
+    reader = AnyReader([path], default_typestore=ros.typestore())
+    try:
+        reader.open()
+    except Exception as error:  # rosbags' reader errors: a folder or file that is not a readable bag
+        raise RecordingError(f"{path}: not a readable rosbag2 or MCAP recording ({error})") from None
+    try:
+        stats = RecordingStats(topic=_choose(reader, path, ros.POINTCLOUD2, topic, "--topic"))
+        if imu and (imu_topic or _topics_of(reader, ros.IMU)):
+            stats.imu_topic = _choose(reader, path, ros.IMU, imu_topic, "--imu-topic or --no-imu")
+    except BaseException:
+        reader.close()
+        raise
+    total = reader.topics[stats.topic].msgcount
+    indices = range(first, total, step)
+    count = len(indices[: frames or None])
+    if not count:
+        reader.close()
+        raise RecordingError(f"{path}: no messages of {stats.topic} from {first} (it has {total})")
+    wanted = set(indices[: frames or None])
+    return stats, _stream(reader, stats, wanted, settings, limits), count
+
+
+def _stream(reader, stats: RecordingStats, wanted: set[int], settings: RosSettings, limits):
+    rotation = imu_rotation(settings)
+    track = ros.GravityTrack()
+    topics = {stats.topic, stats.imu_topic} - {None}
+    connections = [c for c in reader.connections if c.topic in topics]
+    sensor = stats.topic.strip("/").replace("/", "_") or "sensor"
+    index, last = -1, max(wanted)
+    try:
+        for connection, bag_time, raw in reader.messages(connections=connections):
+            if connection.topic == stats.imu_topic:
+                try:
+                    reading = ros.gravity_of(reader.deserialize(raw, connection.msgtype), limits)
+                except Exception:  # noqa: BLE001 - one bad reading: the cloud takes a neighbour's
+                    stats.bad_imu += 1
+                    continue
+                track.add(reading.stamp, reading.down if rotation is None else rotation @ reading.down)
+                continue
+            index += 1
+            if index not in wanted:
+                if index > last:
+                    break
+                continue
+            try:
+                cloud = ros.cloud_of(reader.deserialize(raw, connection.msgtype), limits)
+            except Exception as error:  # noqa: BLE001 - reported at the end; the stream goes on
+                stats.refused += 1
+                stats.first_refusal = stats.first_refusal or f"message {index}: {error}"
+                continue
+            stats.nonfinite += cloud.nonfinite
+            stamp = cloud.stamp or bag_time * 1e-9
+            scan = messages.Scan(frame_id=cloud.frame_id or sensor)
+            messages.pack_points(scan, cloud.points)
+            messages.stamp(scan.timestamp, stamp)
+            gravity = track.at(stamp, settings.imu_max_age) if stats.imu_topic else None
+            if gravity is not None:
+                messages.set_vector(scan.gravity, gravity)
+                stats.with_gravity += 1
+            yield index, scan
+    finally:
+        reader.close()

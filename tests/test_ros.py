@@ -1,0 +1,547 @@
+"""ROS 2 in: sensor_msgs/msg/PointCloud2 and Imu as CDR bytes made by rosbags (the library robots' bags are
+read with), decoded by affordwire.ros; the assembler's subscriptions on rmw_zenoh's and
+zenoh-plugin-ros2dds's keys; and, end to end, a ROS 2 robot's stream on rmw_zenoh keys becoming maps."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rosbags")
+
+from affordcore.settings import LimitSettings  # noqa: E402
+from affordwire import ros  # noqa: E402
+from affordwire.messages import MessageError  # noqa: E402
+
+STORE = ros.typestore()
+T = STORE.types
+PointField = T["sensor_msgs/msg/PointField"]
+G = ros.STANDARD_GRAVITY
+
+
+def header(sec: int = 1_700_000_000, nanosec: int = 250_000_000, frame_id: str = "lidar"):
+    return T["std_msgs/msg/Header"](
+        stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame_id
+    )
+
+
+def cloud_message(
+    points: np.ndarray,
+    datatype: int = PointField.FLOAT32,
+    bigendian: bool = False,
+    point_pad: int = 0,
+    row_pad: int = 0,
+    order: str = "xyz",
+    **header_args,
+):
+    """A PointCloud2 of `points` (H, W, 3) with x, y, z of `datatype` laid out in `order` after a 1-byte
+    `intensity`-like lead field, `point_pad` spare bytes after each point and `row_pad` after each row."""
+    height, width, _ = points.shape
+    kind = np.dtype((">" if bigendian else "<") + ros.POINT_FIELD_TYPES[datatype])
+    lead = 2  # a uint16 before the coordinates: offsets are not 0, 4, 8
+    offsets = {name: lead + index * kind.itemsize for index, name in enumerate(order)}
+    point_step = lead + 3 * kind.itemsize + point_pad
+    row_step = width * point_step + row_pad
+    buffer = np.full(height * row_step, 0xAB, dtype=np.uint8)  # padding is garbage, not zeros
+    layout = np.dtype(
+        {
+            "names": list(offsets),
+            "formats": [kind] * 3,
+            "offsets": list(offsets.values()),
+            "itemsize": point_step,
+        }
+    )
+    view = np.ndarray((height, width), dtype=layout, buffer=buffer, strides=(row_step, point_step))
+    for index, name in enumerate("xyz"):
+        view[name] = points[..., index]
+    fields = [PointField(name="ring", offset=0, datatype=PointField.UINT16, count=1)] + [
+        PointField(name=name, offset=offsets[name], datatype=datatype, count=1) for name in order
+    ]
+    return T[ros.POINTCLOUD2](
+        header=header(**header_args),
+        height=height,
+        width=width,
+        fields=fields,
+        is_bigendian=bigendian,
+        point_step=point_step,
+        row_step=row_step,
+        data=buffer,
+        is_dense=False,
+    )
+
+
+def cdr(message, typename: str = ros.POINTCLOUD2, little_endian: bool = True) -> bytes:
+    return bytes(STORE.serialize_cdr(message, typename, little_endian=little_endian))
+
+
+def grid_points(height: int = 3, width: int = 4, scale: float = 1.0) -> np.ndarray:
+    rng = np.random.default_rng(7)
+    return np.round(rng.uniform(-50, 50, (height, width, 3)) * scale)
+
+
+# -- PointCloud2 ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("datatype", sorted(ros.POINT_FIELD_TYPES))
+@pytest.mark.parametrize("bigendian", [False, True])
+def test_every_point_field_datatype_in_either_byte_order_reads_back(datatype, bigendian):
+    points = grid_points()  # whole numbers within every type's range (INT8 ... FLOAT64)
+    if ros.POINT_FIELD_TYPES[datatype].startswith("u"):
+        points = np.abs(points)
+    cloud = ros.pointcloud2(cdr(cloud_message(points, datatype, bigendian)))
+    assert cloud.points.dtype == np.float64
+    np.testing.assert_array_equal(cloud.points, points.reshape(-1, 3))
+    assert (cloud.stamp, cloud.frame_id, cloud.nonfinite, cloud.total) == (1_700_000_000.25, "lidar", 0, 12)
+
+
+def test_big_endian_data_is_not_read_as_little_endian():
+    """Swapped bytes of 1.5 read as little-endian would be a tiny denormal: the flag must be honoured."""
+    points = np.full((1, 2, 3), 1.5)
+    message = cloud_message(points, PointField.FLOAT32, bigendian=True)
+    np.testing.assert_array_equal(ros.pointcloud2(cdr(message)).points, points.reshape(-1, 3))
+    message.is_bigendian = False
+    assert not np.allclose(ros.pointcloud2(cdr(message)).points, 1.5)
+
+
+def test_a_big_endian_cdr_encapsulation_reads_too():
+    points = grid_points()
+    cloud = ros.pointcloud2(cdr(cloud_message(points, PointField.FLOAT64), little_endian=False))
+    np.testing.assert_array_equal(cloud.points, points.reshape(-1, 3))
+
+
+@pytest.mark.parametrize(("point_pad", "row_pad"), [(0, 0), (6, 0), (0, 13), (3, 64)])
+def test_padding_within_points_and_after_rows_is_skipped(point_pad, row_pad):
+    points = grid_points(5, 7, 0.01)
+    message = cloud_message(points, PointField.FLOAT32, point_pad=point_pad, row_pad=row_pad, order="zxy")
+    cloud = ros.pointcloud2(cdr(message))
+    np.testing.assert_allclose(cloud.points, points.reshape(-1, 3), rtol=1e-6)
+
+
+def test_a_last_row_without_its_padding_is_read():
+    points = grid_points(3, 4)
+    message = cloud_message(points, PointField.FLOAT32, row_pad=8)
+    message.data = message.data[:-8]
+    np.testing.assert_array_equal(ros.pointcloud2(cdr(message)).points, points.reshape(-1, 3))
+
+
+def test_an_organised_cloud_drops_its_nan_returns_and_counts_them():
+    points = grid_points(4, 5, 0.01)
+    points[0, :, :] = np.nan  # a row without returns
+    points[2, 3, 1] = np.inf
+    points[3, 0, 2] = np.nan
+    cloud = ros.pointcloud2(cdr(cloud_message(points)))
+    keep = np.isfinite(points.reshape(-1, 3)).all(axis=1)
+    assert (cloud.nonfinite, cloud.total, len(cloud.points)) == (7, 20, 13)
+    np.testing.assert_allclose(cloud.points, points.reshape(-1, 3)[keep], rtol=1e-6)
+
+
+def test_an_empty_cloud_is_no_points():
+    cloud = ros.pointcloud2(cdr(cloud_message(np.zeros((0, 0, 3)))))
+    assert cloud.points.shape == (0, 3) and cloud.total == 0
+
+
+def _hostile(change) -> str:
+    message = cloud_message(grid_points())
+    payload = change(message)
+    with pytest.raises(MessageError) as caught:
+        ros.pointcloud2(cdr(message) if payload is None else payload, LimitSettings(max_points=1000))
+    return str(caught.value)
+
+
+def _field(message, name):
+    return next(f for f in message.fields if f.name == name)
+
+
+@pytest.mark.parametrize(
+    ("change", "reason"),
+    [
+        (lambda m: b"", "at least its 4-byte header"),
+        (lambda m: b"\x07\x07\x00\x00" + b"\x00" * 64, "not a CDR sensor_msgs/msg/PointCloud2"),
+        (lambda m: cdr(m)[:40], "not a CDR sensor_msgs/msg/PointCloud2"),
+        (lambda m: cdr(m) + b"\x00" * 64, "not a CDR"),  # trailing bytes
+        (
+            lambda m: setattr(m, "width", 100_000) or setattr(m, "height", 100_000),
+            "AFFORD_LIMITS__MAX_POINTS",
+        ),
+        (lambda m: setattr(m, "fields", [f for f in m.fields if f.name != "y"]), "missing y"),
+        (lambda m: setattr(m, "fields", [*m.fields, _field(m, "x")]), "two fields named x"),
+        (lambda m: setattr(_field(m, "z"), "offset", 100), "runs past the"),
+        (lambda m: setattr(_field(m, "z"), "datatype", 9), "datatype 9"),
+        (lambda m: setattr(_field(m, "x"), "count", 0), "count 0"),
+        (lambda m: setattr(m, "point_step", 0), "point_step is 0"),
+        (lambda m: setattr(m, "row_step", 3), "row_step 3 is less"),
+        (lambda m: setattr(m, "data", m.data[:-20]), "height x row_step"),
+        (lambda m: setattr(m, "data", np.concatenate([m.data, m.data])), "height x row_step"),
+        (lambda m: setattr(m, "height", 40), "height x row_step"),
+        (lambda m: setattr(m.header.stamp, "sec", -5), "outside 0"),
+        (lambda m: setattr(m.header.stamp, "nanosec", 2_000_000_000), "outside 0"),
+        (lambda m: setattr(m.header, "frame_id", "f" * 5000), "frame_id"),
+    ],
+)
+def test_hostile_clouds_are_refused_with_a_reason(change, reason):
+    assert reason in _hostile(change)
+
+
+def test_a_sequence_length_past_the_payload_is_refused_before_anything_is_allocated():
+    payload = bytearray(cdr(cloud_message(grid_points())))
+    # the data sequence's length is the 4 bytes before its bytes: claim 2 GB
+    data_length = 3 * 4 * (2 + 3 * 4)
+    at = len(payload) - data_length - 1 - 4  # is_dense (1 byte) follows the data
+    assert int.from_bytes(payload[at : at + 4], "little") == data_length
+    payload[at : at + 4] = (2**31).to_bytes(4, "little")
+    with pytest.raises(MessageError, match="not a CDR"):
+        ros.pointcloud2(bytes(payload))
+
+
+# -- Imu -----------------------------------------------------------------------------------------------------
+
+
+def imu_message(acceleration, covariance0: float = 0.01, **header_args):
+    vector = T["geometry_msgs/msg/Vector3"]
+    return T[ros.IMU](
+        header=header(**({"frame_id": "imu"} | header_args)),
+        orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+        orientation_covariance=np.full(9, -1.0),  # no orientation estimate: only the acceleration is read
+        angular_velocity=vector(x=0.0, y=0.0, z=0.0),
+        angular_velocity_covariance=np.zeros(9),
+        linear_acceleration=vector(*map(float, acceleration)),
+        linear_acceleration_covariance=np.array([covariance0] + [0.0] * 8),
+    )
+
+
+def test_an_imu_at_rest_measures_up_so_gravity_is_its_opposite():
+    """REP 145: a level IMU at rest reads +9.81 along z (up); gravity, the down the assembler wants, is -z."""
+    reading = ros.imu(cdr(imu_message([0.0, 0.0, G]), ros.IMU))
+    np.testing.assert_allclose(reading.down, [0, 0, -1])
+    assert (reading.stamp, reading.frame_id) == (1_700_000_000.25, "imu")
+    # a camera-frame IMU (x right, y down, z forward) held level: up is -y, so it reads -9.81 along y
+    tilted = ros.imu(cdr(imu_message([0.3, -9.7, 1.2]), ros.IMU)).down
+    np.testing.assert_allclose(tilted, np.array([-0.3, 9.7, -1.2]) / np.linalg.norm([0.3, 9.7, 1.2]))
+
+
+@pytest.mark.parametrize(
+    ("acceleration", "covariance0", "reason"),
+    [
+        ([0.0, 0.0, 1.0], 0.01, "not gravity at rest"),  # reported in g, not m/s^2
+        ([0.0, 0.0, 40.0], 0.01, "not gravity at rest"),  # a shock
+        ([np.nan, 0.0, 9.8], 0.01, "not gravity at rest"),
+        ([0.0, 0.0, 9.8], -1.0, "no linear acceleration"),
+    ],
+)
+def test_unusable_imu_readings_are_refused(acceleration, covariance0, reason):
+    with pytest.raises(MessageError, match=reason):
+        ros.imu(cdr(imu_message(acceleration, covariance0), ros.IMU))
+
+
+def test_an_oversized_or_malformed_imu_is_refused_before_parsing():
+    with pytest.raises(MessageError, match="at most"):
+        ros.imu(b"\x00\x01\x00\x00" + b"\x00" * (ros.MAX_IMU_BYTES + 1))
+    with pytest.raises(MessageError, match="not a CDR sensor_msgs/msg/Imu"):
+        ros.imu(cdr(imu_message([0, 0, G]), ros.IMU)[:100])
+
+
+def test_the_gravity_track_gives_the_reading_nearest_the_cloud_within_its_age():
+    track = ros.GravityTrack(keep=3)
+    for stamp in (10.0, 10.1, 10.2, 10.3):  # the first falls out
+        track.add(stamp, np.array([0.0, 0.0, -stamp]))
+    assert track.at(10.14, 0.5)[2] == -10.1
+    assert track.at(10.0, 0.05) is None  # 10.0 was dropped; 10.1 is too far
+    assert track.at(11.0, 0.5) is None
+    assert len(track) == 3
+
+
+def test_a_quaternion_turns_imu_readings_into_the_cloud_frame():
+    # IMU frame turned 90 degrees about z from the cloud's: the IMU's x is the cloud's y
+    rotation = ros.rotation_of([0, 0, np.sqrt(0.5), np.sqrt(0.5)])
+    np.testing.assert_allclose(rotation @ [1, 0, 0], [0, 1, 0], atol=1e-12)
+    with pytest.raises(ValueError, match="unit quaternion"):
+        ros.rotation_of([0, 0, 1, 1])
+
+
+def test_without_rosbags_the_error_names_the_extra(tmp_path):
+    """The core installs without rosbags; a ROS message then says what to install (a subprocess, as the
+    library is already imported here)."""
+    blocker = tmp_path / "sitecustomize.py"
+    blocker.write_text(
+        "import sys\nclass Block:\n    def find_spec(self, name, *_):\n"
+        "        if name == 'rosbags' or name.startswith('rosbags.'):\n"
+        "            raise ImportError('blocked for the test')\nsys.meta_path.insert(0, Block())\n"
+    )
+    code = (
+        "from affordwire import ros\n"
+        "try:\n    ros.pointcloud2(b'1234')\nexcept ros.RosUnavailable as e:\n    print('ERR', e)\n"
+    )
+    env = {"PYTHONPATH": f"{tmp_path}:{'.'}"}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60)
+    assert "ERR" in done.stdout and "pip install 'affordmap[ros]'" in done.stdout, done.stderr
+
+
+# -- the assembler's ROS 2 keys ------------------------------------------------------------------------------
+
+
+def test_keys_follow_rmw_zenoh_and_the_ros2dds_bridge():
+    from services.ros import dds_type, topic_keys
+    from services.settings import RosSettings
+
+    settings = RosSettings(points="/robot1/points", domain_id=3)
+    assert dds_type(ros.POINTCLOUD2) == "sensor_msgs::msg::dds_::PointCloud2_"
+    assert topic_keys(settings.points, ros.POINTCLOUD2, settings) == [
+        "3/robot1/points/sensor_msgs::msg::dds_::PointCloud2_/*",
+        "robot1/points",
+    ]
+    only = RosSettings(imu="imu/data", key_formats=["rmw_zenoh"])
+    assert topic_keys(only.imu, ros.IMU, only) == ["0/imu/data/sensor_msgs::msg::dds_::Imu_/*"]
+
+
+@pytest.mark.parametrize("topic", ["/points/*", "a b", "/a//b", "**", "pts$"])
+def test_a_topic_with_wildcards_is_refused_before_the_service_starts(topic, monkeypatch):
+    from pydantic import ValidationError
+
+    from services.settings import ServiceSettings
+
+    monkeypatch.setenv("AFFORD_ROS__POINTS", topic)
+    with pytest.raises(ValidationError, match="not a ROS 2 name"):
+        ServiceSettings()
+
+
+@pytest.mark.parametrize("quaternion", ["[0, 0, 1, 1]", "[0, 0, 1]", "[NaN, 0, 0, 1]"])
+def test_a_cloud_from_imu_that_is_no_rotation_is_refused_before_the_service_starts(quaternion, monkeypatch):
+    from pydantic import ValidationError
+
+    from services.settings import ServiceSettings
+
+    monkeypatch.setenv("AFFORD_ROS__CLOUD_FROM_IMU", quaternion)
+    with pytest.raises(ValidationError, match="not a unit quaternion"):
+        ServiceSettings()
+
+
+def test_environment_variables_configure_the_ros_input(monkeypatch):
+    from services.settings import ServiceSettings
+
+    monkeypatch.setenv("AFFORD_ROS__POINTS", "/camera/depth/points")
+    monkeypatch.setenv("AFFORD_ROS__CLOUD_FROM_IMU", "[0, 0, 0.7071068, 0.7071068]")
+    monkeypatch.setenv("AFFORD_ROS__KEY_FORMATS", '["ros2dds"]')
+    settings = ServiceSettings().ros
+    assert settings.points == "/camera/depth/points" and settings.key_formats == ["ros2dds"]
+    assert settings.cloud_from_imu == pytest.approx([0, 0, 0.7071068, 0.7071068])
+
+
+def _zenoh_ok():
+    try:
+        import zenoh  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def rmw_zenoh_key(topic: str, typename: str, domain: int = 0) -> str:
+    """The key rmw_zenoh puts a message on: type in DDS form and the type's RIHS01 hash (rosbags computes
+    it from the definition, as rosidl does)."""
+    from services.ros import dds_type
+
+    return f"{domain}/{topic.strip('/')}/{dds_type(typename)}/{STORE.hash_rihs01(typename)}"
+
+
+@pytest.fixture
+def ros_assembler(tmp_path, monkeypatch):
+    """An assembler (in a thread) with a router, taking /robot1/points and /robot1/imu."""
+    import threading
+
+    from services.assembler import AssemblerService
+    from services.launch import free_port
+    from services.node import Node
+    from services.settings import ServiceSettings
+    from services.transport import open_session
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_session([], mode="router", listen=[endpoint])
+    monkeypatch.setenv("AFFORD_ROS__POINTS", "/robot1/points")
+    monkeypatch.setenv("AFFORD_ROS__IMU", "/robot1/imu")
+    monkeypatch.setenv("AFFORD_SERVICE__MAX_LAG", "600")
+    node = Node("assembler", "robot1", [endpoint], ServiceSettings(), rrd=tmp_path / "a.rrd")
+    service = AssemblerService(node)
+    thread = threading.Thread(target=service.run, daemon=True)
+    thread.start()
+    client = open_session([endpoint])
+    try:
+        yield service, client
+    finally:
+        node.stop_event.set()
+        thread.join(30)
+        client.close()
+        router.close()
+
+
+@pytest.mark.skipif(not _zenoh_ok(), reason="zenoh is not installed")
+def test_the_assembler_takes_clouds_and_imu_on_both_key_formats_and_answers_bad_ones(ros_assembler):
+    from conftest import eventually
+
+    from affordwire import messages
+    from services.transport import Keys
+
+    service, client = ros_assembler
+    errors, poses = [], []
+    keys = Keys("robot1")
+    subscribers = [
+        client.declare_subscriber(keys.error("assembler"), lambda s: errors.append(s.payload.to_bytes())),
+        client.declare_subscriber(keys.pose, lambda s: poses.append(s.payload.to_bytes())),
+    ]
+    # a floor as a depth camera (x right, y down, z ahead) sees it, with missing returns
+    rng = np.random.default_rng(1)
+    u = rng.uniform(-1, 1, (60, 80, 2))
+    floor = np.stack([u[..., 0] * 2, np.full(u.shape[:2], 1.2), 2 + u[..., 1] * 1.5], axis=-1)
+    floor[::7, ::5] = np.nan
+    import zenoh
+
+    publishers = {}
+
+    def put(key: str, payload: bytes) -> None:
+        """Once the assembler's subscription has reached this session, with BLOCK (zenoh's default, DROP,
+        loses samples under load)."""
+        if key not in publishers:
+            block = zenoh.CongestionControl.BLOCK
+            publishers[key] = client.declare_publisher(key, congestion_control=block)
+            assert eventually_matched(publishers[key]), key
+        publishers[key].put(payload)
+
+    base = time.time()
+    put(
+        rmw_zenoh_key("/robot1/imu", ros.IMU),
+        cdr(imu_message([0.0, -G, 0.0], sec=int(base), nanosec=0, frame_id="lidar"), ros.IMU),
+    )
+    put("robot1/imu", cdr(imu_message([0.0, 0.0, 1.0], sec=int(base), nanosec=0), ros.IMU))  # in g
+    time.sleep(0.5)
+    for k, key in enumerate([rmw_zenoh_key("/robot1/points", ros.POINTCLOUD2), "robot1/points"]):
+        message = cloud_message(floor, sec=int(base), nanosec=(k + 1) * 100_000_000, frame_id="lidar")
+        put(key, cdr(message))
+    put("robot1/points", b"\x00\x01\x00\x00garbage")
+    assert eventually(lambda: len(poses) == 2 and len(errors) == 2, timeout=20), (len(poses), errors)
+    imu_reason, cloud_reason = sorted(messages.parse(messages.Error, e).reason for e in errors)
+    assert "not gravity at rest" in imu_reason and "not a CDR sensor_msgs/msg/PointCloud2" in cloud_reason
+    pose = messages.parse(messages.Pose, poses[0])
+    assert pose.child_frame_id == "lidar"
+    assert service.ros.counts.clouds == 2 and service.ros.counts.with_gravity == 2
+    assert service.ros.counts.nonfinite == 2 * len(range(0, 60, 7)) * len(range(0, 80, 5))
+    # the Imu's gravity (down = +y of the camera) reached the assembler, in the odometry frame
+    gravity_sum = service.assembler._gravity_sum
+    np.testing.assert_allclose(gravity_sum / np.linalg.norm(gravity_sum), [0, 1, 0], atol=1e-6)
+    for subscriber in subscribers:
+        subscriber.undeclare()
+
+
+# -- end to end: a ROS 2 robot on rmw_zenoh keys -------------------------------------------------------------
+
+
+def organised_cloud(sequence, index: int) -> np.ndarray:
+    """A depth frame of an afford synth sequence as the organised cloud a ROS depth driver publishes
+    (depth_image_proc's point_cloud_xyz): one point per 2 x 2 block at its mean measured depth, NaN where
+    the block has none, in the camera's optical frame (x right, y down, z ahead). (H/2, W/2, 3)."""
+    from affordcore.sequence import DEPTH_SCALE, INVALID_DEPTH
+
+    depth = sequence.depth(index)
+    rows, columns = depth.shape[0] // 2, depth.shape[1] // 2
+    depth = depth[: rows * 2, : columns * 2]
+    measured = (depth != 0) & (depth != INVALID_DEPTH)
+    total = np.where(measured, depth, 0).reshape(rows, 2, columns, 2).sum(axis=(1, 3), dtype=np.float64)
+    count = measured.reshape(rows, 2, columns, 2).sum(axis=(1, 3))
+    z = np.divide(total, count, out=np.full(total.shape, np.nan), where=count > 0) * DEPTH_SCALE
+    v, u = np.mgrid[0:rows, 0:columns] * 2 + 0.5
+    k = sequence.intrinsics
+    return np.stack([(u - k[0, 2]) / k[0, 0] * z, (v - k[1, 2]) / k[1, 1] * z, z], axis=-1)
+
+
+def ros_stream(sequence, indices, start: float, period: float, frame_id: str = "camera_depth_optical_frame"):
+    """(stamp, PointCloud2 CDR, Imu CDR) per frame: the clouds of `organised_cloud` and what a level IMU on
+    the camera reads (the specific force: g up, i.e. -g times gravity's direction in the camera frame),
+    stamped `period` apart from `start`."""
+    for k, index in enumerate(indices):
+        stamp = start + k * period
+        sec, nanosec = int(stamp), int(round((stamp - int(stamp)) * 1e9)) % 1_000_000_000
+        cloud = cloud_message(organised_cloud(sequence, index), sec=sec, nanosec=nanosec, frame_id=frame_id)
+        down = sequence.gravity(index)
+        imu = imu_message(-G * down, sec=sec, nanosec=nanosec, frame_id=frame_id)
+        yield stamp, cdr(cloud), cdr(imu, ros.IMU)
+
+
+def _angle_deg(a, b) -> float:
+    return float(np.degrees(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+
+
+@pytest.mark.slow
+def test_a_ros2_robot_on_rmw_zenoh_keys_gets_affordance_maps(generated_sequence, tmp_path):
+    """PointCloud2 and Imu as rmw_zenoh publishes them (CDR on <domain>/<topic>/<DDS type>/<RIHS01 hash>),
+    through the three services, to the maps `afford watch` writes; the IMU's up-pointing acceleration must
+    come out as a map whose up is the room's."""
+    import zenoh
+    from test_end_to_end import AFFORD, EVERY_FRAME, _assert_same_as_afford_map, _check_maps, _latest_cloud
+
+    from affordcore.sequence import read_sequence
+    from services.launch import Stack
+    from services.transport import Keys
+
+    sequence = read_sequence(generated_sequence)
+    indices = list(range(0, 120, 3))  # 40 frames, as the depth-frame end-to-end test
+    env = {
+        **EVERY_FRAME,
+        "AFFORD_ROS__POINTS": "/robot1/camera/points",
+        "AFFORD_ROS__IMU": "/robot1/imu",
+        "AFFORD_SERVICE__RECORDING_ID": "e2e-ros",
+    }
+    stack = Stack(tmp_path / "run", env=env).start()
+    try:
+        watch = subprocess.Popen(
+            AFFORD
+            + ["watch", "--connect", stack.endpoint, "--robot", stack.robot, "--frames", "40"]
+            + ["--timeout", "240", "--out", str(tmp_path / "maps")],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        session = stack.session()
+        try:
+            block = zenoh.CongestionControl.BLOCK
+            points = session.declare_publisher(
+                rmw_zenoh_key("/robot1/camera/points", ros.POINTCLOUD2), congestion_control=block
+            )
+            imu = session.declare_publisher(rmw_zenoh_key("/robot1/imu", ros.IMU), congestion_control=block)
+            assert eventually_matched(points) and eventually_matched(imu), stack.logs()
+            began = time.monotonic()
+            for k, (_, cloud, reading) in enumerate(ros_stream(sequence, indices, time.time(), 1 / 30)):
+                imu.put(reading)  # the IMU's reading just before the cloud, as at 200 Hz
+                points.put(cloud)
+                time.sleep(max(0.0, began + (k + 1) / 30 - time.monotonic()))  # a 30 Hz camera
+            list(session.get(Keys(stack.robot).key("status", "*"), timeout=10.0))  # behind the samples
+        finally:
+            session.close()
+        watched, _ = watch.communicate(timeout=300)
+        assert watch.returncode == 0, watched[-3000:] + stack.logs()
+        cloud = _latest_cloud(stack)
+    finally:
+        codes = stack.stop()
+    assert codes == {"assembler": 0, "features": 0, "inference": 0, "router": 0}, stack.logs()
+    assert cloud.frames == 40
+    _assert_same_as_afford_map(cloud, _check_maps(tmp_path / "maps", 40, watched))
+    log = (tmp_path / "run" / "assembler.log").read_text()
+    assert "0 rejected" in log and "40 clouds" in log and "40 with an Imu gravity" in log, log[-3000:]
+    assert "NaN or infinite and dropped" in log
+    # the map's up, in the odometry frame (the first camera's), is the room's: -gravity of frame 0, to within
+    # the registration's drift (KISS-ICP turns 7 degrees off over this walk, by the depth-frame path alike,
+    # and the IMU's gravity is averaged through those poses). An IMU read with the wrong sign would turn the
+    # map upside down: 170-180 degrees
+    from affordwire import messages
+
+    world_from_odom = messages.pose_matrix(cloud.world_from_input)
+    assert _angle_deg(world_from_odom[:3, :3].T @ [0, 0, 1], -sequence.gravity(0)) < 10.0
+
+
+def eventually_matched(publisher, timeout: float = 20.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while not publisher.matching_status.matching:
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
