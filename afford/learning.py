@@ -68,7 +68,13 @@ def train(
     learner: str = typer.Option("ssvm", "--learner", help=", ".join(LEARNERS)),
     out: Path = typer.Option(..., "--out", help="model file to write (JSON)"),
     C: float | None = typer.Option(
-        None, "--C", help="regularisation trade-off (learner's default when omitted)"
+        None,
+        "--C",
+        help="regularisation trade-off (learner's default when omitted; ssvm: this project's units, the "
+        "slack weighs C n^2 = 2500 x SVMperf's -c)",
+    ),
+    c_svmperf: float | None = typer.Option(
+        None, "--c-svmperf", help="ssvm only: C in SVMperf's -c units (C n^2 / 2500), the same at any n"
     ),
     seed: int = typer.Option(0, "--seed", help="seeds the room split and resampling"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
@@ -89,7 +95,10 @@ def train(
                 affordance,
                 learner,
                 Settings(),
-                {} if C is None else {"C": C},
+                {
+                    **({} if C is None else {"C": C}),
+                    **({} if c_svmperf is None else {"c_svmperf": c_svmperf}),
+                },
                 seed,
                 on_room=lambda name: bar.advance(task),
             )

@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from affordcore.learn.f1_argmax import f1_loss, most_violated, most_violated_double_loop
+from affordcore.learn.f1_argmax import f1_loss, most_violated, most_violated_double_loop, most_violated_sorted
 
 
 def _brute_force(scores: np.ndarray, labels: np.ndarray) -> float:
@@ -85,3 +85,42 @@ def test_f1_loss_values():
 def test_rejects_mismatched_inputs():
     with pytest.raises(ValueError, match="equal"):
         most_violated(np.zeros(3), np.ones(4))
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_selection_equals_the_sorted_sweep_with_ties_and_every_scale(seed):
+    """The O(n) selection (partition of the negatives that can flip) finds the optimum of the previous
+    sort-everything sweep and of SVMperf's double loop: random sizes, class ratios, score scales around the
+    flip thresholds (-1/(4P+2)), many exact ties (rounded scores, zeros, all equal)."""
+    rng = np.random.default_rng(1000 + seed)
+    for _ in range(25):
+        n = int(rng.integers(1, 600))
+        labels = np.where(rng.random(n) < rng.choice([0.01, 0.1, 0.5]), 1, -1)
+        labels[rng.integers(n)] = 1
+        scale = 10 ** rng.uniform(-7, 0)
+        scores = rng.normal(rng.uniform(-2, 0.5) * scale, scale, n) + rng.uniform(0, 2) * scale * (labels > 0)
+        kind = rng.integers(4)
+        if kind == 1:
+            scores = np.round(scores / scale, 1) * scale  # many ties
+        elif kind == 2:
+            scores[rng.random(n) < 0.5] = 0.0  # exact zeros: on the edge of "always a false positive"
+        elif kind == 3:
+            scores[:] = scores[0]  # all equal
+        new, old = most_violated(scores, labels), most_violated_sorted(scores, labels)
+        assert new.objective == pytest.approx(old.objective, rel=1e-12, abs=1e-12)
+        assert _value(new, scores, labels) == pytest.approx(new.objective, abs=1e-9)
+        if n <= 200:
+            assert new.objective == pytest.approx(
+                most_violated_double_loop(scores, labels).objective, rel=1e-12, abs=1e-12
+            )
+
+
+def test_selection_equals_the_sorted_sweep_at_training_scale():
+    """200,000 scores at the scale training gives them (tiny: the loose filter keeps every negative)."""
+    rng = np.random.default_rng(7)
+    labels = np.where(rng.random(200_000) < 1 / 1001, 1, -1)
+    for mean in (-3e-6, 0.0, -1e-4):
+        scores = rng.normal(mean, 1e-6, len(labels)) + 2e-6 * (labels > 0)
+        new, old = most_violated(scores, labels), most_violated_sorted(scores, labels)
+        assert new.objective == pytest.approx(old.objective, rel=1e-12)
+        assert (new.true_positives, new.false_positives) == (old.true_positives, old.false_positives)

@@ -1,4 +1,4 @@
-"""The loss-augmented argmax of the structured SVM for F1 (Joachims 2005), exactly, in O(n log n).
+"""The loss-augmented argmax of the structured SVM for F1 (Joachims 2005), exactly, in O(n).
 
 With the whole training set as one structured example, a labelling y' in {-1, +1}^n has the joint feature
 map Psi(x, y') = sum_i y'_i x_i, and the most violated constraint under margin rescaling is
@@ -12,11 +12,23 @@ searches all (P + 1)(N + 1) pairs. But for a fixed a the objective is concave in
 
     2 s_neg(b) + 2a / ((P + a + b)(P + a + b + 1))
 
-is a decreasing sequence of scores plus a decreasing positive term, so the best b is the count of positive
-increments; and that second term grows with a (its derivative in a has the sign of (P + b)^2 + P + b - a^2,
-positive since a <= P), so the best b never decreases as a grows. One sweep of a with a pointer on b after
-sorting finds the exact optimum: O(n log n) for the sort, O(n) for the sweep. And only negatives scoring
-above -1 / (4P + 2) can ever be labelled positive, so only those are sorted.
+is a decreasing sequence of scores plus a decreasing positive term, so the best b, b*(a), is the count of
+positive increments; and that second term grows with a (its derivative in a has the sign of
+(P + b)^2 + P + b - a^2, positive since a <= P), so b*(a) never decreases as a grows.
+
+`most_violated` uses this without sorting the negatives:
+
+* every negative scoring above 0 has a positive increment for every a: it is a false positive of every
+  b*(a), so only its sum is needed, never its rank;
+* b*(P) = B, the most false positives any a takes, is the first j at which fewer than j + 1 negatives score
+  above -P / ((2P + j)(2P + j + 1)): a bisection on j, each step one count over the candidates;
+* so only the negatives ranked between those two counts (scores in (-1 / (4P + 2), 0]) can flip with a:
+  they are selected with `np.argpartition` and only they are sorted, and b*(a) for every a comes from a
+  bisection vectorised over a (O(P log B)).
+
+O(n) for the selection and the counts (a few passes over the scores), plus the sort of the few that can flip.
+`most_violated_sorted` (the previous sweep: a stable sort of every candidate and a pointer on b) and
+`most_violated_double_loop` (SVMperf's search) are kept as references for the tests and the benchmark.
 """
 
 from __future__ import annotations
@@ -50,11 +62,91 @@ class Violation:
 
 def most_violated(scores: np.ndarray, labels: np.ndarray) -> Violation:
     """The exact argmax over all labellings of Delta_F1(y, y') + sum_i y'_i s_i (labels in {-1, +1} or {0,
-    1})."""
+    1}), in O(n) plus the sort of the negatives that can flip (module docstring)."""
+    scores, positive = _inputs(scores, labels)
+    pos_index = np.flatnonzero(positive)
+    pos_order = pos_index[np.argsort(-scores[pos_index], kind="stable")]
+    n_pos = len(pos_order)
+    negative = ~positive
+    all_neg = float(scores.sum() - scores[pos_index].sum())
+    # A false positive's increment is 2 s + (a term at most 1 / (2P + 1)): a negative scoring at or below
+    # -1 / (4P + 2) is never labelled +1. Those above 0 always are (their increment is positive for every a).
+    above = scores > 0
+    sure = np.flatnonzero(above & negative)
+    b0, sure_sum = len(sure), float(scores[sure].sum())
+    maybe = np.flatnonzero(~above & negative & (scores > -1.0 / (4 * n_pos + 2)))
+    maybe, flip = _flippable(maybe, scores[maybe], b0, n_pos)
+    maybe_scores = scores[maybe]
+    if flip < len(maybe):
+        top = np.argpartition(-maybe_scores, flip)[:flip] if flip else np.empty(0, dtype=np.int64)
+    else:
+        top = np.arange(len(maybe))
+    top = top[np.argsort(-maybe_scores[top], kind="stable")]
+    s_flip = maybe_scores[top]
+    neg_order = np.concatenate([sure, maybe[top]])
+
+    s_pos = scores[pos_order]
+    prefix_pos = np.concatenate([[0.0], np.cumsum(s_pos)])
+    prefix_neg = np.concatenate([[sure_sum], sure_sum + np.cumsum(s_flip)])  # prefix_neg[b - b0]
+    a = np.arange(n_pos + 1, dtype=np.float64)
+    # b*(a) - b0: the count of flippable j with a positive increment; the increments decrease in j, so a
+    # bisection per a, vectorised over a
+    lo_a = np.zeros(n_pos + 1, dtype=np.int64)
+    hi_a = np.full(n_pos + 1, flip, dtype=np.int64)
+    while flip and np.any(lo_a < hi_a):
+        mid = (lo_a + hi_a) // 2
+        j = b0 + mid
+        gain = 2 * s_flip[np.minimum(mid, flip - 1)] + 2.0 * a / ((n_pos + a + j) * (n_pos + a + j + 1.0))
+        lo_a, hi_a = np.where(gain > 0, np.minimum(mid + 1, hi_a), lo_a), np.where(gain > 0, hi_a, mid)
+    b = b0 + lo_a
+    values = f1_loss(a, b, n_pos) + 2 * prefix_pos - prefix_pos[-1] + 2 * prefix_neg[lo_a] - all_neg
+    best = int(np.argmax(values))  # the first maximum, as the sweep keeps
+    return _violation((float(values[best]), best, int(b[best])), pos_order, neg_order, scores, n_pos)
+
+
+def _flippable(index: np.ndarray, values: np.ndarray, b0: int, n_pos: int) -> tuple[np.ndarray, int]:
+    """The candidates (scores in (-1 / (4P + 2), 0]) that can be false positives, and how many of them
+    (at most) are: B - b0, where B = b*(P) is the first j >= b0 with at most j negatives scoring above
+    -half_gain(j) (b0 of them score above 0). Each candidate passes that threshold for j below a rank limit
+    r (the root of a quadratic in j; rounded up, so B can only come out too large, which the exact
+    bisection per a then corrects), and the counts over j are one histogram of r: two passes, no sort. The
+    B best all score above -half_gain(B - 1), which leaves about B - b0 candidates to sort."""
+    if not len(values):
+        return index, 0
+    with np.errstate(divide="ignore"):
+        ratio = n_pos / np.abs(
+            values
+        )  # (2P + j)(2P + j + 1) < ratio: the candidate counts at j (values <= 0)
+    limit = np.floor((np.sqrt(1.0 + 4.0 * ratio) - 1.0) / 2.0 - 2.0 * n_pos) + 2.0
+    top = b0 + len(values) + 1
+    hist = np.bincount(np.clip(limit, 0, top).astype(np.int64), minlength=top + 1)
+    j = np.arange(b0, top)
+    counted = len(values) - np.cumsum(hist)[j]  # candidates with a limit above j
+    big = int(j[np.argmax(b0 + counted <= j)])  # the last j always qualifies
+    if big == b0:
+        return index[:0], 0
+    keep = values > -_half_gain(big - 1, n_pos)
+    index = index[keep]
+    return index, min(big - b0, len(index))
+
+
+def _half_gain(j: int, n_pos: int) -> float:
+    """Half the largest loss term of the (j+1)-th false positive's increment (at a = P)."""
+    return n_pos / ((2.0 * n_pos + j) * (2.0 * n_pos + j + 1.0))
+
+
+def _inputs(scores, labels) -> tuple[np.ndarray, np.ndarray]:
     scores = np.asarray(scores, dtype=np.float64)
     positive = np.asarray(labels) > 0
     if scores.shape != positive.shape or scores.ndim != 1:
         raise ValueError(f"scores {scores.shape} and labels {positive.shape} must be two equal 1-d arrays")
+    return scores, positive
+
+
+def most_violated_sorted(scores: np.ndarray, labels: np.ndarray) -> Violation:
+    """The same argmax by the previous O(n log n) sweep: a stable sort of every negative scoring above
+    -1 / (4P + 2) and a pointer on b. For tests and the benchmark that measures what the selection saves."""
+    scores, positive = _inputs(scores, labels)
     pos_order = np.flatnonzero(positive)[np.argsort(-scores[positive], kind="stable")]
     n_pos = len(pos_order)
     # A false positive's increment is 2 s + (a term at most 1 / (2P + 1)), so a negative scoring at or below
@@ -93,8 +185,7 @@ def _advance(b: int, a: int, s_neg: np.ndarray, n_pos: int) -> int:
 def most_violated_double_loop(scores: np.ndarray, labels: np.ndarray) -> Violation:
     """The same argmax by SVMperf's search of every (a, b) pair: O(P N), vectorised per a. For tests and the
     benchmark that measures what the sweep saves."""
-    scores = np.asarray(scores, dtype=np.float64)
-    positive = np.asarray(labels) > 0
+    scores, positive = _inputs(scores, labels)
     pos_order = np.flatnonzero(positive)[np.argsort(-scores[positive], kind="stable")]
     neg_order = np.flatnonzero(~positive)[np.argsort(-scores[~positive], kind="stable")]
     s_pos, s_neg = scores[pos_order], scores[neg_order]

@@ -1,26 +1,51 @@
 """Structured SVM that optimises F1 directly (Joachims 2005), trained with 1-slack cutting planes.
 
-The whole training set is one structured example. With Psi(x, y) = (1/n) sum_i y_i [x_i, 1] (a bias column
-that is regularised like the rest, as SVMperf's; averaged, so that a plane is the size of one example and the
-cutting-plane iteration bound, which grows with C max|plane|^2, does not grow with n^2: unaveraged, 50,000
-Gaussian examples did not converge in 300 iterations, averaged they converge in 37-167), the problem is
+The whole training set is one structured example. With Psi(x, y) = (1/n) sum_i y_i [x_i, b] (b = `bias`,
+a bias feature regularised like the rest, as SVMperf's `--b`; Psi averaged, so that a plane is the size of
+one example), the problem is
 
-    min_w  1/2 |w|^2 + C xi    s.t.  w . (Psi(y) - Psi(y')) >= Delta(y, y') - xi   for every labelling y'
+    min_w  1/2 |w|^2 + C n^2 xi    s.t.  w . (Psi(y) - Psi(y')) >= Delta(y, y') - xi   for every labelling y'
 
-with Delta = loss_scale x (1 - F1). `SSVMSettings.C` is SVMperf's C, for its unaveraged Psi; with w = n w_perf
-the same problem weighs the slack by C n^2, so a C means the same at every n (and the iteration count,
-governed by C and how many labels a plane flips, does not grow with n). The default C was chosen on held-out
-generated rooms (docs/learning.md). Each iteration
-adds the most violated labelling (exact, O(n log n): `f1_argmax.most_violated`) to a working set and re-solves
-the working set's dual with OSQP, warm-started from the previous solution:
+with Delta = loss_scale x (1 - F1) (percent, as SVMperf).
 
-    max_alpha  Delta . alpha - 1/2 |D^T alpha|^2    s.t.  alpha >= 0,  sum(alpha) <= C,    w = D^T alpha
+**Units of C.** `SSVMSettings.C` is the project's C: the slack weighs C n^2. Written with Psi summed and
+labels +-1 (w_sum = w / n) it is the C of 1/2 |w_sum|^2 + C xi. SVMperf's is not that: for F1 it scales the
+labels to +-50/n (`svm_struct_api.c`, 100 / 2 / n), so its Psi is 50 times ours and it solves the same
+problem when
 
-where row k of D is Psi(y) - Psi(y'_k). Planes whose alpha stays zero for `prune_after` iterations are
-dropped, as SVMperf does. It stops when no labelling is violated by more than `epsilon` beyond the current
-slack, or (given validation rooms) when their F1 has not improved for `patience` iterations. Every
-iteration's weights are kept, with training F1 and (given a validation set) validation F1, so the caller
-picks the best on validation rooms. It trains on every example given: no subsampling.
+    C_project = 2500 C_svmperf / n^2,       w_project = 50 w_svmperf,
+
+i.e. the slack weight is C n^2 = 2500 C_svmperf, whatever n. `SSVMSettings(c_svmperf=...)` takes SVMperf's
+`-c` directly (`c_from_svmperf` / `c_to_svmperf` convert); since the slack weight 2500 C_svmperf does not
+depend on n, SVMperf's units are the ones in which a C means the same for any training-set size, and the
+default is given in them (`DEFAULT_C_SVMPERF`, chosen on generated validation rooms: docs/learning.md).
+
+**The solver** (`method`):
+
+* ``"cutting-plane"`` (default): SVMperf's 1-slack algorithm (`-w 3`). Each iteration adds the most
+  violated labelling (exact, O(n): `f1_argmax.most_violated`) to the working set and re-solves its QP.
+* ``"bundle"``: the same planes, plus the line search of OCAS (Franc & Sonnenburg 2009): the
+  QP's solution w_c is not taken as the next iterate; the true objective F(w) = 1/2 |w|^2 + C n^2 R(w) is
+  minimised on the segment from the best point so far w_b through w_c, and the next plane is cut at
+  0.9 w_b + 0.1 w_c. Scores are linear in w, so with X w_b and X w_c known every point on the line is
+  scored in O(n) and the line search costs argmax calls, not passes over X. It stops when F(w_b) exceeds the
+  working set's lower bound by at most C n^2 epsilon: the guarantee SVMperf's stopping rule gives
+  (F(w) - min F <= C n^2 epsilon), so both stop at the same accuracy of the same objective.
+
+The working set's QP, min 1/2 |w|^2 + C n^2 xi s.t. plane_k . w >= Delta_k - xi, is solved with OSQP in its
+primal form (d + 2 variables; its dual, over the planes' Gram matrix, is ill-conditioned: planes are sums
+over thousands of examples and nearly parallel), one OSQP problem kept for the whole run: a fixed number
+of constraint rows (free until a plane takes them), updated in place (`update(Ax=, l=, q=)`, a numeric
+refactorisation, no new setup) and warm-started from the previous primal and dual solution. Planes whose
+multiplier stays zero for `prune_after` iterations are dropped, as SVMperf does, and their rows freed.
+
+Scores X w are float32 matrix-vector products on the caller's float32 X (training and validation alike;
+X is never copied to float64), and a plane is summed from the rows its labelling flips (or, when that is
+most of the data, from the class totals minus the rest) in float64.
+
+Every iteration's weights are kept with training F1 and (given a validation set) validation F1, so the
+caller picks the best on validation rooms; with a validation set it also stops once validation F1 has not
+improved for `patience` iterations. It trains on every example given: no subsampling.
 """
 
 from __future__ import annotations
@@ -33,33 +58,67 @@ import numpy as np
 
 from .f1_argmax import f1_at, most_violated
 
+SVMPERF_LABEL = 50.0  # SVMperf's F1 labels are +-SVMPERF_LABEL / n
+DEFAULT_C_SVMPERF = 1.0e4  # SVMperf's -c; the slack weighs 2500 x this (chosen on generated validation rooms)
+
+
+def c_from_svmperf(c_svmperf: float, n: int) -> float:
+    """SVMperf's -c (F1 loss, n training examples) as this module's C: 2500 C_svmperf / n^2."""
+    return SVMPERF_LABEL**2 * float(c_svmperf) / float(n) ** 2
+
+
+def c_to_svmperf(C: float, n: int) -> float:
+    """This module's C as SVMperf's -c for n training examples: C n^2 / 2500."""
+    return float(C) * float(n) ** 2 / SVMPERF_LABEL**2
+
 
 @dataclass(frozen=True)
 class SSVMSettings:
-    C: float = 2.0  # SVMperf's C (Psi summed, not averaged): the solver weighs the slack by C n^2
+    # The project's C: the slack weighs C n^2 (= 2500 C_svmperf). At most one of C and c_svmperf; with
+    # neither, c_svmperf = DEFAULT_C_SVMPERF.
+    C: float | None = None
+    c_svmperf: float | None = None  # SVMperf's -c, the same at any n: the slack weighs 2500 x this
+    bias: float = 1.0  # the bias feature's value, as SVMperf's --b (0: no bias)
     loss_scale: float = 100.0  # Delta in percent, as SVMperf
-    epsilon: float = 0.1  # stop when the most violated constraint is within this of the slack (loss units)
+    epsilon: float = 0.1  # stop within this (loss units) of the optimum's slack, as SVMperf's -e
+    method: str = "cutting-plane"  # SVMperf's -w 3; or "bundle" (OCAS's line search: fewer iterations)
     max_iterations: int = 500
-    prune_after: int = 50
+    prune_after: int = 50  # drop a plane whose multiplier has been zero this many iterations
+    warm_start: bool = True  # one OSQP problem updated and warm-started; False: set up afresh every solve
     patience: int = 100  # with a validation set: stop once its F1 has not improved for this many iterations
+
+    def __post_init__(self):
+        if self.C is not None and self.c_svmperf is not None:
+            raise ValueError("give C (this project's units) or c_svmperf (SVMperf's -c), not both")
+        if self.method not in ("bundle", "cutting-plane"):
+            raise ValueError(f"unknown method {self.method!r}: bundle or cutting-plane")
+
+    def slack_weight(self, n: int) -> float:
+        """The weight of the slack in the averaged problem: C n^2 = 2500 C_svmperf."""
+        if self.C is not None:
+            return float(self.C) * float(n) ** 2
+        c = DEFAULT_C_SVMPERF if self.c_svmperf is None else self.c_svmperf
+        return SVMPERF_LABEL**2 * float(c)
 
 
 @dataclass
 class Iteration:
     number: int
-    weights: np.ndarray  # (n_features + 1,): the last entry is the bias
+    weights: np.ndarray  # (n_features + 1,): the last entry multiplies the bias feature (`bias`)
     train_f1: float
     validation_f1: float | None
-    violation: float  # how far the newest plane exceeded the slack
+    violation: float  # cutting-plane: how far the newest plane exceeded the slack; bundle: the gap / (C n^2)
     slack: float
     planes: int
     seconds: float
+    objective: float = float("nan")  # F(w) = 1/2 |w|^2 + C n^2 R(w) of these weights
 
 
 @dataclass
 class SSVMResult:
     iterations: list[Iteration] = field(default_factory=list)
     converged: bool = False
+    bias: float = 1.0
 
     @property
     def best(self) -> Iteration:
@@ -72,9 +131,25 @@ class SSVMResult:
         return max(self.iterations, key=key)
 
 
-def decision(X: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Scores w . [x, 1]."""
-    return X @ weights[:-1].astype(X.dtype, copy=False) + weights[-1]
+def decision(X: np.ndarray, weights: np.ndarray, bias: float = 1.0) -> np.ndarray:
+    """Scores w . [x, bias], in X's precision (float32 for float32 X: no float64 copy of X)."""
+    return X @ weights[:-1].astype(X.dtype, copy=False) + weights[-1] * bias
+
+
+def objective(X: np.ndarray, y: np.ndarray, weights: np.ndarray, settings: SSVMSettings) -> float:
+    """F(w) = 1/2 |w|^2 + C n^2 R(w), R the largest violation over all labellings (in loss units)."""
+    y = np.where(np.asarray(y) > 0, 1, -1).astype(np.int8)
+    scores = decision(X, weights, settings.bias).astype(np.float64)
+    return 0.5 * float(weights @ weights) + settings.slack_weight(len(y)) * _risk(scores, y, settings)
+
+
+def _risk(scores: np.ndarray, y: np.ndarray, settings: SSVMSettings, violator=None) -> float:
+    """R(w) = max_y' Delta(y') - w . (Psi(y) - Psi(y')) from the scores alone."""
+    n = len(y)
+    violator = violator or most_violated(scores / (n * settings.loss_scale), y)
+    positive = y > 0
+    own = float(scores[positive].sum()) * 2 - float(scores.sum())  # sum_i y_i s_i
+    return settings.loss_scale * violator.objective - own / n
 
 
 def train_ssvm(
@@ -88,30 +163,40 @@ def train_ssvm(
     y = np.where(np.asarray(y) > 0, 1, -1).astype(np.int8)
     if not (y > 0).any():
         raise ValueError("no positive examples to learn from")
-    weights = np.zeros(X.shape[1] + 1)
-    planes = np.empty((0, X.shape[1] + 1))
-    losses = np.empty(0)
-    idle = np.empty(0, dtype=int)
-    result = SSVMResult()
+    n, dims = len(y), X.shape[1] + 1
+    weight = settings.slack_weight(n)
+    planes = _Planes(X, y, settings.bias)
+    qp = _WorkingSet(dims, weight, persistent=settings.warm_start)
+    result = SSVMResult(bias=settings.bias)
+    yv = None if validation is None else np.where(np.asarray(validation[1]) > 0, 1, -1).astype(np.int8)
     start = time.perf_counter()
+    # the best point so far (bundle) or the current iterate (cutting planes), its scores and objective
+    w_b = np.zeros(dims)
+    s_b = np.zeros(n)
+    sv_b = None if validation is None else np.zeros(len(yv))
+    viol_b = most_violated(s_b, y)
+    f_b = weight * _risk(s_b, y, settings, viol_b)
+    cut_scores, cut_violator = s_b, viol_b
+    bundle = settings.method == "bundle"
     for number in range(1, settings.max_iterations + 1):
-        scores = decision(X, weights)
-        # argmax of loss_scale Delta + Psi(y') . w
-        violator = most_violated(scores / (len(y) * settings.loss_scale), y)
-        plane = _plane(X, y, violator.labelling)
-        loss = settings.loss_scale * violator.loss
-        slack = max(0.0, float(np.max(losses - planes @ weights))) if len(losses) else 0.0
-        violation = loss - float(plane @ weights) - slack
+        # the new plane: at w_b (cutting planes: the iterate) or at 0.9 w_b + 0.1 w_c (bundle)
+        plane, loss = planes.plane(cut_violator, settings.loss_scale)
+        slack = qp.slack(w_b)
+        if bundle:
+            violation = (f_b - qp.lower_bound) / weight if number > 1 else np.inf
+        else:
+            violation = loss - float(plane @ w_b) - slack
         result.iterations.append(
             Iteration(
                 number,
-                weights.copy(),
-                f1_at(scores, y),
-                None if validation is None else f1_at(decision(validation[0], weights), validation[1]),
+                w_b.copy(),
+                f1_at(s_b, y),
+                None if validation is None else f1_at(sv_b, yv),
                 violation,
                 slack,
-                len(losses),
+                qp.count,
                 time.perf_counter() - start,
+                f_b,
             )
         )
         if on_iteration:
@@ -121,76 +206,249 @@ def train_ssvm(
             break
         if validation is not None and number - result.best.number >= settings.patience:
             break
-        planes, losses = np.vstack([planes, plane]), np.append(losses, loss)
-        weights, slack, alpha = _solve_working_set(
-            planes, losses, settings.C * float(len(y)) ** 2, np.append(weights, slack)
-        )
-        idle = np.append(idle, 0)
-        idle = np.where(alpha > 1e-9 * max(1.0, alpha.max(initial=0.0)), 0, idle + 1)
-        keep = idle <= settings.prune_after
-        planes, losses, alpha, idle = planes[keep], losses[keep], alpha[keep], idle[keep]
+        qp.add(plane, loss)
+        w_c = qp.solve(settings.prune_after)
+        s_c = decision(X, w_c, settings.bias).astype(np.float64)
+        sv_c = None if validation is None else decision(validation[0], w_c, settings.bias).astype(np.float64)
+        if not bundle:
+            w_b, s_b, sv_b = w_c, s_c, sv_c
+            cut_scores = s_b
+            cut_violator = most_violated(cut_scores / (n * settings.loss_scale), y)
+            f_b = 0.5 * float(w_b @ w_b) + weight * _risk(s_b, y, settings, cut_violator)
+            continue
+        tau, f_b, viol_b = _line_search(w_b, w_c, s_b, s_c, y, settings, weight, f_b, viol_b)
+        w_b = w_b + tau * (w_c - w_b)
+        s_b = s_b + tau * (s_c - s_b)
+        if validation is not None:
+            sv_b = sv_b + tau * (sv_c - sv_b)
+        cut_scores = 0.9 * s_b + 0.1 * s_c  # where OCAS cuts: slightly towards the QP's solution
+        cut_violator = most_violated(cut_scores / (n * settings.loss_scale), y)
     return result
 
 
-def _plane(X: np.ndarray, y: np.ndarray, labelling: np.ndarray) -> np.ndarray:
-    """Psi(y) - Psi(y') = (2/n) sum over the examples y' gets wrong of y_i [x_i, 1]. Early planes flip most
-    of the data: those go through one float32 matrix-vector product per block, summed in float64."""
-    differ = np.flatnonzero(labelling != y)
-    if len(differ) < len(y) // 8:
-        total = y[differ].astype(np.float64) @ X[differ]
-    else:
-        signs = np.zeros(len(y), dtype=X.dtype)
-        signs[differ] = y[differ]
-        block = 1 << 16
-        total = np.sum(
-            [signs[i : i + block] @ X[i : i + block] for i in range(0, len(y), block)],
-            axis=0,
-            dtype=np.float64,
-        )
-    return np.append(2.0 * total, 2.0 * float(y[differ].sum())) / len(y)
+def _line_search(w_b, w_c, s_b, s_c, y, settings, weight, f_b, at_b, steps: int = 6):
+    """min over tau >= 0 of F(w_b + tau (w_c - w_b)), F convex: a quadratic plus C n^2 times R, a convex
+    piecewise-linear function of tau. Kelley's method in one dimension: each evaluation of R at a tau (one
+    O(n) argmax on interpolated scores) gives its value and slope; the lower model (the quadratic plus the
+    largest of those lines) is minimised exactly, and that is where R is evaluated next, until the model is
+    within a tenth of epsilon of F (or `steps` evaluations). `at_b` is the most violated labelling at w_b
+    (known from the previous search). Returns (tau, F at tau, the most violated labelling there)."""
+    n = len(y)
+    d = w_c - w_b
+    a2, a1, a0 = (
+        float(d @ d),
+        float(w_b @ d),
+        0.5 * float(w_b @ w_b),
+    )  # 1/2 |w(tau)|^2 = a0 + a1 tau + a2 tau^2/2
+    if a2 <= 0:
+        return 0.0, f_b, at_b
+    ds = s_c - s_b
+    yf = y.astype(np.float64)
+    y_ds, y_sb = float(ds @ yf) / n, float(s_b @ yf) / n
+
+    def evaluate(tau: float, v=None):
+        scores = s_b + tau * ds
+        v = v or most_violated(scores / (n * settings.loss_scale), y)
+        risk = settings.loss_scale * v.objective - (y_sb + tau * y_ds)
+        # slope of R along the line: d/dtau of (1/n) sum y'_i s_i(tau) - (1/n) sum y_i s_i(tau)
+        slope = float(v.labelling @ ds) / n - y_ds
+        return risk, slope, v
+
+    lines = []  # (tau_k, R_k, slope_k)
+    best = (0.0, f_b, at_b)
+    for tau, known in ((0.0, at_b), (1.0, None)):
+        risk, slope, v = evaluate(tau, known)
+        lines.append((tau, risk, slope))
+        f = a0 + a1 * tau + 0.5 * a2 * tau**2 + weight * risk
+        if f < best[1]:
+            best = (tau, f, v)
+    tolerance = 0.1 * settings.epsilon * weight
+    for _ in range(steps):
+        tau, model = _minimise_model(lines, a0, a1, a2, weight)
+        if best[1] - model <= tolerance:
+            break
+        risk, slope, v = evaluate(tau)
+        lines.append((tau, risk, slope))
+        f = a0 + a1 * tau + 0.5 * a2 * tau**2 + weight * risk
+        if f < best[1]:
+            best = (tau, f, v)
+    return best
 
 
-def _solve_working_set(planes: np.ndarray, losses: np.ndarray, C: float, warm: np.ndarray | None):
-    """The working set's QP, min 1/2 |w|^2 + C xi s.t. plane_k . w >= Delta_k - xi, xi >= 0, with OSQP.
-
-    Solved in its primal form, and each plane's dual variable alpha_k read from OSQP's multipliers: the dual's
-    Gram matrix of planes (sums over thousands of examples, many nearly parallel) is so ill-conditioned that
-    OSQP returned weights off by orders of magnitude, while the primal's quadratic term is the identity.
-    Rows are normalised to unit length and the variables rescaled to order one (w = s v, xi = t eta):
-    C n^2 reaches 1e12 on room data and OSQP crawled on the raw scales. Returns (w, xi, alpha)."""
-    import osqp
-    from scipy import sparse
-
-    k, dims = planes.shape
-    norms = np.linalg.norm(planes, axis=1)
-    norms = np.where(norms > 0, norms, 1.0)
-    t = max(float(losses.max(initial=0.0)), 1e-12)  # the loss scale
-    s = max(float(np.max(losses / norms, initial=0.0)), 1e-12)  # the weight scale that meets every plane
-    # [plane_k, 1] . [w, xi] >= Delta_k, scaled
-    rows = np.hstack([planes / norms[:, None], (t / (s * norms))[:, None]])
-    A = sparse.vstack(
-        [sparse.csc_matrix(rows), sparse.csc_matrix(([1.0], ([0], [dims])), shape=(1, dims + 1))]
-    ).tocsc()
-    P = sparse.diags(np.append(np.ones(dims), 0.0)).tocsc()
-    q = np.append(np.zeros(dims), C * t / s**2)
-    problem = osqp.OSQP()
-    problem.setup(
-        P=P,
-        q=q,
-        A=A,
-        l=np.append(losses / (s * norms), 0.0),
-        u=np.full(k + 1, np.inf),
-        verbose=False,
-        eps_abs=1e-6,
-        eps_rel=1e-6,
-        max_iter=100000,
-        polishing=True,
+def _minimise_model(lines, a0, a1, a2, weight) -> tuple[float, float]:
+    """min over tau >= 0 of a0 + a1 tau + a2 tau^2 / 2 + weight max_k (R_k + g_k (tau - tau_k)): the
+    minimiser lies where one line is active (a stationary point inside its interval) or at a crossing of
+    two lines (or at 0); with a handful of lines every candidate is tried."""
+    t = np.array([line[0] for line in lines])
+    r = np.array([line[1] for line in lines])
+    g = np.array([line[2] for line in lines])
+    offsets = r - g * t  # line k: offsets_k + g_k tau
+    candidates = [0.0]
+    candidates += list(np.maximum(0.0, -(a1 + weight * g) / a2))
+    for i in range(len(lines)):
+        for j in range(i + 1, len(lines)):
+            if g[i] != g[j]:
+                cross = (offsets[j] - offsets[i]) / (g[i] - g[j])
+                if cross > 0:
+                    candidates.append(float(cross))
+    taus = np.array(candidates)
+    models = (
+        a0
+        + a1 * taus
+        + 0.5 * a2 * taus**2
+        + weight * np.max(offsets[None, :] + g[None, :] * taus[:, None], 1)
     )
-    if warm is not None:
-        problem.warm_start(x=np.append(warm[:dims] / s, warm[dims] / t))
-    solution = problem.solve(raise_error=False)
-    if solution.x is None or not np.all(np.isfinite(solution.x)):
-        raise RuntimeError(f"OSQP failed on the working set ({solution.info.status})")
-    # up to one common factor: only compared with each other
-    alpha = np.clip(-solution.y[:k], 0.0, None) / norms
-    return s * solution.x[:dims], max(0.0, t * float(solution.x[dims])), alpha
+    k = int(np.argmin(models))
+    return float(taus[k]), float(models[k])
+
+
+class _Planes:
+    """Cutting planes Psi(y) - Psi(y') = (2/n) sum over the examples y' gets wrong of y_i [x_i, b], summed
+    from the rows that flip, or from the class totals minus the rest when most rows flip."""
+
+    block = 1 << 15
+
+    def __init__(self, X: np.ndarray, y: np.ndarray, bias: float):
+        self.X, self.y, self.bias = X, y, bias
+        self.positive = y > 0
+        self.pos_index, self.neg_index = np.flatnonzero(self.positive), np.flatnonzero(~self.positive)
+        self.pos_total = self._sum(self.pos_index)
+        self.neg_total = self._sum(self.neg_index)
+
+    def _sum(self, index: np.ndarray) -> np.ndarray:
+        total = np.zeros(self.X.shape[1])
+        for i in range(0, len(index), self.block):
+            total += self.X[index[i : i + self.block]].sum(axis=0, dtype=np.float64)
+        return total
+
+    def _class_sum(self, chosen: np.ndarray, members: np.ndarray, total: np.ndarray) -> np.ndarray:
+        """Sum of X over `chosen`, a subset of the class `members` (whose sum is `total`)."""
+        if len(chosen) <= len(members) // 2:
+            return self._sum(chosen)
+        mask = np.zeros(len(self.y), dtype=bool)
+        mask[members] = True
+        mask[chosen] = False
+        return total - self._sum(np.flatnonzero(mask))
+
+    def plane(self, violator, loss_scale: float) -> tuple[np.ndarray, float]:
+        labelling = violator.labelling
+        n = len(self.y)
+        missed = self.pos_index[labelling[self.pos_index] < 0]  # false negatives: y = +1
+        false_pos = self.neg_index[labelling[self.neg_index] > 0]  # false positives: y = -1
+        total = self._class_sum(missed, self.pos_index, self.pos_total) - self._class_sum(
+            false_pos, self.neg_index, self.neg_total
+        )
+        plane = np.append(total, self.bias * (len(missed) - len(false_pos))) * (2.0 / n)
+        return plane, loss_scale * violator.loss
+
+
+class _WorkingSet:
+    """The working set's QP in one OSQP problem, kept for the whole run (module docstring).
+
+    Variables are rescaled to order one (w = s v, xi = t eta; C n^2 reaches 1e12 on room data and OSQP
+    crawls on raw scales) and rows normalised to unit length; the scales follow the working set, so each
+    solve updates A's values, the bounds and q in place and warm-starts from the previous solution."""
+
+    def __init__(self, dims: int, weight: float, capacity: int = 64, persistent: bool = True):
+        self.dims, self.weight, self.persistent = dims, weight, persistent
+        self.rows = np.zeros((0, dims))
+        self.losses = np.empty(0)
+        self.idle = np.empty(0, dtype=int)
+        self.count = 0
+        self.lower_bound = 0.0  # the working set's optimum: a lower bound on min F
+        self._capacity = 0
+        self._problem = None
+        self._w = None
+        self._y = None
+        self._grow(capacity)
+
+    def _grow(self, capacity: int):
+        self._capacity = capacity
+        self._problem = None  # set up again at the next solve, with room for `capacity` planes
+
+    def slack(self, w: np.ndarray) -> float:
+        if not self.count:
+            return 0.0
+        return max(0.0, float(np.max(self.losses - self.rows @ w)))
+
+    def add(self, plane: np.ndarray, loss: float):
+        self.rows = np.vstack([self.rows, plane])
+        self.losses = np.append(self.losses, loss)
+        self.idle = np.append(self.idle, 0)
+        if self._y is not None:
+            self._y = np.insert(self._y, self.count, 0.0)
+        self.count += 1
+        if self.count > self._capacity:
+            self._grow(2 * self._capacity)
+
+    def _setup(self, settings: dict):
+        import osqp
+        from scipy import sparse
+
+        k, dims = self._capacity, self.dims
+        # A: k plane rows over [v, eta] (dense) and the row eta >= 0; CSC with every entry stored
+        indptr = np.concatenate([np.arange(dims + 1) * k, [dims * k + k + 1]])
+        indices = np.concatenate([np.tile(np.arange(k), dims), np.arange(k + 1)])
+        A = sparse.csc_matrix((np.zeros(len(indices)), indices, indptr), shape=(k + 1, dims + 1))
+        P = sparse.diags(np.append(np.ones(dims), 0.0)).tocsc()
+        problem = osqp.OSQP()
+        problem.setup(
+            P=P,
+            q=np.zeros(dims + 1),
+            A=A,
+            l=np.append(np.full(k, -np.inf), 0.0),
+            u=np.full(k + 1, np.inf),
+            **settings,
+        )
+        self._problem = problem
+
+    def solve(self, prune_after: int) -> np.ndarray:
+        k, dims = self.count, self.dims
+        norms = np.linalg.norm(self.rows, axis=1)
+        norms = np.where(norms > 0, norms, 1.0)
+        t = max(float(self.losses.max(initial=0.0)), 1e-12)
+        s = max(float(np.max(self.losses / norms, initial=0.0)), 1e-12)
+        if self._problem is None or not self.persistent:
+            self._setup(
+                dict(
+                    verbose=False,
+                    eps_abs=1e-6,
+                    eps_rel=1e-6,
+                    max_iter=100000,
+                    polishing=True,
+                    warm_starting=True,
+                )
+            )
+            previous = None if not self.persistent else (self._w, self._y)
+        else:
+            previous = (self._w, self._y)
+        cap = self._capacity
+        coefficients = np.zeros((cap, dims + 1))
+        coefficients[:k, :dims] = self.rows / norms[:, None]
+        coefficients[:k, dims] = t / (s * norms)
+        Ax = np.concatenate([coefficients.T.ravel(), [1.0]])
+        lower = np.append(np.full(cap, -np.inf), 0.0)
+        lower[:k] = self.losses / (s * norms)
+        q = np.zeros(dims + 1)
+        q[dims] = self.weight * t / s**2
+        self._problem.update(Ax=Ax, l=lower, q=q)
+        if self.persistent and previous is not None and previous[0] is not None:
+            (w0, xi0), y0 = previous
+            y_full = np.zeros(cap + 1)
+            y_full[: min(len(y0), cap)] = y0[: min(len(y0), cap)]
+            self._problem.warm_start(x=np.append(w0 / s, xi0 / t), y=y_full)
+        solution = self._problem.solve(raise_error=False)
+        if solution.x is None or not np.all(np.isfinite(solution.x)):
+            raise RuntimeError(f"OSQP failed on the working set ({solution.info.status})")
+        w = s * solution.x[:dims]
+        xi = max(0.0, t * float(solution.x[dims]))
+        self.lower_bound = 0.5 * float(w @ w) + self.weight * xi
+        # warm start next time in the next scales' units: keep the solution in w, xi and convert then
+        alpha = np.clip(-solution.y[:k], 0.0, None) / norms  # up to one common factor
+        self.idle = np.where(alpha > 1e-9 * max(1.0, alpha.max(initial=0.0)), 0, self.idle + 1)
+        keep = self.idle <= prune_after
+        duals = solution.y[:k][keep]
+        self.rows, self.losses, self.idle = self.rows[keep], self.losses[keep], self.idle[keep]
+        self.count = len(self.losses)
+        self._w, self._y = (w.copy(), xi), duals.copy()
+        return w
