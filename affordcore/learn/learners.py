@@ -39,7 +39,8 @@ def _ssvm(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> F
 
     result = train_ssvm(train.X, train.y, SSVMSettings(**params), validation=(validation.X, validation.y))
     best = result.best
-    # in SVMperf's units (summed Psi): the same sign, scores of order one
+    # per example (the solver's Psi is summed over n): the same sign, scores of order one (not SVMperf's w,
+    # which is these / 50: docs/learning.md, C units)
     weights = best.weights / len(train.y)
     return Fitted(
         weights[:-1],
