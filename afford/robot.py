@@ -87,7 +87,21 @@ def serve(
         ..., help="; ".join(f"{spec.name} ({spec.summary})" for spec in SERVICES.values())
     ),
     connect: list[str] = typer.Option(..., "--connect", help=CONNECT_HELP),
-    robot: str = typer.Option(..., "--robot", help=ROBOT_HELP),
+    robot: str | None = typer.Option(None, "--robot", help=ROBOT_HELP + " (or --robots)"),
+    robots: list[str] | None = typer.Option(
+        None,
+        "--robots",
+        help="inference: serve many robots as one worker of a sharded group (repeatable): a robot name, * "
+        "(every robot) or a pattern such as lab-$* (docs/deploy.md)",
+    ),
+    worker: str | None = typer.Option(
+        None, "--worker", help="with --robots: this worker's id, unique on the site (default: <host>-<pid>)"
+    ),
+    shard_by: str = typer.Option(
+        "affordance",
+        "--shard-by",
+        help="with --robots: one owner per robot's affordance (affordance) or per robot (robot)",
+    ),
     rrd: Path | None = typer.Option(
         None, "--rrd", help="the service's Rerun recording (default: <service>.rrd here)"
     ),
@@ -115,8 +129,23 @@ def serve(
     with user_errors():
         from services.registry import run_service
 
+        if (robot is None) == (not robots):
+            raise UserError("give either --robot NAME (one robot) or --robots PATTERN (a sharded worker)")
+        if not robots and (worker or shard_by != "affordance"):
+            raise UserError("--worker and --shard-by are for a sharded worker (--robots)")
         run_service(
-            service, robot, connect, rrd, viewer, listen, model or [], state=state, zenoh_config=zenoh_config
+            service,
+            robot,
+            connect,
+            rrd,
+            viewer,
+            listen,
+            model or [],
+            state=state,
+            zenoh_config=zenoh_config,
+            robots=robots,
+            worker=worker,
+            shard_by=shard_by,
         )
 
 

@@ -1,17 +1,31 @@
 """Model inference: fields in, affordance/<name> out, one AffordanceMap per model (the shipped models unless
-others are configured). Scoring and maps are affordcore.pipeline's `map_affordances`."""
+others are configured). Scoring and maps are affordcore.pipeline's `map_affordances`.
+
+One robot (`afford serve inference --robot R`): every fields message of R is mapped. A sharded worker (`afford
+serve inference --robots '*'`, a node with `WorkerKeys`) maps only its share of the fields of every robot it
+selects, and picks up the share of a worker that leaves (services/shard.py, docs/deploy.md)."""
 
 from __future__ import annotations
+
+import threading
+import time
 
 from affordcore.features import FeatureLayout
 from affordcore.pipeline import map_affordances
 from affordcore.recording import log_map, set_time
 from affordwire import messages
 
-from .node import Inbound, Node
+from .node import Inbound, Node, unused_path
+from .shard import KeyedInbox, LatestOutputs, Membership, WorkerKeys, owner
+from .transport import Keys, encoding_of, robot_of, schema_of
 
 
 class InferenceService:
+    def __new__(cls, node: Node):
+        if isinstance(node.keys, WorkerKeys):  # one class in the registry; a sharded node gets the worker
+            return super().__new__(ShardedInference)
+        return super().__new__(cls)
+
     def __init__(self, node: Node):
         self.node, self.models = node, node.models
         self.layout = FeatureLayout.from_settings(node.settings.features, node.settings.voxel)
@@ -24,8 +38,8 @@ class InferenceService:
     def run(self) -> None:
         self.node.run(self.inbox, self.handle)
 
-    def handle(self, item: Inbound) -> None:
-        message = self.node.decode(item, messages.SceneFieldsMessage)
+    def _fields(self, message: messages.SceneFieldsMessage):
+        """The fields of a message, at the resolution the models need (or refused)."""
         settings = self.node.settings
         fields = messages.scene_fields(message, settings.limits, settings.voxel.max_voxels)
         if abs(fields.lattice.resolution - self.node.settings.voxel.resolution) > 1e-9:
@@ -33,6 +47,11 @@ class InferenceService:
                 f"fields at {fields.lattice.resolution} m voxels; the models here need "
                 f"{self.node.settings.voxel.resolution} m (AFFORD_VOXEL__RESOLUTION of the features service)"
             )
+        return fields
+
+    def handle(self, item: Inbound) -> None:
+        message = self.node.decode(item, messages.SceneFieldsMessage)
+        fields = self._fields(message)
         self.node.publish_status(messages.Status.BUSY, f"mapping {len(self.models)} affordances")
         set_time(self.node.recording, messages.seconds(message.cloud_timestamp))
         ids = {model.affordance: model.id for model in self.models}
@@ -46,4 +65,214 @@ class InferenceService:
         map_affordances(fields, self.layout, self.models, self.node.settings, on_map=publish)
         self.node.publish_status(
             messages.Status.READY, f"published {len(self.models)} maps of a {message.frames}-frame map"
+        )
+
+
+class ShardedInference(InferenceService):
+    """One worker of a group sharing the fields of many robots: it takes a unit (a robot's affordance, or a
+    robot) only when it owns it among the live workers (services/shard.py), and maps an input only when no
+    map of that cloud (or a newer one) has gone out. When a worker leaves, each survivor fetches the latest
+    fields of every robot one of whose units it now owns; the same rule maps exactly what is missing.
+
+    Every worker keeps the newest map of every unit seen on the wire (its own and the others'), so that the
+    owner answers a late `get` (afford watch) even for maps a worker now gone published."""
+
+    def __init__(self, node: Node):
+        self.node, self.models, self.keys = node, node.models, node.keys
+        self.layout = FeatureLayout.from_settings(node.settings.features, node.settings.voxel)
+        service = node.settings.service
+        self.inbox = KeyedInbox(service.max_queue, service.max_queue_bytes)
+        self.maps = LatestOutputs()
+        self.robots: set[str] = set()  # every robot whose fields or maps this worker has seen
+        self.recordings: dict[str, object] = {}
+        self.recovered = 0  # inputs fetched again because a worker left
+        self._lock = threading.Lock()
+        self.members = Membership(self.keys.worker, self._on_members)
+        session = node.session
+        for key in self.keys.selection.keys("affordance", "*"):  # the maps on the wire, whoever published
+            node.hold(session.declare_subscriber(key, self._take_map))
+        node.hold(
+            session.liveliness().declare_subscriber(self.keys.members, self.members.on_sample, history=True)
+        )
+        for key in self.keys.selection.keys("affordance", "*"):  # before our token: the owners still answer
+            for reply in session.get(key, timeout=5.0):
+                if reply.ok is not None:
+                    self._take_map(reply.ok)
+        node.hold(session.liveliness().declare_token(self.keys.member))
+        self._reconcile()
+        for key in self.keys.selection.keys("fields"):
+            node.subscribe(key, self.inbox, accept=self._wanted)
+        for key in self.keys.selection.keys("affordance", "*"):
+            node.hold(session.declare_queryable(key, self._answer))
+        for key in self.keys.selection.keys("fields"):  # fields published before this worker (re)started
+            node.fetch_latest(key, self.inbox, accept=self._wanted)
+        print(
+            f"[{node.service}] worker {self.keys.worker} of group {self.keys.group} ({self.keys.member}): "
+            f"robots {self.keys.selection}, one owner per {self.keys.unit}; live workers "
+            f"{sorted(self.members.view())}",
+            flush=True,
+        )
+
+    # -- ownership -----------------------------------------------------------------------------------------
+
+    def owned(self, robot: str) -> list:
+        """The models whose unit of `robot` this worker owns among the live workers now."""
+        view = self.members.view()
+        me = self.keys.worker
+        return [m for m in self.models if owner(view, self.keys.unit_of(robot, m.affordance)) == me]
+
+    def _wanted(self, key: str) -> bool:
+        """A fields sample is read only when this worker owns one of its robot's units (others pass it)."""
+        robot = robot_of(key)
+        if robot is None:
+            return False
+        with self._lock:
+            self.robots.add(robot)
+        return bool(self.owned(robot))
+
+    def _on_members(self, before: frozenset, after: frozenset) -> None:
+        """A worker joined or left: for every robot one of whose units is newly ours, fetch its latest fields
+        (on a thread of its own: never a get inside a zenoh callback)."""
+        me = self.keys.worker
+        with self._lock:
+            robots = sorted(self.robots)
+        gained = [
+            robot
+            for robot in robots
+            if any(
+                owner(after, unit) == me and owner(before, unit) != me
+                for unit in (self.keys.unit_of(robot, m.affordance) for m in self.models)
+            )
+        ]
+        left, joined = sorted(before - after), sorted(after - before)
+        print(
+            f"[{self.node.service}] workers now {sorted(after)} (left: {left or '-'}, joined: "
+            f"{joined or '-'}); taking over units of {gained or 'no robot'}",
+            flush=True,
+        )
+        if gained:
+            threading.Thread(target=self._recover, args=(gained,), daemon=True).start()
+
+    def _recover(self, robots: list[str]) -> None:
+        for robot in robots:
+            if self.node.stop_event.is_set():
+                return
+            try:
+                taken = self.node.fetch_latest(Keys(robot).fields, self.inbox, accept=self._wanted)
+            except Exception as error:  # noqa: BLE001 - the session closing under us at the stop
+                print(f"[{self.node.service}] could not fetch the fields of {robot}: {error}", flush=True)
+                continue
+            with self._lock:
+                self.recovered += taken
+
+    def _reconcile(self) -> None:
+        """The view from a liveliness get: what the tokens say now."""
+        workers = [
+            str(reply.ok.key_expr).rsplit("/", 1)[-1]
+            for reply in self.node.session.liveliness().get(self.keys.members, timeout=2.0)
+            if reply.ok is not None
+        ]
+        self.members.reconcile(workers)
+
+    # -- the maps on the wire ------------------------------------------------------------------------------
+
+    def _take_map(self, sample) -> None:
+        key = str(sample.key_expr)
+        robot = robot_of(key)
+        if robot is None or schema_of(sample) != messages.schema_name(messages.AffordanceMapMessage):
+            return
+        payload = sample.payload.to_bytes()
+        try:
+            stamp = messages.nanoseconds(
+                messages.parse(messages.AffordanceMapMessage, payload).cloud_timestamp
+            )
+        except messages.MessageError:
+            return  # not ours to answer for (the router's access control decides who may write maps)
+        with self._lock:
+            self.robots.add(robot)
+        self.maps.take(key, stamp, payload, sample.encoding)
+
+    def _answer(self, query) -> None:
+        """A get on maps: the owner of each unit answers with the newest map of it seen on the wire."""
+        import zenoh
+
+        asked = zenoh.KeyExpr(str(query.key_expr))
+        for key, (_, payload, encoding) in self.maps.items():
+            robot, affordance = key.split("/")[2], key.rsplit("/", 1)[-1]
+            if not asked.intersects(zenoh.KeyExpr(key)):
+                continue
+            if self.members.owns(self.keys.unit_of(robot, affordance)):
+                query.reply(key, payload, encoding=encoding)
+
+    # -- the work ------------------------------------------------------------------------------------------
+
+    def run(self) -> None:
+        last = [time.monotonic()]
+
+        def idle() -> None:  # now and then, the view from the tokens themselves
+            if time.monotonic() - last[0] > self.node.settings.service.status_period:
+                last[0] = time.monotonic()
+                self._reconcile()
+
+        self.node.run(self.inbox, self.handle, idle, on_stop=self._close_recordings)
+
+    def handle(self, item: Inbound) -> None:
+        robot = robot_of(item.key)
+        if robot is None:
+            raise messages.MessageError(f"{item.key} is not a robot's fields key")
+        keys = Keys(robot)
+        message = self.node.decode(item, messages.SceneFieldsMessage)
+        stamp = messages.nanoseconds(message.cloud_timestamp)
+        todo = [
+            model
+            for model in self.owned(robot)
+            if self.maps.stamp(keys.affordance(model.affordance)) < stamp  # no map of it (or newer) out
+        ]
+        if not todo:
+            self.node.publish_status(
+                messages.Status.READY, f"nothing of {robot}'s fields to map here (another's, or mapped)"
+            )
+            return
+        fields = self._fields(message)
+        names = ", ".join(model.affordance for model in todo)
+        self.node.publish_status(messages.Status.BUSY, f"mapping {names} of {robot}")
+        recording = self._recording(robot)
+        set_time(recording, messages.seconds(message.cloud_timestamp))
+        ids = {model.affordance: model.id for model in todo}
+
+        def publish(affordance: str, amap) -> None:
+            out = messages.map_message(amap, ids[affordance], message)
+            key = keys.affordance(affordance)
+            encoding = encoding_of(messages.AffordanceMapMessage)
+            self.maps.take(key, stamp, out.SerializeToString(), encoding)  # answered from here on
+            self.node.publish(key, out, keep=False)
+            log_map(recording, amap)
+
+        map_affordances(fields, self.layout, todo, self.node.settings, on_map=publish)
+        self.node.publish_status(
+            messages.Status.READY, f"published {names} of {robot} ({message.frames}-frame map)"
+        )
+
+    def _recording(self, robot: str):
+        """The worker's recording of one robot, `<rrd>-<robot>.rrd`, with that robot's recording id (it opens
+        with the robot's other recordings as one)."""
+        from affordcore.recording import open_recording
+
+        if robot not in self.recordings:
+            rrd = self.node.rrd
+            path = unused_path(rrd.with_name(f"{rrd.stem}-{robot}{rrd.suffix}"))
+            recording_id = self.node.settings.service.recording_id or f"afford-{robot}"
+            affordances = [model.affordance for model in self.models]
+            self.recordings[robot] = open_recording(path, affordances, recording_id)
+        return self.recordings[robot]
+
+    def _close_recordings(self) -> str:
+        from affordcore.recording import close_recording
+
+        for recording in self.recordings.values():
+            close_recording(recording)
+        return (
+            f"worker {self.keys.worker}: recordings of {len(self.recordings)} robots closed; "
+            f"{self.recovered} inputs fetched again after a worker left; "
+            f"{len(self.maps.items())} maps held ({self.maps.nbytes() / 2**20:.1f} MB)"
         )

@@ -128,6 +128,10 @@ class Inbox:
         self._bytes -= len(item.payload)
         return item
 
+    def supersedes(self, key: str) -> bool:
+        """Whether an input waiting here is newer than what a get on `key` brings (latest-only: any is)."""
+        return bool(self._items)
+
     def drain(self) -> int:
         """Empty the inbox; returns how many inputs it held."""
         with self._ready:
@@ -170,10 +174,12 @@ class Node:
         affordances: list[str] | None = None,
         listen: list[str] | None = None,
         models: list | None = None,
+        keys=None,
     ):
+        """`keys`: the key space when it is not one robot's (a sharded worker's, services/shard.py)."""
         from affordcore.recording import open_recording
 
-        self.service, self.keys = service, Keys(robot)
+        self.service, self.keys = service, keys if keys is not None else Keys(robot)
         self.settings = settings or ServiceSettings()
         self.models = list(models or [])  # what a scoring service (inference) scores with
         self.stop_event = threading.Event()
@@ -205,6 +211,12 @@ class Node:
             )
         )
 
+    def hold(self, entity):
+        """Keep a zenoh entity a service declared itself until the node closes (undeclared in reverse order of
+        declaration, before the session closes); returns it."""
+        self._declared.append(entity)
+        return entity
+
     # -- inputs ----------------------------------------------------------------------------------------------
 
     def inbox(self, latest_only: bool, skip_when_late: bool = False) -> Inbox:
@@ -214,11 +226,16 @@ class Node:
         max_lag = service.max_lag if skip_when_late else None
         return Inbox(latest_only, service.max_queue, service.max_queue_bytes, max_lag, service.max_gap)
 
-    def subscribe(self, key: str, inbox: Inbox, schema: str | None = None) -> None:
+    def subscribe(
+        self, key: str, inbox: Inbox, schema: str | None = None, accept: Callable[[str], bool] | None = None
+    ) -> None:
         """Samples on `key` into `inbox`; `schema` tags each as that schema whatever its encoding says (ROS 2
-        publishers send CDR with no afford schema: services/ros.py names what the subscription is for)."""
+        publishers send CDR with no afford schema: services/ros.py names what the subscription is for);
+        `accept(key)` False passes a sample over unread (another worker's share)."""
 
         def on_sample(sample) -> None:
+            if accept is not None and not accept(str(sample.key_expr)):
+                return
             item = _inbound(sample)
             if schema is not None:
                 item.schema = schema
@@ -226,12 +243,17 @@ class Node:
 
         self._declared.append(self.session.declare_subscriber(key, on_sample))
 
-    def fetch_latest(self, key: str, inbox: Inbox, timeout: float = 5.0) -> int:
+    def fetch_latest(
+        self, key: str, inbox: Inbox, timeout: float = 5.0, accept: Callable[[str], bool] | None = None
+    ) -> int:
         """Ask for the latest input published on `key` (its publisher answers a get), so a service that
-        (re)starts after it went out still works on it; returns how many replies were taken."""
+        (re)starts after it went out still works on it; returns how many replies were taken (`accept` as
+        in `subscribe`)."""
         taken = 0
         for reply in self.session.get(key, timeout=timeout):
-            if reply.ok is not None and not len(inbox):  # what the subscriber brought meanwhile is newer
+            if reply.ok is None or (accept is not None and not accept(str(reply.ok.key_expr))):
+                continue
+            if not inbox.supersedes(str(reply.ok.key_expr)):  # what the subscriber brought meanwhile is newer
                 taken += self._offer(inbox, _inbound(reply.ok))
         return taken
 
@@ -291,7 +313,7 @@ class Node:
         if item.is_input:
             with self._lock:
                 self.counts["rejected"] += 1
-        put_message(self.session, self.keys.error(self.service), error)
+        put_message(self.session, self.keys.error_of(self.service, item.key), error)
         print(
             f"[{self.service}] {'rejected' if item.is_input else 'failed'} {item.key}: {reason}", flush=True
         )
@@ -311,11 +333,13 @@ class Node:
 
         self._declared.append(self.session.declare_queryable(key, on_query))
 
-    def publish(self, key: str, message, count: bool = True) -> None:
+    def publish(self, key: str, message, count: bool = True, keep: bool = True) -> None:
+        """Put `message` on `key`; `keep`: as the latest a queryable of `answer_latest` answers with."""
         payload = message.SerializeToString()
         encoding = encoding_of(type(message))
         with self._lock:
-            self.latest[key] = (payload, encoding)
+            if keep:
+                self.latest[key] = (payload, encoding)
             if count:
                 self.counts["published"] += 1
         put(self.session, key, payload, encoding)

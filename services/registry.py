@@ -16,6 +16,7 @@ class ServiceSpec:
     target: str  # "module:Class"; the class takes a Node
     downstream: bool  # runs AFFORD_SERVICE__DOWNSTREAM_NICE nicer, so scan assembly keeps up with the sensor
     scores: bool = False  # scores with the robot's models, so they must match the feature settings
+    shards: bool = False  # may run as one of several workers sharing many robots (services/shard.py)
 
     def service_class(self) -> type:
         module, name = self.target.split(":")
@@ -35,6 +36,7 @@ SERVICES: dict[str, ServiceSpec] = {
             "services.inference:InferenceService",
             downstream=True,
             scores=True,
+            shards=True,
         ),
     )
 }
@@ -50,13 +52,20 @@ def run_service(
     model_files: list[Path] | None = None,
     state: Path | None = None,
     zenoh_config: Path | None = None,
+    robots: list[str] | None = None,
+    worker: str | None = None,
+    shard_by: str = "affordance",
 ) -> None:
     """Run one registered service until SIGINT/SIGTERM, with the settings from the environment (`state` and
     `zenoh_config` over theirs); a service that scores uses the given models (default: the shipped
-    ones)."""
+    ones). With `robots` (names or patterns such as `*`; `robot` unused), a service that shards runs as
+    worker `worker` (default <host>-<pid>) of the group of workers configured alike, each owning a share of
+    the units (`shard_by`: affordance or robot) and taking over the share of a worker that leaves."""
     spec = SERVICES.get(name)
     if spec is None:
         raise ValueError(f"unknown service {name!r}; choose one of {', '.join(SERVICES)}")
+    if robots and not spec.shards:
+        raise ValueError(f"{name} serves one robot (--robot); only {', '.join(_sharding())} shard")
     from affordcore.features import FeatureLayout
     from affordcore.learn.model import choose_models, shipped_models
 
@@ -74,5 +83,17 @@ def run_service(
             model_files or [], [], FeatureLayout.from_settings(settings.features, settings.voxel)
         )
     affordances = [model.affordance for model in models] or list(shipped_models())  # the recording's tabs
-    node = Node(name, robot, endpoints, settings, rrd, viewer, affordances, listen, models)
+    keys = None
+    if robots:
+        from .shard import Selection, WorkerKeys, default_worker_id, group_of
+
+        selection = Selection(tuple(robots))
+        group = group_of(name, selection, shard_by, [model.id for model in models])
+        keys = WorkerKeys(selection, group, worker or default_worker_id(), shard_by)
+        name, robot = f"{name}-{keys.worker}", keys.robot  # its Status.service and error key: one per worker
+    node = Node(name, robot, endpoints, settings, rrd, viewer, affordances, listen, models, keys=keys)
     spec.service_class()(node).run()
+
+
+def _sharding() -> list[str]:
+    return [spec.name for spec in SERVICES.values() if spec.shards]

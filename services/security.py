@@ -20,7 +20,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .transport import PREFIX
+from .transport import PREFIX, WORKERS
 
 SERVICES = ("assembler", "features", "inference")
 # the keys each service alone may write, under afford/@v1/<robot>/
@@ -66,7 +66,11 @@ class Site:
         keys.update({name: ["scan/**"] for name in self.sensors})
         for name in self.mappers:
             keys.setdefault(name, []).append("map/cloud")
-        return {name: [f"{PREFIX}/*/{key}" for key in ks] for name, ks in keys.items()}
+        writes = {name: [f"{PREFIX}/*/{key}" for key in ks] for name, ks in keys.items()}
+        # sharded inference workers (docs/deploy.md): refusals on error/inference-<worker>, and their own
+        # tokens and status under the workers' verbatim chunk
+        writes["inference"] += [f"{PREFIX}/*/error/inference-$*", f"{WORKERS}/inference-$*/**"]
+        return writes
 
 
 def access_control(site: Site) -> dict:
@@ -89,8 +93,15 @@ def access_control(site: Site) -> dict:
             "key_exprs": everything,
         },
     ]
+    workers = [f"{WORKERS}/**"]  # a verbatim chunk too: the sharded workers' tokens and status (deploy.md)
+    rules += [
+        {**rules[0], "id": "read-workers", "key_exprs": workers},
+        {**rules[1], "id": "deliver-workers", "key_exprs": workers},
+    ]
     subjects = [{"id": "site", "link_protocols": ["tls"]}]
-    policies = [{"id": "site", "subjects": ["site"], "rules": ["read", "deliver"]}]
+    policies = [
+        {"id": "site", "subjects": ["site"], "rules": ["read", "deliver", "read-workers", "deliver-workers"]}
+    ]
     for name, keys in site.writes().items():
         rules.append(
             {

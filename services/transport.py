@@ -13,6 +13,10 @@ from pathlib import Path
 from affordwire import messages
 
 PREFIX = "afford/@v1"
+# the sharded workers' own keys (membership tokens, status): `@workers` is a verbatim chunk, so no robot key
+# expression (`afford/@v1/*/...`, `afford/@v1/**`) reaches them, and no robot can be named so (no `@`)
+WORKERS = f"{PREFIX}/@workers"
+_NOT_IN_A_NAME = "/*$?#@ "
 
 
 def version() -> str:
@@ -32,7 +36,7 @@ class Keys:
     robot: str
 
     def __post_init__(self) -> None:
-        if not self.robot or any(c in self.robot for c in "/*$?#@ "):
+        if not self.robot or any(c in self.robot for c in _NOT_IN_A_NAME):
             raise ValueError(
                 f"robot name {self.robot!r} must be one non-empty key chunk (no / * $ ? # @ or spaces)"
             )
@@ -56,6 +60,42 @@ class Keys:
 
     def error(self, service: str) -> str:
         return self.key("error", service)
+
+    def error_of(self, service: str, input_key: str) -> str:
+        """Where `service` answers a refusal of an input that came on `input_key`: this robot's error key (a
+        worker serving several robots answers on the input's robot's: services/shard.py)."""
+        return self.error(service)
+
+
+def robot_of(key: str) -> str | None:
+    """The robot a concrete key of the afford key space belongs to (`afford/@v1/<robot>/...`), or None for any
+    other key (the workers' own, a service's own work)."""
+    chunks = key.split("/")
+    if len(chunks) < 4 or "/".join(chunks[:2]) != PREFIX:
+        return None
+    try:
+        return Keys(chunks[2]).robot
+    except ValueError:
+        return None
+
+
+def robot_pattern(pattern: str) -> str:
+    """A selection of robots as one key chunk: a robot name, `*` (every robot) or a name with `$*` wildcards
+    (`lab-$*`: every robot whose name starts with lab-). Never more than one chunk (no `**`, no `/`), and
+    never a verbatim chunk (`@...`): a selection reaches robots' keys only."""
+    import zenoh
+
+    if pattern == "*":
+        return pattern
+    if not pattern or any(c in pattern.replace("$*", "") for c in _NOT_IN_A_NAME):
+        raise ValueError(
+            f"robot selection {pattern!r} must be a robot name, * or a name with $* wildcards (lab-$*)"
+        )
+    try:
+        zenoh.KeyExpr(f"{PREFIX}/{pattern}/fields")
+    except zenoh.ZError as error:
+        raise ValueError(f"robot selection {pattern!r} is not a key chunk: {error}") from None
+    return pattern
 
 
 def zenoh_config(

@@ -73,3 +73,26 @@ def generated_sequence(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("sequence") / "living-e2e.sequence"
     write_sequence(room, rng, folder, "depth", frames=120)
     return folder
+
+
+# -- leaving ------------------------------------------------------------------------------------------------
+
+_EXIT_STATUS = {"code": 0}
+
+
+def pytest_sessionfinish(session, exitstatus) -> None:
+    _EXIT_STATUS["code"] = int(exitstatus)
+
+
+def pytest_unconfigure(config) -> None:
+    """Leave even when a zenoh callback thread is still blocked in Rust: tests that close a session under a
+    running service (a worker that dies, in tests/test_multihost.py) can leave one, and Python's exit would
+    wait for it for ever after every result has been reported (seen once under heavy load)."""
+    import os
+    import threading
+
+    lingering = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon]
+    if lingering:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(_EXIT_STATUS["code"])
