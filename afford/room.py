@@ -30,10 +30,11 @@ def map_command(
     gravity: str = typer.Option("auto", "--gravity", help=GRAVITY_HELP),
     rrd: Path | None = typer.Option(None, "--rrd", help="the Rerun recording (default: OUT/map.rrd)"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
+    timings: bool = typer.Option(False, "--timings", help="say on stderr how long each stage took"),
 ) -> None:
     """Map where people can sit, relax, work and stand in a room: skeleton map, confidence map, positives."""
     with user_errors():
-        map_room(cloud, out, model or [], affordance or [], gravity, rrd or out / "map.rrd", quiet)
+        map_room(cloud, out, model or [], affordance or [], gravity, rrd or out / "map.rrd", quiet, timings)
 
 
 def map_room(
@@ -44,34 +45,54 @@ def map_room(
     gravity: str,
     rrd: Path,
     quiet: bool,
+    timings: bool = False,
 ) -> list[Path]:
-    """load -> align -> fields -> score -> map -> write, each one call into the library."""
+    """load -> align -> fields -> score -> map -> write, each one call into the library (the maps and their
+    files in worker processes, `outputs.map_and_write`)."""
     from affordcore.features import FeatureLayout
     from affordcore.learn.model import choose_models
-    from affordcore.outputs import summary_line, write_map_outputs
-    from affordcore.pipeline import map_affordances, parse_gravity, prepare_scene
+    from affordcore.outputs import default_workers, map_and_write, summary_line
+    from affordcore.pipeline import parse_gravity, prepare_scene
     from affordcore.settings import Settings
 
     output_folder(out)
     settings = Settings()
     start = time.perf_counter()
+    seconds: dict[str, float] = {}
     models = choose_models(
         model_files, affordances, FeatureLayout.from_settings(settings.features, settings.voxel)
     )
-    scene = prepare_scene(_loaded(cloud_path), settings, parse_gravity(gravity))
+    loading = time.perf_counter()
+    cloud = _loaded(cloud_path)
+    seconds["load the cloud"] = time.perf_counter() - loading
+    scene = prepare_scene(cloud, settings, parse_gravity(gravity), seconds)
     _warn(scene.warnings)
     typer.echo(f"{cloud_path}: {len(scene.cloud):,} points; {scene.alignment.describe()}")
+    mapping = time.perf_counter()
     with progress(quiet) as bar:
         task = bar.add_task("affordance maps", total=len(models))
-        maps = map_affordances(
-            scene.fields, scene.layout, models, settings, on_map=lambda *_: bar.advance(task)
+        workers = default_workers(len(models))
+        maps, written = map_and_write(
+            scene, models, settings, out, rrd, workers, lambda *_: bar.advance(task), seconds
         )
+    seconds["maps and outputs (wall)"] = time.perf_counter() - mapping
     for amap in maps.values():
         typer.echo(summary_line(amap))
-    written = write_map_outputs(scene, maps, models, out, rrd)
-    typer.echo(f"{time.perf_counter() - start:.1f} s, peak memory {peak_rss_mb():.0f} MB")
+    if timings:
+        for stage, value in seconds.items():
+            typer.echo(f"timing: {stage}: {value:.3f} s", err=True)
+    memory = f"peak memory {peak_rss_mb():.0f} MB"
+    if workers > 1:  # each forked worker's peak counts the pages it shares with this process
+        memory += f" (worker processes: {workers} x at most {_children_peak_mb():.0f} MB)"
+    typer.echo(f"{time.perf_counter() - start:.1f} s, {memory}")
     typer.echo("outputs: " + ", ".join(str(path) for path in written))
     return written
+
+
+def _children_peak_mb() -> float:
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
 
 
 def _loaded(path: Path):

@@ -54,6 +54,7 @@ def score_poses(
     a, b = np.divmod(np.arange(n_s * n_s), n_s)
     column_of_sample = (a // per_cell) * cells + b // per_cell
     scores = np.empty(grid.shape, dtype=np.float32)
+    reads: dict[int, list] = {}
     for iz in range(nz):
         level = sampler.level(grid.z[iz], skeleton)
         joint_planes = level["distance"] * w_dist.astype(np.float32) + level["occupancy"] * w_coll.astype(
@@ -71,43 +72,55 @@ def score_poses(
             theta = float(grid.theta[it])
             cube_planes = (np.cos(theta) * along + np.sin(theta) * across + vertical).astype(np.float32)
             cube_planes *= np.float32(1.0 / per_cell**2)  # a cell's normal is the mean of its sample columns
-            scores[iz, it] = bias + _slab_scores(
-                sampler, skeleton, theta, joint_planes, cube_planes, column_of_sample
-            )
+            if it not in reads:  # the same for every z level
+                reads[it] = _slab_reads(sampler, skeleton, theta, column_of_sample)
+            scores[iz, it] = bias + _slab_scores(sampler, reads[it], joint_planes, cube_planes)
     return scores
 
 
-def _slab_scores(
-    sampler: _SlabSampler,
-    skeleton: Skeleton,
-    theta: float,
-    joint_planes: np.ndarray,
-    cube_planes: np.ndarray,
-    column_of_sample: np.ndarray,
-) -> np.ndarray:
+def _slab_reads(
+    sampler: _SlabSampler, skeleton: Skeleton, theta: float, column_of_sample: np.ndarray
+) -> list[tuple[int, int, int, np.float32]]:
+    """(plane, x index, y index, weight) of every bilinear read of one theta's slab: the 15 joint planes at
+    the joints' offsets, then the cube planes at their samples' offsets. Weights of reads that share a plane
+    and a voxel corner are summed first (the samples of one cell column read the same plane at offsets a
+    voxel apart: 2 x 2 samples make 9 corners, not 16), in the order the reads first occur, as
+    `_SlabSampler.corners` computes them, for all offsets at once."""
     rotation = rotation_z(theta)
     joint_xy = (skeleton.joints @ rotation.T)[:, :2]
     axis = sampler.layout.sample_positions()
     sample_xy = np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2) @ rotation[:2, :2].T
-    reads: dict[tuple[int, int, int], float] = {}  # (plane, x index, y index) -> weight
-    for j, xy in enumerate(joint_xy):
-        for cu, cv, weight in sampler.corners(*xy):
-            reads[(j, cu, cv)] = reads.get((j, cu, cv), 0.0) + weight
-    # the samples of one cell column read the same plane at offsets a voxel apart: their bilinear corners
-    # overlap, so summing weights per corner first halves the reads (2 x 2 samples: 9 corners, not 16)
-    n_joints = len(joint_planes)
-    for s, xy in enumerate(sample_xy):
-        for cu, cv, weight in sampler.corners(*xy):
-            key = (n_joints + int(column_of_sample[s]), cu, cv)
-            reads[key] = reads.get(key, 0.0) + weight
+    offsets = np.concatenate([joint_xy, sample_xy])
+    plane = np.concatenate([np.arange(len(joint_xy)), len(joint_xy) + column_of_sample])
+    (bu, bv), (fu, fv) = sampler.floor_and_fraction(offsets[:, 0], offsets[:, 1])
+    # (offset, corner), corners in `corners`' order: (0, 0), (1, 0), (0, 1), (1, 1)
+    weight = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], axis=1)
+    cu = bu[:, None] + np.array([0, 1, 0, 1])
+    cv = bv[:, None] + np.array([0, 0, 1, 1])
+    kept = weight > 1e-12
+    plane = np.broadcast_to(plane[:, None], kept.shape)[kept]
+    cu, cv, weight = cu[kept], cv[kept], weight[kept]
+    key = (plane * sampler.shape[0] + cu) * sampler.shape[1] + cv
+    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    summed = np.bincount(inverse, weights=weight)  # in the reads' order, as a running sum would add them
+    order = np.argsort(first)
+    return [
+        (int(plane[first[k]]), int(cu[first[k]]), int(cv[first[k]]), np.float32(summed[k])) for k in order
+    ]
+
+
+def _slab_scores(
+    sampler: _SlabSampler, reads: list, joint_planes: np.ndarray, cube_planes: np.ndarray
+) -> np.ndarray:
     stride, nx, ny = sampler.stride, sampler.nx, sampler.ny
+    n_joints = len(joint_planes)
     total = np.zeros((nx, ny), dtype=np.float32)
     term = np.empty_like(total)
-    for (plane, cu, cv), weight in reads.items():
+    for plane, cu, cv, weight in reads:
         field = joint_planes[plane] if plane < n_joints else cube_planes[plane - n_joints]
         np.multiply(
             field[cu : cu + (nx - 1) * stride + 1 : stride, cv : cv + (ny - 1) * stride + 1 : stride],
-            np.float32(weight),
+            weight,
             out=term,
         )
         total += term

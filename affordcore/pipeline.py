@@ -4,6 +4,7 @@ voxel fields (`prepare_scene`) -> every model's scores and maps (`map_affordance
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -86,12 +87,20 @@ def to_world(
 
 
 def prepare_scene(
-    cloud: Cloud, settings: Settings | None = None, gravity: str | np.ndarray = "auto"
+    cloud: Cloud,
+    settings: Settings | None = None,
+    gravity: str | np.ndarray = "auto",
+    timings: dict[str, float] | None = None,
 ) -> PreparedScene:
-    """`to_world`, then the voxel fields every affordance is scored on."""
+    """`to_world`, then the voxel fields every affordance is scored on; `timings` gets each one's seconds."""
     settings = settings or Settings()
+    start = time.perf_counter()
     world = to_world(cloud, settings, gravity)
+    aligned = time.perf_counter()
     fields = compute_fields(world.cloud.points, settings.voxel, settings.normals)
+    if timings is not None:
+        timings["gravity alignment"] = aligned - start
+        timings["voxel fields"] = time.perf_counter() - aligned
     return PreparedScene(
         world.cloud,
         world.alignment,

@@ -64,20 +64,37 @@ def plot_fields(fields: SceneFields, path: str | Path, slice_height: float = 0.4
     return path
 
 
-def plot_map(points: np.ndarray, amap, path: str | Path, cell: float = 0.05, labels=None) -> Path:
-    """Plan view of one affordance map: the cloud from above (the highest point per 5 cm cell, darker =
-    higher), the confidence map as filled contours above the model's threshold, and each skeleton of the
-    skeleton map as a dot with an arrow along its facing, labelled with its score. Given a `LabelSet`, the
-    affordance's ground-truth labels are drawn too (orange, with their facing)."""
-    plt = pyplot()
-
-    grid = amap.grid
+def plan_heights(points: np.ndarray, cell: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """The cloud seen from above: the highest point's height per `cell` square (NaN where there is none),
+    (nx, ny), and the (x, y) of the first cell's corner. One sort of the points; `plot_map` of several maps
+    of one room can share it."""
     low, high = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
     shape = np.ceil((high - low) / cell).astype(int) + 1
     index = np.floor((points[:, :2] - low) / cell).astype(int)
     top = np.full(shape, np.nan)
     order = np.argsort(points[:, 2])  # written lowest first, so each cell ends with its highest point
     top[index[order, 0], index[order, 1]] = points[order, 2]
+    return top, low
+
+
+def plot_map(
+    points: np.ndarray,
+    amap,
+    path: str | Path,
+    cell: float = 0.05,
+    labels=None,
+    plan: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Path:
+    """Plan view of one affordance map: the cloud from above (the highest point per 5 cm cell, darker =
+    higher), the confidence map as filled contours above the model's threshold, and each skeleton of the
+    skeleton map as a dot with an arrow along its facing, labelled with its score. Given a `LabelSet`, the
+    affordance's ground-truth labels are drawn too (orange, with their facing). `plan`: the cloud's
+    `plan_heights` at `cell`, when already computed (one room, several maps)."""
+    plt = pyplot()
+
+    grid = amap.grid
+    top, low = plan if plan is not None else plan_heights(points, cell)
+    shape = top.shape
     figure, ax = plt.subplots(figsize=(9, 9 * max(0.4, shape[1] / shape[0])), constrained_layout=True)
     ax.imshow(
         top.T,

@@ -1,17 +1,19 @@
 """Point clouds in, one `Cloud` out: every supported file format, with clear errors for bad input.
 
-Formats: PLY (plyfile: it fails loudly on a truncated or malformed file, where open3d returns the header's
-number of points filled with garbage), PCD (open3d; binary, ASCII, binary_compressed), XYZ / PTS / TXT text
-(``x y z``, ``x y z r g b``, or PTS ``x y z intensity r g b`` with an optional point-count first line),
-NPY (an (N, 3) or (N, 6) array) and raw little-endian float32 BIN (``x y z`` or ``x y z r g b`` per point).
-Colours come back as floats in [0, 1]. Points with a NaN or infinite coordinate are dropped, counted and
-noted (`Cloud.notes`).
+Formats: PLY (binary through plyfile, memory-mapped; ASCII through a vectorised numpy reader that checks
+the file's structure first, with plyfile for any file it does not take: both fail loudly on a truncated or
+malformed file, where open3d returns the header's number of points filled with zeros), PCD (open3d;
+binary, ASCII, binary_compressed), XYZ / PTS / TXT text (``x y z``, ``x y z r g b``, or PTS ``x y z
+intensity r g b`` with an optional point-count first line), NPY (an (N, 3) or (N, 6) array) and raw
+little-endian float32 BIN (``x y z`` or ``x y z r g b`` per point). Colours come back as floats in [0, 1].
+Points with a NaN or infinite coordinate are dropped, counted and noted (`Cloud.notes`).
 """
 
 from __future__ import annotations
 
 import os
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -106,11 +108,13 @@ def _finish(path: Path, points: np.ndarray, colors: np.ndarray | None) -> Cloud:
 
 
 def _read_ply(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    from plyfile import PlyData
-
     _check_header(path)
-    vertices = PlyData.read(str(path))["vertex"].data  # memory-mapped, not read row by row
-    names = vertices.dtype.names or ()
+    vertices = _read_ascii_ply_vertices(path)
+    if vertices is None:  # binary (memory-mapped, not read row by row), or an ASCII file the fast path left
+        from plyfile import PlyData
+
+        vertices = PlyData.read(str(path))["vertex"].data
+    names = tuple(vertices.dtype.names or ()) if hasattr(vertices, "dtype") else tuple(vertices)
     if not {"x", "y", "z"} <= set(names):
         raise CloudError(f"{path}: the PLY vertices have no x, y, z properties (have {', '.join(names)})")
     points = np.column_stack([vertices[c].astype(np.float64) for c in ("x", "y", "z")])
@@ -120,6 +124,156 @@ def _read_ply(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     rgb = np.column_stack([vertices[c].astype(np.float64) for c in channels])
     scale = 255.0 if vertices[channels[0]].dtype.kind in "ui" else 1.0
     return points, np.clip(rgb / scale, 0.0, 1.0).astype(np.float32)
+
+
+# PLY's scalar types (both spellings) as numpy types; list properties are left to plyfile
+_PLY_TYPES = {
+    **dict.fromkeys(("char", "int8"), np.int8),
+    **dict.fromkeys(("uchar", "uint8"), np.uint8),
+    **dict.fromkeys(("short", "int16"), np.int16),
+    **dict.fromkeys(("ushort", "uint16"), np.uint16),
+    **dict.fromkeys(("int", "int32"), np.int32),
+    **dict.fromkeys(("uint", "uint32"), np.uint32),
+    **dict.fromkeys(("float", "float32"), np.float32),
+    **dict.fromkeys(("double", "float64"), np.float64),
+}
+_WHITESPACE = np.zeros(256, dtype=bool)
+_WHITESPACE[[9, 10, 11, 12, 13, 32]] = True
+
+
+def _read_ascii_ply_vertices(path: Path) -> dict[str, np.ndarray] | None:
+    """The vertex properties of an ASCII PLY, {name: values of the declared type}, with plyfile's values
+    (tests/test_scene.py compares them), about 15x faster: numpy parses the numbers in one call instead of
+    plyfile's Python loop over lines (5 s for a 470k-point room).
+
+    The structure is checked before a number is read: the vertex section must be exactly the header's
+    count of lines with one token per property on every line, and every token must parse. Anything else
+    (and any file this reader does not take: binary, a vertex element with list properties or after
+    another element, CRLF headers) returns None, and plyfile reads the file or says what is wrong with it;
+    such a file never comes back as points filled with garbage."""
+    with path.open("rb") as handle:
+        head = handle.read(1 << 16)
+    end = head.find(b"end_header\n")
+    if end < 0 or b"\r" in head[:end]:
+        return None
+    lines = head[:end].decode("ascii", errors="replace").split("\n")
+    if len(lines) < 2 or lines[1].split() != ["format", "ascii", "1.0"]:
+        return None
+    elements: list[tuple[str, int, list[tuple[str, type]]]] = []
+    for line in lines[2:]:
+        words = line.split()
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        if words[0] == "element" and len(words) == 3 and words[2].isdigit():
+            elements.append((words[1], int(words[2]), []))
+        elif words[0] == "property" and len(words) == 3 and words[1] in _PLY_TYPES and elements:
+            elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
+        elif words[0] == "property" and words[1:2] == ["list"] and len(elements) > 1:
+            continue  # faces after the vertices: not read
+        else:  # a list property of the vertices, or a header this reader does not know
+            return None
+    if not elements or elements[0][0] != "vertex" or not elements[0][2]:
+        return None
+    _, count, properties = elements[0]
+    names = [name for name, _ in properties]
+    if len(set(names)) != len(names):
+        return None
+    body = np.fromfile(path, dtype=np.uint8, offset=end + len(b"end_header\n"))
+    if count == 0:
+        return None
+    # the vertex section: the first `count` lines (the last one may lack its newline when nothing follows)
+    newlines = np.flatnonzero(body == 10)
+    if len(newlines) >= count:
+        section_end = int(newlines[count - 1])
+    elif len(newlines) == count - 1 and len(elements) == 1 and not _WHITESPACE[body[-1]]:
+        section_end = len(body)
+        newlines = np.append(newlines, len(body))
+    else:
+        return None
+    section = body[:section_end]
+    blank = _WHITESPACE[section]
+    starts = np.flatnonzero(~blank[1:] & blank[:-1]) + 1
+    if len(section) and not blank[0]:
+        starts = np.concatenate([[0], starts])
+    width = len(properties)
+    if len(starts) != count * width:
+        return None
+    # every line holds exactly `width` tokens: the first token of line i starts after line i - 1's newline,
+    # its last one before line i's (token starts are sorted, so no line can hold more or fewer)
+    firsts, lasts = starts[::width], starts[width - 1 :: width]
+    line_ends = newlines[:count]
+    if np.any(lasts > line_ends) or np.any(firsts[1:] <= line_ends[:-1]):
+        return None
+    columns = _open3d_columns(path, properties, section)
+    if columns is not None:
+        return columns
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy only warns when a token does not parse
+        try:
+            values = np.fromstring(section.tobytes(), dtype=np.float64, sep=" ")
+        except (ValueError, DeprecationWarning):
+            return None
+    if len(values) != count * width:
+        return None
+    table = values.reshape(count, width)
+    columns = {}
+    for k, (name, kind) in enumerate(properties):
+        column = table[:, k]
+        if np.dtype(kind).kind in "ui":  # plyfile refuses 1.5 or 300 for a uchar: so does this reader
+            limits = np.iinfo(kind)
+            whole = np.all(column == np.round(column))
+            if not (whole and column.min() >= limits.min and column.max() <= limits.max):
+                return None
+        columns[name] = column.astype(kind)
+    return columns
+
+
+def _open3d_columns(path: Path, properties: list[tuple[str, type]], section: np.ndarray) -> dict | None:
+    """x, y, z (and red, green, blue) of a checked ASCII vertex section through open3d's reader, 3-4x faster
+    than numpy's parser; None when open3d would not read the properties as plyfile does (colours that are
+    not uchar) or did not read the file to its end.
+
+    open3d stops at the first token it cannot parse (``1.2.3``) and leaves that vertex and every later one
+    zero: the last line, parsed here on its own, tells. Its numbers are doubles: cast to the declared types,
+    they are plyfile's."""
+    kinds = dict(properties)
+    rgb = ("red", "green", "blue")
+    if any(kinds[c] not in (np.float32, np.float64) for c in "xyz"):
+        return None
+    with_colours = any(c in kinds for c in rgb)
+    if with_colours and any(kinds.get(c) is not np.uint8 for c in rgb):
+        return None
+    import open3d as o3d
+
+    cloud = o3d.io.read_point_cloud(
+        str(path), format="ply", remove_nan_points=False, remove_infinite_points=False
+    )
+    points = np.asarray(cloud.points)
+    if len(points) != len(section[section == 10]) + (section[-1] != 10):
+        return None
+    with np.errstate(over="ignore", invalid="ignore"):  # what a failed read left is checked below
+        columns = {c: points[:, k].astype(kinds[c]) for k, c in enumerate("xyz")}
+        if with_colours:
+            if not cloud.has_colors():
+                return None
+            scaled = np.rint(np.asarray(cloud.colors) * 255.0)
+            columns.update({c: scaled[:, k].astype(np.uint8) for k, c in enumerate(rgb)})
+    last_line = section[np.flatnonzero(section[:-1] == 10)[-1] + 1 :] if len(points) > 1 else section
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            last = np.fromstring(last_line.tobytes(), dtype=np.float64, sep=" ")
+        except (ValueError, DeprecationWarning):
+            return None
+    if len(last) != len(properties):
+        return None
+    expected = {name: last[k].astype(kind) for k, (name, kind) in enumerate(properties)}
+    read = [(columns[c][-1], expected[c]) for c in columns]
+    if not all(a == b or (np.isnan(a) and np.isnan(b)) for a, b in read) or not any(
+        expected[c] != 0 for c in "xyz"
+    ):
+        return None  # open3d stopped early (or the last point is the origin, which cannot tell)
+    return columns
 
 
 def _read_pcd(path: Path) -> tuple[np.ndarray, np.ndarray | None]:

@@ -1,22 +1,35 @@
-"""Cloud in, affordance maps out: where the time goes, for all three affordances of a 10 m x 10 m room.
+"""`afford map` end to end, as a user runs it, on the 10 m x 10 m benchmark room: ASCII and binary PLY.
 
-The room of bench_features.py (walls, door, sofas, tables, desks, counters, shelves; 100 x 100 x 3 x 63 =
-1.89 million poses per affordance), mapped with the shipped models. Stages, each the median of the repeats:
-gravity alignment, voxel fields, scoring every pose (the linear model applied to the fields, no features
-materialised) with its skeleton / confidence maps, per affordance, and writing the JSON, PNG and Rerun
-outputs. Side by side, one affordance scored the other way (materialise every feature vector, then w . f),
-checked equal, and what each cascade's second stage adds to its first stage.
+The room of bench_features.py (walls, door, sofas, tables, desks, counters, shelves; 470k points; 100 x 100
+x 3 x 63 = 1.89 million poses per affordance), all three shipped models, written once as ASCII and binary PLY
+to bench-data/map/. Each run is a fresh `afford map ROOM --out DIR --timings` process: wall time from the
+command to its files (JSONs, PNGs, recording), its stages as the command reports them (--timings), CPU
+seconds and peak RSS (the largest process of its tree, and an upper bound on the tree's total). Medians over
+the repeats.
 
-    .venv/bin/python benchmarks/bench_map.py             # about 2 minutes on 2 cores
-    .venv/bin/python benchmarks/bench_map.py --repeats 1
+With ``--old PATH`` (a git worktree of an earlier commit: ``git worktree add /tmp/old-afford HEAD``) the same
+command of that commit runs alternately with this one (its code on PYTHONPATH, the same venv), so the ratio
+is measured side by side on the same machine state; the maps of both are compared (places, positive poses,
+scores).
+
+Then, in this process, the library stages one by one (``--library``, default on): gravity alignment, voxel
+fields, per affordance the scoring and map (`map_affordances`), outputs (`write_map_outputs`, serially), and,
+side by side, one affordance scored by materialising every feature vector against applying the model to
+the fields, and what each cascade's second stage adds.
+
+    .venv/bin/python benchmarks/bench_map.py --old /tmp/old-afford     # about 4 minutes on 2 cores
+    .venv/bin/python benchmarks/bench_map.py --repeats 1 --no-library
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import re
 import resource
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -28,17 +41,11 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_features import POINTS_PER_M2, SEED, room_boxes  # noqa: E402
 
 from affordcore.example import box_surface_points  # noqa: E402
-from affordcore.features import iter_features  # noqa: E402
-from affordcore.gravity import align_to_gravity  # noqa: E402
-from affordcore.inference import score_poses  # noqa: E402
-from affordcore.learn.model import (
-    load_model,  # noqa: E402
-    shipped_models,  # noqa: E402
-)
-from affordcore.outputs import write_map_outputs  # noqa: E402
-from affordcore.pipeline import map_affordances, prepare_scene  # noqa: E402
 from affordcore.scene import Cloud  # noqa: E402
-from affordcore.settings import Settings  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+ROOMS = ROOT / "bench-data" / "map"
+AFFORD = Path(sys.executable).parent / "afford"
 
 
 def room_cloud(side: float = 10.0) -> Cloud:
@@ -49,7 +56,142 @@ def room_cloud(side: float = 10.0) -> Cloud:
     return Cloud(points + rng.normal(scale=0.003, size=points.shape), source="10 m benchmark room")
 
 
-def one_run(cloud: Cloud, settings: Settings, models) -> dict[str, float]:
+def room_files() -> dict[str, Path]:
+    """The benchmark room as ASCII and binary little-endian PLY (float32 x y z), written once."""
+    from plyfile import PlyData, PlyElement
+
+    files = {"ASCII": ROOMS / "room-ascii.ply", "binary": ROOMS / "room-binary.ply"}
+    if all(path.exists() for path in files.values()):
+        return files
+    ROOMS.mkdir(parents=True, exist_ok=True)
+    cloud = room_cloud()
+    vertices = np.empty(len(cloud), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+    for k, axis in enumerate("xyz"):
+        vertices[axis] = cloud.points[:, k]
+    element = PlyElement.describe(vertices, "vertex")
+    PlyData([element], text=True).write(str(files["ASCII"]))
+    PlyData([element], byte_order="<").write(str(files["binary"]))
+    return files
+
+
+def run_command(room: Path, out: Path, old: Path | None) -> dict:
+    """One `afford map` process: wall seconds, CPU seconds, peak RSS, its --timings stages."""
+    env = dict(os.environ)
+    command = [str(AFFORD), "map", str(room), "--out", str(out), "-q"]
+    if old is not None:
+        env["PYTHONPATH"] = str(old)  # before the editable install of this tree
+    else:
+        command.append("--timings")
+    with tempfile.TemporaryFile() as stdout, tempfile.TemporaryFile() as stderr:
+        start = time.perf_counter()
+        process = subprocess.Popen(command, stdout=stdout, stderr=stderr, env=env, cwd=old or ROOT)
+        _, status, usage = os.wait4(process.pid, 0)
+        wall = time.perf_counter() - start
+        process.returncode = os.waitstatus_to_exitcode(status)
+        stdout.seek(0)
+        stderr.seek(0)
+        text, errors = stdout.read().decode(), stderr.read().decode()
+    if process.returncode:
+        raise SystemExit(f"{' '.join(command)} failed ({process.returncode}):\n{text}\n{errors}")
+    stages = {m[1]: float(m[2]) for m in re.finditer(r"^timing: (.+): ([\d.]+) s$", errors, re.M)}
+    own = re.search(r"peak memory (\d+) MB(?: \(worker processes: (\d+) x at most (\d+) MB)?", text)
+    parent, workers, worker_peak = (int(own[1]), int(own[2] or 0), int(own[3] or 0)) if own else (0, 0, 0)
+    return {
+        "wall": wall,
+        "cpu": usage.ru_utime + usage.ru_stime,
+        "largest MB": usage.ru_maxrss / 1024,
+        "total MB (upper bound)": parent + workers * worker_peak,
+        "stages": stages,
+    }
+
+
+def compare_maps(old: Path, new: Path) -> str:
+    """Places, positive poses and scores of two output folders' JSON maps, in one line."""
+    worst, notes = 0.0, []
+    for path in sorted(old.glob("*.json")):
+        a, b = json.loads(path.read_text()), json.loads((new / path.name).read_text())
+        pose = ("x", "y", "z", "theta")
+        for key in ("skeletons", "positives"):
+            if [tuple(p[k] for k in pose) for p in a[key]] != [tuple(p[k] for k in pose) for p in b[key]]:
+                notes.append(f"{path.stem}: {key} differ ({len(a[key])} against {len(b[key])})")
+            worst = max([worst] + [abs(p["score"] - q["score"]) for p, q in zip(a[key], b[key])])
+    same = "the same places and positive poses" if not notes else "; ".join(notes)
+    return f"{same}, scores within {worst:.1e}"
+
+
+def command_table(args, files: dict[str, Path]) -> None:
+    sides = [("this tree", None)] + ([("old", Path(args.old))] if args.old else [])
+    runs: dict[tuple[str, str], list[dict]] = {}
+    load_before = os.getloadavg()[0]
+    agreement = {}
+    with tempfile.TemporaryDirectory() as scratch:
+        for repeat in range(args.repeats):
+            for kind, room in files.items():
+                for side, old in sides if repeat % 2 == 0 else sides[::-1]:  # alternate who goes first
+                    out = Path(scratch) / f"{side}-{kind}"
+                    runs.setdefault((kind, side), []).append(run_command(room, out, old))
+        for kind in files:
+            if args.old:
+                folders = Path(scratch) / f"old-{kind}", Path(scratch) / f"this tree-{kind}"
+                agreement[kind] = compare_maps(*folders)
+    print(
+        f"`afford map` on the 10 m room (470,552 points, 3 affordances, PNGs and recording), "
+        f"{os.cpu_count()} cores, {args.repeats} repeats, medians; load average {load_before:.1f} before, "
+        f"{os.getloadavg()[0]:.1f} after (above 0.5, other processes shared the cores)"
+    )
+    header = "| PLY | wall s | CPU s | largest process MB | tree MB (upper bound) |"
+    if args.old:
+        header += " old commit wall s | old commit CPU s | old / new (wall) |"
+    print(header + "\n|---|---:|---:|---:|---:|" + ("---:|---:|---:|" if args.old else ""))
+    for kind in files:
+        new = runs[(kind, "this tree")]
+        row = (
+            f"| {kind} | {statistics.median(r['wall'] for r in new):.2f} | "
+            f"{statistics.median(r['cpu'] for r in new):.2f} | "
+            f"{max(r['largest MB'] for r in new):.0f} | {max(r['total MB (upper bound)'] for r in new):.0f} |"
+        )
+        if args.old:
+            old = runs[(kind, "old")]
+            ratios = [o["wall"] / n["wall"] for o, n in zip(old, new)]
+            row += (
+                f" {statistics.median(r['wall'] for r in old):.2f} | "
+                f"{statistics.median(r['cpu'] for r in old):.2f} | {statistics.median(ratios):.2f}x "
+                f"({min(ratios):.2f}-{max(ratios):.2f}) |"
+            )
+        print(row)
+    for kind, text in agreement.items():
+        print(f"{kind}: maps against the old commit's: {text}")
+    print("\nstages as `afford map --timings` reports them (seconds, medians; workers run side by side):")
+    kinds = list(files)
+    print("| stage | " + " | ".join(kinds) + " |\n|---|" + "---:|" * len(kinds))
+    stages = list(dict.fromkeys(s for kind in kinds for r in runs[(kind, "this tree")] for s in r["stages"]))
+    for stage in stages:
+        cells = []
+        for kind in kinds:
+            values = [r["stages"][stage] for r in runs[(kind, "this tree")] if stage in r["stages"]]
+            cells.append(f"{statistics.median(values):.2f}" if values else "")
+        print(f"| {stage} | " + " | ".join(cells) + " |")
+    for kind in kinds:
+        new = runs[(kind, "this tree")]
+        inside = statistics.median(sum(v for s, v in r["stages"].items() if s in TOP_STAGES) for r in new)
+        wall = statistics.median(r["wall"] for r in new)
+        print(
+            f"{kind}: the stages add up to {inside:.2f} s of the {wall:.2f} s: "
+            "the rest is starting Python and importing (numpy, scipy, open3d, pydantic, typer)"
+        )
+
+
+TOP_STAGES = ("load the cloud", "gravity alignment", "voxel fields", "maps and outputs (wall)")
+
+
+# --- the library, stage by stage ------------------------------------------------------------------------
+
+
+def one_run(cloud: Cloud, settings, models) -> tuple[dict[str, float], object]:
+    from affordcore.gravity import align_to_gravity
+    from affordcore.outputs import write_map_outputs
+    from affordcore.pipeline import map_affordances, prepare_scene
+
     seconds = {}
     start = time.perf_counter()
     alignment = align_to_gravity(cloud.points, "auto", settings.gravity)
@@ -64,19 +206,20 @@ def one_run(cloud: Cloud, settings: Settings, models) -> dict[str, float]:
         clock[0] = time.perf_counter()
 
     maps = map_affordances(scene.fields, scene.layout, models, settings, on_map=lap)
+    seconds["cloud in to maps computed (no outputs)"] = sum(seconds.values())
     with tempfile.TemporaryDirectory() as out:
         start = time.perf_counter()
         write_map_outputs(scene, maps, models, Path(out), Path(out) / "map.rrd")
-        seconds["JSON + PNG + Rerun outputs"] = time.perf_counter() - start
-    seconds["cloud in to maps computed (no outputs)"] = sum(
-        v for k, v in seconds.items() if not k.startswith("JSON")
-    )
+        seconds["JSON + PNG + Rerun outputs, one process"] = time.perf_counter() - start
     return seconds, scene
 
 
 def materialised(scene, model, settings) -> tuple[float, float, float]:
     """Seconds to score one affordance by features @ w and by applying w to the fields (side by side), and
     the largest difference between the two."""
+    from affordcore.features import iter_features
+    from affordcore.inference import score_poses
+
     skeleton = model.as_skeleton()
     grid = scene.pose_grid(skeleton, settings)
     start = time.perf_counter()
@@ -115,16 +258,24 @@ def second_stage(scene, models, settings, repeats: int) -> list[tuple[str, int, 
     return rows
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3)
-    args = parser.parse_args()
-    settings = Settings()
-    models = [load_model(path) for path in shipped_models().values()]
-    cloud = room_cloud()
-    import open3d  # noqa: F401  (import cost is not the pipeline's)
+def library_table(args, files: dict[str, Path]) -> None:
+    import open3d  # noqa: F401  (import costs are the command's table's, not the stages')
     import rerun  # noqa: F401
 
+    from affordcore.learn.model import load_model, shipped_models
+    from affordcore.plots import pyplot
+    from affordcore.scene import load_cloud
+    from affordcore.settings import Settings
+
+    pyplot()
+    settings = Settings()
+    models = [load_model(path) for path in shipped_models().values()]
+    loads = {kind: [] for kind in files}
+    for _ in range(args.repeats):
+        for kind, path in files.items():
+            start = time.perf_counter()
+            cloud = load_cloud(path)
+            loads[kind].append(time.perf_counter() - start)
     runs, cpu = [], []
     for _ in range(args.repeats):
         cpu_start, wall_start = time.process_time(), time.perf_counter()
@@ -132,11 +283,12 @@ def main() -> None:
         cpu.append((time.process_time() - cpu_start) / (time.perf_counter() - wall_start))
         runs.append(seconds)
     print(
-        f"{len(cloud):,} points, {os.cpu_count()} cores, {args.repeats} repeats, "
-        f"cpu/wall {min(cpu):.2f}-{max(cpu):.2f} "
-        f"(2.0 would be both cores busy; far below 1 means a contended machine)"
+        f"\nthe library in one process, stage by stage: {len(cloud):,} points, {os.cpu_count()} cores, "
+        f"{args.repeats} repeats, cpu/wall {min(cpu):.2f}-{max(cpu):.2f}"
     )
     print("| stage | seconds (median) |\n|---|---:|")
+    for kind, values in loads.items():
+        print(f"| load the {kind} PLY | {statistics.median(values):.2f} |")
     for stage in runs[0]:
         print(f"| {stage} | {statistics.median(r[stage] for r in runs):.2f} |")
     slow, fast, difference = materialised(scene, models[0], settings)
@@ -148,13 +300,19 @@ def main() -> None:
     stages = second_stage(scene, models, settings, args.repeats)
     for affordance, rescored, seconds in stages:
         print(f"{affordance}: the second stage rescores {rescored:,} poses in {seconds:.2f} s")
-    if stages:
-        print(
-            f"second stage, all {len(stages)} affordances: {sum(s for _, _, s in stages):.2f} s (target: 1 s)"
-        )
-    print(
-        f"peak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:,.0f} MB (the whole process)"
-    )
+    print(f"peak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:,.0f} MB (this process)")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--old", help="a worktree of the commit to compare against, run side by side")
+    parser.add_argument("--library", action=argparse.BooleanOptionalAction, default=True)
+    args = parser.parse_args()
+    files = room_files()
+    command_table(args, files)
+    if args.library:
+        library_table(args, files)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,59 @@
+"""`afford map`'s last stage in worker processes (`outputs.map_and_write`) writes what one process writes: the
+same JSON and PNG bytes, the same recording entities, maps back in the models' order."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+
+from affordcore.example import example_room
+from affordcore.features import FeatureLayout
+from affordcore.learn.model import choose_models
+from affordcore.outputs import map_and_write, write_map_outputs
+from affordcore.pipeline import map_affordances, prepare_scene
+from affordcore.recording import recorded_entities
+from affordcore.settings import Settings
+
+
+@pytest.fixture(scope="module")
+def room():
+    settings = Settings()
+    scene = prepare_scene(example_room(), settings, "none")
+    models = choose_models([], [], FeatureLayout.from_settings(settings.features, settings.voxel))
+    return scene, models, settings
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="workers are forked on Linux only")
+def test_workers_write_what_one_process_writes(room, tmp_path):
+    scene, models, settings = room
+    models = models[:2]  # two workers: enough to show the order and the bytes
+    serial = map_affordances(scene.fields, scene.layout, models, settings)
+    write_map_outputs(scene, serial, models, tmp_path / "one", tmp_path / "one" / "map.rrd")
+    heard, timings = [], {}
+    maps, written = map_and_write(
+        scene,
+        models,
+        settings,
+        tmp_path / "workers",
+        tmp_path / "workers" / "map.rrd",
+        workers=len(models),
+        on_map=lambda affordance, _: heard.append(affordance),
+        timings=timings,
+    )
+    assert list(maps) == [m.affordance for m in models] == list(serial)
+    assert sorted(heard) == sorted(maps)
+    assert [p.name for p in written] == [
+        name for m in models for name in (f"{m.affordance}.json", f"{m.affordance}.png")
+    ] + ["map.rrd"]
+    for path in written[:-1]:
+        assert path.read_bytes() == (tmp_path / "one" / path.name).read_bytes(), path.name
+    assert recorded_entities(written[-1]) == recorded_entities(tmp_path / "one" / "map.rrd")
+    assert {f"score + map {m.affordance}" for m in models} <= set(timings)
+
+
+def test_one_process_and_no_recording(room, tmp_path):
+    scene, models, settings = room
+    maps, written = map_and_write(scene, models[:1], settings, tmp_path, None, workers=1)
+    assert list(maps) == [models[0].affordance]
+    assert [p.name for p in written] == [f"{models[0].affordance}.json", f"{models[0].affordance}.png"]
