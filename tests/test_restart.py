@@ -48,6 +48,11 @@ def _watch(stack: Stack, frames: int, out) -> dict:
     return {name: json.loads((out / f"{name}.json").read_text()) for name in AFFORDANCES}
 
 
+def _finished(publisher: subprocess.Popen) -> str:
+    """What a publisher said, if it has exited (for a failure's message)."""
+    return publisher.communicate()[0] if publisher.poll() is not None else "still running"
+
+
 def _frames_of(stack: Stack) -> set[int]:
     """The scan counts the watched maps say they were built from (the map message's `frames`)."""
     session = stack.session()
@@ -81,7 +86,9 @@ def test_killed_services_restart_and_lose_no_accepted_frame(generated_sequence, 
         ]
         publisher = _publish(stack, generated_sequence, first=0, frames=34)
         # once a map has gone out (the floor is in view), mid-stream: frames after the kill reach nobody
-        assert eventually(lambda: clouds and len(poses) < 34, timeout=120, poll=0.05), stack.logs()
+        assert eventually(lambda: clouds and len(poses) < 34, timeout=120, poll=0.05), (
+            f"{len(poses)} poses, {len(clouds)} clouds; publish: {_finished(publisher)}" + stack.logs()
+        )
         stack.kill("assembler")
         publisher.communicate(timeout=120)
         seen = len(poses)  # every frame whose pose went out was journaled first

@@ -181,7 +181,7 @@ def test_features_level_a_cloud_in_its_own_frame_refuse_a_world_one_without_a_fl
         raised = messages.cloud_message(room + [0, 0, 0.8], np.eye(4), "file", at=1_700_000_001.5)
         _send(client, KEYS.cloud, raised.SerializeToString(), messages.CloudMessage)
         error = _next(errors, messages.Error)
-        assert "floor at z = 0, but only 0.00 m^2 of points lie at z = 0" in error.reason
+        assert "floor at z = 0, but its floor is at z = +0.80 m" in error.reason
         assert error.input_timestamp == raised.timestamp, "the refusal names the cloud it answers"
         status = _status(client, "features")
         assert status.newest_input == raised.timestamp and status.newest_input_refused == error.reason
