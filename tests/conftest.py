@@ -75,6 +75,28 @@ def generated_sequence(tmp_path_factory) -> Path:
     return folder
 
 
+@pytest.fixture(scope="session")
+def small_room(tmp_path_factory) -> str:
+    """A 2.5 m x 2 m room (floor, two walls, a table) as a PLY file: a cloud the commands map in seconds."""
+    from affordcore.example import box_surface_points
+    from affordcore.scene import Cloud, save_cloud
+
+    rng = np.random.default_rng(0)
+    # Sizes off the 10 cm lattice, so the grid's extent does not hinge on rounding at a cell edge.
+    boxes = [
+        ((0, 0, 0), (2.47, 1.96, 0)),
+        ((0, -0.08, 0), (2.47, 0, 2.3)),
+        ((-0.08, 0, 0), (0, 1.96, 2.3)),
+        ((1.0, 0.8, 0.7), (1.8, 1.5, 0.74)),
+    ]
+    points = np.concatenate(
+        [box_surface_points(np.array(a, float), np.array(b, float), 800, rng) for a, b in boxes]
+    )
+    path = tmp_path_factory.mktemp("cloud") / "small-room.ply"
+    save_cloud(path, Cloud(points))
+    return str(path)
+
+
 # -- leaving ------------------------------------------------------------------------------------------------
 
 _EXIT_STATUS = {"code": 0}

@@ -9,10 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from affordcore.example import box_surface_points
 from affordcore.features import FeatureLayout
 from affordcore.grid import PoseGrid
-from affordcore.scene import Cloud, save_cloud
 from affordcore.settings import Settings
 from affordcore.skeleton import all_skeletons, get_skeleton
 
@@ -21,24 +19,6 @@ def afford(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "afford", *args], capture_output=True, text=True, timeout=300, env=env
     )
-
-
-@pytest.fixture(scope="module")
-def small_room(tmp_path_factory) -> str:
-    rng = np.random.default_rng(0)
-    # Sizes off the 10 cm lattice, so the grid's extent does not hinge on rounding at a cell edge.
-    boxes = [
-        ((0, 0, 0), (2.47, 1.96, 0)),
-        ((0, -0.08, 0), (2.47, 0, 2.3)),
-        ((-0.08, 0, 0), (0, 1.96, 2.3)),
-        ((1.0, 0.8, 0.7), (1.8, 1.5, 0.74)),
-    ]
-    points = np.concatenate(
-        [box_surface_points(np.array(a, float), np.array(b, float), 800, rng) for a, b in boxes]
-    )
-    path = tmp_path_factory.mktemp("cloud") / "small-room.ply"
-    save_cloud(path, Cloud(points))
-    return str(path)
 
 
 def test_importing_the_cli_loads_no_heavy_library():

@@ -11,11 +11,7 @@ import subprocess
 import sys
 import textwrap
 
-import numpy as np
 import pytest
-
-from affordcore.example import box_surface_points
-from affordcore.scene import Cloud, save_cloud
 
 # what the [services], [ros] and [learn] extras install (pyproject.toml)
 HIDDEN = ("zenoh", "kiss_icp", "google.protobuf", "cryptography", "rosbags", "sklearn", "osqp")
@@ -48,23 +44,6 @@ def core_only(tmp_path_factory) -> dict[str, str]:
     )
     pythonpath = os.pathsep.join(filter(None, [str(folder), os.environ.get("PYTHONPATH")]))
     return {**os.environ, "PYTHONPATH": pythonpath, "COLUMNS": "200", "NO_COLOR": "1"}
-
-
-@pytest.fixture(scope="module")
-def small_room(tmp_path_factory) -> str:
-    rng = np.random.default_rng(0)
-    boxes = [  # floor, two walls, a table
-        ((0, 0, 0), (2.47, 1.96, 0)),
-        ((0, -0.08, 0), (2.47, 0, 2.3)),
-        ((-0.08, 0, 0), (0, 1.96, 2.3)),
-        ((1.0, 0.8, 0.7), (1.8, 1.5, 0.74)),
-    ]
-    points = np.concatenate(
-        [box_surface_points(np.array(a, float), np.array(b, float), 800, rng) for a, b in boxes]
-    )
-    path = tmp_path_factory.mktemp("cloud") / "small-room.ply"
-    save_cloud(path, Cloud(points))
-    return str(path)
 
 
 def run(env: dict, *args: str, cwd=None) -> subprocess.CompletedProcess:
