@@ -82,6 +82,9 @@ class Assembler:
         self.registered_points = np.empty((0, 3))
         self._gravity_sum = np.zeros(3)  # gravity directions reported with the frames, in the odometry frame
         self.keyframes = 0  # frames that joined the global map
+        # the last levelling found (world_from_odom); a later map whose floor search fails keeps it
+        self.world_from_odom: np.ndarray | None = None
+        self.levelling_kept = ""  # why the last aligned map was levelled as before ("" when levelled anew)
 
     def _kiss_icp(self):
         from kiss_icp.config import KISSConfig
@@ -260,6 +263,7 @@ class Assembler:
             "last_guess_stamp": np.float64(self._last_guess_stamp),
             "last_keyframe": np.empty((0, 4)) if self._last_keyframe is None else self._last_keyframe,
             "keyframes": np.int64(self.keyframes),
+            "world_from_odom": np.empty((0, 4)) if self.world_from_odom is None else self.world_from_odom,
         }
 
     def load_state(self, data) -> None:
@@ -272,6 +276,8 @@ class Assembler:
         self._last_guess_stamp = float(data["last_guess_stamp"])
         self._last_keyframe = data["last_keyframe"] if data["last_keyframe"].size else None
         self.keyframes = int(data["keyframes"])
+        if "world_from_odom" in data and data["world_from_odom"].size:  # checkpoints before it lack it
+            self.world_from_odom = data["world_from_odom"]
 
     def resume(self) -> None:
         """After a restore: KISS-ICP starts again at the last pose, at rest, its local map refilled from the
@@ -299,13 +305,28 @@ class Assembler:
     def aligned_map(self, settings: Settings | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(map points in the world frame, world_from_odom), by the same path as every other cloud
         (`pipeline.to_world`), with gravity from the frames when they carried it. Raises ValueError when no
-        floor is found yet."""
+        floor has been found yet.
+
+        Once a floor has been found, a map whose floor search fails is levelled as the last one was (and
+        `levelling_kept` says why): odometry drift smears a floor seen from a few frames over decimetres, and
+        the search can then fail on one map and succeed on the next; a robot's world frame should not
+        vanish in between."""
+        from .gravity import NoFloorError
         from .pipeline import to_world
         from .scene import Cloud
 
         known = self._gravity_sum if np.linalg.norm(self._gravity_sum) > 0 else "auto"
-        world = to_world(Cloud(self.map_points(), source="assembler map"), settings, known)
-        return world.cloud.points, world.alignment.world_from_input
+        cloud = Cloud(self.map_points(), source="assembler map")
+        try:
+            world = to_world(cloud, settings, known)
+        except NoFloorError as error:
+            if self.world_from_odom is None:
+                raise
+            self.levelling_kept = str(error)
+            kept = to_world(cloud, settings, "none").cloud.transformed(self.world_from_odom)
+            return kept.points, self.world_from_odom
+        self.world_from_odom, self.levelling_kept = world.alignment.world_from_input, ""
+        return world.cloud.points, self.world_from_odom
 
 
 def scaled_motion(delta: np.ndarray, ratio: float) -> np.ndarray:

@@ -26,6 +26,10 @@ _FURNITURE_TOP = 1.3  # horizontal surfaces up to this height count for a floor'
 _REFITS = 10  # least-squares refits of the RANSAC plane, at most
 _JUDGES = 20_000  # points that rank RANSAC hypotheses
 _DESCENTS = 3  # at most this many times a floor is looked for under a plane with points below it
+_LEVEL_SLAB = 0.25  # check_levelled looks for the floor among points this close to z = 0 (m)
+# check_levelled lets a floor be half as big and have twice as much under it as the search that levels a
+# cloud does: its own sample of the same map falls either side of those limits when the leveller's was close
+_CHECK_SLACK = 2.0
 
 AXES = {
     "+x": (1, 0, 0),
@@ -126,24 +130,53 @@ def check_levelled(
     tolerance: float = 0.05,
     max_tilt: float = 15.0,
 ) -> float:
-    """A cloud said to be in the world frame has its floor at z = 0: the floor found under gravity -z, as
-    for any cloud with a known gravity, lies within `tolerance` m of z = 0 and `max_tilt` degrees of level.
-    Returns the floor's area; raises `NoFloorError` saying what is wrong (a cloud with its floor elsewhere
-    would be scored against air and come back as empty maps, which looks like an answer). The same search
-    that levelled the assembler's maps judges them here, so its own clouds pass (an IMU-levelled map of a
-    drifting walk can show its floor 5 deg off level: hence the generous tilt)."""
+    """A cloud said to be in the world frame has its floor at z = 0: a plane among the points near z = 0,
+    within `max_tilt` degrees of level, whose points lie within `tolerance` m of z = 0 at their median, that
+    covers a floor's area and has almost nothing under it (the floor search's limits, with slack). Returns its
+    area; raises `NoFloorError` saying what is wrong (a cloud with its floor elsewhere would be scored
+    against air and come back as empty maps, which looks like an answer).
+
+    It tests that one hypothesis rather than searching for the floor afresh: a map levelled from a drifting
+    walk has its floor smeared over decimetres, and a new search (which descends through planes with points
+    under them) can settle on a different patch of it than the search that levelled the map did (the
+    assembler's own maps were refused one time in three). The slab is wide enough for a floor tilted a few
+    degrees across a room (an IMU-levelled map can show 5 deg) and too thin for seats (0.4 m)."""
     settings = settings or GravitySettings()
-    advice = "Send it in its own frame (any frame_id but 'world') and it is levelled for you"
-    try:
-        floor = align_to_gravity(points, np.array([0.0, 0.0, -1.0]), settings)
-    except NoFloorError as error:
-        raise NoFloorError(f"a 'world' cloud has its floor at z = 0, but {error}. {advice}") from None
-    if abs(floor.floor_offset) > tolerance or floor.tilt_deg > max_tilt:
-        raise NoFloorError(
-            f"a 'world' cloud has its floor at z = 0, but its floor is at z = {floor.floor_offset:+.2f} m, "
-            f"tilted {floor.tilt_deg:.1f} deg (at most {tolerance:g} m and {max_tilt:g} deg). {advice}"
-        )
-    return floor.floor_area
+    strict = settings.model_copy(update={"max_tilt_deg": max_tilt})
+    sample = voxel_thin(points, settings.sample_voxel)[0]
+    up = np.array([0.0, 0.0, 1.0])
+    slab = sample[np.abs(sample[:, 2]) < _LEVEL_SLAB]
+    plane = _ransac_plane(slab, up, strict, np.random.default_rng(settings.seed))
+    if plane is None:
+        problem = f"no plane within {max_tilt:g} deg of level lies within {_LEVEL_SLAB:g} m of z = 0"
+    else:
+        normal, inliers = plane
+        height = float(np.median(slab[inliers, 2]))
+        area = _area(slab[inliers], normal)
+        below = float(np.mean(sample @ normal - np.median(slab[inliers] @ normal) < -_BELOW_MARGIN))
+        problem = ""
+        if abs(height) > tolerance:
+            problem = (
+                f"its largest level plane near z = 0 is at z = {height:+.2f} m (at most {tolerance:g} m)"
+            )
+        elif area < settings.min_floor_area / _CHECK_SLACK:
+            problem = f"the level plane at z = {height:+.2f} m covers only {area:.2f} m^2"
+        elif below > settings.max_below_fraction * _CHECK_SLACK:
+            problem = f"{below:.1%} of the points lie under the level plane at z = {height:+.2f} m"
+        if not problem:
+            return area
+    raise NoFloorError(
+        f"a 'world' cloud has its floor at z = 0, but {_where_the_floor_is(sample, settings)} ({problem}). "
+        "Send it in its own frame (any frame_id but 'world') and it is levelled for you"
+    )
+
+
+def _where_the_floor_is(sample: np.ndarray, settings: GravitySettings) -> str:
+    """What a floor search under gravity -z makes of a cloud, for an error message."""
+    floor = _find_floor(sample, np.array([0.0, 0.0, 1.0]), "+z", settings, normals=None, descend=True)
+    if not floor.valid:
+        return f"no floor found under gravity -z ({floor.reason})"
+    return f"its floor is at z = {floor.offset:+.2f} m, tilted {floor.tilt_deg:.1f} deg"
 
 
 def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:

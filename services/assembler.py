@@ -106,7 +106,9 @@ class AssemblerService:
         set_time(self.node.recording, self.last_stamp)
         log_trajectory(self.node.recording, self.assembler.trajectory.positions, world_from_odom)
         log_cloud(self.node.recording, points)
+        kept = self.assembler.levelling_kept
         self.node.publish_status(
             messages.Status.READY,
-            f"published the map of {self.assembler.frames} frames, {len(points):,} points",
+            f"published the map of {self.assembler.frames} frames, {len(points):,} points"
+            + (f", levelled as the last map (its own floor search failed: {kept})" if kept else ""),
         )

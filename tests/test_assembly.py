@@ -128,6 +128,58 @@ def test_the_aligned_map_has_the_floor_at_zero_and_z_up(room_frames, room_run):
     assert table > 50 and np.mean(heights > 0.1) > 0.3  # furniture stands up from the floor, not down
 
 
+def test_a_map_whose_floor_search_fails_keeps_the_last_levelling_and_a_checkpoint_keeps_it(room_run):
+    from affordcore.gravity import NoFloorError
+    from affordcore.settings import GravitySettings, Settings
+
+    assembler, _ = room_run
+    points, levelled = assembler.aligned_map()
+    assert assembler.levelling_kept == ""
+    blind = Settings(gravity=GravitySettings(min_floor_area=1e4))  # no floor in view is this big
+    kept_points, kept = assembler.aligned_map(blind)
+    np.testing.assert_array_equal(kept, levelled)
+    np.testing.assert_allclose(kept_points, points, atol=1e-9)
+    assert "covers only" in assembler.levelling_kept  # the service's status says why
+
+    state = assembler.state_arrays()
+    restored = Assembler()
+    restored.load_state(state)
+    np.testing.assert_array_equal(restored.aligned_map(blind)[1], levelled)
+    never = Assembler()  # a checkpoint from before any levelling (or before this key existed)
+    never.load_state({key: value for key, value in state.items() if key != "world_from_odom"})
+    with pytest.raises(NoFloorError, match="covers only"):
+        never.aligned_map(blind)
+
+
+@pytest.mark.slow
+def test_every_map_the_assembler_levels_passes_the_features_check(generated_sequence):
+    """The features service checks a 'world' cloud for a floor at z = 0; the assembler's own maps of a
+    drifting hand-held walk (its floor smeared over decimetres) must pass that check whenever the assembler
+    found a floor at all. A fresh floor search settled on another patch of the smear and refused a third of
+    them, so a service restarted mid-walk got no map."""
+    from affordcore.gravity import check_levelled
+    from affordcore.sequence import read_sequence
+    from affordcore.settings import Settings
+
+    sequence, settings = read_sequence(generated_sequence), Settings()
+    assembler, levelled = Assembler(settings.assembler, settings.limits), 0
+    for count, index in enumerate(range(0, 120, 3), start=1):  # as the e2e tests publish it (--step 3)
+        depth = DepthImage(sequence.depth(index), sequence.intrinsics)
+        points = back_project(
+            depth, settings.assembler.pixel_step, settings.assembler.min_range, settings.assembler.max_range
+        )
+        assembler.register(points, index / 30, gravity=sequence.gravity(index))
+        if count < 20:
+            continue
+        try:
+            world, _ = assembler.aligned_map(settings)
+        except ValueError:
+            continue  # no floor in view yet: the assembler publishes nothing
+        check_levelled(world, settings.gravity)
+        levelled += 1
+    assert levelled >= 10  # most maps of the second half of the walk are levelled and checked
+
+
 def test_a_static_sensor_adds_no_keyframes(room_frames):
     frames, _ = room_frames
     rng = np.random.default_rng(1)

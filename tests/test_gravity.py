@@ -270,6 +270,14 @@ def test_a_slightly_tilted_levelled_room_passes_the_check(room):
     assert check_levelled(room @ tilt.T - [0.0, 0.0, 0.01]) > 20.0
 
 
+def test_a_room_levelled_by_a_drifting_imu_passes_the_check(room):
+    # up from an IMU, the floor from odometry that drifted: 5 deg between them, +-26 cm across the 6 m room,
+    # the floor's median at z = 0 (where levelling puts it)
+    tilt = rotation_between([0.0, 0.0, 1.0], [np.sin(np.radians(5)), 0.0, np.cos(np.radians(5))])
+    centre = np.array([*np.median(room[:, :2], axis=0), 0.0])
+    assert check_levelled((room - centre) @ tilt.T) > 10.0
+
+
 # --- no floor -----------------------------------------------------------------------------------------------
 
 
