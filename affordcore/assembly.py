@@ -87,15 +87,9 @@ class Assembler:
         self.levelling_kept = ""  # why the last aligned map was levelled as before ("" when levelled anew)
 
     def _kiss_icp(self):
-        from kiss_icp.config import KISSConfig
         from kiss_icp.kiss_icp import KissICP
 
-        config = KISSConfig()
-        config.data.max_range, config.data.min_range = self.settings.max_range, self.settings.min_range
-        config.data.deskew = False
-        config.mapping.voxel_size = self.settings.voxel_size
-        config.registration.max_num_threads = 0  # all cores
-        return KissICP(config)
+        return KissICP(kiss_config(self.settings))
 
     @property
     def frames(self) -> int:
@@ -108,7 +102,13 @@ class Assembler:
         points = frame.points
         if frame.depth is not None:
             settings = self.settings
-            points = back_project(frame.depth, settings.pixel_step, settings.min_range, settings.max_range)
+            points = back_project(
+                frame.depth,
+                settings.pixel_step,
+                settings.min_range,
+                settings.max_range,
+                settings.block_stride,
+            )
         return self.register(points, stamp, frame.pose_guess, frame.gravity)
 
     def register(
@@ -141,18 +141,19 @@ class Assembler:
         from kiss_icp.voxelization import voxel_down_sample
 
         self._check_input(points, stamp, pose_guess, gravity)
-        ranges = np.linalg.norm(points, axis=1)
-        points = points[(ranges >= self.settings.min_range) & (ranges <= self.settings.max_range)]
-        if len(points) < 100:
-            raise ValueError(
-                f"the frame has {len(points)} points within "
-                f"{self.settings.min_range}-{self.settings.max_range} m; at least 100 are needed"
-            )
         odometry = self.odometry
         delta = self._predicted_motion(stamp)
         if pose_guess is not None and self._last_guess is not None:
             delta = np.linalg.inv(self._last_guess) @ pose_guess
-        frame = odometry.preprocessor.preprocess(points, np.zeros(len(points)), delta)
+        # KISS-ICP's preprocessing with deskew off, without copying the frame into C++ and back: its range
+        # filter (the same strict bounds on the same norms; tests/test_assembly.py checks the poses match)
+        squared, settings = np.einsum("ij,ij->i", points, points), self.settings
+        frame = points[(squared > settings.min_range**2) & (squared < settings.max_range**2)]
+        if len(frame) < 100:
+            raise ValueError(
+                f"the frame has {len(frame)} points within "
+                f"{settings.min_range}-{settings.max_range} m; at least 100 are needed"
+            )
         source, frame_downsample = odometry.voxelize(frame)
         sigma = odometry.adaptive_threshold.get_threshold()
         initial_guess = odometry.last_pose @ delta
@@ -172,9 +173,9 @@ class Assembler:
         up = np.zeros(3) if gravity is None else pose[:3, :3] @ (gravity / np.linalg.norm(gravity))
         keyframe = self._is_keyframe(pose)
         map_points = None
-        if keyframe:  # thinned to the map's voxel: what the map would keep of them anyway
-            moved = points @ pose[:3, :3].T + pose[:3, 3]
-            map_points = voxel_down_sample(moved, self.settings.map_voxel)
+        if keyframe:  # thinned to the map's voxel (what the map would keep of them anyway), then moved
+            thinned = voxel_down_sample(frame, settings.map_voxel)
+            map_points = thinned @ pose[:3, :3].T + pose[:3, 3]
         record = FrameRecord(self.frames, stamp, pose, pose_guess, up, map_points)
         return _Proposal(
             record,
@@ -192,7 +193,10 @@ class Assembler:
         delta, stamps = self.odometry.last_delta, self.trajectory.stamps
         if len(stamps) < 2 or not stamps[-1] > stamps[-2]:
             return delta
-        return scaled_motion(delta, (stamp - stamps[-1]) / (stamps[-1] - stamps[-2]))
+        ratio = (stamp - stamps[-1]) / (stamps[-1] - stamps[-2])
+        if abs(ratio - 1) < 1e-6:  # a steady stream: KISS-ICP's own prediction, as it is
+            return delta
+        return scaled_motion(delta, ratio)
 
     def _check_input(
         self, points: np.ndarray, stamp: float, guess: np.ndarray | None, gravity: np.ndarray | None
@@ -327,6 +331,21 @@ class Assembler:
             return kept.points, self.world_from_odom
         self.world_from_odom, self.levelling_kept = world.alignment.world_from_input, ""
         return world.cloud.points, self.world_from_odom
+
+
+def kiss_config(settings: AssemblerSettings):
+    """KISS-ICP's configuration for these settings: the assembler's, and bare KISS-ICP's in
+    benchmarks/bench_assembler.py."""
+    from kiss_icp.config import KISSConfig
+
+    config = KISSConfig()
+    config.data.max_range, config.data.min_range = settings.max_range, settings.min_range
+    config.data.deskew = False  # a depth image is one instant, and scans come without per-point times
+    config.mapping.voxel_size = settings.voxel_size
+    config.mapping.max_points_per_voxel = settings.max_points_per_voxel
+    config.registration.convergence_criterion = settings.convergence
+    config.registration.max_num_threads = 0  # all cores
+    return config
 
 
 def scaled_motion(delta: np.ndarray, ratio: float) -> np.ndarray:

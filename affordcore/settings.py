@@ -134,11 +134,19 @@ class AssemblerSettings(BaseModel):
         description="KISS-ICP's local-map voxel (m), above Kinect-class depth steps and noise "
         "(docs/services.md has the measurements behind it)",
     )
+    max_points_per_voxel: int = Field(20, ge=1, description="points KISS-ICP's local map keeps per voxel")
+    convergence: float = Field(
+        1.5e-4,
+        gt=0,
+        description="KISS-ICP's ICP stops once a step changes the pose less than this (KISS-ICP's own "
+        "1e-4 costs more time a frame for the same accuracy: docs/services.md has the measurements)",
+    )
     pixel_step: int = Field(
         2,
         ge=1,
         description="depth images become one point per n x n block of pixels, at the block's mean depth",
     )
+    block_stride: int = Field(1, ge=1, description="... of every n-th block along each axis (1: every block)")
     map_voxel: float = Field(
         0.02,
         gt=0,

@@ -1,28 +1,34 @@
-"""Scan assembly on real depth frames: what the assembler costs over bare KISS-ICP, and how far its trajectory
-is from the ground truth.
+"""Scan assembly on real depth frames: what a depth frame costs the assembler against bare KISS-ICP on the
+same points, under the settings before issue 15 and today's defaults, side by side in one run, and how far
+each trajectory is from the ground truth.
 
 Microsoft 7-Scenes redkitchen, frames 0 to 299 (Kinect v1, 640 x 480, a 2.11 m hand-held path; in
-../shared/data/sequences/). Every frame is decoded and back-projected before anything is timed: by
-`affordcore.depth.back_project` with the assembler's pixel step and range (the mean of each 2 x 2 block of
-pixels, what the service does), and, for the rows that say so, every 2nd pixel (`every_nth_pixel`).
+../shared/data/sequences/). The depth images are decoded before anything is timed.
 
-Cost, side by side in one run on the same points: bare KISS-ICP (`KissICP(KISSConfig)` with the assembler's
-range and voxel, deskew off, `register_frame` only) against `Assembler.register` (the same registration, plus
-the global map and the keyframes; the frames' gravity passed as an IMU would). Each repeat runs both over
-every frame, in alternating order; the table has the median ms per frame of each repeat, then the median
-over the repeats, and the median of the per-repeat ratios. `Assembler.aligned_map()` (done at each map
-publication) is timed on the final map, with the frames' gravity (a floor search along it) and without (a
-search over the candidate axes, what a sensor without an IMU gets).
+Per frame, four pipelines take their turn (the order rotates from frame to frame, so a noisy machine slows
+them alike): for each of the two settings, bare KISS-ICP (`KissICP(kiss_config(settings))`, `register_frame`
+only, on the points the assembler back-projected from that frame) and the assembler as its service runs it:
+`Assembler.add`'s two steps (`back_project` of the 640 x 480 depth image, then `Assembler.register` with the
+frame's gravity, as an IMU would report it), the journal (`AssemblerStore.append`) and the recording
+(`set_time`, `log_scan` into an .rrd file). The table has, per pipeline, the median, 90th percentile and
+mean of its ms per frame over the frames, then the median of each over the repeats; the ratio is the median
+over the repeats of (assembler median / bare median). The overhead rows split the assembler's time:
+back-projection, journal and recording timed apiece, registration beyond KISS-ICP as the difference of
+medians.
+`Assembler.aligned_map()` (done at each map publication, not per frame) is timed on the final map.
 
 Trajectory error against the 7-Scenes ground truth (KinectFusion), positions anchored at the first frame.
-"KISSConfig defaults" is bare KISS-ICP with deskew off and max_range 4 m, everything else as KISSConfig has it
-(min_range 0; voxel 0.04 m, the max_range / 100 kiss_icp's load_config derives), on every 2nd pixel. The
-ground truth jumps 3.5 cm and 1.6 degrees between frames 121 and 122, a step the depth frames do not show
+The ground truth jumps 3.5 cm and 1.6 degrees between frames 121 and 122, a step the depth frames do not show
 (point-to-plane ICP of frame 122 onto 121: 64 % of the points within 2 cm with the ground truth's step, 98.5 %
 with its own 7 mm one; every other step of the sequence scores alike both ways), so every error after frame
 121 carries it: a second table scores the two halves separately, each anchored at its own first frame.
 
-    .venv/bin/python benchmarks/bench_assembler.py               # about 5 minutes on 2 cores
+With `--grid-noise` it also runs the assembler (each setting) on the frames as seen through a block grid
+shifted by a pixel down, across or both: the same data, other block means; the spread of those trajectory
+errors is how far a change of settings has to move them to mean anything.
+
+    .venv/bin/python benchmarks/bench_assembler.py               # about 6 minutes on 2 quiet cores
+    .venv/bin/python benchmarks/bench_assembler.py --grid-noise  # 3 minutes more
     .venv/bin/python benchmarks/bench_assembler.py --frames 100 --repeats 1
 """
 
@@ -33,15 +39,18 @@ import os
 import resource
 import statistics
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from affordcore.assembly import Assembler, trajectory_errors  # noqa: E402
+from affordcore.assembly import Assembler, SensorFrame, kiss_config, trajectory_errors  # noqa: E402
+from affordcore.checkpoint import AssemblerStore  # noqa: E402
 from affordcore.depth import DepthImage, back_project  # noqa: E402
 from affordcore.gravity import align_to_gravity  # noqa: E402
+from affordcore.recording import close_recording, log_scan, open_recording, set_time  # noqa: E402
 from affordcore.sequence import INVALID_DEPTH, read_sequence  # noqa: E402
 from affordcore.settings import AssemblerSettings, GravitySettings  # noqa: E402
 
@@ -53,76 +62,131 @@ SEQUENCE = (
     / "7scenes_redkitchen_frames_000000-000299"
 )
 GROUND_TRUTH_JUMP = 122  # the first frame after the ground truth's unsupported 3.5 cm step (see above)
+# the assembler's settings before issue 15, as explicit values (everything else as today's defaults)
+BEFORE = {
+    "pixel_step": 2,
+    "block_stride": 1,
+    "voxel_size": 0.05,
+    "max_points_per_voxel": 20,
+    "convergence": 1e-4,
+}
+SETTINGS = {"before": AssemblerSettings(**BEFORE), "defaults": AssemblerSettings()}
 
 
-def every_nth_pixel(image: DepthImage, n: int, min_range: float, max_range: float) -> np.ndarray:
-    """Every n-th pixel in each direction, as it is: blocks of one pixel on the strided image, whose pinhole
-    is the original's scaled by 1/n (pixel u*n of the original is pixel u of the strided one)."""
-    scale = np.diag([1 / n, 1 / n, 1.0])
-    strided = DepthImage(image.pixels[::n, ::n], scale @ image.intrinsics, image.scale, image.invalid_value)
-    return back_project(strided, 1, min_range, max_range)
+class Pipelines:
+    """Bare KISS-ICP and the assembler's service path for one setting, with what they took."""
 
+    def __init__(self, settings: AssemblerSettings, folder: Path):
+        from kiss_icp.kiss_icp import KissICP
 
-def load_frames(folder: Path, frames: int, settings: AssemblerSettings) -> dict:
-    """The first `frames` frames: block-mean points with the assembler's settings, every-2nd-pixel points with
-    its range (and with KISS-ICP's default 0-4 m), the gravity an IMU would report, and the ground-truth
-    poses."""
-    sequence = read_sequence(folder)
-    loaded = {"blocks": [], "pixels": [], "pixels 0-4 m": [], "gravity": [], "truth": []}
-    for index in range(min(frames, len(sequence.frames))):
-        image = DepthImage(sequence.depth(index), sequence.intrinsics, invalid_value=INVALID_DEPTH)
-        loaded["blocks"].append(
-            back_project(image, settings.pixel_step, settings.min_range, settings.max_range)
+        self.settings = settings
+        self.bare = KissICP(kiss_config(settings))
+        self.assembler = Assembler(settings)
+        self.store = AssemblerStore(folder / "state")
+        self.recording = open_recording(folder / "assembler.rrd", [])
+        self.points: list[int] = []  # points a frame, as back-projected
+        self.seconds = {name: [] for name in ("bare", "ours", "back_project", "journal", "recording")}
+        self.bare_poses: list[np.ndarray] = []
+        self.poses: list[np.ndarray] = []
+
+    def back_project(self, image: DepthImage) -> np.ndarray:
+        settings = self.settings
+        return back_project(
+            image, settings.pixel_step, settings.min_range, settings.max_range, settings.block_stride
         )
-        loaded["pixels"].append(
-            every_nth_pixel(image, settings.pixel_step, settings.min_range, settings.max_range)
-        )
-        loaded["pixels 0-4 m"].append(every_nth_pixel(image, 2, 0.0, 4.0))
-        loaded["gravity"].append(sequence.gravity(index))
-        loaded["truth"].append(sequence.pose(index))
-    return loaded
 
-
-def run_bare(
-    points: list[np.ndarray], max_range: float, min_range: float, voxel_size: float
-) -> tuple[list[np.ndarray], list[float]]:
-    from kiss_icp.config import KISSConfig
-    from kiss_icp.kiss_icp import KissICP
-
-    config = KISSConfig()
-    config.data.max_range, config.data.min_range, config.data.deskew = max_range, min_range, False
-    config.mapping.voxel_size = voxel_size
-    odometry = KissICP(config)
-    poses, seconds = [], []
-    for frame in points:
+    def run_ours(self, image: DepthImage, gravity, stamp: float) -> None:
+        seconds = self.seconds
         start = time.perf_counter()
-        odometry.register_frame(frame, np.zeros(len(frame)))
-        seconds.append(time.perf_counter() - start)
-        poses.append(odometry.last_pose.copy())
-    return poses, seconds
+        points = self.back_project(image)
+        projected = time.perf_counter()
+        record = self.assembler.register(points, stamp, gravity=gravity)
+        registered = time.perf_counter()
+        self.store.append(record)
+        journaled = time.perf_counter()
+        set_time(self.recording, stamp)
+        log_scan(self.recording, self.assembler.registered_points, record.pose)
+        end = time.perf_counter()
+        seconds["ours"].append(end - start)
+        seconds["back_project"].append(projected - start)
+        seconds["journal"].append(journaled - registered)
+        seconds["recording"].append(end - journaled)
+        self.points.append(len(points))
+        self.poses.append(record.pose)
 
-
-def run_assembler(
-    points: list[np.ndarray], gravity: list, settings: AssemblerSettings
-) -> tuple[list[np.ndarray], list[float], Assembler]:
-    assembler = Assembler(settings)
-    poses, seconds = [], []
-    for index, (frame, down) in enumerate(zip(points, gravity)):
+    def run_bare(self, image: DepthImage) -> None:
+        points = self.back_project(image)  # the same points as the assembler's, not timed
         start = time.perf_counter()
-        poses.append(assembler.register(frame, index / 30, gravity=down).pose)
-        seconds.append(time.perf_counter() - start)
-    return poses, seconds, assembler
+        self.bare.register_frame(points, np.zeros(len(points)))
+        self.seconds["bare"].append(time.perf_counter() - start)
+        self.bare_poses.append(self.bare.last_pose.copy())
+
+    def close(self) -> None:
+        self.store.close()
+        close_recording(self.recording)
 
 
-def error_row(name: str, poses: list[np.ndarray], truth: list[np.ndarray], ms: float) -> str:
-    e = trajectory_errors(poses, truth)
-    return (
-        f"| {name} | {e['frames']} | {e['path_m']:.2f} | {100 * e['mean_m']:.1f} | "
-        f"{100 * e['worst_m']:.1f} | {e['final_rotation_deg']:.2f} | {ms:.0f} |"
+def one_repeat(images: list[DepthImage], gravity: list, repeat: int) -> dict[str, Pipelines]:
+    with tempfile.TemporaryDirectory() as folder:
+        pipelines = {name: Pipelines(s, Path(folder) / name) for name, s in SETTINGS.items()}
+        runs = [(pipeline, kind) for pipeline in pipelines.values() for kind in ("ours", "bare")]
+        for index, (image, down) in enumerate(zip(images, gravity)):
+            turn = (index + repeat) % len(runs)  # rotate which pipeline goes first
+            for pipeline, kind in runs[turn:] + runs[:turn]:
+                if kind == "ours":
+                    pipeline.run_ours(image, down, index / 30)
+                else:
+                    pipeline.run_bare(image)
+        for pipeline in pipelines.values():
+            pipeline.close()
+    return pipelines
+
+
+def shifted(image: DepthImage, rows: int, columns: int) -> DepthImage:
+    """The image without its first rows and columns (the blocks then straddle other pixels), its pinhole
+    moved along: the same frame through a block grid shifted by a pixel (the noise of a trajectory error)."""
+    intrinsics = image.intrinsics.copy()
+    intrinsics[0, 2] -= columns
+    intrinsics[1, 2] -= rows
+    return DepthImage(image.pixels[rows:, columns:], intrinsics, image.scale, image.invalid_value)
+
+
+def grid_errors(images: list[DepthImage], gravity: list, truth: list[np.ndarray]) -> None:
+    """Mean and worst position error of the assembler under each setting, for each shift of the block grid."""
+    shifts = ((0, 0), (0, 1), (1, 0), (1, 1))
+    print(
+        "\nNoise of the trajectory error: the assembler with its block grid shifted by (rows, columns) "
+        "pixels, mean / worst (cm)\n| settings | "
+        + " | ".join(f"{shift}" for shift in shifts)
+        + " |\n|---|"
+        + "---:|" * len(shifts)
     )
+    for name, settings in SETTINGS.items():
+        cells = []
+        for rows, columns in shifts:
+            assembler = Assembler(settings)
+            poses = [
+                assembler.add(
+                    SensorFrame("camera", index / 30, depth=shifted(image, rows, columns), gravity=g),
+                    index / 30,
+                ).pose
+                for index, (image, g) in enumerate(zip(images, gravity))
+            ]
+            e = trajectory_errors(poses, truth)
+            cells.append(f"{100 * e['mean_m']:.2f} / {100 * e['worst_m']:.1f}")
+        print(f"| {name} | " + " | ".join(cells) + " |")
 
 
-def split_row(name: str, poses: list[np.ndarray], truth: list[np.ndarray]) -> str:
+def ms(seconds: list[float], q: float = 0.5) -> float:
+    return 1000 * float(np.quantile(seconds, q))
+
+
+def error_cells(poses: list[np.ndarray], truth: list[np.ndarray]) -> str:
+    e = trajectory_errors(poses, truth)
+    return f"{100 * e['mean_m']:.2f} | {100 * e['worst_m']:.1f} | {e['final_rotation_deg']:.2f}"
+
+
+def split_cells(poses: list[np.ndarray], truth: list[np.ndarray]) -> str:
     cells = []
     for low, high in ((0, GROUND_TRUTH_JUMP), (GROUND_TRUTH_JUMP, len(truth))):
         if high - low < 2:
@@ -131,38 +195,108 @@ def split_row(name: str, poses: list[np.ndarray], truth: list[np.ndarray]) -> st
         anchor = np.linalg.inv(poses[low])
         e = trajectory_errors([anchor @ pose for pose in poses[low:high]], truth[low:high])
         cells.append(f"{100 * e['mean_m']:.1f} | {100 * e['worst_m']:.1f} | {e['final_rotation_deg']:.2f}")
-    return f"| {name} | " + " | ".join(cells) + " |"
+    return " | ".join(cells)
+
+
+def describe(settings: AssemblerSettings) -> str:
+    return (
+        f"{settings.pixel_step} x {settings.pixel_step} block means, every "
+        f"{'' if settings.block_stride == 1 else f'{settings.block_stride}th '}block; voxel "
+        f"{settings.voxel_size:g} m, {settings.max_points_per_voxel} points a voxel, ICP converged at "
+        f"{settings.convergence:g}"
+    )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=300, help="the first N frames of the sequence")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument(
+        "--grid-noise", action="store_true", help="also the trajectory errors with the block grid shifted"
+    )
     args = parser.parse_args()
     if not SEQUENCE.is_dir():
         print(f"skipped: the 7-Scenes redkitchen frames are not at {SEQUENCE} (see ../shared/data/README.md)")
         return
-    settings = AssemblerSettings()
-    frames = load_frames(SEQUENCE, args.frames, settings)
-    points, truth = frames["blocks"], frames["truth"]
+    sequence = read_sequence(SEQUENCE)
+    count = min(args.frames, len(sequence.frames))
+    images = [
+        DepthImage(sequence.depth(index), sequence.intrinsics, invalid_value=INVALID_DEPTH)
+        for index in range(count)
+    ]
+    gravity = [sequence.gravity(index) for index in range(count)]
+    truth = [sequence.pose(index) for index in range(count)]
     import kiss_icp.kiss_icp  # noqa: F401  (import cost is nobody's frame time)
 
     loaded_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    bare_ms, ours_ms, ratio, cpu = [], [], [], []
+    keys = ("median", "p90", "mean", "bare", "bare_p90", "bare_mean", "ratio")
+    summary = {name: {key: [] for key in keys} for name in SETTINGS}
+    parts = {
+        name: {key: [] for key in ("back_project", "journal", "recording", "beyond")} for name in SETTINGS
+    }
+    cpu, first = [], None
     for repeat in range(args.repeats):
         cpu_start, wall_start = time.process_time(), time.perf_counter()
-        runs = {}
-        for which in ("bare", "ours") if repeat % 2 == 0 else ("ours", "bare"):
-            if which == "bare":
-                runs["bare"] = run_bare(points, settings.max_range, settings.min_range, settings.voxel_size)
-            else:
-                runs["ours"] = run_assembler(points, frames["gravity"], settings)
+        pipelines = one_repeat(images, gravity, repeat)
         cpu.append((time.process_time() - cpu_start) / (time.perf_counter() - wall_start))
-        bare_ms.append(1000 * statistics.median(runs["bare"][1]))
-        ours_ms.append(1000 * statistics.median(runs["ours"][1]))
-        ratio.append(ours_ms[-1] / bare_ms[-1])
-        if repeat == 0:
-            bare_poses, ours_poses, assembler = runs["bare"][0], runs["ours"][0], runs["ours"][2]
+        for name, pipeline in pipelines.items():
+            seconds, row = pipeline.seconds, summary[name]
+            row["median"].append(ms(seconds["ours"]))
+            row["p90"].append(ms(seconds["ours"], 0.9))
+            row["bare"].append(ms(seconds["bare"]))
+            row["bare_p90"].append(ms(seconds["bare"], 0.9))
+            row["mean"].append(1000 * statistics.mean(seconds["ours"]))
+            row["bare_mean"].append(1000 * statistics.mean(seconds["bare"]))
+            row["ratio"].append(row["median"][-1] / row["bare"][-1])
+            for key in ("back_project", "journal", "recording"):
+                parts[name][key].append(ms(seconds[key]))
+            registration = [  # Assembler.register alone
+                total - projection - journal - recording
+                for total, projection, journal, recording in zip(
+                    seconds["ours"], seconds["back_project"], seconds["journal"], seconds["recording"]
+                )
+            ]
+            parts[name]["beyond"].append(ms(registration) - ms(seconds["bare"]))
+        first = first or pipelines
+
+    print(
+        f"7-Scenes redkitchen, {count} frames of 640 x 480, {os.cpu_count()} cores, {args.repeats} repeats, "
+        f"cpu/wall {min(cpu):.2f}-{max(cpu):.2f} (2.0 would be both cores busy), load average "
+        f"{os.getloadavg()[0]:.1f} at the end"
+    )
+    for name, settings in SETTINGS.items():
+        print(f"{name}: {describe(settings)}, {settings.min_range:g}-{settings.max_range:g} m")
+    print()
+    print(
+        "| settings | points a frame | bare KISS-ICP ms (median / p90 / mean) "
+        "| assembler ms (median / p90 / mean) | ratio | ATE mean (cm) | worst (cm) | final rot. (deg) |\n"
+        "|---|---:|---:|---:|---:|---:|---:|---:|"
+    )
+    for name in SETTINGS:
+        row, pipeline = summary[name], first[name]
+        print(
+            f"| {name} | {statistics.mean(pipeline.points):,.0f} | "
+            + " / ".join(f"{statistics.median(row[key]):.1f}" for key in ("bare", "bare_p90", "bare_mean"))
+            + " | "
+            + " / ".join(f"{statistics.median(row[key]):.1f}" for key in ("median", "p90", "mean"))
+            + f" | {statistics.median(row['ratio']):.2f} | "
+            f"{error_cells(pipeline.poses, truth)} |"
+        )
+    print(
+        "\n| the assembler's own ms per frame (medians) | back-projection | registration beyond KISS-ICP "
+        "| journal | recording | total | of bare KISS-ICP |\n|---|---:|---:|---:|---:|---:|---:|"
+    )
+    for name in SETTINGS:
+        cells = [
+            statistics.median(parts[name][key]) for key in ("back_project", "beyond", "journal", "recording")
+        ]
+        bare = statistics.median(summary[name]["bare"])
+        print(
+            f"| {name} | " + " | ".join(f"{cell:.2f}" for cell in cells) + f" | {sum(cells):.2f} | "
+            f"{100 * sum(cells) / bare:.0f} % |"
+        )
+
+    assembler = first["defaults"].assembler
     with_gravity, auto = [], []
     for _ in range(args.repeats):
         start = time.perf_counter()
@@ -174,72 +308,30 @@ def main() -> None:
         except ValueError:
             pass
         auto.append(time.perf_counter() - start)
-
     print(
-        f"7-Scenes redkitchen, {len(points)} frames, "
-        f"{statistics.mean(len(p) for p in points):,.0f} points a frame "
-        f"({settings.pixel_step} x {settings.pixel_step} block means, "
-        f"{settings.min_range:g}-{settings.max_range:g} m), "
-        f"{os.cpu_count()} cores, {args.repeats} repeats, cpu/wall {min(cpu):.2f}-{max(cpu):.2f} "
-        "(2.0 would be both cores busy)"
+        f"\nAssembler.aligned_map() at the end (defaults; {len(map_points):,} points, {assembler.keyframes} "
+        f"keyframes of {assembler.frames} frames): {1000 * statistics.median(with_gravity):.0f} ms with the "
+        f"frames' gravity, {1000 * statistics.median(auto):.0f} ms with the floor search over candidate axes"
     )
-    print(f"assembler defaults: {', '.join(f'{k} {v:g}' for k, v in settings.model_dump().items())}\n")
-    print("| per frame (median over the frames, then over the repeats) | ms |\n|---|---:|")
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(
-        f"| bare KISS-ICP (voxel {settings.voxel_size:g} m, register_frame) | "
-        f"{statistics.median(bare_ms):.1f} |"
+        f"peak memory {peak_mb:,.0f} MB (the whole process; {loaded_mb:,.0f} MB once the frames were loaded)"
     )
-    print(f"| Assembler.register (KISS-ICP + global map + keyframes) | {statistics.median(ours_ms):.1f} |")
-    print(f"| ratio assembler / bare | {statistics.median(ratio):.2f} |")
-    print(
-        f"| Assembler.aligned_map() at the end, gravity from the frames ({len(map_points):,} points, "
-        f"{assembler.keyframes} keyframes of {assembler.frames} frames) | "
-        f"{1000 * statistics.median(with_gravity):.0f} |"
-    )
-    print(
-        "| the same alignment without gravity (floor search over the candidate axes) | "
-        f"{1000 * statistics.median(auto):.0f} |"
-    )
-    print(
-        f"\npeak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:,.0f} MB "
-        "(the whole process; "
-        f"{loaded_mb:,.0f} MB once the frames were loaded)\n"
-    )
-
-    default_poses, default_seconds = run_bare(frames["pixels 0-4 m"], 4.0, 0.0, 0.04)
-    pixel_poses, pixel_seconds, _ = run_assembler(frames["pixels"], frames["gravity"], settings)
-    rows = [
-        (
-            "bare KISS-ICP, KISSConfig defaults, every 2nd pixel",
-            default_poses,
-            1000 * statistics.median(default_seconds),
-        ),
-        (
-            f"bare KISS-ICP, voxel {settings.voxel_size:g}, block means",
-            bare_poses,
-            statistics.median(bare_ms),
-        ),
-        ("assembler defaults, every 2nd pixel", pixel_poses, 1000 * statistics.median(pixel_seconds)),
-        ("assembler defaults, block means (back_project)", ours_poses, statistics.median(ours_ms)),
-    ]
-    print(
-        "| trajectory | frames | path (m) | mean (cm) | worst (cm) | final rotation (deg) | ms/frame |\n"
-        "|---|---:|---:|---:|---:|---:|---:|"
-    )
-    for name, poses, ms in rows:
-        print(error_row(name, poses, truth, ms))
-    print(
-        "\nThe same trajectories, the ground truth split at its jump: "
-        f"frames 0-{min(GROUND_TRUTH_JUMP, len(truth)) - 1} "
-        f"and {GROUND_TRUTH_JUMP}-{len(truth) - 1}, each anchored at its own first frame"
-    )
-    print(
-        "| trajectory | mean (cm) | worst (cm) | final rot. (deg) "
-        "| mean (cm) | worst (cm) | final rot. (deg) |\n"
-        "|---|---:|---:|---:|---:|---:|---:|"
-    )
-    for name, poses, _ in rows:
-        print(split_row(name, poses, truth))
+    if count > GROUND_TRUTH_JUMP + 1:
+        print(
+            "\nTrajectories (first repeat), the ground truth split at its jump: "
+            f"frames 0-{GROUND_TRUTH_JUMP - 1} and {GROUND_TRUTH_JUMP}-{count - 1}, each anchored at its own "
+            "first frame"
+        )
+        print(
+            "| trajectory | mean (cm) | worst (cm) | final rot. (deg) "
+            "| mean (cm) | worst (cm) | final rot. (deg) |\n|---|---:|---:|---:|---:|---:|---:|"
+        )
+        for name in SETTINGS:
+            print(f"| bare KISS-ICP, {name} | {split_cells(first[name].bare_poses, truth)} |")
+            print(f"| assembler, {name} | {split_cells(first[name].poses, truth)} |")
+    if args.grid_noise:
+        grid_errors(images, gravity, truth)
 
 
 if __name__ == "__main__":

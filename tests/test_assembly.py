@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 from conftest import SHARED_DATA
 
-from affordcore.assembly import Assembler, rotation_angle_deg, scaled_motion, trajectory_errors
+from affordcore.assembly import (
+    Assembler,
+    SensorFrame,
+    kiss_config,
+    rotation_angle_deg,
+    scaled_motion,
+    trajectory_errors,
+)
 from affordcore.depth import DepthImage, back_project
 from affordcore.example import box_surface_points
 from affordcore.settings import AssemblerSettings
@@ -87,6 +94,61 @@ def test_the_assembler_follows_a_known_path(room_frames, room_run):
     assert errors["path_m"] == pytest.approx(0.29, abs=0.01)
     assert errors["mean_m"] < 0.02 and errors["worst_m"] < 0.035, errors
     assert errors["final_rotation_deg"] < 1.2, errors
+
+
+def test_the_assembler_registers_as_bare_kiss_icp_does(room_frames, room_run):
+    """The assembler's registration is KISS-ICP's, step for step: on the same points a bare KissICP with the
+    assembler's configuration puts every frame at the same pose (the per-frame overhead is what the assembler
+    adds around it, nothing in it)."""
+    from kiss_icp.kiss_icp import KissICP
+
+    frames, _ = room_frames
+    _, estimated = room_run
+    bare = KissICP(kiss_config(AssemblerSettings()))
+    for points, pose in zip(frames, estimated):
+        bare.register_frame(points, np.zeros(len(points)))
+        np.testing.assert_allclose(bare.last_pose, pose, atol=1e-9)
+
+
+def test_only_keyframes_touch_the_global_map_and_they_bring_it_their_points_thinned(room_frames):
+    from kiss_icp.voxelization import voxel_down_sample
+
+    frames, _ = room_frames
+    settings = AssemblerSettings()
+    assembler = Assembler(settings)
+    for k, points in enumerate(frames[:12]):
+        before = len(assembler.map_points())
+        record = assembler.register(points, k / 30)
+        after = len(assembler.map_points())
+        if record.map_points is None:  # not a keyframe: the global map is as it was
+            assert after == before
+            continue
+        ranges = np.linalg.norm(points, axis=1)
+        within = points[(ranges > settings.min_range) & (ranges < settings.max_range)]
+        thinned = voxel_down_sample(within, settings.map_voxel) @ record.pose[:3, :3].T + record.pose[:3, 3]
+        # one point per map voxel, in the sensor frame, moved to the odometry frame (in whatever order)
+        np.testing.assert_allclose(*(p[np.lexsort(p.T)] for p in (record.map_points, thinned)), atol=1e-12)
+        assert before < after <= before + len(record.map_points)
+    assert 1 < assembler.keyframes < 12
+
+
+def test_a_depth_frame_is_its_back_projection_registered():
+    """`Assembler.add` of a depth image is `back_project` with the settings (block means, every n-th block,
+    the range) and then `register`: the same pose and record as the points given directly."""
+    raycaster = Raycaster(ROOM)
+    rng = np.random.default_rng(5)
+    eye = np.array([-1.0, -0.8, 1.4])
+    pose = look_at(eye, eye + [0.5, 0.8, -0.4])
+    depth, _ = depth_frame(raycaster, CAMERA, pose, rng)
+    image = DepthImage(np.round(depth * 1000).astype(np.uint16), CAMERA.intrinsics)
+    settings = AssemblerSettings(block_stride=2)
+    by_image, by_points = Assembler(settings), Assembler(settings)
+    record = by_image.add(SensorFrame("camera", 0.0, depth=image), 0.0)
+    points = back_project(image, settings.pixel_step, settings.min_range, settings.max_range, 2)
+    direct = by_points.register(points, 0.0)
+    np.testing.assert_allclose(record.pose, direct.pose)
+    np.testing.assert_allclose(record.map_points, direct.map_points)
+    np.testing.assert_allclose(by_image.registered_points, by_points.registered_points)
 
 
 def test_the_motion_prediction_spans_the_time_since_the_last_frame(room_frames):
@@ -314,6 +376,25 @@ def test_depth_blocks_average_the_measured_pixels_on_the_block_centre_ray():
     assert back_project(DepthImage(np.zeros((4, 4), np.uint16), K), 2).shape == (0, 3)
     with pytest.raises(ValueError, match="pixel_step"):
         back_project(DepthImage(depth, K), 0)
+
+
+@pytest.mark.parametrize("step", [1, 2, 3])
+def test_every_nth_block_is_the_full_back_projection_thinned(step):
+    """`block_stride` n takes the blocks at rows and columns 0, n, 2n, ...: exactly those points of the full
+    back-projection, in the same order."""
+    rng = np.random.default_rng(6)
+    depth = rng.integers(300, 6000, size=(37, 29)).astype(np.uint16)
+    depth[rng.random(depth.shape) < 0.2] = 0
+    depth[rng.random(depth.shape) < 0.05] = 65535
+    image = DepthImage(depth, K)
+    full = back_project(image, step, 0.5, 5.0)
+    u = np.rint((full[:, 0] / full[:, 2] * K[0, 0] + K[0, 2] - (step - 1) / 2) / step).astype(int)
+    v = np.rint((full[:, 1] / full[:, 2] * K[1, 1] + K[1, 2] - (step - 1) / 2) / step).astype(int)
+    for stride in (1, 2, 3):
+        thinned = back_project(image, step, 0.5, 5.0, block_stride=stride)
+        np.testing.assert_array_equal(thinned, full[(u % stride == 0) & (v % stride == 0)])
+    with pytest.raises(ValueError, match="block_stride"):
+        back_project(image, step, block_stride=0)
 
 
 def test_a_depth_frame_off_the_wire_back_projects_as_its_image():
