@@ -47,7 +47,54 @@ def _own_work(what: str) -> Inbound:
     return Inbound(f"({what})", "", "", b"", time.time(), is_input=False)
 
 
-class Inbox:
+class BoundedInbox:
+    """What every inbox shares: inputs waiting for the worker (`_items`, a deque or a mapping), bounded in
+    count (`limit`) and bytes (`max_bytes`), with the inputs passed over counted in `skipped`. Subclasses say
+    how an input is queued (`offer`) and which one goes next (`take`)."""
+
+    def __init__(self, items, limit: int, max_bytes: int):
+        self.limit, self.max_bytes = limit, max_bytes
+        self._items = items
+        self._bytes = 0
+        self._ready = threading.Condition()
+        self.skipped = 0
+        self.skipped_last: Inbound | None = None
+
+    def _too_big(self, size: int) -> str | None:
+        """Why a payload of `size` bytes can never be taken, if it cannot."""
+        if size > self.max_bytes:
+            return (
+                f"the payload is {size:,} bytes, above AFFORD_SERVICE__MAX_QUEUE_BYTES ({self.max_bytes:,})"
+            )
+        return None
+
+    def _over_bytes(self, size: int, freed: int = 0) -> str | None:
+        """Why `size` more bytes are refused (once the `freed` bytes of an input it replaces are gone), if
+        they are."""
+        if self._bytes - freed + size > self.max_bytes:
+            return (
+                f"{self._bytes:,} bytes are waiting; this one's {size:,} would pass "
+                f"AFFORD_SERVICE__MAX_QUEUE_BYTES ({self.max_bytes:,}); it was not taken"
+            )
+        return None
+
+    def _pass_over(self, item: Inbound) -> None:
+        self.skipped += 1
+        self.skipped_last = item
+
+    def drain(self) -> int:
+        """Empty the inbox; returns how many inputs it held."""
+        with self._ready:
+            count = len(self._items)
+            self._items.clear()
+            self._bytes = 0
+            return count
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+
+class Inbox(BoundedInbox):
     """Samples waiting for the worker, bounded in count and in bytes. `latest_only` keeps just the newest (a
     map superseded before it was worked on is not worth the work; it is counted in `skipped`); otherwise
     first in, first out, and when `max_lag` is set an input older than that is passed over (counted too) if
@@ -63,23 +110,16 @@ class Inbox:
         max_lag: float | None = None,
         max_gap: float = 0.0,
     ):
-        self.latest_only, self.limit, self.max_bytes, self.max_lag = latest_only, limit, max_bytes, max_lag
-        self.max_gap = max_gap
-        self._items: deque[Inbound] = deque()
-        self._bytes = 0
-        self._ready = threading.Condition()
-        self.skipped = 0
-        self.skipped_last: Inbound | None = None
+        super().__init__(deque(), limit, max_bytes)
+        self.latest_only, self.max_lag, self.max_gap = latest_only, max_lag, max_gap
         self._last_taken: float | None = None  # arrival time of the last input taken
 
     def offer(self, item: Inbound) -> str | None:
         """None when taken, else why not (the caller answers it on the error key: nothing is dropped
         silently)."""
         size = len(item.payload)
-        if size > self.max_bytes:
-            return (
-                f"the payload is {size:,} bytes, above AFFORD_SERVICE__MAX_QUEUE_BYTES ({self.max_bytes:,})"
-            )
+        if refusal := self._too_big(size):
+            return refusal
         with self._ready:
             if self.latest_only:  # the one waiting is superseded: passed over, and counted
                 if self._items:
@@ -91,11 +131,8 @@ class Inbox:
                 return (
                     f"{len(self._items)} inputs are waiting (AFFORD_SERVICE__MAX_QUEUE); this one is refused"
                 )
-            elif self._bytes + size > self.max_bytes:
-                return (
-                    f"{self._bytes:,} bytes are waiting; this one's {size:,} would pass "
-                    f"AFFORD_SERVICE__MAX_QUEUE_BYTES ({self.max_bytes:,}); it was not taken"
-                )
+            elif refusal := self._over_bytes(size):
+                return refusal
             self._items.append(item)
             self._bytes += size
             self._ready.notify()
@@ -107,8 +144,7 @@ class Inbox:
                 return None
             item = self._pop()
             while self._passed_over(item):  # the stream's first input is always taken
-                self.skipped += 1
-                self.skipped_last = item
+                self._pass_over(item)
                 item = self._pop()
             self._last_taken = item.arrived
             return item
@@ -131,17 +167,6 @@ class Inbox:
     def supersedes(self, key: str) -> bool:
         """Whether an input waiting here is newer than what a get on `key` brings (latest-only: any is)."""
         return bool(self._items)
-
-    def drain(self) -> int:
-        """Empty the inbox; returns how many inputs it held."""
-        with self._ready:
-            count = len(self._items)
-            self._items.clear()
-            self._bytes = 0
-            return count
-
-    def __len__(self) -> int:
-        return len(self._items)
 
 
 def _inbound(sample) -> Inbound:

@@ -21,7 +21,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
-from .node import Inbound
+from .node import BoundedInbox, Inbound
 from .transport import PREFIX, WORKERS, Keys, robot_of, robot_pattern
 
 UNITS = ("affordance", "robot")  # what one owner takes: each (robot, affordance), or all of a robot's
@@ -167,38 +167,27 @@ class Membership:
             self.on_change(before, after)
 
 
-class KeyedInbox:
+class KeyedInbox(BoundedInbox):
     """The newest input per key, the key that waits longest first: a worker of many robots keeps each
     robot's latest fields (a single latest-only inbox would let one robot's input supersede another's).
     Bounded in keys and bytes like `Inbox`; the same interface for `Node.run`."""
 
     def __init__(self, limit: int, max_bytes: int):
-        self.limit, self.max_bytes = limit, max_bytes
-        self._items: OrderedDict[str, Inbound] = OrderedDict()
-        self._bytes = 0
-        self._ready = threading.Condition()
-        self.skipped = 0
-        self.skipped_last: Inbound | None = None
+        super().__init__(OrderedDict(), limit, max_bytes)
 
     def offer(self, item: Inbound) -> str | None:
         size = len(item.payload)
-        if size > self.max_bytes:
-            return (
-                f"the payload is {size:,} bytes, above AFFORD_SERVICE__MAX_QUEUE_BYTES ({self.max_bytes:,})"
-            )
+        if refusal := self._too_big(size):
+            return refusal
         with self._ready:
             old = self._items.get(item.key)
             if old is None and len(self._items) >= self.limit:
                 return f"inputs of {len(self._items)} keys are waiting (AFFORD_SERVICE__MAX_QUEUE)"
             freed = len(old.payload) if old is not None else 0
-            if self._bytes - freed + size > self.max_bytes:
-                return (
-                    f"{self._bytes:,} bytes are waiting; this one's {size:,} would pass "
-                    f"AFFORD_SERVICE__MAX_QUEUE_BYTES ({self.max_bytes:,}); it was not taken"
-                )
+            if refusal := self._over_bytes(size, freed):
+                return refusal
             if old is not None:  # superseded: passed over, and counted; the key keeps its place in line
-                self.skipped += 1
-                self.skipped_last = old
+                self._pass_over(old)
             self._items[item.key] = item
             self._bytes += size - freed
             self._ready.notify()
@@ -215,16 +204,6 @@ class KeyedInbox:
     def supersedes(self, key: str) -> bool:
         with self._ready:
             return key in self._items
-
-    def drain(self) -> int:
-        with self._ready:
-            count = len(self._items)
-            self._items.clear()
-            self._bytes = 0
-            return count
-
-    def __len__(self) -> int:
-        return len(self._items)
 
 
 class LatestOutputs:

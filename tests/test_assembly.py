@@ -227,10 +227,8 @@ def test_every_map_the_assembler_levels_passes_the_features_check(generated_sequ
     assembler, levelled = Assembler(settings.assembler, settings.limits), 0
     for count, index in enumerate(range(0, 120, 3), start=1):  # as the e2e tests publish it (--step 3)
         depth = DepthImage(sequence.depth(index), sequence.intrinsics)
-        points = back_project(
-            depth, settings.assembler.pixel_step, settings.assembler.min_range, settings.assembler.max_range
-        )
-        assembler.register(points, index / 30, gravity=sequence.gravity(index))
+        frame = SensorFrame("camera", index / 30, depth=depth, gravity=sequence.gravity(index))
+        assembler.add(frame, index / 30)
         if count < 20:
             continue
         try:
