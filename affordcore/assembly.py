@@ -327,10 +327,28 @@ class Assembler:
             if self.world_from_odom is None:
                 raise
             self.levelling_kept = str(error)
-            kept = to_world(cloud, settings, "none").cloud.transformed(self.world_from_odom)
-            return kept.points, self.world_from_odom
-        self.world_from_odom, self.levelling_kept = world.alignment.world_from_input, ""
+            return self._levelled_as_before(cloud, settings)
+        self.levelling_kept = ""
+        if self.world_from_odom is not None and not self._moves(world.alignment.world_from_input, cloud):
+            return self._levelled_as_before(cloud, settings)
+        self.world_from_odom = world.alignment.world_from_input
         return world.cloud.points, self.world_from_odom
+
+    def _levelled_as_before(self, cloud, settings: Settings | None) -> tuple[np.ndarray, np.ndarray]:
+        from .pipeline import to_world
+
+        kept = to_world(cloud, settings, "none").cloud.transformed(self.world_from_odom)
+        return kept.points, self.world_from_odom
+
+    def _moves(self, world_from_odom: np.ndarray, cloud) -> bool:
+        """Whether a new levelling moves some point of the map (a corner of its box) further than
+        `relevel_distance` from where the kept one puts it."""
+        low, high = cloud.points.min(axis=0), cloud.points.max(axis=0)
+        corners = np.array(
+            [[x, y, z, 1.0] for x in (low[0], high[0]) for y in (low[1], high[1]) for z in (low[2], high[2])]
+        )
+        moved = corners @ (world_from_odom - self.world_from_odom).T
+        return float(np.linalg.norm(moved[:, :3], axis=1).max()) > self.settings.relevel_distance
 
 
 def kiss_config(settings: AssemblerSettings):

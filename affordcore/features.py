@@ -2,7 +2,7 @@
 
 One feature vector, in this order:
 
-* ``dist:<JOINT>`` (15): the distance transform at each placed joint (m);
+* ``dist:<JOINT>`` (15): the distance transform at each placed joint (m), truncated at ``distance_cap``;
 * ``coll:<JOINT>`` (15): the occupancy at each placed joint, a fraction in [0, 1];
 * ``normal:<i>,<j>,<k>:<axis>`` (3 per cell): the mean surface normal of each cell of a cube of
   ``cube_size`` around the torso, cells indexed along the skeleton's own x (forward), y (left), z (up) and
@@ -35,8 +35,11 @@ from .grid import PoseGrid
 from .settings import FeatureSettings, VoxelSettings
 from .skeleton import JOINTS, Skeleton, rotation_z
 
-FEATURE_VERSION = 1
-_NORMAL_RULE = "scatter-tensor principal axis; up if |n_z| > 0.5 else towards the room centre in plan"
+FEATURE_VERSION = 2
+_NORMAL_RULE = (
+    "scatter-tensor principal axis; up if |n_z| > 0.5 else towards more scanned floor "
+    "(0.4 m disc 0.6 m out), ties to more occupied columns (2 m square)"
+)
 
 
 @dataclass(frozen=True)
@@ -46,15 +49,21 @@ class FeatureLayout:
     cube_size: float = 1.0
     cell_size: float = 0.10
     voxel_resolution: float = 0.10
+    # Distances beyond this read as this (m); None: the paper's untruncated distance. Truncated, a surface
+    # changes the distance feature only within the cap of itself, so a change of the room changes the scores
+    # only near it (affordcore.updates); beyond a skeleton's reach a distance says little about a pose.
+    distance_cap: float | None = None
 
     def __post_init__(self) -> None:
+        if self.distance_cap is not None and not self.distance_cap > 0:
+            raise ValueError(f"distance_cap must be positive or None, not {self.distance_cap}")
         cells = self.cube_size / self.cell_size
         if abs(cells - round(cells)) > 1e-6 or round(cells) < 1:
             raise ValueError(f"cube_size {self.cube_size} is not a whole number of cells of {self.cell_size}")
 
     @classmethod
     def from_settings(cls, features: FeatureSettings, voxel: VoxelSettings) -> FeatureLayout:
-        return cls(features.cube_size, features.cell_size, voxel.resolution)
+        return cls(features.cube_size, features.cell_size, voxel.resolution, features.distance_cap)
 
     @property
     def cells_per_axis(self) -> int:
@@ -103,6 +112,7 @@ class FeatureLayout:
             "cube_size": self.cube_size,
             "cell_size": self.cell_size,
             "voxel_resolution": self.voxel_resolution,
+            "distance_cap": self.distance_cap,
             "n_features": self.n_features,
             "sampling": "trilinear",
             "normals": _NORMAL_RULE,
@@ -298,7 +308,9 @@ class _SlabSampler:
         joint_heights = torso_z + skeleton.joints[:, 2]
         sample_heights = torso_z + self.layout.sample_positions()
         return {
-            "distance": self._lerp_z(self.fields.distance, joint_heights),  # (X, Y, 15)
+            # (X, Y, 15); the truncated field is what is interpolated, so a read depends on no distance
+            # beyond the cap
+            "distance": self._lerp_z(self.fields.distance, joint_heights, self.layout.distance_cap),
             "occupancy": self._lerp_z(self.fields.occupancy, joint_heights),  # (X, Y, 15)
             # (X, Y, cells, 3)
             "normals": self._cell_heights(self._lerp_z(self.fields.normals, sample_heights)),
@@ -322,7 +334,7 @@ class _SlabSampler:
         normals = level["normals"] @ rotation.astype(np.float32)
         return _Slab(self, level, joint_xy, sample_xy, normals.reshape(*normals.shape[:2], -1))
 
-    def _lerp_z(self, field: np.ndarray, heights: np.ndarray) -> np.ndarray:
+    def _lerp_z(self, field: np.ndarray, heights: np.ndarray, cap: float | None = None) -> np.ndarray:
         k = (np.asarray(heights) - self.fields.lattice.origin[2]) / self.res
         base = np.floor(k).astype(int)
         frac = (k - base).astype(np.float32)
@@ -334,6 +346,9 @@ class _SlabSampler:
             )
         below = field[:, :, base]
         above = field[:, :, base + 1]
+        if cap is not None:
+            np.minimum(below, np.float32(cap), out=below)
+            np.minimum(above, np.float32(cap), out=above)
         frac = frac.reshape((1, 1, -1) + (1,) * (field.ndim - 3))
         return below * (1 - frac) + above * frac
 

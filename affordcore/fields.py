@@ -7,9 +7,12 @@ on a boundary where noise would split it between two.
 Normals. Estimated normals have no sign: a surface seen from both sides gives n and -n, and a plain mean
 cancels. Per voxel we therefore average the *axis* n n^T (the scatter tensor) and take its principal
 eigenvector, which is sign-free. The voxel's normal then gets a fixed orientation: surfaces within 60 degrees
-of horizontal face up (people sit and lean on the top of things); steeper ones face the room's centre in
-plan (walls face in). Voxels without points have a zero normal, so a cell average over them measures how
-much surface there is as well as which way it faces.
+of horizontal face up (people sit and lean on the top of things); steeper ones face the side with more
+scanned floor around them (walls face the room, whose floor the sensor saw; the space behind a wall was never
+seen; a sofa's back faces the seat and the floor in front of it). The rule is local, so a room that grows
+flips no normal far from the growth (affordcore.updates relies on that; the room's mean point, the earlier
+rule, moves with every scan). Voxels without points have a zero normal, so a cell average over them measures
+how much surface there is as well as which way it faces.
 """
 
 from __future__ import annotations
@@ -21,6 +24,9 @@ import numpy as np
 from .settings import NormalSettings, VoxelSettings
 
 _UP_FACING_NZ = 0.5  # |n_z| above this (within 60 deg of vertical) means "faces up"
+# a steep surface faces the side whose disc of this radius (m), this far out (m), holds more scanned floor
+_FLOOR_DISC, _FLOOR_LOOK = 0.4, 0.6
+_CROWD_BOX = 2.0  # m: where no floor decides, the side whose square of this edge holds more columns does
 
 
 @dataclass(frozen=True)
@@ -85,10 +91,13 @@ def compute_fields(
     voxel: VoxelSettings | None = None,
     normal_settings: NormalSettings | None = None,
     normals: np.ndarray | None = None,
+    estimator=None,
 ) -> SceneFields:
     """Occupancy, distance transform and normal field of a gravity-aligned cloud.
 
-    ``normals`` (one per point) are used when given, otherwise estimated with open3d.
+    ``normals`` (one per point) are used when given, otherwise the cloud is thinned and normals estimated by
+    ``estimator(points, normal_settings) -> (thinned points, normals)``: `estimate_normals`, or a
+    `updates.NormalCache` that re-estimates only where the cloud changed.
     """
     from scipy import ndimage
 
@@ -102,35 +111,60 @@ def compute_fields(
     occupancy = occupied.reshape(lattice.shape).astype(np.float32)
     distance = ndimage.distance_transform_edt(~occupied.reshape(lattice.shape), sampling=lattice.resolution)
     if normals is None:
-        points, normals = estimate_normals(points, normal_settings)
-    field = _normal_field(lattice, points, normals, points.mean(axis=0))
+        points, normals = (estimator or estimate_normals)(points, normal_settings)
+    field = _normal_field(lattice, points, normals, floor_density(occupancy, lattice))
     footprint = tuple(float(v) for v in (*points[:, :2].min(axis=0), *points[:, :2].max(axis=0)))
     return SceneFields(lattice, occupancy, distance.astype(np.float32), field, footprint)
 
 
 def estimate_normals(points: np.ndarray, settings: NormalSettings) -> tuple[np.ndarray, np.ndarray]:
     """Thin the cloud to ``settings.downsample`` and estimate unit normals (unsigned) at the kept points."""
-    import open3d as o3d
-
     if settings.downsample > 0:
         points = voxel_down_sample(points, settings.downsample)
+    return points, normals_at(points, settings)
+
+
+def normals_at(points: np.ndarray, settings: NormalSettings) -> np.ndarray:
+    """Unit normals (unsigned) of a cloud at its points, by open3d: the principal axes of each point's nearest
+    `max_neighbours` within `radius`."""
+    import open3d as o3d
+
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     pcd.estimate_normals(
         o3d.geometry.KDTreeSearchParamHybrid(radius=settings.radius, max_nn=settings.max_neighbours)
     )
-    return np.asarray(pcd.points), np.asarray(pcd.normals)
+    return np.asarray(pcd.normals)
 
 
 def voxel_down_sample(points: np.ndarray, voxel: float) -> np.ndarray:
-    """open3d's `PointCloud.voxel_down_sample`, the same points to the bit (voxels from the cloud's minimum
-    less half a voxel, each voxel's points summed in order and divided by their count), 8x faster, in a
-    fixed order (sorted by voxel) where open3d's follows a hash map."""
-    low = points.min(axis=0) - voxel * 0.5
-    keys = np.floor((points - low) / voxel).astype(np.int64)
-    span = keys.max(axis=0) + 1
-    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
-    _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
-    return np.stack([np.bincount(inverse, points[:, k]) for k in range(3)], axis=1) / counts[:, None]
+    """The mean of the points in each cell of a world-anchored lattice of `voxel` cells (cell (i, j, k) spans
+    [i, i + 1) x voxel along each axis), sorted by cell. Like open3d's `PointCloud.voxel_down_sample`, 8x
+    faster, except that open3d anchors its cells at the cloud's minimum: there, a point added beyond the
+    minimum moves every cell and every thinned point of the room, here only its own cell changes (map
+    updates rely on that, affordcore.updates)."""
+    return thin_cells(points, voxel)[0]
+
+
+def thin_cells(points: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """(`voxel_down_sample`'s means, each one's cell as one int64 key: `cell_keys` of its (i, j, k)), sorted
+    by key."""
+    cells = np.floor(points / voxel).astype(np.int64)
+    keys = cell_keys(cells)
+    unique, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+    means = np.stack([np.bincount(inverse, points[:, k]) for k in range(3)], axis=1) / counts[:, None]
+    return means, unique
+
+
+_KEY_BITS = 21  # per axis: +-2^20 cells, 26 km at 2.5 cm
+
+
+def cell_keys(cells: np.ndarray) -> np.ndarray:
+    """One int64 per integer cell (n, 3), ordered as the cells are lexicographically."""
+    half = 1 << (_KEY_BITS - 1)
+    if cells.size and (cells.min() < -half or cells.max() >= half):
+        raise ValueError("cells beyond the key range (a cloud tens of kilometres across)")
+    shifted = cells + half
+    return (shifted[:, 0] << (2 * _KEY_BITS)) | (shifted[:, 1] << _KEY_BITS) | shifted[:, 2]
 
 
 def _flat_index(lattice: VoxelLattice, index: np.ndarray) -> np.ndarray:
@@ -140,9 +174,10 @@ def _flat_index(lattice: VoxelLattice, index: np.ndarray) -> np.ndarray:
 
 
 def _normal_field(
-    lattice: VoxelLattice, points: np.ndarray, normals: np.ndarray, centre: np.ndarray
+    lattice: VoxelLattice, points: np.ndarray, normals: np.ndarray, floor: np.ndarray
 ) -> np.ndarray:
-    """Per voxel: the principal axis of sum(n n^T) over its points, oriented as the module docstring says."""
+    """Per voxel: the principal axis of sum(n n^T) over its points, oriented as the module docstring says
+    (`floor`: `floor_density` of the lattice)."""
     flat = _flat_index(lattice, lattice.voxel_of(points))
     voxels, inverse = np.unique(flat, return_inverse=True)
     scatter = np.empty((len(voxels), 3, 3))
@@ -153,18 +188,57 @@ def _normal_field(
             )
     _, vectors = np.linalg.eigh(scatter)
     axis = vectors[:, :, -1]  # eigenvector of the largest eigenvalue
-    centres = lattice.centres(np.stack(np.unravel_index(voxels, lattice.shape), axis=1))
-    axis *= orientation_signs(axis, centres, centre)[:, None]
+    index = np.stack(np.unravel_index(voxels, lattice.shape), axis=1)
+    axis *= orientation_signs(axis, index[:, :2], floor, lattice.resolution)[:, None]
     field = np.zeros((*lattice.shape, 3), dtype=np.float32)
     field.reshape(-1, 3)[voxels] = axis
     return field
 
 
-def orientation_signs(axis: np.ndarray, positions: np.ndarray, room_centre: np.ndarray) -> np.ndarray:
-    """+1 or -1 per unsigned normal: face up when within 60 deg of vertical, else face the room's centre."""
+def floor_seen(occupancy: np.ndarray, lattice: VoxelLattice) -> np.ndarray:
+    """(nx, ny) bool: a floor voxel (z within one voxel of 0) holds points."""
+    k0 = int(round(-lattice.origin[2] / lattice.resolution))
+    return occupancy[:, :, max(0, k0 - 1) : k0 + 2].max(axis=2) > 0
+
+
+def floor_density(occupancy: np.ndarray, lattice: VoxelLattice) -> np.ndarray:
+    """(nx, ny) float32: the fraction of scanned floor in the disc of `_FLOOR_DISC` around each column, plus a
+    thousandth of the fraction of columns holding anything in the `_CROWD_BOX` around it: where the floor is
+    hidden on both sides of a surface, the side with more in it (the room's, not the unseen space behind a
+    wall) breaks the tie (a difference of one floor voxel outweighs it)."""
+    from scipy import ndimage
+
+    reach = max(1, int(round(_FLOOR_DISC / lattice.resolution)))
+    dx, dy = np.mgrid[-reach : reach + 1, -reach : reach + 1]
+    disc = (dx**2 + dy**2 <= reach**2).astype(np.float32)
+    floor = ndimage.correlate(
+        floor_seen(occupancy, lattice).astype(np.float32), disc / disc.sum(), mode="constant", cval=0.0
+    )
+    columns = (occupancy.max(axis=2) > 0).astype(np.float32)
+    box = 2 * int(round(_CROWD_BOX / 2 / lattice.resolution)) + 1
+    crowd = ndimage.uniform_filter(columns, size=box, mode="constant", cval=0.0)
+    return floor + np.float32(1e-3) * crowd
+
+
+def orientation_signs(
+    axis: np.ndarray, columns: np.ndarray, floor: np.ndarray, resolution: float
+) -> np.ndarray:
+    """+1 or -1 per unsigned normal at voxel columns (n, 2): face up when within 60 deg of vertical, else
+    face the side with more scanned floor `_FLOOR_LOOK` out (`floor`: `floor_density`); on a tie (nothing
+    scanned on either side) the horizontal part's larger component is made positive, a fixed local choice."""
     up_facing = np.abs(axis[:, 2]) > _UP_FACING_NZ
-    towards_centre = np.einsum("ij,ij->i", axis[:, :2], room_centre[:2] - positions[:, :2])
-    sign = np.where(up_facing, np.sign(axis[:, 2]), np.sign(towards_centre))
+    plan = axis[:, :2] / np.maximum(np.linalg.norm(axis[:, :2], axis=1, keepdims=True), 1e-12)
+    look = plan * (_FLOOR_LOOK / resolution)
+
+    def floor_at(offset: np.ndarray) -> np.ndarray:  # bilinear: no rounding rule to break symmetry
+        from scipy.ndimage import map_coordinates
+
+        return map_coordinates(floor, (columns + offset).T, order=1, mode="nearest")
+
+    ahead, behind = floor_at(look), floor_at(-look)
+    larger = np.take_along_axis(plan, np.abs(plan).argmax(axis=1)[:, None], axis=1)[:, 0]
+    steep = np.where(np.abs(ahead - behind) > 1e-6, np.sign(ahead - behind), np.sign(larger))
+    sign = np.where(up_facing, np.sign(axis[:, 2]), steep)
     return np.where(sign == 0, 1.0, sign)
 
 
@@ -175,8 +249,7 @@ def observed_floor(fields: SceneFields, x: np.ndarray, y: np.ndarray, margin: fl
     from scipy import ndimage
 
     lattice = fields.lattice
-    k0 = int(round(-lattice.origin[2] / lattice.resolution))
-    seen = fields.occupancy[:, :, max(0, k0 - 1) : k0 + 2].max(axis=2) > 0
+    seen = floor_seen(fields.occupancy, lattice)
     reach = int(round(margin / lattice.resolution))
     if reach > 0:
         dy, dx = np.mgrid[-reach : reach + 1, -reach : reach + 1]

@@ -53,29 +53,40 @@ def score_poses(
     # which cell column each sample column (a, b) of the n_s x n_s sample lattice falls in
     a, b = np.divmod(np.arange(n_s * n_s), n_s)
     column_of_sample = (a // per_cell) * cells + b // per_cell
-    scores = np.empty(grid.shape, dtype=np.float32)
-    reads: dict[int, list] = {}
-    for iz in range(nz):
-        level = sampler.level(grid.z[iz], skeleton)
-        joint_planes = level["distance"] * w_dist.astype(np.float32) + level["occupancy"] * w_coll.astype(
+    # every torso level at once, so that one strided read serves all levels: (plane, z level, X, Y)
+    joint_planes, along, across, vertical = [], [], [], []
+    for z in grid.z:
+        level = sampler.level(z, skeleton)
+        planes = level["distance"] * w_dist.astype(np.float32) + level["occupancy"] * w_coll.astype(
             np.float32
         )
-        # (joint, X, Y): contiguous reads
-        joint_planes = np.ascontiguousarray(np.moveaxis(joint_planes, 2, 0))
+        joint_planes.append(np.moveaxis(planes, 2, 0))
         n = level["normals"]  # (X, Y, cells in z, 3), world frame
-        along = np.einsum("xykc,qkc->qxy", n[..., :2], w_cube[..., :2], optimize=True)  # w_x n_x + w_y n_y
-        across = np.einsum("xyk,qk->qxy", n[..., 1], w_cube[..., 0]) - np.einsum(
-            "xyk,qk->qxy", n[..., 0], w_cube[..., 1]
+        along.append(
+            np.einsum("xykc,qkc->qxy", n[..., :2], w_cube[..., :2], optimize=True)
+        )  # w_x n_x + w_y n_y
+        across.append(
+            np.einsum("xyk,qk->qxy", n[..., 1], w_cube[..., 0])
+            - np.einsum("xyk,qk->qxy", n[..., 0], w_cube[..., 1])
         )
-        vertical = np.einsum("xyk,qk->qxy", n[..., 2], w_cube[..., 2])
-        for it in range(nt):
-            theta = float(grid.theta[it])
-            cube_planes = (np.cos(theta) * along + np.sin(theta) * across + vertical).astype(np.float32)
-            cube_planes *= np.float32(1.0 / per_cell**2)  # a cell's normal is the mean of its sample columns
-            if it not in reads:  # the same for every z level
-                reads[it] = _slab_reads(sampler, skeleton, theta, column_of_sample)
-            scores[iz, it] = bias + _slab_scores(sampler, reads[it], joint_planes, cube_planes)
-    return scores
+        vertical.append(np.einsum("xyk,qk->qxy", n[..., 2], w_cube[..., 2]))
+    joint_planes = np.ascontiguousarray(np.stack(joint_planes, axis=1))
+    along, across, vertical = (np.stack(v, axis=1) for v in (along, across, vertical))
+    scores = np.empty((nt, nz, nx, ny), dtype=np.float32)
+    cube_planes = np.empty_like(along, dtype=np.float32)
+    for it in range(nt):
+        theta = float(grid.theta[it])
+        # a cell's normal is the mean of its sample columns, hence the 1 / per_cell^2
+        scale = 1.0 / per_cell**2
+        np.add(
+            (np.cos(theta) * scale) * along + (np.sin(theta) * scale) * across,
+            scale * vertical,
+            out=cube_planes,
+            casting="unsafe",
+        )
+        reads = _slab_reads(sampler, skeleton, theta, column_of_sample)
+        scores[it] = bias + _slab_scores(sampler, reads, joint_planes, cube_planes)
+    return np.ascontiguousarray(scores.transpose(1, 0, 2, 3))
 
 
 def _slab_reads(
@@ -104,22 +115,23 @@ def _slab_reads(
     _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
     summed = np.bincount(inverse, weights=weight)  # in the reads' order, as a running sum would add them
     order = np.argsort(first)
-    return [
-        (int(plane[first[k]]), int(cu[first[k]]), int(cv[first[k]]), np.float32(summed[k])) for k in order
-    ]
+    k = first[order]
+    # plain Python numbers: the caller's loop indexes with them once per read
+    return list(zip(plane[k].tolist(), cu[k].tolist(), cv[k].tolist(), summed[order].astype(np.float32)))
 
 
 def _slab_scores(
     sampler: _SlabSampler, reads: list, joint_planes: np.ndarray, cube_planes: np.ndarray
 ) -> np.ndarray:
+    """The sum of a slab's weighted reads for every torso level at once: planes are (plane, level, X, Y)."""
     stride, nx, ny = sampler.stride, sampler.nx, sampler.ny
     n_joints = len(joint_planes)
-    total = np.zeros((nx, ny), dtype=np.float32)
+    total = np.zeros((joint_planes.shape[1], nx, ny), dtype=np.float32)
     term = np.empty_like(total)
     for plane, cu, cv, weight in reads:
         field = joint_planes[plane] if plane < n_joints else cube_planes[plane - n_joints]
         np.multiply(
-            field[cu : cu + (nx - 1) * stride + 1 : stride, cv : cv + (ny - 1) * stride + 1 : stride],
+            field[:, cu : cu + (nx - 1) * stride + 1 : stride, cv : cv + (ny - 1) * stride + 1 : stride],
             weight,
             out=term,
         )
@@ -128,21 +140,36 @@ def _slab_scores(
 
 
 def model_scores(
-    model, fields: SceneFields, grid: PoseGrid, layout: FeatureLayout, allowed: np.ndarray | None = None
+    model,
+    fields: SceneFields,
+    grid: PoseGrid,
+    layout: FeatureLayout,
+    allowed: np.ndarray | None = None,
+    linear: np.ndarray | None = None,
+    known: np.ndarray | None = None,
 ) -> np.ndarray:
     """A model's score of every pose (z, theta, x, y), float32; poses outside `allowed` (nx, ny) cells hold
     float32's lowest. A linear model scores every pose as above. A cascade's linear first stage scores every
     pose, and its second stage rescores the best `fraction` of them (at most `max_poses`) from their full
-    features (log-odds); every other pose holds float32's lowest: the first stage ruled it out."""
+    features (log-odds); every other pose holds float32's lowest: the first stage ruled it out.
+
+    For updates (affordcore.updates): `linear` is the first stage's scores when the caller has them, and
+    `known` (shaped like the grid) holds second-stage scores that still hold, float32's lowest elsewhere; a
+    pose of the best set with a known score is not rescored."""
     skeleton = model.as_skeleton()
-    scores = score_poses(fields, skeleton, grid, layout, model.weights, model.bias)
+    if linear is None:
+        scores = score_poses(fields, skeleton, grid, layout, model.weights, model.bias)
+    else:
+        scores = linear.copy()
     if allowed is not None:
         scores[:, :, ~allowed] = RULED_OUT
     if not model.rescorer:
         return scores
     flat = scores.ravel()
     best = best_poses(flat, model.rescorer["fraction"], model.rescorer.get("max_poses"))
-    rescored = model.trees.log_odds(features_at(fields, skeleton, grid, layout, best))
+    rescored = known.ravel()[best] if known is not None else np.full(len(best), RULED_OUT, np.float32)
+    fresh = rescored <= RULED_OUT
+    rescored[fresh] = model.trees.log_odds(features_at(fields, skeleton, grid, layout, best[fresh]))
     flat[:] = RULED_OUT
     flat[best] = rescored
     return scores

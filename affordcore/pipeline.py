@@ -91,13 +91,16 @@ def prepare_scene(
     settings: Settings | None = None,
     gravity: str | np.ndarray = "auto",
     timings: dict[str, float] | None = None,
+    normals=None,
 ) -> PreparedScene:
-    """`to_world`, then the voxel fields every affordance is scored on; `timings` gets each one's seconds."""
+    """`to_world`, then the voxel fields every affordance is scored on; `timings` gets each one's seconds;
+    `normals`: how the fields get the cloud's normals (`compute_fields`' estimator: an `updates.NormalCache`
+    for a room mapped again and again)."""
     settings = settings or Settings()
     start = time.perf_counter()
     world = to_world(cloud, settings, gravity)
     aligned = time.perf_counter()
-    fields = compute_fields(world.cloud.points, settings.voxel, settings.normals)
+    fields = compute_fields(world.cloud.points, settings.voxel, settings.normals, estimator=normals)
     if timings is not None:
         timings["gravity alignment"] = aligned - start
         timings["voxel fields"] = time.perf_counter() - aligned
@@ -120,42 +123,84 @@ def map_affordances(
     """Every model's affordance map of a room's fields: {affordance: AffordanceMap}; `on_map(affordance, map)`
     hears of each as soon as it is done. Models must match the feature layout (a `ModelError` names the model
     otherwise); each places the skeleton it was trained with."""
-    from .maps import build_map
+    return RoomMapper(models, layout, settings).maps(fields, on_map)
 
-    settings = settings or Settings()
-    maps = {}
-    for model in models:
-        model.check_layout(layout, f"model {model.id}")
-        skeleton = model.as_skeleton()
-        grid, scores = score_model(model, fields, layout, settings)
-        maps[model.affordance] = build_map(
-            model.affordance,
-            scores,
-            grid,
-            skeleton,
-            model.threshold,
-            settings.map.nms_radius,
-            place_threshold=model.place_cut(scores),
+
+class RoomMapper:
+    """Maps one room again and again as it changes (a robot's map growing): each time, only the poses within
+    reach of a field that changed since the last maps are scored afresh (affordcore.updates), and the maps
+    equal those of a mapping from scratch. `reports` says, per affordance, how much the last call rescored."""
+
+    def __init__(self, models: list, layout: FeatureLayout, settings: Settings | None = None):
+        self.models, self.layout, self.settings = models, layout, settings or Settings()
+        self.states: dict = {}  # {affordance: updates.ModelState}
+        self.reports: dict = {}  # {affordance: updates.UpdateReport}
+
+    def describe(self, affordances) -> str:
+        """What the last maps of these affordances rescored, for a status line."""
+        reports = [self.reports[a] for a in affordances if a in self.reports]
+        if not reports:
+            return ""
+        if any(r.reason for r in reports):
+            return "scored in full (" + "; ".join(sorted({r.reason for r in reports if r.reason})) + ")"
+        rescored = sum(r.rescored_poses for r in reports) / max(sum(r.total_poses for r in reports), 1)
+        return f"updated: {100 * rescored:.0f} % of the poses rescored"
+
+    def maps(
+        self,
+        fields: SceneFields,
+        on_map: Callable[[str, object], None] | None = None,
+        models: list | None = None,
+    ) -> dict:
+        """{affordance: AffordanceMap} of every model (or of `models`, some of them) on the fields now."""
+        from .maps import build_map
+
+        maps = {}
+        for model in self.models if models is None else models:
+            model.check_layout(self.layout, f"model {model.id}")
+            grid, scores = self.scores(model, fields)
+            maps[model.affordance] = build_map(
+                model.affordance,
+                scores,
+                grid,
+                model.as_skeleton(),
+                model.threshold,
+                self.settings.map.nms_radius,
+                place_threshold=model.place_cut(scores),
+            )
+            if on_map:
+                on_map(model.affordance, maps[model.affordance])
+        return maps
+
+    def scores(self, model, fields: SceneFields) -> tuple[PoseGrid, np.ndarray]:
+        """A model's pose grid over the room and its score of every pose (`inference.model_scores`); only
+        cells near scanned floor are scored (`map.floor_margin`), the rest hold float32's lowest."""
+        from .inference import model_scores
+        from .updates import ModelState, known_second_stage, updated_scores
+
+        settings, skeleton = self.settings, model.as_skeleton()
+        grid = pose_grid(fields, skeleton, settings)
+        allowed = (
+            observed_floor(fields, grid.x, grid.y, settings.map.floor_margin)
+            if settings.map.floor_margin >= 0
+            else None
         )
-        if on_map:
-            on_map(model.affordance, maps[model.affordance])
-    return maps
+        previous = self.states.get(model.affordance)
+        linear, stale, report = updated_scores(
+            previous, fields, grid, skeleton, self.layout, model.weights, model.bias
+        )
+        known = None if report.reason else known_second_stage(previous, grid, stale)
+        scores = model_scores(model, fields, grid, self.layout, allowed, linear, known)
+        self.states[model.affordance] = ModelState(fields, grid, linear, scores)
+        self.reports[model.affordance] = report
+        return grid, scores
 
 
 def score_model(
     model, fields: SceneFields, layout: FeatureLayout, settings: Settings
 ) -> tuple[PoseGrid, np.ndarray]:
-    """A model's pose grid over the room and its score of every pose (`inference.model_scores`); only cells
-    near scanned floor are scored (`map.floor_margin`), the rest hold float32's lowest."""
-    from .inference import model_scores
-
-    grid = pose_grid(fields, model.as_skeleton(), settings)
-    allowed = (
-        observed_floor(fields, grid.x, grid.y, settings.map.floor_margin)
-        if settings.map.floor_margin >= 0
-        else None
-    )
-    return grid, model_scores(model, fields, grid, layout, allowed)
+    """A model's pose grid over the room and its score of every pose, from scratch (`RoomMapper.scores`)."""
+    return RoomMapper([model], layout, settings).scores(model, fields)
 
 
 def stream_features(

@@ -63,6 +63,12 @@ class FeatureSettings(BaseModel):
         description="edge of one normal-cube cell (m); the paper's 0.10 has 14x the features "
         "(docs/geometry.md)",
     )
+    distance_cap: float | None = Field(
+        0.5,
+        gt=0,
+        description="the joints' distance feature is truncated here (m), so a change of the room changes "
+        "scores only near it; unset: untruncated, as in the paper",
+    )
     chunk_mb: float = Field(
         256.0, gt=0, description="feature rows are produced in chunks of at most this many MB"
     )
@@ -158,6 +164,13 @@ class AssemblerSettings(BaseModel):
         description="a frame joins the global map when the sensor moved this far since the last one did (m)",
     )
     keyframe_angle_deg: float = Field(5.0, ge=0, description="... or turned this far (degrees)")
+    relevel_distance: float = Field(
+        0.02,
+        ge=0,
+        description="once the map is levelled, a new levelling replaces the kept one only when it would move "
+        "some map point further than this (m): every small correction moves every point, and the services "
+        "then map the whole room again instead of what changed",
+    )
     publish_period: float = Field(
         2.0,
         ge=0,
@@ -233,7 +246,9 @@ class LearnSettings(BaseModel):
 class Settings(BaseSettings):
     """All tunables of affordmap. Defaults follow DESIGN.md (10 cm voxels and grid, 63 orientations)."""
 
-    model_config = SettingsConfigDict(env_prefix="AFFORD_", env_nested_delimiter="__", extra="ignore")
+    model_config = SettingsConfigDict(
+        env_prefix="AFFORD_", env_nested_delimiter="__", env_parse_none_str="none", extra="ignore"
+    )
 
     voxel: VoxelSettings = VoxelSettings()
     normals: NormalSettings = NormalSettings()

@@ -10,6 +10,7 @@ from affordcore.gravity import check_levelled
 from affordcore.pipeline import prepare_scene
 from affordcore.recording import log_cloud, log_fields, set_time
 from affordcore.scene import Cloud
+from affordcore.updates import NormalCache
 from affordwire import messages
 
 from .node import Inbound, Node
@@ -18,6 +19,7 @@ from .node import Inbound, Node
 class FeaturesService:
     def __init__(self, node: Node):
         self.node = node
+        self.normals = NormalCache()  # the robot's map comes again and again: estimate only what changed
         self.inbox = node.inbox(latest_only=True)  # a newer map supersedes one not yet worked on
         node.subscribe(node.keys.cloud, self.inbox)
         node.answer_latest(node.keys.fields)
@@ -40,7 +42,10 @@ class FeaturesService:
         if levelled:
             check_levelled(points, settings.gravity)  # NoFloorError: refused, with what is wrong
         scene = prepare_scene(
-            Cloud(points, source=item.key), settings, gravity="none" if levelled else "auto"
+            Cloud(points, source=item.key),
+            settings,
+            gravity="none" if levelled else "auto",
+            normals=self.normals,
         )
         # the Cloud's own world_from_input takes its source to the cloud's frame; levelling goes on from there
         world_from_input = scene.alignment.world_from_input @ messages.pose_matrix(cloud.world_from_input)
@@ -52,5 +57,6 @@ class FeaturesService:
         levelling = "" if levelled else f"; {scene.alignment.describe()}"
         self.node.publish_status(
             messages.Status.READY,
-            f"published fields {scene.fields.lattice.shape} of a {cloud.frames}-frame map{levelling}",
+            f"published fields {scene.fields.lattice.shape} of a {cloud.frames}-frame map{levelling}; "
+            f"normals estimated at {self.normals.estimated:,} of {len(self.normals.points):,} thinned points",
         )

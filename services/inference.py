@@ -11,7 +11,7 @@ import threading
 import time
 
 from affordcore.features import FeatureLayout
-from affordcore.pipeline import map_affordances
+from affordcore.pipeline import RoomMapper
 from affordcore.recording import log_map, set_time
 from affordwire import messages
 
@@ -29,6 +29,7 @@ class InferenceService:
     def __init__(self, node: Node):
         self.node, self.models = node, node.models
         self.layout = FeatureLayout.from_settings(node.settings.features, node.settings.voxel)
+        self.mapper = RoomMapper(self.models, self.layout, node.settings)  # the robot's room, updated
         self.inbox = node.inbox(latest_only=True)
         node.subscribe(node.keys.fields, self.inbox)
         for model in self.models:
@@ -62,9 +63,11 @@ class InferenceService:
             )
             log_map(self.node.recording, amap)
 
-        map_affordances(fields, self.layout, self.models, self.node.settings, on_map=publish)
+        self.mapper.maps(fields, on_map=publish)
         self.node.publish_status(
-            messages.Status.READY, f"published {len(self.models)} maps of a {message.frames}-frame map"
+            messages.Status.READY,
+            f"published {len(self.models)} maps of a {message.frames}-frame map; "
+            + self.mapper.describe(ids),
         )
 
 
@@ -85,6 +88,7 @@ class ShardedInference(InferenceService):
         self.maps = LatestOutputs()
         self.robots: set[str] = set()  # every robot whose fields or maps this worker has seen
         self.recordings: dict[str, object] = {}
+        self.mappers: dict[str, RoomMapper] = {}  # each robot's room, updated as its fields come
         self.recovered = 0  # inputs fetched again because a worker left
         self._lock = threading.Lock()
         self.members = Membership(self.keys.worker, self._on_members)
@@ -248,9 +252,12 @@ class ShardedInference(InferenceService):
             self.node.publish(key, out, keep=False)
             log_map(recording, amap)
 
-        map_affordances(fields, self.layout, todo, self.node.settings, on_map=publish)
+        if robot not in self.mappers:
+            self.mappers[robot] = RoomMapper(self.models, self.layout, self.node.settings)
+        self.mappers[robot].maps(fields, on_map=publish, models=todo)
         self.node.publish_status(
-            messages.Status.READY, f"published {names} of {robot} ({message.frames}-frame map)"
+            messages.Status.READY,
+            f"published {names} of {robot} ({message.frames}-frame map; {self.mappers[robot].describe(ids)})",
         )
 
     def _recording(self, robot: str):

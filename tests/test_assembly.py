@@ -213,6 +213,24 @@ def test_a_map_whose_floor_search_fails_keeps_the_last_levelling_and_a_checkpoin
         never.aligned_map(blind)
 
 
+def test_a_levelling_that_barely_moves_the_map_is_not_taken(room_run):
+    """Every map cloud would otherwise move by the levelling's noise, and the services would map the whole
+    room again each time instead of what changed (affordcore.updates)."""
+    assembler, _ = room_run
+    _, levelled = assembler.aligned_map()
+    try:
+        for shift, kept in ((0.01, True), (0.10, False)):
+            previous = levelled.copy()
+            previous[2, 3] += shift
+            assembler.world_from_odom = previous
+            points, now = assembler.aligned_map()
+            np.testing.assert_array_equal(now, previous if kept else levelled)
+            expected = assembler.map_points() @ now[:3, :3].T + now[:3, 3]
+            np.testing.assert_allclose(points, expected, atol=1e-9)
+    finally:
+        assembler.world_from_odom = levelled
+
+
 @pytest.mark.slow
 def test_every_map_the_assembler_levels_passes_the_features_check(generated_sequence):
     """The features service checks a 'world' cloud for a floor at z = 0; the assembler's own maps of a

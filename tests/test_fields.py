@@ -72,8 +72,10 @@ def test_estimated_normals_of_a_box_room_face_up_and_inwards():
 
 def test_orientation_rule():
     axes = np.array([[0.1, 0.0, -0.9], [0.0, 0.2, 0.6], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.3]])
-    positions = np.array([[0, 0, 0], [0, 0, 0], [0, 0, 1], [5, 0, 1], [0, -3, 1]], float)
-    centre = np.array([2.0, 0.0, 1.0])
-    signs = orientation_signs(axes, positions, centre)
-    # up-facing ones point up; steep ones point at the centre
-    np.testing.assert_array_equal(signs, [-1, 1, -1, -1, -1])
+    columns = np.array([[10, 10], [10, 10], [10, 10], [9, 5], [5, 10]])
+    floor = np.zeros((20, 20), dtype=np.float32)
+    floor[10:] = 1.0  # scanned floor on the +x side only
+    signs = orientation_signs(axes, columns, floor, 0.1)
+    # up-facing ones point up; steep ones face the floor 0.6 m out (+x here); with floor on neither side,
+    # the larger horizontal component is made positive
+    np.testing.assert_array_equal(signs, [-1, 1, -1, 1, -1])

@@ -13,11 +13,11 @@ from affordcore.inference import score_poses
 from affordcore.skeleton import get_skeleton
 
 
-@pytest.mark.parametrize("cell_size, step", [(0.25, 0.1), (0.10, 0.1), (0.5, 0.2)])
+@pytest.mark.parametrize("cell_size, step, cap", [(0.25, 0.1, 0.5), (0.10, 0.1, None), (0.5, 0.2, 0.3)])
 @pytest.mark.parametrize("affordance", ["sitting-relaxing", "standing-working"])
-def test_scores_equal_features_dot_weights(affordance, cell_size, step):
+def test_scores_equal_features_dot_weights(affordance, cell_size, step, cap):
     fields, skeleton = _fields(), get_skeleton(affordance)
-    layout = FeatureLayout(cell_size=cell_size)
+    layout = FeatureLayout(cell_size=cell_size, distance_cap=cap)
     sparse = _sparse_grid(fields, skeleton, n_theta=5)
     grid = PoseGrid(sparse.x[:: round(step / 0.1)], sparse.y[:: round(step / 0.1)], sparse.z, sparse.theta)
     rng = np.random.default_rng(7)

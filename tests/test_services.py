@@ -234,6 +234,35 @@ def test_inference_refuses_fields_at_another_resolution(router, client, tmp_path
         running.stop()
 
 
+def test_inference_updates_the_maps_of_a_changed_room_as_a_mapping_from_scratch_would(
+    router, client, tmp_path
+):
+    from affordcore.fields import compute_fields
+    from affordcore.pipeline import map_affordances
+    from services.inference import InferenceService
+
+    maps = _listen(client, KEYS.affordance("sitting-relaxing"))
+    running = Running(InferenceService, "inference", router, tmp_path / "inference.rrd")
+    try:
+        rng = np.random.default_rng(3)
+        room = _box_room_scan(rng)
+        grown = np.vstack([room, rng.uniform([3.0, 2.2, 0.0], [3.4, 2.6, 0.5], (3000, 3))])  # a box put down
+        for points in (room, grown):
+            fields = compute_fields(points)
+            message = messages.fields_message(fields, messages.cloud_message(points, np.eye(4), "file"))
+            _send(client, KEYS.fields, message.SerializeToString(), messages.SceneFieldsMessage)
+            received = _next(maps, messages.AffordanceMapMessage, timeout=60)
+        assert eventually(lambda: "rescored" in _status(client, "inference").detail, timeout=10)
+        detail = _status(client, "inference").detail
+        assert "updated" in detail and int(detail.split("updated: ")[1].split(" %")[0]) < 100, detail
+        scratch = map_affordances(fields, running.service.layout, running.service.models)["sitting-relaxing"]
+        np.testing.assert_array_equal(
+            np.frombuffer(received.confidence, "<f4").reshape(scratch.confidence.shape), scratch.confidence
+        )
+    finally:
+        running.stop()
+
+
 def test_a_robot_name_must_be_one_key_chunk():
     for bad in ("", "a/b", "r*", "@x", "two words"):
         with pytest.raises(ValueError, match="one non-empty key chunk"):

@@ -129,8 +129,10 @@ def test_pose_grid_rejects_uneven_steps():
 def test_settings_come_from_the_environment(monkeypatch):
     monkeypatch.setenv("AFFORD_VOXEL__RESOLUTION", "0.05")
     monkeypatch.setenv("AFFORD_GRAVITY__UP_CANDIDATES", '["+z"]')
+    monkeypatch.setenv("AFFORD_FEATURES__DISTANCE_CAP", "none")  # unset: the paper's untruncated distance
     settings = Settings()
     assert settings.voxel.resolution == 0.05 and settings.gravity.up_candidates == ["+z"]
+    assert settings.features.distance_cap is None
 
 
 def test_settings_refuse_a_grid_off_the_voxel_lattice(monkeypatch):
