@@ -59,9 +59,7 @@ def map_room(
     settings = Settings()
     start = time.perf_counter()
     seconds: dict[str, float] = {}
-    models = choose_models(
-        model_files, affordances, FeatureLayout.from_settings(settings.features, settings.voxel)
-    )
+    models = choose_models(model_files, affordances, FeatureLayout.from_settings(settings))
     loading = time.perf_counter()
     cloud = _loaded(cloud_path)
     seconds["load the cloud"] = time.perf_counter() - loading

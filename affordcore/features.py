@@ -32,14 +32,16 @@ import numpy as np
 
 from .fields import SceneFields
 from .grid import PoseGrid
-from .settings import FeatureSettings, VoxelSettings
+from .settings import Settings
 from .skeleton import JOINTS, Skeleton, rotation_z
 
-FEATURE_VERSION = 2
-_NORMAL_RULE = (
-    "scatter-tensor principal axis; up if |n_z| > 0.5 else towards more scanned floor "
-    "(0.4 m disc 0.6 m out), ties to more occupied columns (2 m square)"
-)
+FEATURE_VERSION = 1
+# how the normal field is oriented (`NormalSettings.steep_facing`, affordcore.fields): in the fingerprint
+_NORMAL_RULES = {
+    "centre": "scatter-tensor principal axis; up if |n_z| > 0.5 else towards the room centre in plan",
+    "floor": "scatter-tensor principal axis; up if |n_z| > 0.5 else towards more scanned floor "
+    "(0.4 m disc 0.6 m out), ties to more occupied columns (2 m square)",
+}
 
 
 @dataclass(frozen=True)
@@ -53,17 +55,28 @@ class FeatureLayout:
     # changes the distance feature only within the cap of itself, so a change of the room changes the scores
     # only near it (affordcore.updates); beyond a skeleton's reach a distance says little about a pose.
     distance_cap: float | None = None
+    # which way steep normals face (`NormalSettings.steep_facing`): the fields must be computed with the same
+    steep_facing: str = "centre"
 
     def __post_init__(self) -> None:
         if self.distance_cap is not None and not self.distance_cap > 0:
             raise ValueError(f"distance_cap must be positive or None, not {self.distance_cap}")
+        if self.steep_facing not in _NORMAL_RULES:
+            raise ValueError(f"steep_facing is one of {sorted(_NORMAL_RULES)}, not {self.steep_facing!r}")
         cells = self.cube_size / self.cell_size
         if abs(cells - round(cells)) > 1e-6 or round(cells) < 1:
             raise ValueError(f"cube_size {self.cube_size} is not a whole number of cells of {self.cell_size}")
 
     @classmethod
-    def from_settings(cls, features: FeatureSettings, voxel: VoxelSettings) -> FeatureLayout:
-        return cls(features.cube_size, features.cell_size, voxel.resolution, features.distance_cap)
+    def from_settings(cls, settings: Settings) -> FeatureLayout:
+        features = settings.features
+        return cls(
+            features.cube_size,
+            features.cell_size,
+            settings.voxel.resolution,
+            features.distance_cap,
+            settings.normals.steep_facing,
+        )
 
     @property
     def cells_per_axis(self) -> int:
@@ -105,18 +118,20 @@ class FeatureLayout:
         return [f"dist:{j}" for j in JOINTS] + [f"coll:{j}" for j in JOINTS] + cells
 
     def describe(self) -> dict:
-        return {
+        described = {
             "version": FEATURE_VERSION,
             "joints": list(JOINTS),
             "blocks": ["dist", "coll", "normal"],
             "cube_size": self.cube_size,
             "cell_size": self.cell_size,
             "voxel_resolution": self.voxel_resolution,
-            "distance_cap": self.distance_cap,
             "n_features": self.n_features,
             "sampling": "trilinear",
-            "normals": _NORMAL_RULE,
+            "normals": _NORMAL_RULES[self.steep_facing],
         }
+        if self.distance_cap is not None:  # absent for the paper's distance: layout-1 fingerprints still hold
+            described["distance_cap"] = self.distance_cap
+        return described
 
     @property
     def fingerprint(self) -> str:

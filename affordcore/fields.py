@@ -7,12 +7,13 @@ on a boundary where noise would split it between two.
 Normals. Estimated normals have no sign: a surface seen from both sides gives n and -n, and a plain mean
 cancels. Per voxel we therefore average the *axis* n n^T (the scatter tensor) and take its principal
 eigenvector, which is sign-free. The voxel's normal then gets a fixed orientation: surfaces within 60 degrees
-of horizontal face up (people sit and lean on the top of things); steeper ones face the side with more
-scanned floor around them (walls face the room, whose floor the sensor saw; the space behind a wall was never
-seen; a sofa's back faces the seat and the floor in front of it). The rule is local, so a room that grows
-flips no normal far from the growth (affordcore.updates relies on that; the room's mean point, the earlier
-rule, moves with every scan). Voxels without points have a zero normal, so a cell average over them measures
-how much surface there is as well as which way it faces.
+of horizontal face up (people sit and lean on the top of things); steeper ones (`NormalSettings.steep_facing`)
+face the room's centre in plan, the cloud's mean point (`centre`, the default: walls face in), or the side
+with more scanned floor around them (`floor`: walls face the room, whose floor the sensor saw; a sofa's back
+faces the seat and the floor in front of it). The floor rule is local, so a room that grows flips no normal
+far from the growth (affordcore.updates); the mean point moves with every scan and flips faces metres away.
+Voxels without points have a zero normal, so a cell average over them measures how much surface there is as
+well as which way it faces.
 """
 
 from __future__ import annotations
@@ -112,7 +113,13 @@ def compute_fields(
     distance = ndimage.distance_transform_edt(~occupied.reshape(lattice.shape), sampling=lattice.resolution)
     if normals is None:
         points, normals = (estimator or estimate_normals)(points, normal_settings)
-    field = _normal_field(lattice, points, normals, floor_density(occupancy, lattice))
+    if normal_settings.steep_facing == "floor":
+        floor = floor_density(occupancy, lattice)
+        steep = lambda axis, columns: towards_floor(axis, columns, floor, lattice.resolution)  # noqa: E731
+    else:
+        centre = points.mean(axis=0)
+        steep = lambda axis, columns: towards_centre(axis, lattice, columns, centre)  # noqa: E731
+    field = _normal_field(lattice, points, normals, steep)
     footprint = tuple(float(v) for v in (*points[:, :2].min(axis=0), *points[:, :2].max(axis=0)))
     return SceneFields(lattice, occupancy, distance.astype(np.float32), field, footprint)
 
@@ -173,11 +180,9 @@ def _flat_index(lattice: VoxelLattice, index: np.ndarray) -> np.ndarray:
     return np.ravel_multi_index(index.T, lattice.shape)
 
 
-def _normal_field(
-    lattice: VoxelLattice, points: np.ndarray, normals: np.ndarray, floor: np.ndarray
-) -> np.ndarray:
+def _normal_field(lattice: VoxelLattice, points: np.ndarray, normals: np.ndarray, steep) -> np.ndarray:
     """Per voxel: the principal axis of sum(n n^T) over its points, oriented as the module docstring says
-    (`floor`: `floor_density` of the lattice)."""
+    (`steep(axis, columns)`: the signs that orient steep axes, `towards_centre` or `towards_floor`)."""
     flat = _flat_index(lattice, lattice.voxel_of(points))
     voxels, inverse = np.unique(flat, return_inverse=True)
     scatter = np.empty((len(voxels), 3, 3))
@@ -189,7 +194,7 @@ def _normal_field(
     _, vectors = np.linalg.eigh(scatter)
     axis = vectors[:, :, -1]  # eigenvector of the largest eigenvalue
     index = np.stack(np.unravel_index(voxels, lattice.shape), axis=1)
-    axis *= orientation_signs(axis, index[:, :2], floor, lattice.resolution)[:, None]
+    axis *= orientation_signs(axis, steep(axis, index[:, :2]))[:, None]
     field = np.zeros((*lattice.shape, 3), dtype=np.float32)
     field.reshape(-1, 3)[voxels] = axis
     return field
@@ -220,26 +225,36 @@ def floor_density(occupancy: np.ndarray, lattice: VoxelLattice) -> np.ndarray:
     return floor + np.float32(1e-3) * crowd
 
 
-def orientation_signs(
-    axis: np.ndarray, columns: np.ndarray, floor: np.ndarray, resolution: float
-) -> np.ndarray:
-    """+1 or -1 per unsigned normal at voxel columns (n, 2): face up when within 60 deg of vertical, else
-    face the side with more scanned floor `_FLOOR_LOOK` out (`floor`: `floor_density`); on a tie (nothing
-    scanned on either side) the horizontal part's larger component is made positive, a fixed local choice."""
+def orientation_signs(axis: np.ndarray, steep: np.ndarray) -> np.ndarray:
+    """+1 or -1 per unsigned normal: face up when within 60 deg of vertical, else take the `steep` sign."""
     up_facing = np.abs(axis[:, 2]) > _UP_FACING_NZ
+    sign = np.where(up_facing, np.sign(axis[:, 2]), np.sign(steep))
+    return np.where(sign == 0, 1.0, sign)
+
+
+def towards_centre(
+    axis: np.ndarray, lattice: VoxelLattice, columns: np.ndarray, centre: np.ndarray
+) -> np.ndarray:
+    """The sign that turns each axis at voxel columns (n, 2) to face `centre` in plan."""
+    plan = lattice.origin[:2] + columns * lattice.resolution
+    return np.sign(np.einsum("ij,ij->i", axis[:, :2], centre[:2] - plan))
+
+
+def towards_floor(axis: np.ndarray, columns: np.ndarray, floor: np.ndarray, resolution: float) -> np.ndarray:
+    """The sign that turns each axis at voxel columns (n, 2) to the side with more scanned floor `_FLOOR_LOOK`
+    out (`floor`: `floor_density`); on a tie (nothing scanned on either side) the horizontal part's larger
+    component is made positive, a fixed local choice."""
+    from scipy.ndimage import map_coordinates
+
     plan = axis[:, :2] / np.maximum(np.linalg.norm(axis[:, :2], axis=1, keepdims=True), 1e-12)
     look = plan * (_FLOOR_LOOK / resolution)
 
     def floor_at(offset: np.ndarray) -> np.ndarray:  # bilinear: no rounding rule to break symmetry
-        from scipy.ndimage import map_coordinates
-
         return map_coordinates(floor, (columns + offset).T, order=1, mode="nearest")
 
     ahead, behind = floor_at(look), floor_at(-look)
     larger = np.take_along_axis(plan, np.abs(plan).argmax(axis=1)[:, None], axis=1)[:, 0]
-    steep = np.where(np.abs(ahead - behind) > 1e-6, np.sign(ahead - behind), np.sign(larger))
-    sign = np.where(up_facing, np.sign(axis[:, 2]), steep)
-    return np.where(sign == 0, 1.0, sign)
+    return np.where(np.abs(ahead - behind) > 1e-6, np.sign(ahead - behind), np.sign(larger))
 
 
 def observed_floor(fields: SceneFields, x: np.ndarray, y: np.ndarray, margin: float) -> np.ndarray:

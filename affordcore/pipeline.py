@@ -109,7 +109,7 @@ def prepare_scene(
         world.alignment,
         world.warnings,
         fields,
-        FeatureLayout.from_settings(settings.features, settings.voxel),
+        FeatureLayout.from_settings(settings),
     )
 
 

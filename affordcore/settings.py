@@ -8,6 +8,7 @@ defaults together with the variable that overrides each one.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 from pydantic import BaseModel, Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -42,6 +43,12 @@ class NormalSettings(BaseModel):
     )
     radius: float = Field(0.10, gt=0, description="neighbourhood radius for normal estimation (m)")
     max_neighbours: int = Field(30, ge=3, description="at most this many neighbours per normal")
+    steep_facing: Literal["centre", "floor"] = Field(
+        "centre",
+        description="which way normals steeper than 60 deg face: the cloud's mean point in plan (centre, the "
+        "shipped models') or the side with more scanned floor (floor: local, so map updates stay local; "
+        "docs/geometry.md)",
+    )
 
 
 class GridSettings(BaseModel):
@@ -64,10 +71,10 @@ class FeatureSettings(BaseModel):
         "(docs/geometry.md)",
     )
     distance_cap: float | None = Field(
-        0.5,
+        None,
         gt=0,
         description="the joints' distance feature is truncated here (m), so a change of the room changes "
-        "scores only near it; unset: untruncated, as in the paper",
+        "scores only near it (docs/geometry.md); none: untruncated, as in the paper and the shipped models",
     )
     chunk_mb: float = Field(
         256.0, gt=0, description="feature rows are produced in chunks of at most this many MB"

@@ -58,7 +58,7 @@ def main() -> None:
 
     started = time.perf_counter()
     settings = Settings()
-    layout = FeatureLayout.from_settings(settings.features, settings.voxel)
+    layout = FeatureLayout.from_settings(settings)
     files = {f.name: f for f in generated_rooms(args)}
     train, validation, test = (
         [files[name] for name in part] for part in split_by_index(list(files), args.validation, args.test)

@@ -68,7 +68,7 @@ def room_set(affordance: str, rooms: Path, cache: Path) -> Path:
     train = train[:TRAIN_ROOMS]
     settings = Settings()
     loaded = load_rooms([f for f in files if f.name in set(train) | set(validation)], settings)
-    task = Task(affordance, settings, FeatureLayout.from_settings(settings.features, settings.voxel))
+    task = Task(affordance, settings, FeatureLayout.from_settings(settings))
     examples = {room.name: room_examples(room, task) for room in loaded}
     training = stack(examples, train, settings.learn.max_negatives, np.random.default_rng([0, 2]))
     held = stack(examples, validation)

@@ -44,7 +44,7 @@ def main() -> None:
     from affordcore.settings import Settings
 
     settings = Settings()
-    layout = FeatureLayout.from_settings(settings.features, settings.voxel)
+    layout = FeatureLayout.from_settings(settings)
     models = [load_model(path, layout) for path in shipped_models().values()]
     print(
         f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; {len(models)} models; medians of "

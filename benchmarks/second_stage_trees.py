@@ -96,7 +96,7 @@ def main() -> None:
     rows = []
     for affordance in affordances:
         rng = np.random.default_rng([args.seed, 1])
-        task = Task(affordance, settings, FeatureLayout.from_settings(settings.features, settings.voxel))
+        task = Task(affordance, settings, FeatureLayout.from_settings(settings))
         examples = {room.name: room_examples(room, task) for room in train_rooms}
         train = stack(
             examples, list(examples), settings.learn.max_negatives, np.random.default_rng(args.seed)

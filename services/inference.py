@@ -28,7 +28,7 @@ class InferenceService:
 
     def __init__(self, node: Node):
         self.node, self.models = node, node.models
-        self.layout = FeatureLayout.from_settings(node.settings.features, node.settings.voxel)
+        self.layout = FeatureLayout.from_settings(node.settings)
         self.mapper = RoomMapper(self.models, self.layout, node.settings)  # the robot's room, updated
         self.inbox = node.inbox(latest_only=True)
         node.subscribe(node.keys.fields, self.inbox)
@@ -82,7 +82,7 @@ class ShardedInference(InferenceService):
 
     def __init__(self, node: Node):
         self.node, self.models, self.keys = node, node.models, node.keys
-        self.layout = FeatureLayout.from_settings(node.settings.features, node.settings.voxel)
+        self.layout = FeatureLayout.from_settings(node.settings)
         service = node.settings.service
         self.inbox = KeyedInbox(service.max_queue, service.max_queue_bytes)
         self.maps = LatestOutputs()

@@ -79,9 +79,7 @@ def run_service(
         os.nice(settings.service.downstream_nice)
     models = []
     if spec.scores:  # only a scoring service loads models, and refuses those of another feature layout
-        models = choose_models(
-            model_files or [], [], FeatureLayout.from_settings(settings.features, settings.voxel)
-        )
+        models = choose_models(model_files or [], [], FeatureLayout.from_settings(settings))
     affordances = [model.affordance for model in models] or list(shipped_models())  # the recording's tabs
     keys = None
     if robots:

@@ -52,11 +52,7 @@ def test_features_json_contract(small_room):
     skeleton = get_skeleton("sitting-working")
     expected = PoseGrid.over_footprint((-0.08, -0.08, 2.47, 1.96), skeleton.torso_height, 0.1)
     assert report["poses"] == expected.size == 26 * 21 * 3 * 63
-    assert (
-        report["features"]
-        == FeatureLayout.from_settings(Settings().features, Settings().voxel).n_features
-        == 222
-    )
+    assert report["features"] == FeatureLayout.from_settings(Settings()).n_features == 222
     assert report["seconds"] > 0 and report["peak_rss_mb"] > 50
 
 

@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from affordcore.example import box_surface_points
-from affordcore.fields import compute_fields, lattice_around, orientation_signs
+from affordcore.fields import (
+    compute_fields,
+    lattice_around,
+    orientation_signs,
+    towards_centre,
+    towards_floor,
+)
 from affordcore.settings import VoxelSettings
 
 
@@ -70,12 +76,22 @@ def test_estimated_normals_of_a_box_room_face_up_and_inwards():
     assert np.mean(np.abs(magnitudes - 1) < 1e-4) > 0.9  # unit where a surface is
 
 
-def test_orientation_rule():
-    axes = np.array([[0.1, 0.0, -0.9], [0.0, 0.2, 0.6], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.3]])
+AXES = np.array([[0.1, 0.0, -0.9], [0.0, 0.2, 0.6], [-1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.3]])
+
+
+def test_orientation_rule_towards_the_centre():
+    lattice = lattice_around(np.array([[0.0, -3.0, 0.0], [5.0, 0.0, 1.0]]), VoxelSettings(margin=0.0))
+    columns = np.rint((np.array([[0, 0], [0, 0], [0, 0], [5, 0], [0, -3]]) - lattice.origin[:2]) / 0.1)
+    steep = towards_centre(AXES, lattice, columns.astype(int), np.array([2.0, 0.0, 1.0]))
+    # up-facing ones point up; steep ones point at the centre
+    np.testing.assert_array_equal(orientation_signs(AXES, steep), [-1, 1, -1, -1, -1])
+
+
+def test_orientation_rule_towards_the_floor():
     columns = np.array([[10, 10], [10, 10], [10, 10], [9, 5], [5, 10]])
     floor = np.zeros((20, 20), dtype=np.float32)
     floor[10:] = 1.0  # scanned floor on the +x side only
-    signs = orientation_signs(axes, columns, floor, 0.1)
+    steep = towards_floor(AXES, columns, floor, 0.1)
     # up-facing ones point up; steep ones face the floor 0.6 m out (+x here); with floor on neither side,
     # the larger horizontal component is made positive
-    np.testing.assert_array_equal(signs, [-1, 1, -1, 1, -1])
+    np.testing.assert_array_equal(orientation_signs(AXES, steep), [-1, 1, -1, 1, -1])

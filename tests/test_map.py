@@ -46,7 +46,7 @@ def mapped(example, tmp_path_factory):
 
 
 def test_every_affordance_has_a_model_for_the_running_layout():
-    layout = FeatureLayout.from_settings(Settings().features, Settings().voxel)
+    layout = FeatureLayout.from_settings(Settings())
     assert set(shipped_models()) == set(AFFORDANCES)
     for path in shipped_models().values():
         load_model(path, layout)  # raises if the shipped model no longer matches the code

@@ -20,7 +20,7 @@ from affordcore.settings import Settings
 def room():
     settings = Settings()
     scene = prepare_scene(example_room(), settings, "none")
-    models = choose_models([], [], FeatureLayout.from_settings(settings.features, settings.voxel))
+    models = choose_models([], [], FeatureLayout.from_settings(settings))
     return scene, models, settings
 
 

@@ -162,7 +162,7 @@ class _Worker:
         from services.shard import Selection, WorkerKeys, group_of
 
         settings = ServiceSettings()
-        models = choose_models([], [], FeatureLayout.from_settings(settings.features, settings.voxel))
+        models = choose_models([], [], FeatureLayout.from_settings(settings))
         selection = Selection(("*",))
         keys = WorkerKeys(
             selection, group_of("inference", selection, "affordance", [m.id for m in models]), worker
@@ -349,7 +349,7 @@ def test_in_a_secured_site_only_the_inference_identity_joins_the_workers(tmp_pat
     site = tmp_path / "site"
     write_site(Site(sensors=["robot"], mappers=["mapper"], viewers=["viewer"]), site)
     settings = Settings()
-    models = choose_models([], [], FeatureLayout.from_settings(settings.features, settings.voxel))
+    models = choose_models([], [], FeatureLayout.from_settings(settings))
     group = group_of("inference", Selection(("*",)), "affordance", [m.id for m in models])
     intruder = next(f"x{i}" for i in range(100) if owner(("s1", f"x{i}"), "sr1/sitting-relaxing") == f"x{i}")
     room = tmp_path / "room.npy"

@@ -51,9 +51,7 @@ class Running:
         self, service_class, name: str, endpoint: str, rrd: Path, settings: ServiceSettings | None = None
     ):
         settings = settings or ServiceSettings()
-        models = choose_models(
-            [], ["sitting-relaxing"], FeatureLayout.from_settings(settings.features, settings.voxel)
-        )
+        models = choose_models([], ["sitting-relaxing"], FeatureLayout.from_settings(settings))
         self.node = Node(
             name, ROBOT, [endpoint], settings, rrd, affordances=["sitting-relaxing"], models=models
         )

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from affordcore.features import FeatureLayout
 from affordcore.grid import PoseGrid
 from affordcore.settings import Settings
 from affordcore.skeleton import (
@@ -129,10 +130,16 @@ def test_pose_grid_rejects_uneven_steps():
 def test_settings_come_from_the_environment(monkeypatch):
     monkeypatch.setenv("AFFORD_VOXEL__RESOLUTION", "0.05")
     monkeypatch.setenv("AFFORD_GRAVITY__UP_CANDIDATES", '["+z"]')
-    monkeypatch.setenv("AFFORD_FEATURES__DISTANCE_CAP", "none")  # unset: the paper's untruncated distance
+    monkeypatch.setenv("AFFORD_FEATURES__DISTANCE_CAP", "0.5")
+    monkeypatch.setenv("AFFORD_NORMALS__STEEP_FACING", "floor")
     settings = Settings()
     assert settings.voxel.resolution == 0.05 and settings.gravity.up_candidates == ["+z"]
-    assert settings.features.distance_cap is None
+    assert settings.features.distance_cap == 0.5 and settings.normals.steep_facing == "floor"
+    layout = FeatureLayout.from_settings(settings)
+    assert (layout.distance_cap, layout.steep_facing) == (0.5, "floor")
+    assert layout.fingerprint != FeatureLayout(voxel_resolution=0.05, cell_size=0.25).fingerprint
+    monkeypatch.setenv("AFFORD_FEATURES__DISTANCE_CAP", "none")  # the paper's untruncated distance
+    assert Settings().features.distance_cap is None
 
 
 def test_settings_refuse_a_grid_off_the_voxel_lattice(monkeypatch):

@@ -231,7 +231,7 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
         model.rescorer and model.trees is not None and model.parameters["report"]["first"] == "linear-tuned"
     )
     assert model.place_threshold is not None and 0 <= model.validation["place_recall"] <= 1
-    layout = FeatureLayout.from_settings(settings.features, settings.voxel)
+    layout = FeatureLayout.from_settings(settings)
     room = load_room(data_set_rooms(data_set)[0], settings)
     grid, scores = score_model(model, room.fields, layout, settings)
     lowest = np.finfo(np.float32).min

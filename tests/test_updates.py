@@ -19,24 +19,30 @@ from affordcore.skeleton import get_skeleton
 from affordcore.trees import TreeEnsemble
 from affordcore.updates import ModelState, reach_voxels, updated_scores
 
-LAYOUT = FeatureLayout(1.0, 0.25, 0.10, distance_cap=0.5)
+# the local layout: truncated distance, steep normals facing the scanned floor (docs/geometry.md)
+LAYOUT = FeatureLayout(1.0, 0.25, 0.10, distance_cap=0.5, steep_facing="floor")
 BOX = ((4.0, 4.2, 0.0), (4.3, 4.5, 0.3))  # a 30 cm box put down in the free part of the room
 
 
-def _fields(points):
-    return compute_fields(points, VoxelSettings(), NormalSettings())
+def _fields(points, facing="floor"):
+    return compute_fields(points, VoxelSettings(), NormalSettings(steep_facing=facing))
 
 
-@pytest.fixture(scope="module")
-def rooms():
-    """The room, the room with the box in it, and the room grown by a box beyond its footprint."""
+def _rooms(facing: str) -> dict:
     base = _room(size=6.0)
     rng = np.random.default_rng(3)
     with_box = np.concatenate([base, box_surface_points(*map(np.array, BOX), 2000, rng)])
     beyond = np.concatenate(
         [base, box_surface_points(np.array([6.2, 1.0, 0]), np.array([6.5, 1.3, 0.4]), 2000, rng)]
     )
-    return {name: _fields(points) for name, points in (("base", base), ("box", with_box), ("beyond", beyond))}
+    clouds = {"base": base, "box": with_box, "beyond": beyond}
+    return {name: _fields(points, facing) for name, points in clouds.items()}
+
+
+@pytest.fixture(scope="module")
+def rooms():
+    """The room, the room with the box in it, and the room grown by a box beyond its footprint."""
+    return _rooms("floor")
 
 
 def _linear(fields, skeleton, layout, weights):
@@ -68,10 +74,19 @@ def test_an_update_equals_a_full_scoring_and_rescores_only_near_the_change(rooms
 
 def test_the_truncated_distance_is_what_bounds_the_change(rooms):
     *_, capped, _ = _update(rooms, "box", LAYOUT)
-    untruncated = FeatureLayout(1.0, 0.25, 0.10, distance_cap=None)
+    untruncated = FeatureLayout(1.0, 0.25, 0.10, distance_cap=None, steep_facing="floor")
     _, full, updated, _, report, _ = _update(rooms, "box", untruncated)
     np.testing.assert_array_equal(updated, full)  # still exact, only less local
     assert report.fraction > 1.2 * capped.fraction
+
+
+def test_an_update_of_the_paper_s_layout_is_exact_too():
+    """The default layout (untruncated distance, steep normals facing the cloud's mean point): a change
+    reaches further, but what an update rescores is still every pose whose score changed."""
+    paper = FeatureLayout(1.0, 0.25, 0.10)
+    _, full, updated, _, report, _ = _update(_rooms("centre"), "box", paper)
+    assert report.reason == ""
+    np.testing.assert_array_equal(updated, full)
 
 
 def test_a_room_that_grows_beyond_its_footprint_is_updated_exactly(rooms):

@@ -85,7 +85,7 @@ def train_default_models(
     from .train import train_on_rooms
 
     settings = Settings()
-    layout = FeatureLayout.from_settings(settings.features, settings.voxel)
+    layout = FeatureLayout.from_settings(settings)
     rooms = {room.name: room for room in load_rooms(data_set_rooms(data), settings)}
     train_names, validation_names, test_names = split_by_index(list(rooms), validation, test)
     out.mkdir(parents=True, exist_ok=True)

@@ -134,7 +134,7 @@ def evaluate(
     if unknown:
         raise ValueError(f"unknown learner(s) {', '.join(unknown)}; choose from {', '.join(LEARNERS)}")
     settings = settings or Settings()
-    layout = FeatureLayout.from_settings(settings.features, settings.voxel)
+    layout = FeatureLayout.from_settings(settings)
     files = data_set_rooms(data)
     held = {f.name: ",".join(load_labels(f.labels).affordances) for f in files}
     folds = deal_folds([f.name for f in files], k, seed, held)

@@ -74,7 +74,7 @@ def train(
     """A model of one affordance from a data set folder: rooms split into training and validation by room."""
     get_learner(learner)  # an unknown learner fails before the rooms are read
     settings = settings or Settings()
-    task = Task(affordance, settings, FeatureLayout.from_settings(settings.features, settings.voxel))
+    task = Task(affordance, settings, FeatureLayout.from_settings(settings))
     rooms = load_rooms(data_set_rooms(data), settings, on_room)
     examples = {room.name: room_examples(room, task) for room in rooms}
     train_names, validation_names = split_rooms(
