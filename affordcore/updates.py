@@ -7,8 +7,9 @@ plus a voxel for the bilinear read) and at the heights its torso levels put them
 
 1. the voxel columns whose fields differ from the previous fields' (over those heights; beyond a small
    tolerance, since the same surface estimated from points in another order differs in its last bits) are
-   the changed columns; columns the previous fields did not cover are changed too. The distance feature is
-   truncated (`FeatureLayout.distance_cap`), so a new surface changes it only within the cap of itself;
+   the changed columns; columns the previous fields did not cover are changed too. Under the local layout
+   (docs/geometry.md) a new surface changes the truncated distance only within the cap of itself, and flips
+   no normal far away; under the paper's the changed columns can be anywhere (still exact, less cheap);
 2. the pose cells within reach of a changed column are stale;
 3. each connected patch of stale cells is scored afresh over its bounding box (`inference.score_poses` on
    those poses and the fields around them, which is exact: a pose's score does not depend on which other

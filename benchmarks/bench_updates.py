@@ -1,5 +1,8 @@
 """Map updates in proportion to the change: what the fields and maps of a room cost when it changes a little,
-updated as the services update them, against computing them from scratch, side by side.
+updated as the services update them, against computing them from scratch, side by side, for each feature
+layout: the paper's (the default: untruncated distance, steep normals facing the cloud's mean point; the
+shipped models) and the local one (distance truncated at 1 m, steep normals facing the scanned floor; models
+given by --local-models, trained with that layout).
 
 Two rooms of bench_map.py's generator (6 m, kitchen-size, and the 10 m benchmark room), each changed in the
 ways a robot's map changes: a box of 0.1 / 0.3 / 0.6 m put down on free floor near the room's centre, and
@@ -10,8 +13,10 @@ the room before (an update, `pipeline.RoomMapper`, as the inference service keep
 alternating the order every repeat. Their maps must be equal (places, scores, cut): the
 column says so. Medians over the repeats, the core count and the load.
 
-    .venv/bin/python benchmarks/bench_updates.py            # about 5 minutes on 2 cores
-    .venv/bin/python benchmarks/bench_updates.py --repeats 1 --sides 6
+    AFFORD_FEATURES__DISTANCE_CAP=1.0 AFFORD_NORMALS__STEEP_FACING=floor \
+        .venv/bin/afford models rebuild --out bench-data/models-local                # once, about 15 minutes
+    .venv/bin/python benchmarks/bench_updates.py --local-models bench-data/models-local   # about 10 minutes
+    .venv/bin/python benchmarks/bench_updates.py --repeats 1 --sides 6                     # the paper's only
 """
 
 from __future__ import annotations
@@ -36,37 +41,56 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--sides", default="6,10", help="room sizes (m)")
+    parser.add_argument("--local-models", type=Path, help="models trained with the local layout (a folder)")
+    parser.add_argument("--local-cap", type=float, default=1.0, help="the local layout's distance cap (m)")
     args = parser.parse_args()
 
-    from affordcore.features import FeatureLayout
     from affordcore.fields import compute_fields
-    from affordcore.learn.model import load_model, shipped_models
-    from affordcore.settings import Settings
+    from affordcore.learn.model import shipped_models
 
-    settings = Settings()
-    layout = FeatureLayout.from_settings(settings)
-    models = [load_model(path, layout) for path in shipped_models().values()]
+    layouts = {"paper": layout_and_models(None, "centre", list(shipped_models().values()))}
+    if args.local_models:
+        paths = sorted(args.local_models.glob("*.model.json"))
+        layouts["local"] = layout_and_models(args.local_cap, "floor", paths)
     print(
-        f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; {len(models)} models; medians of "
-        f"{args.repeats}",
+        f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; layouts {', '.join(layouts)}; "
+        f"medians of {args.repeats}",
         flush=True,
     )
     rows = []
-    for side in (float(s) for s in args.sides.split(",")):
-        room = room_cloud(side).points
-        base_fields = compute_fields(room, settings.voxel, settings.normals)
-        for change, (before, after) in changes(room, base_fields, side).items():
-            fields = compare_fields(settings, before, after, args.repeats)
-            old = compute_fields(before, settings.voxel, settings.normals)
-            new = compute_fields(after, settings.voxel, settings.normals)
-            row = compare(models, layout, settings, old, new, args.repeats)
-            rows.append({"room": f"{side:g} m", "change": change, **fields, **row})
-            print(f"  {rows[-1]}", flush=True)
+    for name, (settings, layout, models) in layouts.items():
+        for side in (float(s) for s in args.sides.split(",")):
+            room = room_cloud(side).points
+            base_fields = compute_fields(room, settings.voxel, settings.normals)
+            for change, (before, after) in changes(room, base_fields, side).items():
+                fields = compare_fields(settings, before, after, args.repeats)
+                old = compute_fields(before, settings.voxel, settings.normals)
+                new = compute_fields(after, settings.voxel, settings.normals)
+                row = compare(models, layout, settings, old, new, args.repeats)
+                rows.append({"layout": name, "room": f"{side:g} m", "change": change, **fields, **row})
+                print(f"  {rows[-1]}", flush=True)
     print_table(rows)
     print(
         f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20:.2f} GB; load average "
         f"{os.getloadavg()[0]:.1f} at the end"
     )
+
+
+def layout_and_models(cap: float | None, facing: str, paths: list[Path]):
+    """(settings, feature layout, its models) of one layout; the models must have been trained with it."""
+    from affordcore.features import FeatureLayout
+    from affordcore.learn.model import load_model
+    from affordcore.settings import Settings
+
+    base = Settings()
+    settings = base.model_copy(
+        update={
+            "features": base.features.model_copy(update={"distance_cap": cap}),
+            "normals": base.normals.model_copy(update={"steep_facing": facing}),
+        }
+    )
+    layout = FeatureLayout.from_settings(settings)
+    return settings, layout, [load_model(path, layout) for path in paths]
 
 
 def changes(room: np.ndarray, fields, side: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -161,15 +185,16 @@ def compare(models, layout, settings, old, new, repeats: int) -> dict:
 def print_table(rows: list[dict]) -> None:
     print()
     print(
-        "| room | change | normals estimated | fields from scratch s | fields updated s | poses rescored | "
-        "maps from scratch s | maps updated s | scratch / updated (fields + maps) | same maps |"
+        "| layout | room | change | normals estimated | fields from scratch s | fields updated s | poses "
+        "rescored | maps from scratch s | maps updated s | scratch / updated (fields + maps) | same maps |"
     )
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---|")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|")
     for r in rows:
         scratch, updated = r["fields_s"] + r["full_s"], r["fields_update_s"] + r["update_s"]
         print(
-            f"| {r['room']} | {r['change']} | {100 * r['normals_estimated']:.0f} % | {r['fields_s']:.2f} "
-            f"| {r['fields_update_s']:.2f} | {100 * r['rescored']:.0f} % of {r['poses']:,} "
+            f"| {r['layout']} | {r['room']} | {r['change']} | {100 * r['normals_estimated']:.0f} % "
+            f"| {r['fields_s']:.2f} | {r['fields_update_s']:.2f} "
+            f"| {100 * r['rescored']:.0f} % of {r['poses']:,} "
             f"| {r['full_s']:.2f} | {r['update_s']:.2f} | {scratch / updated:.1f}x "
             f"| {'yes' if r['same'] else 'NO'} |"
         )
