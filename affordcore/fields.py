@@ -145,7 +145,9 @@ def normals_at(points: np.ndarray, settings: NormalSettings) -> np.ndarray:
 
 def voxel_down_sample(points: np.ndarray, voxel: float) -> np.ndarray:
     """The mean of the points in each cell of a world-anchored lattice of `voxel` cells (cell (i, j, k) spans
-    [i, i + 1) x voxel along each axis), sorted by cell. Like open3d's `PointCloud.voxel_down_sample`, 8x
+    [i - 1/2, i + 1/2) x voxel along each axis: centred on multiples of `voxel`, like the voxel lattice, so
+    the floor at z = 0 lies mid-cell and not on a face, where a levelling a hair off would split it), sorted
+    by cell. Like open3d's `PointCloud.voxel_down_sample`, 8x
     faster, except that open3d anchors its cells at the cloud's minimum: there, a point added beyond the
     minimum moves every cell and every thinned point of the room, here only its own cell changes (map
     updates rely on that, affordcore.updates)."""
@@ -155,7 +157,7 @@ def voxel_down_sample(points: np.ndarray, voxel: float) -> np.ndarray:
 def thin_cells(points: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
     """(`voxel_down_sample`'s means, each one's cell as one int64 key: `cell_keys` of its (i, j, k)), sorted
     by key."""
-    cells = np.floor(points / voxel).astype(np.int64)
+    cells = np.floor(points / voxel + 0.5).astype(np.int64)
     keys = cell_keys(cells)
     unique, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
     means = np.stack([np.bincount(inverse, points[:, k]) for k in range(3)], axis=1) / counts[:, None]

@@ -30,14 +30,28 @@ def _watch(stack: Stack, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run(AFFORD + command, capture_output=True, text=True, timeout=300)
 
 
-def _places(folder) -> dict[str, np.ndarray]:
-    """Per affordance: (k, 5) rows x, y, z, theta, score of the skeleton map, and its world_from_input."""
+def _places(folder) -> dict[str, tuple]:
+    """Per affordance: (k, 5) rows x, y, z, theta, score of the skeleton map, the same of its positive poses,
+    and its world_from_input."""
     places = {}
     for name in AFFORDANCES:
         document = json.loads((folder / f"{name}.json").read_text())
-        rows = [[s[k] for k in ("x", "y", "z", "theta", "score")] for s in document["skeletons"]]
-        places[name] = (np.array(rows).reshape(-1, 5), np.array(document["world_from_input"]))
+        fields = ("x", "y", "z", "theta", "score")
+        rows, positives = (
+            np.array([[s[k] for k in fields] for s in document[key]]).reshape(-1, 5)
+            for key in ("skeletons", "positives")
+        )
+        places[name] = (rows, positives, np.array(document["world_from_input"]))
     return places
+
+
+def _near(places: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Per place: whether a pose lies within a grid step of it in plan, at its height, facing within two
+    steps."""
+    plan = np.linalg.norm(places[:, None, :2] - poses[None, :, :2], axis=2) < 0.11
+    height = np.abs(places[:, None, 2] - poses[None, :, 2]) < 0.05
+    facing = np.abs(np.angle(np.exp(1j * (places[:, None, 3] - poses[None, :, 3])))) < 0.21
+    return (plan & height & facing).any(axis=1)
 
 
 def _in_plan(rows: np.ndarray, transform: np.ndarray) -> np.ndarray:
@@ -84,22 +98,23 @@ def test_an_unlevelled_room_gives_the_maps_of_the_levelled_one_and_a_bad_world_c
             session.close()
 
     levelled_places, unlevelled_places = _places(tmp_path / "levelled"), _places(tmp_path / "unlevelled")
+    # The levelling's fitted floor is a hair off the exact one: points near a cell's boundary cross it, and
+    # scores move a little. The positive poses stay; where places sit along a counter of near-equal scores,
+    # which peaks the non-maximum suppression keeps may not, so places are checked against the positives.
     for name in AFFORDANCES:
-        rows, world_from_input = levelled_places[name]
+        rows, positives, world_from_input = levelled_places[name]
         assert np.allclose(world_from_input, np.eye(4)), "a levelled cloud keeps its frame"
-        got, world_from_camera = unlevelled_places[name]
+        got, got_positives, world_from_camera = unlevelled_places[name]
         # the levelled room's world to the unlevelled room's: a turn about z and a shift in plan only
         plan = world_from_camera @ camera_from_world
         assert np.allclose(plan[2], [0, 0, 1, 0], atol=0.01), plan
-        assert len(got) == len(rows), f"{name}: {len(got)} places, levelled {len(rows)}"
-        expected = _in_plan(rows, plan)
-        np.testing.assert_allclose(got[:, :3], expected[:, :3], atol=0.11, err_msg=name)  # a grid step
-        turn = np.angle(np.exp(1j * (got[:, 3] - expected[:, 3])))
-        assert np.abs(turn).max() < 0.21, f"{name}: facings differ by {turn}"  # two steps: near-equal scores
-        # the levelling's fitted floor is a hair off the exact one: points near a voxel's boundary cross it,
-        # scores move a little, places do not
-        np.testing.assert_allclose(got[:, 4], expected[:, 4], rtol=0.1, err_msg=name)
-    assert sum(len(rows) for rows, _ in levelled_places.values()) >= 3, "the room has places to compare"
+        expected, expected_positives = _in_plan(rows, plan), _in_plan(positives, plan)
+        assert abs(len(got) - len(expected)) <= 1, f"{name}: {len(got)} places, levelled {len(expected)}"
+        assert _near(got, expected_positives).all() and _near(expected, got_positives).all(), name
+        # the positive poses agree, pose by pose (a step in plan, two in facing)
+        assert _near(got_positives, expected_positives).mean() > 0.95, name
+        assert _near(expected_positives, got_positives).mean() > 0.95, name
+    assert sum(len(rows) for rows, *_ in levelled_places.values()) >= 3, "the room has places to compare"
 
     assert third.returncode == 1, third.stdout + third.stderr
     assert "refused the cloud: a 'world' cloud has its floor at z = 0" in third.stderr
