@@ -32,7 +32,7 @@ import numpy as np
 
 from .fields import SceneFields
 from .grid import PoseGrid
-from .settings import Settings
+from .settings import STEEP_FACINGS, Settings
 from .skeleton import JOINTS, Skeleton, rotation_z
 
 FEATURE_VERSION = 1
@@ -61,7 +61,7 @@ class FeatureLayout:
     def __post_init__(self) -> None:
         if self.distance_cap is not None and not self.distance_cap > 0:
             raise ValueError(f"distance_cap must be positive or None, not {self.distance_cap}")
-        if self.steep_facing not in _NORMAL_RULES:
+        if self.steep_facing not in STEEP_FACINGS:
             raise ValueError(f"steep_facing is one of {sorted(_NORMAL_RULES)}, not {self.steep_facing!r}")
         cells = self.cube_size / self.cell_size
         if abs(cells - round(cells)) > 1e-6 or round(cells) < 1:

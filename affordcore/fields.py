@@ -59,6 +59,7 @@ class SceneFields:
     distance: np.ndarray  # (nx, ny, nz) float32, metres from the voxel centre to the nearest occupied centre
     normals: np.ndarray  # (nx, ny, nz, 3) float32, unit where a surface is, else 0
     footprint: tuple[float, float, float, float]  # the cloud's x_min, y_min, x_max, y_max
+    steep_facing: str = "centre"  # which way steep normals face (`NormalSettings.steep_facing`)
 
     @property
     def nbytes(self) -> int:
@@ -121,7 +122,9 @@ def compute_fields(
         steep = lambda axis, columns: towards_centre(axis, lattice, columns, centre)  # noqa: E731
     field = _normal_field(lattice, points, normals, steep)
     footprint = tuple(float(v) for v in (*points[:, :2].min(axis=0), *points[:, :2].max(axis=0)))
-    return SceneFields(lattice, occupancy, distance.astype(np.float32), field, footprint)
+    return SceneFields(
+        lattice, occupancy, distance.astype(np.float32), field, footprint, normal_settings.steep_facing
+    )
 
 
 def estimate_normals(points: np.ndarray, settings: NormalSettings) -> tuple[np.ndarray, np.ndarray]:

@@ -155,6 +155,11 @@ class RoomMapper:
         """{affordance: AffordanceMap} of every model (or of `models`, some of them) on the fields now."""
         from .maps import build_map
 
+        if fields.steep_facing != self.layout.steep_facing:
+            raise ValueError(
+                f"fields with steep normals facing '{fields.steep_facing}' for a layout of "
+                f"'{self.layout.steep_facing}' (compute them with the layout's NormalSettings.steep_facing)"
+            )
         maps = {}
         for model in self.models if models is None else models:
             model.check_layout(self.layout, f"model {model.id}")

@@ -8,7 +8,7 @@ defaults together with the variable that overrides each one.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Literal, get_args
 
 from pydantic import BaseModel, Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -34,6 +34,12 @@ class VoxelSettings(BaseModel):
     )
 
 
+# which way normals steeper than 60 deg face (affordcore.fields): the cloud's mean point in plan, or the side
+# with more scanned floor
+SteepFacing = Literal["centre", "floor"]
+STEEP_FACINGS = get_args(SteepFacing)
+
+
 class NormalSettings(BaseModel):
     downsample: float = Field(
         0.025,
@@ -43,7 +49,7 @@ class NormalSettings(BaseModel):
     )
     radius: float = Field(0.10, gt=0, description="neighbourhood radius for normal estimation (m)")
     max_neighbours: int = Field(30, ge=3, description="at most this many neighbours per normal")
-    steep_facing: Literal["centre", "floor"] = Field(
+    steep_facing: SteepFacing = Field(
         "centre",
         description="which way normals steeper than 60 deg face: the cloud's mean point in plan (centre, the "
         "shipped models') or the side with more scanned floor (floor: local, so map updates stay local; "

@@ -209,6 +209,7 @@ def _fields_around(fields: SceneFields, window: PoseGrid, reach: int) -> SceneFi
         fields.distance[part],
         fields.normals[part],
         fields.footprint,
+        fields.steep_facing,
     )
 
 

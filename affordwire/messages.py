@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from affordcore.depth import DepthImage
-from affordcore.settings import LimitSettings
+from affordcore.settings import STEEP_FACINGS, LimitSettings
 from affordcore.skeleton import JOINTS
 
 from .proto import geometry_pb2, maps_pb2, sensing_pb2, service_pb2
@@ -327,6 +327,7 @@ def fields_message(
         occupancy=(fields.occupancy > 0).astype(np.uint8).tobytes(),
         distance=np.ascontiguousarray(fields.distance, dtype="<f4").tobytes(),
         normals=np.ascontiguousarray(fields.normals, dtype="<f4").tobytes(),
+        steep_facing=fields.steep_facing,
     )
     message.grid.origin.x, message.grid.origin.y, message.grid.origin.z = (float(v) for v in lattice.origin)
     message.grid.resolution = lattice.resolution
@@ -392,8 +393,11 @@ def scene_fields(
             f"({low[0] + grid.resolution:.3f}, {low[1] + grid.resolution:.3f}) ... "
             f"({high[0] - grid.resolution:.3f}, {high[1] - grid.resolution:.3f})"
         )
+    facing = message.steep_facing or "centre"
+    if facing not in STEEP_FACINGS:
+        raise MessageError(f"steep_facing {message.steep_facing[:40]!r} is not one of {list(STEEP_FACINGS)}")
     occupancy = occupancy.astype(np.float32)
-    return SceneFields(lattice, occupancy, distance, normals, footprint)
+    return SceneFields(lattice, occupancy, distance, normals, footprint, facing)
 
 
 def map_message(

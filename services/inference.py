@@ -48,6 +48,11 @@ class InferenceService:
                 f"fields at {fields.lattice.resolution} m voxels; the models here need "
                 f"{self.node.settings.voxel.resolution} m (AFFORD_VOXEL__RESOLUTION of the features service)"
             )
+        if fields.steep_facing != self.layout.steep_facing:
+            raise messages.MessageError(
+                f"fields with steep normals facing '{fields.steep_facing}'; the models here were trained "
+                f"with '{self.layout.steep_facing}' (AFFORD_NORMALS__STEEP_FACING of the features service)"
+            )
         return fields
 
     def handle(self, item: Inbound) -> None:

@@ -434,6 +434,7 @@ def test_fields_carry_the_world_from_input_they_are_given_else_the_clouds():
         distance=np.zeros((2, 2, 2)),
         normals=np.zeros((2, 2, 2, 3)),
         footprint=(0.0, 0.0, 0.1, 0.1),
+        steep_facing="centre",
     )
     levelling = _rigid(9)
     given = _wire(messages.fields_message(fields, cloud, levelling))
@@ -489,6 +490,9 @@ def test_scene_fields_round_trip_with_what_the_cloud_carried(small_fields):
     np.testing.assert_array_equal(back.distance, small_fields.distance)
     np.testing.assert_array_equal(back.normals, small_fields.normals)
     assert back.footprint == small_fields.footprint
+    assert message.steep_facing == "centre" and back.steep_facing == "centre"
+    message.ClearField("steep_facing")  # a client that does not set it means the default
+    assert messages.scene_fields(message).steep_facing == "centre"
     # the voxel order is the one the schema states: voxel (i, j, k) is element (i * ny + j) * nz + k
     nx, ny, nz = lattice.shape
     occupied = np.argwhere(small_fields.occupancy > 0)
@@ -512,6 +516,7 @@ def test_scene_fields_round_trip_with_what_the_cloud_carried(small_fields):
         (lambda m: setattr(m.grid, "nx", 0), r"voxel grid \(0, \d+, \d+\) .* is empty"),
         (lambda m: setattr(m, "x_max", m.x_min - 1), r"empty floor footprint"),
         (lambda m: setattr(m, "y_max", m.y_max + 60), r"floor footprint .* reaches beyond the voxel grid"),
+        (lambda m: setattr(m, "steep_facing", "sideways"), r"steep_facing 'sideways' is not one of"),
     ],
     ids=[
         "occupancy short",
@@ -522,6 +527,7 @@ def test_scene_fields_round_trip_with_what_the_cloud_carried(small_fields):
         "nx 0",
         "footprint",
         "footprint beyond the grid",
+        "unknown facing",
     ],
 )
 def test_unusable_scene_fields_are_refused(small_fields, spoil, reason):

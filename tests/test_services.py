@@ -26,6 +26,7 @@ from services.settings import ServiceSettings
 from services.transport import Keys, encoding_of, open_session
 
 ROBOT = "testbot"
+FIELDS = messages.SceneFieldsMessage
 KEYS = Keys(ROBOT)
 
 
@@ -215,19 +216,23 @@ def test_features_level_a_cloud_in_its_own_frame_refuse_a_world_one_without_a_fl
     )
 
 
-def test_inference_refuses_fields_at_another_resolution(router, client, tmp_path):
+def test_inference_refuses_fields_at_another_resolution_or_facing(router, client, tmp_path):
     from affordcore.fields import compute_fields
-    from affordcore.settings import VoxelSettings
+    from affordcore.settings import NormalSettings, VoxelSettings
     from services.inference import InferenceService
 
     errors = _listen(client, KEYS.error("inference"))
     running = Running(InferenceService, "inference", router, tmp_path / "inference.rrd")
     try:
         points = _box_room_scan(np.random.default_rng(3))
+        cloud = messages.cloud_message(points, np.eye(4), "file")
         coarse = compute_fields(points, VoxelSettings(resolution=0.2))
-        message = messages.fields_message(coarse, messages.cloud_message(points, np.eye(4), "file"))
-        _send(client, KEYS.fields, message.SerializeToString(), messages.SceneFieldsMessage)
+        _send(client, KEYS.fields, messages.fields_message(coarse, cloud).SerializeToString(), FIELDS)
         assert "fields at 0.2 m voxels" in _next(errors, messages.Error).reason
+        # the shipped models were trained on normals facing the room's centre
+        floor_facing = compute_fields(points, normal_settings=NormalSettings(steep_facing="floor"))
+        _send(client, KEYS.fields, messages.fields_message(floor_facing, cloud).SerializeToString(), FIELDS)
+        assert "steep normals facing 'floor'" in _next(errors, messages.Error).reason
     finally:
         running.stop()
 

@@ -80,6 +80,11 @@ def test_the_truncated_distance_is_what_bounds_the_change(rooms):
     assert report.fraction > 1.2 * capped.fraction
 
 
+def test_a_mapper_refuses_fields_whose_normals_face_otherwise_than_its_layout(rooms):
+    with pytest.raises(ValueError, match="steep normals facing 'floor' for a layout of 'centre'"):
+        RoomMapper([], FeatureLayout(1.0, 0.25, 0.10), Settings()).maps(rooms["base"])
+
+
 def test_an_update_of_the_paper_s_layout_is_exact_too():
     """The default layout (untruncated distance, steep normals facing the cloud's mean point): a change
     reaches further, but what an update rescores is still every pose whose score changed."""
