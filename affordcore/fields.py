@@ -19,6 +19,7 @@ well as which way it faces.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -115,11 +116,9 @@ def compute_fields(
     if normals is None:
         points, normals = (estimator or estimate_normals)(points, normal_settings)
     if normal_settings.steep_facing == "floor":
-        floor = floor_density(occupancy, lattice)
-        steep = lambda axis, columns: towards_floor(axis, columns, floor, lattice.resolution)  # noqa: E731
+        steep = partial(towards_floor, floor=floor_density(occupancy, lattice), resolution=lattice.resolution)
     else:
-        centre = points.mean(axis=0)
-        steep = lambda axis, columns: towards_centre(axis, lattice, columns, centre)  # noqa: E731
+        steep = partial(towards_centre, lattice=lattice, centre=points.mean(axis=0))
     field = _normal_field(lattice, points, normals, steep)
     footprint = tuple(float(v) for v in (*points[:, :2].min(axis=0), *points[:, :2].max(axis=0)))
     return SceneFields(
@@ -238,7 +237,7 @@ def orientation_signs(axis: np.ndarray, steep: np.ndarray) -> np.ndarray:
 
 
 def towards_centre(
-    axis: np.ndarray, lattice: VoxelLattice, columns: np.ndarray, centre: np.ndarray
+    axis: np.ndarray, columns: np.ndarray, lattice: VoxelLattice, centre: np.ndarray
 ) -> np.ndarray:
     """The sign that turns each axis at voxel columns (n, 2) to face `centre` in plan."""
     plan = lattice.origin[:2] + columns * lattice.resolution

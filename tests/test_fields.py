@@ -82,7 +82,7 @@ AXES = np.array([[0.1, 0.0, -0.9], [0.0, 0.2, 0.6], [-1.0, 0.0, 0.0], [1.0, 0.0,
 def test_orientation_rule_towards_the_centre():
     lattice = lattice_around(np.array([[0.0, -3.0, 0.0], [5.0, 0.0, 1.0]]), VoxelSettings(margin=0.0))
     columns = np.rint((np.array([[0, 0], [0, 0], [0, 0], [5, 0], [0, -3]]) - lattice.origin[:2]) / 0.1)
-    steep = towards_centre(AXES, lattice, columns.astype(int), np.array([2.0, 0.0, 1.0]))
+    steep = towards_centre(AXES, columns.astype(int), lattice, np.array([2.0, 0.0, 1.0]))
     # up-facing ones point up; steep ones point at the centre
     np.testing.assert_array_equal(orientation_signs(AXES, steep), [-1, 1, -1, -1, -1])
 
