@@ -2,7 +2,8 @@
 
 One feature vector, in this order:
 
-* ``dist:<JOINT>`` (15): the distance transform at each placed joint (m), truncated at ``distance_cap``;
+* ``dist:<JOINT>`` (15): the distance transform at each placed joint (m), truncated at ``distance_cap`` when
+  the layout sets one;
 * ``coll:<JOINT>`` (15): the occupancy at each placed joint, a fraction in [0, 1];
 * ``normal:<i>,<j>,<k>:<axis>`` (3 per cell): the mean surface normal of each cell of a cube of
   ``cube_size`` around the torso, cells indexed along the skeleton's own x (forward), y (left), z (up) and
@@ -62,7 +63,7 @@ class FeatureLayout:
         if self.distance_cap is not None and not self.distance_cap > 0:
             raise ValueError(f"distance_cap must be positive or None, not {self.distance_cap}")
         if self.steep_facing not in STEEP_FACINGS:
-            raise ValueError(f"steep_facing is one of {sorted(_NORMAL_RULES)}, not {self.steep_facing!r}")
+            raise ValueError(f"steep_facing is one of {list(STEEP_FACINGS)}, not {self.steep_facing!r}")
         cells = self.cube_size / self.cell_size
         if abs(cells - round(cells)) > 1e-6 or round(cells) < 1:
             raise ValueError(f"cube_size {self.cube_size} is not a whole number of cells of {self.cell_size}")

@@ -178,6 +178,13 @@ def cell_keys(cells: np.ndarray) -> np.ndarray:
     return (shifted[:, 0] << (2 * _KEY_BITS)) | (shifted[:, 1] << _KEY_BITS) | shifted[:, 2]
 
 
+def cells_of_keys(keys: np.ndarray) -> np.ndarray:
+    """The integer cells (n, 3) of `cell_keys`."""
+    half, mask = 1 << (_KEY_BITS - 1), (1 << _KEY_BITS) - 1
+    axes = [(keys >> (2 * _KEY_BITS)) & mask, (keys >> _KEY_BITS) & mask, keys & mask]
+    return np.stack(axes, axis=1) - half
+
+
 def _flat_index(lattice: VoxelLattice, index: np.ndarray) -> np.ndarray:
     if (index < 0).any() or (index >= np.array(lattice.shape)).any():
         raise ValueError("points outside the voxel lattice")

@@ -30,7 +30,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from .features import FeatureLayout
-from .fields import SceneFields, VoxelLattice
+from .fields import (
+    SceneFields,
+    VoxelLattice,
+    cell_keys,
+    cells_of_keys,
+    estimate_normals,
+    normals_at,
+    thin_cells,
+)
 from .grid import PoseGrid
 from .maps import RULED_OUT
 from .skeleton import Skeleton
@@ -229,8 +237,6 @@ class NormalCache:
         self.estimated = 0  # how many normals the last call estimated
 
     def __call__(self, points: np.ndarray, settings) -> tuple[np.ndarray, np.ndarray]:
-        from .fields import estimate_normals, normals_at, thin_cells
-
         if settings.downsample <= 0:  # no cells to compare by
             self.key, self.estimated = None, len(points)
             return estimate_normals(points, settings)
@@ -240,13 +246,11 @@ class NormalCache:
             normals = normals_at(thinned, settings)
             self.estimated = len(thinned)
         else:
-            normals = self._carried(thinned, cells, settings, normals_at)
+            normals = self._carried(thinned, cells, settings)
         self.key, self.cells, self.points, self.normals = key, cells, thinned, normals
         return thinned, normals
 
-    def _carried(self, thinned: np.ndarray, cells: np.ndarray, settings, normals_at) -> np.ndarray:
-        from .fields import cell_keys
-
+    def _carried(self, thinned: np.ndarray, cells: np.ndarray, settings) -> np.ndarray:
         position = np.clip(np.searchsorted(self.cells, cells), 0, max(len(self.cells) - 1, 0))
         same = (self.cells[position] == cells) if len(self.cells) else np.zeros(len(cells), dtype=bool)
         # a mean summed in another order (the same points, listed anew) differs in its last bits only
@@ -256,7 +260,7 @@ class NormalCache:
         per_block = settings.downsample / block
 
         def blocks(which_cells: np.ndarray) -> np.ndarray:
-            ijk = _unpack(which_cells)
+            ijk = cells_of_keys(which_cells)
             return np.floor(ijk * per_block).astype(np.int64)
 
         changed = np.unique(cell_keys(np.concatenate([blocks(cells[~same]), blocks(self.cells[gone])])))
@@ -272,22 +276,12 @@ class NormalCache:
         return normals
 
 
-def _unpack(keys: np.ndarray) -> np.ndarray:
-    """(n, 3) integer cells of `fields.cell_keys`."""
-    from .fields import _KEY_BITS
-
-    half, mask = 1 << (_KEY_BITS - 1), (1 << _KEY_BITS) - 1
-    axes = [(keys >> (2 * _KEY_BITS)) & mask, (keys >> _KEY_BITS) & mask, keys & mask]
-    return np.stack(axes, axis=1) - half
-
-
 def _within(blocks: np.ndarray, changed: np.ndarray, rings: int) -> np.ndarray:
     """Whether each block (n, 3) lies within `rings` blocks (in every axis) of a changed block (keys)."""
-    from .fields import cell_keys
-
     if not len(changed):
         return np.zeros(len(blocks), dtype=bool)
     span = range(-rings, rings + 1)
     offsets = np.array([(a, b, c) for a in span for b in span for c in span])
-    around = (_unpack(changed)[:, None, :] + offsets[None]).reshape(-1, 3)  # the few changed ones, dilated
+    # the few changed blocks, dilated
+    around = (cells_of_keys(changed)[:, None, :] + offsets[None]).reshape(-1, 3)
     return np.isin(cell_keys(blocks), np.unique(cell_keys(around)))

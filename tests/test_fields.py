@@ -6,6 +6,8 @@ import numpy as np
 
 from affordcore.example import box_surface_points
 from affordcore.fields import (
+    cell_keys,
+    cells_of_keys,
     compute_fields,
     lattice_around,
     orientation_signs,
@@ -95,3 +97,11 @@ def test_orientation_rule_towards_the_floor():
     # up-facing ones point up; steep ones face the floor 0.6 m out (+x here); with floor on neither side,
     # the larger horizontal component is made positive
     np.testing.assert_array_equal(orientation_signs(AXES, steep), [-1, 1, -1, 1, -1])
+
+
+def test_cell_keys_order_cells_lexicographically_and_give_them_back():
+    cells = np.random.default_rng(4).integers(-(1 << 20), 1 << 20, size=(500, 3))
+    keys = cell_keys(cells)
+    np.testing.assert_array_equal(cells_of_keys(keys), cells)
+    order = np.lexsort(cells.T[::-1])  # by x, then y, then z
+    assert np.all(np.diff(keys[order]) >= 0)
