@@ -2,7 +2,9 @@
 
 x and y are the centres of ``step`` cells tiling the room's floor footprint, so a 10 m x 10 m room has
 100 x 100 positions and each position is one pixel of the confidence map. theta = k * theta_step for
-k = 0 .. n_theta - 1. z is the skeleton's torso height and ``z_levels_each_side`` voxels above and below it.
+k = 0 .. n_theta - 1. z is the skeleton's torso height and ``z_levels_each_side`` voxels above and below it,
+and, for a skeleton whose file says so (``torso_reach_above``), further levels above up to that reach (a
+seated person on a bar stool); skeletons without it get DESIGN.md's grid.
 
 Poses are numbered in C order over the axes (z, theta, x, y): one (z, theta) pair is a contiguous slab of
 nx * ny poses, which is how features are computed.
@@ -38,12 +40,14 @@ class PoseGrid:
         torso_height: float,
         voxel_resolution: float,
         settings: GridSettings | None = None,
+        reach_above: float = 0.0,
     ) -> PoseGrid:
+        """The grid over a floor footprint; `reach_above` (m) adds torso levels above the usual ones."""
         settings = settings or GridSettings()
         x_min, y_min, x_max, y_max = footprint
         if not (x_max >= x_min and y_max >= y_min):
             raise ValueError(f"empty floor footprint {footprint}")
-        levels = np.arange(-settings.z_levels_each_side, settings.z_levels_each_side + 1)
+        levels = torso_levels(settings.z_levels_each_side, reach_above, voxel_resolution)
         return cls(
             x=_cell_centres(x_min, x_max, settings.step),
             y=_cell_centres(y_min, y_max, settings.step),
@@ -84,6 +88,13 @@ class PoseGrid:
             "n_theta": len(self.theta),
             "order": "z, theta, x, y (C order)",
         }
+
+
+def torso_levels(each_side: int, reach_above: float, voxel_resolution: float) -> np.ndarray:
+    """Voxel steps from the skeleton's torso height: -each_side .. each_side, extended upwards to the
+    highest whole step within `reach_above` (the tolerance keeps 0.3 / 0.1 from flooring to 2)."""
+    highest = max(each_side, int(np.floor(reach_above / voxel_resolution + 1e-6)))
+    return np.arange(-each_side, highest + 1)
 
 
 def _cell_centres(low: float, high: float, step: float) -> np.ndarray:

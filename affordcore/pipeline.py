@@ -39,7 +39,11 @@ class PreparedScene(WorldCloud):
 def pose_grid(fields: SceneFields, skeleton: Skeleton, settings: Settings) -> PoseGrid:
     """The poses a skeleton is tried at over a room's floor footprint."""
     return PoseGrid.over_footprint(
-        fields.footprint, skeleton.torso_height, fields.lattice.resolution, settings.grid
+        fields.footprint,
+        skeleton.torso_height,
+        fields.lattice.resolution,
+        settings.grid,
+        skeleton.torso_reach_above,
     )
 
 
@@ -52,7 +56,11 @@ def pose_grids_for_footprint(
     settings = settings or Settings()
     return {
         skeleton.affordance: PoseGrid.over_footprint(
-            footprint, skeleton.torso_height, settings.voxel.resolution, settings.grid
+            footprint,
+            skeleton.torso_height,
+            settings.voxel.resolution,
+            settings.grid,
+            skeleton.torso_reach_above,
         )
         for skeleton in all_skeletons(settings.skeleton_dirs)
     }

@@ -68,6 +68,10 @@ class Skeleton:
     torso_height: float  # torso above the floor when the affordance is in use (m)
     description: str = ""
     source: str = ""
+    # The pose grid also tries torso heights up to this far above torso_height (m, whole voxel steps beyond
+    # the usual levels): a person on a high chair or bar stool sits 0.2-0.35 m higher than on a desk chair.
+    # 0 (files without the field, models that do not record it): the grid of DESIGN.md, unchanged.
+    torso_reach_above: float = 0.0
 
     def placed(self, x: float, y: float, z: float, theta: float) -> np.ndarray:
         """Joints in the world for one pose: [x, y, z] + R_z(theta) H."""
@@ -125,7 +129,11 @@ def load_skeleton(path: str | Path) -> Skeleton:
             f"{path}: {lowest} would be {-(torso_height + array[:, 2].min()):.2f} m under the floor at "
             f"torso_height {torso_height}"
         )
-    return Skeleton(name, array, float(torso_height), str(document.get("description", "")), str(path))
+    reach_above = document.get("torso_reach_above", 0.0)
+    if not isinstance(reach_above, (int, float)) or not 0 <= reach_above <= 1.0:
+        raise SkeletonError(f"{path}: 'torso_reach_above' must be 0 to 1 m, got {reach_above!r}")
+    description, source = str(document.get("description", "")), str(path)
+    return Skeleton(name, array, float(torso_height), description, source, float(reach_above))
 
 
 def skeleton_files(extra_dirs: list[Path] | tuple[Path, ...] = ()) -> dict[str, Path]:

@@ -384,7 +384,8 @@ def _model(name: str, recipe: dict, group: Frames, body: np.ndarray, sources: di
         "medoid": frame,
         "forearm_turns": turns,
     }
-    skeleton = Skeleton(name, joints, float(torso_height), recipe["description"], source)
+    reach_above = float(recipe.get("torso_reach_above", 0.0))  # torso levels above the usual (high seats)
+    skeleton = Skeleton(name, joints, float(torso_height), recipe["description"], source, reach_above)
     return skeleton, info, group.joints[fit.labels_ == chosen]
 
 
@@ -435,6 +436,8 @@ def skeleton_json(skeleton: Skeleton) -> str:
         "torso_height": round(skeleton.torso_height, 3),
         "source": skeleton.source,
     }
+    if skeleton.torso_reach_above:  # only skeletons that have it: the other files stay as they were
+        header["torso_reach_above"] = round(skeleton.torso_reach_above, 3)
     rows = [
         f'  "{name}": [{", ".join(f"{round(v, 3) + 0.0:.3f}" for v in xyz)}]'
         for name, xyz in zip(JOINTS, skeleton.joints)

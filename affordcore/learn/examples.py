@@ -66,11 +66,14 @@ class Task:
     def skeleton_record(self) -> dict:
         """The skeleton as a model file records it (maps place this one, whatever is installed later)."""
         skeleton = self.skeleton
-        return {
+        record = {
             "joints": skeleton.joints.round(4).tolist(),
             "torso_height": skeleton.torso_height,
             "source": skeleton.source,
         }
+        if skeleton.torso_reach_above:  # the grid it was trained on has levels above the usual three
+            record["torso_reach_above"] = skeleton.torso_reach_above
+        return record
 
 
 @dataclass

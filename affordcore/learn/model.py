@@ -94,6 +94,8 @@ class AffordanceModel:
             np.asarray(self.skeleton["joints"], dtype=np.float64),
             float(self.skeleton["torso_height"]),
             source=self.skeleton.get("source", ""),
+            # models that predate the field were trained (and are scored) on DESIGN.md's three levels
+            torso_reach_above=float(self.skeleton.get("torso_reach_above", 0.0)),
         )
 
     def decision(self, X: np.ndarray) -> np.ndarray:
