@@ -27,7 +27,14 @@ def synth(
         "living,office,workshop", "--kinds", help="comma-separated: living, office, workshop, mixed"
     ),
     scanner: str = typer.Option(
-        "depth", "--scanner", help="depth (virtual Kinect, fused views) or uniform (surface samples)"
+        "depth", "--scanner", help="depth (virtual sensors, --styles) or uniform (surface samples)"
+    ),
+    styles: str = typer.Option(
+        "fused,mesh,laser,frames,walk",
+        "--styles",
+        help="comma-separated scan styles dealt to rooms in turn: fused (fused depth frames), mesh (a "
+        "reconstruction's vertices), laser (360-degree laser stations), frames (1-3 raw depth frames), walk "
+        "(depth frames registered by the assembler)",
     ),
     sequences: bool = typer.Option(
         False, "--sequences", help="also write a sensor sequence per room with ground-truth poses"
@@ -46,14 +53,23 @@ def synth(
     workers: int = typer.Option(1, "--workers", min=1, help="rooms generated in parallel processes"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
-    """Generate labelled rooms: procedural furniture, a virtual depth scanner, exact labels, class counts."""
+    """Generate labelled rooms: procedural furniture, virtual sensors scanning them the ways real rooms
+    arrive, exact labels, class counts."""
     with user_errors():
         from affordcore.synth.dataset import SynthOptions, summary_table, synthesize
 
-        output_folder(out)
         options = SynthOptions(
-            rooms, seed, tuple(names(kinds)), scanner, sequences, sensor, frames, few_views
+            rooms,
+            seed,
+            tuple(names(kinds)),
+            scanner,
+            sequences,
+            sensor,
+            frames,
+            few_views,
+            tuple(names(styles)),
         )
+        output_folder(out)  # after the options are checked: a refused command leaves no folder behind
         with progress(quiet) as bar:
             task = bar.add_task("rooms", total=rooms)
             summary = synthesize(options, out, workers, on_room_done=lambda report: bar.advance(task))

@@ -446,7 +446,7 @@ def test_depth_sequence_frames_back_project_onto_the_room(tmp_path):
 def test_depth_scanned_rooms_are_the_same_bytes_with_any_worker_count(tmp_path):
     from affordcore.synth.dataset import SynthOptions, synthesize
 
-    options = SynthOptions(2, 1, ("office", "living"))
+    options = SynthOptions(2, 1, ("office", "living"), styles=("fused",))
     reports = {workers: synthesize(options, tmp_path / str(workers), workers)["rooms"] for workers in (1, 2)}
     # both viewpoint regimes are exercised (if the generator changes, pick another seed that does)
     assert {room["views"] for room in reports[1]} == {"full", "few"}
@@ -457,7 +457,7 @@ def test_depth_scanned_rooms_are_the_same_bytes_with_any_worker_count(tmp_path):
 
 def test_few_views_share_chooses_the_scan_regime_and_refuses_a_share_outside_0_to_1(tmp_path):
     for share, regime in (("0", "full"), ("1", "few")):
-        result = _synth(tmp_path / share, 1, "--few-views", share)
+        result = _synth(tmp_path / share, 1, "--few-views", share, "--styles", "fused")
         assert result.returncode == 0, result.stderr
         rooms = json.loads((tmp_path / share / "summary.json").read_text())["rooms"]
         assert [room["views"] for room in rooms] == [regime, regime]

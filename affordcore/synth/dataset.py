@@ -1,8 +1,11 @@
 """Labelled data sets of generated rooms: `afford synth`.
 
 Per room: ``<room>.ply`` (gravity-aligned, metres, colours), ``<room>.labels.json`` (affordance-labels/1),
-and with sequences ``<room>.sequence/`` (a depth camera's frames in the 7-Scenes layout, or a LiDAR's scans,
-with ground-truth poses). ``summary.json`` and ``summary.md`` give the class imbalance per affordance.
+``<room>.origins.npy`` (float32 (M, 3): where the sensor stood for each frame or station, world frame;
+(0, 3) for uniform samples, which no sensor took), and with sequences ``<room>.sequence/`` (a depth camera's
+frames in the 7-Scenes layout, or a LiDAR's scans, with ground-truth poses). ``summary.json`` and
+``summary.md`` give the class imbalance per affordance. Depth-scanned rooms are scanned in the scan styles
+(`styles.py`) dealt to them by index; each room's report says which.
 
 Reproducible: room i draws from the i-th child of ``SeedSequence(seed)``, so the same seed gives the same
 files byte for byte, in any order and with any number of worker processes.
@@ -21,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .rooms import KINDS, generate_room
+from .styles import STYLES
 
 SENSORS = ("depth", "lidar")
 SCANNERS = ("depth", "uniform")
@@ -38,6 +42,8 @@ class SynthOptions:
     # share of depth-scanned rooms captured from a few viewpoints (scanner.few_viewpoints), as real rooms are;
     # the rest are scanned from spots spread over the whole floor
     few_views: float = 0.5
+    # how depth-scanned rooms are scanned (styles.STYLES), dealt to rooms by index (`style_of`)
+    styles: tuple[str, ...] = tuple(STYLES)
 
     def __post_init__(self) -> None:
         unknown = set(self.kinds) - set(KINDS)
@@ -49,11 +55,23 @@ class SynthOptions:
             raise ValueError(f"sensor must be one of {', '.join(SENSORS)}, not {self.sensor!r}")
         if not 0.0 <= self.few_views <= 1.0:
             raise ValueError(f"few_views is a share, between 0 and 1, not {self.few_views}")
+        unknown = set(self.styles) - set(STYLES)
+        if unknown or not self.styles:
+            raise ValueError(f"unknown scan styles {sorted(unknown)}; choose from {', '.join(STYLES)}")
         if self.rooms < 1 or self.frames < 1:
             raise ValueError("rooms and frames must be at least 1")
 
     def room_name(self, index: int) -> str:
         return f"{self.kinds[index % len(self.kinds)]}-{index:03d}"
+
+    def style_of(self, index: int) -> str:
+        """Room `index`'s scan style, from its index alone (so room i depends only on the seed and i): the
+        styles in turn, shifted by one every lcm(kinds, styles) rooms. Every block of that many rooms holds
+        each style equally often, and since kinds are dealt in turn too, the shift makes every kind meet
+        every style (without it, with as many kinds as styles, each kind would always get the same one)."""
+        count = len(self.styles)
+        cycle = int(np.lcm(len(self.kinds), count))
+        return self.styles[(index + index // cycle) % count]
 
 
 def synthesize(
@@ -96,17 +114,22 @@ def make_room(options: SynthOptions, out: Path, index: int, seed: np.random.Seed
     from ..labels import class_counts, load_labels
     from ..pipeline import pose_grids_for_footprint
     from ..scene import Cloud, save_cloud
-    from .scanner import sample_room_uniform, scan_room
+    from .scanner import sample_room_uniform
+    from .styles import scan_in_style
 
     rng = np.random.default_rng(seed)
     name = options.room_name(index)
     room = generate_room(options.kinds[index % len(options.kinds)], rng, name)
-    regime = "few" if rng.random() < options.few_views else "full"
+    regime = "few" if rng.random() < options.few_views else "full"  # drawn whatever the style: same stream
     if options.scanner == "depth":
-        points, colors = scan_room(room, rng, regime=regime)
+        style = options.style_of(index)
+        scan = scan_in_style(style, room, rng, regime)
+        points, colors, origins, views = scan.points, scan.colors, scan.origins, scan.views
     else:
-        points, colors, regime = *sample_room_uniform(room, rng), "every surface"
+        style, views, origins = "uniform", "every surface", np.zeros((0, 3))
+        points, colors = sample_room_uniform(room, rng)
     save_cloud(out / f"{name}.ply", Cloud(points, colors))
+    np.save(out / f"{name}.origins.npy", origins.astype(np.float32))
     labels_path = out / f"{name}.labels.json"
     document = room.labels(points)
     labels_path.write_text(json.dumps(document, indent=1) + "\n")
@@ -120,7 +143,9 @@ def make_room(options: SynthOptions, out: Path, index: int, seed: np.random.Seed
         "kind": room.kind,
         "size_m": [round(float(v), 2) for v in np.ptp(room.polygon, axis=0)],
         "points": int(len(points)),
-        "views": regime,
+        "style": style,
+        "views": views,
+        "origins": int(len(origins)),
         "pieces": [piece.kind for piece in room.pieces],
         "unlabelled_regions": len(document["unlabelled_regions"]),
         "labels": {name: sum(label.affordance == name for label in labels.labels) for name in counts},
@@ -171,6 +196,7 @@ def _summary(options: SynthOptions, reports: list[dict]) -> dict:
         "seed": options.seed,
         "kinds": list(options.kinds),
         "scanner": options.scanner,
+        "styles": list(options.styles) if options.scanner == "depth" else ["uniform"],
         "rooms": reports,
         "class_imbalance": {name: ClassCount.of(*pair)._asdict() for name, pair in sorted(totals.items())},
     }
@@ -189,11 +215,11 @@ def summary_table(summary: dict) -> str:
         rows.append(
             f"| {name} | {labels} | {count['positives']:,} | {count['negatives']:,} | {count['ratio']} |"
         )
-    rows += ["", "| room | kind | size (m) | points | labels |", "|---|---|---|---:|---|"]
+    rows += ["", "| room | kind | style | size (m) | points | labels |", "|---|---|---|---|---:|---|"]
     for room in summary["rooms"]:
         labels = ", ".join(f"{n} {k}" for n, k in room["labels"].items() if k) or "none"
         rows.append(
-            f"| {room['room']} | {room['kind']} | {room['size_m'][0]} x {room['size_m'][1]} | "
-            f"{room['points']:,} | {labels} |"
+            f"| {room['room']} | {room['kind']} | {room['style']} | "
+            f"{room['size_m'][0]} x {room['size_m'][1]} | {room['points']:,} | {labels} |"
         )
     return "\n".join(rows) + "\n"

@@ -17,7 +17,7 @@ Camera frame: x right, y down, z forward (OpenCV, 7-Scenes). LiDAR frame: x forw
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -26,6 +26,11 @@ from .rooms import Room, inside_polygon, overlaps_any
 from .shapes import Box
 
 FUSION_VOXEL = 0.01
+# A Kinect v1's faults beyond axial noise, quantisation and grazing: half the pixels on a depth edge mix the
+# two sides (its 9 x 9 correlation window straddles the edge), 3 % of the image is lost in patches, black
+# surfaces lose half their returns, and at the 4.5 m limit a third are gone (the speckle is too faint).
+KINECT_NOISE = {"flying": 0.5, "blob_dropout": 0.03, "dark_dropout": 0.5, "far_dropout": 0.3}
+EDGE_JUMP = 0.05  # m: neighbouring pixels further apart than this in depth straddle an edge
 
 
 @dataclass(frozen=True)
@@ -42,12 +47,27 @@ class DepthCamera:
     dropout: float = 0.02
     grazing_deg: float = 80.0
     noisy: bool = True
+    # What the defaults leave out (they are the model every fused room was made with): mixed ("flying")
+    # pixels, the share of pixels at a depth edge that return a depth between the two sides; and missing
+    # returns in patches rather than single pixels: a base share, more on dark surfaces (by the share lost
+    # on black) and beyond 3.5 m (by the share lost at 4.5 m). `kinect_noise()` turns them on.
+    flying: float = 0.0
+    blob_dropout: float = 0.0
+    dark_dropout: float = 0.0
+    far_dropout: float = 0.0
+    # A reconstruction (TSDF fusion) averages each surface over many frames: its axial noise is a single
+    # frame's over the square root of their number, and the disparity steps average out (no quantisation).
+    averaged_frames: int = 1
 
     @classmethod
     def qvga(cls, **changes) -> DepthCamera:
         """The same sensor at 320 x 240 (Kinect's QVGA depth mode): a quarter of the rays, for fused room
         scans where 1 cm fusion voxels are coarser than a VGA pixel's footprint anyway."""
         return cls(width=320, height=240, fx=292.5, fy=292.5, cx=160.0, cy=120.0, lateral_px=0.25, **changes)
+
+    def with_kinect_noise(self) -> DepthCamera:
+        """The same camera with the full noise model: flying pixels and patchy missing returns as well."""
+        return replace(self, **KINECT_NOISE)
 
     @property
     def intrinsics(self) -> np.ndarray:
@@ -119,14 +139,71 @@ def depth_frame(
         incidence = np.abs(np.einsum("hwi,hwi->hw", unit, normal))
         valid &= incidence > np.cos(np.radians(camera.grazing_deg))
         valid &= rng.random(depth.shape) >= camera.dropout
+        if camera.blob_dropout or camera.dark_dropout or camera.far_dropout:
+            valid &= ~patchy_dropouts(depth, raycaster.colors[box], camera, rng)
+        if camera.flying:
+            depth = mix_edges(depth, valid, rng, camera.flying)
         depth = np.where(valid, depth, 1.0)  # placeholder where nothing returns, so the noise stays finite
         # Nguyen's sigma was measured on real output, quantisation included: add only the rest before
         # quantising.
-        step = 2.85e-3 * depth**2
-        extra = np.sqrt(np.maximum(axial_sigma(depth) ** 2 - step**2 / 12, 0.0))
-        noisy = depth + rng.normal(0, 1, depth.shape) * extra
-        depth = np.round(noisy / (2.85e-3 * noisy**2)) * (2.85e-3 * noisy**2)
+        if camera.averaged_frames > 1:
+            depth = depth + rng.normal(0, 1, depth.shape) * axial_sigma(depth) / np.sqrt(
+                camera.averaged_frames
+            )
+        else:
+            step = 2.85e-3 * depth**2
+            extra = np.sqrt(np.maximum(axial_sigma(depth) ** 2 - step**2 / 12, 0.0))
+            noisy = depth + rng.normal(0, 1, depth.shape) * extra
+            depth = np.round(noisy / (2.85e-3 * noisy**2)) * (2.85e-3 * noisy**2)
     return np.where(valid, depth, 0.0), box
+
+
+def mix_edges(depth: np.ndarray, valid: np.ndarray, rng: np.random.Generator, share: float) -> np.ndarray:
+    """Flying pixels: of the valid pixels whose depth differs from a valid 4-neighbour's by more than
+    `EDGE_JUMP`, a `share` return a depth between their own and that neighbour's (uniform between 10 and
+    90 % of the way), as a sensor whose footprint straddles an edge averages the two sides. Works on any
+    organised range image (a camera's depth, a laser's rows and columns of ranges)."""
+    neighbour, jump = _largest_neighbour_jump(depth, valid)
+    mixed = valid & (jump > EDGE_JUMP) & (rng.random(depth.shape) < share)
+    towards = rng.uniform(0.1, 0.9, depth.shape)
+    out = depth.copy()
+    out[mixed] += towards[mixed] * (neighbour[mixed] - depth[mixed])
+    return out
+
+
+def _largest_neighbour_jump(depth: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel, the depth of the valid 4-neighbour that differs most from it, and by how much (-1: none)."""
+    padded = np.pad(np.where(valid, depth, np.nan), 1, constant_values=np.nan)
+    neighbours = np.stack([padded[:-2, 1:-1], padded[2:, 1:-1], padded[1:-1, :-2], padded[1:-1, 2:]])
+    jump = np.nan_to_num(np.abs(neighbours - depth), nan=-1.0)
+    which = jump.argmax(axis=0)[None]
+    return np.take_along_axis(neighbours, which, 0)[0], np.take_along_axis(jump, which, 0)[0]
+
+
+def patchy_dropouts(
+    depth: np.ndarray,
+    colors: np.ndarray,
+    camera: DepthCamera,
+    rng: np.random.Generator,
+    patch_px: float = 6.0,
+) -> np.ndarray:
+    """Pixels (H, W) that return nothing, lost in patches: a smooth random field (white noise blurred over
+    `patch_px` pixels, made uniform) falls below each pixel's chance of being lost, so neighbours go
+    together, as glare, a dark stripe or a far, faint patch takes out a region and not a scatter of pixels.
+    The chance: `blob_dropout` everywhere, up to `dark_dropout` more on dark surfaces (luminance below 0.3,
+    all of it at 0.15 and below), and up to `far_dropout` more from 3.5 m to 4.5 m."""
+    from scipy.ndimage import gaussian_filter
+    from scipy.special import ndtr
+
+    field = gaussian_filter(rng.normal(size=depth.shape), patch_px)
+    uniform = ndtr(field / field.std())
+    luminance = colors @ np.array([0.299, 0.587, 0.114])
+    chance = (
+        camera.blob_dropout
+        + camera.dark_dropout * np.clip((0.3 - luminance) / 0.15, 0.0, 1.0)
+        + camera.far_dropout * np.clip(depth - 3.5, 0.0, 1.0)
+    )
+    return uniform < chance
 
 
 def backproject(depth: np.ndarray, camera: DepthCamera, cam_to_world: np.ndarray | None = None) -> np.ndarray:
@@ -206,7 +283,7 @@ def few_viewpoints(room: Room, rng: np.random.Generator, count: int | None = Non
         choices = pieces if rng.random() < 0.6 else room.pieces
         piece = choices[int(rng.integers(len(choices)))] if choices else None
         eye = np.array([*spot, height + rng.normal(0, 0.03)])
-        target = _aim(piece, eye, rng)
+        target = aim_at_piece(piece, eye, rng)
         poses.append(look_at(eye, target))
         step = np.linalg.norm(free - spot, axis=1)
         near = np.flatnonzero((step > 0.4) & (step < 1.5))
@@ -214,7 +291,7 @@ def few_viewpoints(room: Room, rng: np.random.Generator, count: int | None = Non
     return poses
 
 
-def _aim(piece, eye: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def aim_at_piece(piece, eye: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """A point 0.6-1.1 m up over the piece's centre (a person frames a table or a sofa by its top, not by the
     floor under it), or (no piece, or one too close to aim at) straight ahead in a random direction, pitched
     15-35 degrees down."""
@@ -239,15 +316,28 @@ def scan_room(
 
     Each frame is fused with its pose off by `registration_error` (metres, degrees; standard deviations), as
     a real fusion's poses are: surfaces seen from two places come out slightly thick or doubled."""
+    raycaster = Raycaster(room.shell_boxes() + room.furniture_boxes())
+    poses = viewpoints(room, rng, views, regime=regime)
+    return fuse_frames(raycaster, poses, rng, camera, registration_error)
+
+
+def fuse_frames(
+    raycaster: Raycaster,
+    poses: list[np.ndarray],
+    rng: np.random.Generator,
+    camera: DepthCamera | None = None,
+    registration_error: tuple[float, float] = (0.005, 0.3),
+    voxel: float = FUSION_VOXEL,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One depth frame per camera pose, each placed with its pose off by `registration_error`, thinned to
+    the mean point and colour per `voxel`."""
     camera = camera or DepthCamera.qvga()
-    boxes = room.shell_boxes() + room.furniture_boxes()
-    raycaster = Raycaster(boxes)
     points, colors = [], []
-    for pose in viewpoints(room, rng, views, regime=regime):
+    for pose in poses:
         depth, box = depth_frame(raycaster, camera, pose, rng)
         points.append(backproject(depth, camera, perturbed(pose, rng, registration_error)))
         colors.append(raycaster.colors[box[depth > 0]])
-    return voxel_thin(np.concatenate(points), FUSION_VOXEL, np.concatenate(colors))
+    return voxel_thin(np.concatenate(points), voxel, np.concatenate(colors))
 
 
 def floor_under_furniture(room: Room, cell: float = 0.05) -> np.ndarray:
