@@ -22,6 +22,10 @@ SEAT_INSET = 0.25  # sofa labels stop this far from each armrest (DESIGN.md)
 DESK_LABEL_OFFSET = 0.25  # a desk seat's label is this far outside the table edge
 STANDING_OFFSET, STANDING_INSET = 0.30, 0.25  # standing labels: in front of the edge, in from its ends
 SEAT_HEIGHT = (0.35, 0.60)  # a flat top in this range, at least 0.30 m across, is somewhere to sit
+# A seated adult's torso above the seat top: the sitting skeletons' torso heights (0.62-0.64 m) over the
+# seats they were fitted to (0.45 m). Places on seats of other heights (bar stools, lounge chairs) carry
+# seat + this as their torso height.
+TORSO_ABOVE_SEAT = 0.18
 
 FABRIC = [(0.30, 0.35, 0.55), (0.55, 0.50, 0.45), (0.35, 0.45, 0.35), (0.60, 0.30, 0.30), (0.45, 0.45, 0.48)]
 WOOD = [(0.55, 0.40, 0.25), (0.70, 0.58, 0.40), (0.40, 0.28, 0.18), (0.80, 0.75, 0.65)]
@@ -52,8 +56,11 @@ def _free_space(x0: float, x1: float, y0: float, y1: float, height: float = 1.8)
 # ---------------------------------------------------------------- seating for relaxing
 
 
-def sofa(rng: np.random.Generator, seats: int | None = None, armrests: bool | None = None) -> Piece:
-    """A sofa of 1 to 4 seats with a backrest (and usually armrests): one lounge segment."""
+def sofa(
+    rng: np.random.Generator, seats: int | None = None, armrests: bool | None = None, things: bool = True
+) -> Piece:
+    """A sofa of 1 to 4 seats with a backrest (and usually armrests): one lounge segment; with `things`,
+    now and then things left on its seats (`_things_on_seats`)."""
     seats = int(rng.integers(1, 5)) if seats is None else seats
     armrests = bool(rng.random() < 0.85) if armrests is None else armrests
     seat_width = rng.uniform(0.55, 0.68)
@@ -84,13 +91,14 @@ def sofa(rng: np.random.Generator, seats: int | None = None, armrests: bool | No
     anchor = Anchor(
         LOUNGE, (seat_centre_x, -reach), (seat_centre_x, reach), 0.0, [legroom], f"{seats}-seat sofa"
     )
-    return Piece("sofa", parts, [anchor], note=f"{seats}-seat sofa, seat {seat_h:.2f} m")
+    piece = Piece("sofa", parts, [anchor], note=f"{seats}-seat sofa, seat {seat_h:.2f} m")
+    return _things_on_seats(rng, piece, parts[0], seat_width) if things else piece
 
 
 def corner_sofa(rng: np.random.Generator) -> Piece:
     """An L-shaped sofa: a main run and a wing at its left end, one lounge segment each (none in the
     corner)."""
-    main = sofa(rng, seats=int(rng.integers(2, 4)), armrests=True)
+    main = sofa(rng, seats=int(rng.integers(2, 4)), armrests=True, things=False)
     lo, hi = main.local_bounds()
     depth, length = hi[0] - lo[0], hi[1] - lo[1]
     wing_len = rng.uniform(1.2, 1.8)
@@ -135,13 +143,148 @@ def corner_sofa(rng: np.random.Generator) -> Piece:
     return piece
 
 
-def armchair(rng: np.random.Generator) -> Piece:
-    piece = sofa(rng, seats=1, armrests=True)
+def armchair(rng: np.random.Generator, things: bool = True) -> Piece:
+    piece = sofa(rng, seats=1, armrests=True, things=False)
     anchor = piece.anchors[0]
     centre = ((anchor.start[0] + anchor.end[0]) / 2, 0.0)
     piece.anchors = [Anchor(LOUNGE, centre, centre, 0.0, anchor.clearance, "armchair")]
     piece.kind, piece.note = "armchair", "armchair"
+    seat = piece.parts[0]
+    return _things_on_seats(rng, piece, seat, seat.size[1]) if things else piece
+
+
+def chaise_sofa(rng: np.random.Generator) -> Piece:
+    """A sofa of 2-3 seats whose end seat runs on forward into a chaise longue (0.5-0.8 m longer). The other
+    seats are one lounge segment, stopping SEAT_INSET short of the chaise as at an armrest; the chaise is a
+    seat with no label: on it the legs lie along the cushion, not the pose the sitting skeleton has (feet on
+    the floor in front), and its far end is a seat with nothing to lean on."""
+    seats = int(rng.integers(2, 4))
+    piece = sofa(rng, seats=seats, armrests=rng.random() < 0.7, things=False)
+    seat = piece.parts[0]
+    (x0, y0), (x1, y1) = seat.corners_xy().min(axis=0), seat.corners_xy().max(axis=0)
+    side, width, extra = float(rng.choice([-1.0, 1.0])), (y1 - y0) / seats, rng.uniform(0.5, 0.8)
+    near, far = (y1 - width, y1) if side > 0 else (y0, y0 + width)
+    # the chaise's cushion on a base down to the floor (real ones stand on a plinth or low legs)
+    piece.parts.append(Box.span((x1, near, 0.0), (x1 + extra, far, seat.z_range[1]), seat.color))
+    piece.anchors = _stop_short_of(piece.anchors, near if side > 0 else far, side)
+    piece.unlabelled_seats.append(((x0, near), (x1 + extra, far)))
+    piece.kind, piece.note = (
+        "chaise-sofa",
+        f"{seats}-seat sofa with a chaise longue, seat {seat.z_range[1]:.2f} m",
+    )
     return piece
+
+
+# ---------------------------------------------------------------- things left on seats
+
+# Per lounge piece (sofas, armchairs, lounge chairs): small things a person would just move (the place stays
+# labelled), or a large box filling one seat (that seat is no place until someone clears it: an unlabelled
+# region, and the segment stops short of it as at an armrest).
+SMALL_THINGS_SHARE, BIG_BOX_SHARE = 0.30, 0.08
+THINGS_ON_CHAIR_SHARE = 0.10  # per chair at a table: a bag or a laptop on the seat
+
+
+def _small_thing(rng: np.random.Generator, seat: Box, along: float) -> Box:
+    """A cushion, a bag or a laptop lying on `seat` (a box in the piece's frame) at `along` on its y axis."""
+    kind = rng.choice(["cushion", "bag", "laptop"], p=[0.5, 0.3, 0.2])
+    size = {
+        "cushion": (rng.uniform(0.10, 0.18), rng.uniform(0.35, 0.45), rng.uniform(0.10, 0.18)),
+        "bag": (rng.uniform(0.15, 0.22), rng.uniform(0.28, 0.40), rng.uniform(0.22, 0.35)),
+        "laptop": (rng.uniform(0.22, 0.25), rng.uniform(0.31, 0.36), rng.uniform(0.02, 0.03)),
+    }[str(kind)]
+    size = (min(size[0], seat.size[0]), min(size[1], seat.size[1]), size[2])
+    (x0, y0), (x1, y1) = seat.corners_xy().min(axis=0), seat.corners_xy().max(axis=0)
+    x = rng.uniform(x0 + size[0] / 2, x1 - size[0] / 2)
+    y = float(np.clip(along, y0 + size[1] / 2, y1 - size[1] / 2))
+    top = seat.z_range[1]
+    return Box((x, y, top + size[2] / 2), size, rng.normal(0, 0.15), tuple(rng.uniform(0.1, 0.9, 3)))
+
+
+def _things_on_chair(rng: np.random.Generator, seat: Box) -> list[Box]:
+    """Now and then a bag or a laptop on a chair's seat (the chair's frame)."""
+    return [_small_thing(rng, seat, seat.centre[1])] if rng.random() < THINGS_ON_CHAIR_SHARE else []
+
+
+def _things_on_seats(rng: np.random.Generator, piece: Piece, seat: Box, seat_width: float) -> Piece:
+    """Leave things on a lounge piece's `seat` box (its one anchor runs along local y, facing +x): small
+    things the place keeps its label under, or a big box on an end seat, which takes that seat out of the
+    label into an unlabelled region."""
+    draw = rng.random()
+    (x0, y0), (x1, y1) = seat.corners_xy().min(axis=0), seat.corners_xy().max(axis=0)
+    if draw < BIG_BOX_SHARE:
+        side = float(rng.choice([-1.0, 1.0]))
+        near, far = (y1 - seat_width, y1) if side > 0 else (y0, y0 + seat_width)
+        height = rng.uniform(0.30, 0.55)
+        piece.parts.append(
+            Box.span(
+                (x0 + 0.03, near + 0.02, seat.z_range[1]),
+                (x1 - 0.03, far - 0.02, seat.z_range[1] + height),
+                (0.65, 0.5, 0.32),
+            )
+        )
+        piece.unlabelled_seats.append(((x0, near), (x1, far)))
+        piece.anchors = _stop_short_of(piece.anchors, near if side > 0 else far, side)
+        piece.note += ", a big box on a seat"
+    elif draw < BIG_BOX_SHARE + SMALL_THINGS_SHARE:
+        piece.parts += [_small_thing(rng, seat, rng.uniform(y0, y1)) for _ in range(int(rng.integers(1, 4)))]
+        piece.note += ", things on the seat"
+    return piece
+
+
+def _stop_short_of(anchors: list[Anchor], boundary: float, side: float) -> list[Anchor]:
+    """Anchors along local y cut to end SEAT_INSET before `boundary` on `side` (+1: their high-y end);
+    anchors with nothing left are dropped."""
+    kept = []
+    for anchor in anchors:
+        low, high = sorted((anchor.start[1], anchor.end[1]))
+        low, high = (
+            (low, min(high, boundary - SEAT_INSET)) if side > 0 else (max(low, boundary + SEAT_INSET), high)
+        )
+        if high >= low - 1e-9:
+            x = anchor.start[0]
+            kept.append(
+                Anchor(
+                    anchor.role,
+                    (x, low),
+                    (x, high),
+                    anchor.facing,
+                    anchor.clearance,
+                    anchor.note,
+                    anchor.torso_height,
+                )
+            )
+    return kept
+
+
+def lounge_chair(rng: np.random.Generator, things: bool = True) -> Piece:
+    """A low lounge chair: a deep seat at 0.35-0.42 m and a backrest reclined 15-25 degrees (steps of boxes
+    leaning back), armrests 70 % of the time; one lounge place on the seat's centre."""
+    seat_h, width, depth = rng.uniform(0.35, 0.42), rng.uniform(0.60, 0.72), rng.uniform(0.55, 0.68)
+    recline, back_h, back_t = np.radians(rng.uniform(15, 25)), rng.uniform(0.45, 0.65), 0.12
+    arm = rng.uniform(0.08, 0.15) if rng.random() < 0.7 else 0.0
+    color, leg_h = _pick(rng, FABRIC + WOOD[:1]), rng.uniform(0.08, 0.15)
+    x_front, y_half = depth / 2, width / 2 + arm
+    seat = Box.span((-depth / 2, -width / 2, leg_h), (x_front, width / 2, seat_h), color)
+    parts = [seat, *_legs(rng, depth / 2, y_half, leg_h, 0.04, _pick(rng, WOOD + METAL))]
+    steps = 4  # the reclined backrest as a stair of boxes, each set back by the recline over its height
+    for k in range(steps):
+        z0, z1 = seat_h + k * back_h / steps, seat_h + (k + 1) * back_h / steps
+        back = -depth / 2 - np.tan(recline) * (z0 - seat_h)
+        parts.append(Box.span((back - back_t, -width / 2, z0 if k else leg_h), (back, width / 2, z1), color))
+    if arm:
+        parts += [
+            Box.span(
+                (-depth / 2 - back_t, side * width / 2 - (0 if side > 0 else arm), leg_h),
+                (x_front, side * width / 2 + (arm if side > 0 else 0), seat_h + rng.uniform(0.15, 0.22)),
+                color,
+            )
+            for side in (-1, 1)
+        ]
+    centre = (0.0, 0.0)
+    legroom = _free_space(x_front, x_front + 0.45, -width / 2, width / 2, 0.35)
+    anchor = Anchor(LOUNGE, centre, centre, 0.0, [legroom], "lounge chair", seat_h + TORSO_ABOVE_SEAT)
+    piece = Piece("lounge-chair", parts, [anchor], note=f"lounge chair, seat {seat_h:.2f} m")
+    return _things_on_seats(rng, piece, seat, width) if things else piece
 
 
 # ---------------------------------------------------------------- tables, desks, chairs
@@ -211,12 +354,20 @@ MAX_PULL = 0.45  # the farthest a pulled-out chair's seat front stands outside t
 STEP_BACK = 0.03  # a chair that hits something is drawn back this far at a time until it fits
 
 
+# Of the pushed-in chairs, this share is pushed in as far as it goes (the seat under the top, the backrest or
+# the armrests against the edge), as most of the real rooms' chairs are; the rest to any depth short of that.
+FULLY_UNDER_SHARE = 0.35
+
+
 def chair_state(rng: np.random.Generator, seat_depth: float) -> tuple[str, float, float]:
     """(state, push, swivel) of one place's chair. `push` is how far the seat's front reaches past the table
     edge, under the top: from `seat_depth` (fully under, backrest against the edge) down to -MAX_PULL (pulled
-    out); `swivel` turns the chair away from facing the table."""
+    out), or inf: as far as the chair goes under this top (`_deepest_push`); `swivel` turns the chair away
+    from facing the table."""
     state = str(rng.choice(list(CHAIR_STATES), p=list(CHAIR_STATES.values())))
     if state == "pushed-in":
+        if rng.random() < FULLY_UNDER_SHARE:  # square to the table: its backrest lies against the edge
+            return state, np.inf, 0.0
         return state, rng.uniform(0.0, seat_depth), rng.normal(0, 0.08)
     if state == "pulled-out":
         return state, -rng.uniform(0.0, MAX_PULL), rng.normal(0, 0.35)
@@ -227,21 +378,37 @@ def chair_state(rng: np.random.Generator, seat_depth: float) -> tuple[str, float
     return state, 0.0, 0.0
 
 
-def _chair_note(state: str, push: float) -> str:
+def _chair_note(state: str, push: float, fully: bool = False) -> str:
     if state == "missing":
         return "no chair"
     if state == "turned":
         return f"chair turned, {-push:.2f} m out"
-    return f"chair pushed in {push:.2f} m" if push >= 0 else f"chair pulled out {-push:.2f} m"
+    if push < 0:
+        return f"chair pulled out {-push:.2f} m"
+    return f"chair pushed in {push:.2f} m" + (", as far as it goes" if fully else "")
 
 
-def _place_anchor(edge_x: float, along: float, turn: float, note: str) -> Anchor:
+def _deepest_push(chair: list[Box], underside: float) -> float:
+    """How far a chair (in its own frame, facing +x, seat first) can be pushed under a top whose underside
+    is at `underside`: until the first of its parts that reach that high (backrest, armrests) meets the edge;
+    a chair with none (a stool) until its seat's rear is at the edge."""
+    seat_depth = chair[0].size[0]
+    tall = [part for part in chair if part.z_range[1] > underside - 1e-3]
+    if not tall:
+        return seat_depth
+    front_of_tall = max(part.corners_xy()[:, 0].max() for part in tall)
+    return min(seat_depth, seat_depth / 2 - front_of_tall)
+
+
+def _place_anchor(
+    edge_x: float, along: float, turn: float, note: str, torso_height: float | None = None
+) -> Anchor:
     """A place at a table edge at x = edge_x (table on the -x side): labelled where a person who pulled the
     chair out would sit, 0.25 m outside the edge on the place's line, facing the table, whatever the chair's
     state; turned by `turn` about the table's centre."""
     label_x = edge_x + DESK_LABEL_OFFSET
     room = _free_space(edge_x + 0.05, edge_x + 0.75, along - 0.30, along + 0.30, 1.3)
-    anchor = Anchor(DESK_SEAT, (label_x, along), (label_x, along), np.pi, [room], note)
+    anchor = Anchor(DESK_SEAT, (label_x, along), (label_x, along), np.pi, [room], note, torso_height)
     return _rotated_anchor(anchor, turn) if turn else anchor
 
 
@@ -270,13 +437,17 @@ def desk(rng: np.random.Generator, place: bool = True, cluttered: bool = False) 
     )
     parts += _clutter(
         rng,
-        (-depth / 2 + 0.25, depth / 2 - 0.05),
+        # a labelled desk's things stay clear of where its sitter's hands rest
+        (-depth / 2 + 0.25, depth / 2 - (WORK_EDGE_KEEP if place and not cluttered else 0.05)),
         (-length / 2 + 0.05, length / 2 - 0.05),
         height,
         count=int(rng.integers(6, 12)) if cluttered else int(rng.integers(0, 3)),
     )
+    free = (-length / 2 + 0.35, length / 2 - 0.35)  # where the place can be along the desk
     if rng.random() < 0.5:  # a drawer pedestal under one end
         end = rng.choice([-1, 1]) * (length / 2 - 0.25)
+        # the sitter's knees and feet (up to 0.17 m either side of the place) stay clear of the pedestal
+        free = (free[0], length / 2 - 0.65) if end > 0 else (-length / 2 + 0.65, free[1])
         parts.append(
             Box.span(
                 (-depth / 2 + 0.02, end - 0.2, 0.0),
@@ -284,7 +455,7 @@ def desk(rng: np.random.Generator, place: bool = True, cluttered: bool = False) 
                 _pick(rng, LAMINATE),
             )
         )
-    along = rng.uniform(-length / 2 + 0.35, length / 2 - 0.35)
+    along = rng.uniform(*free)
     anchors = [_add_chair(rng, parts, depth / 2, along, office_chair)] if place else []
     return Piece("desk", parts, anchors, note=f"desk {height:.2f} m" + ("" if place else ", nobody's place"))
 
@@ -294,6 +465,9 @@ def meeting_table(rng: np.random.Generator, chair_maker=None, kind: str = "meeti
     is in one of the CHAIR_STATES (some places have none)."""
     length, depth, height = rng.uniform(1.4, 2.6), rng.uniform(0.80, 1.10), rng.uniform(0.72, 0.76)
     parts = table(rng, length, depth, height)
+    # cups, papers, a laptop, a bowl: down the middle, clear of the places' edges
+    middle = (-depth / 2 + WORK_EDGE_KEEP, depth / 2 - WORK_EDGE_KEEP)
+    parts += _clutter(rng, middle, (-length / 2 + 0.1, length / 2 - 0.1), height, int(rng.integers(0, 5)))
     places = max(1, int((length - 0.2) // 0.65))
     chair_maker = chair_maker or (office_chair if rng.random() < 0.5 else dining_chair)
     anchors = [
@@ -311,12 +485,20 @@ def dining_table(rng: np.random.Generator) -> Piece:
 
 
 def _add_chair(
-    rng, parts: list[Box], edge_x: float, along: float, chair_maker, turn: float = 0.0, tries: int = 10
+    rng,
+    parts: list[Box],
+    edge_x: float,
+    along: float,
+    chair_maker,
+    turn: float = 0.0,
+    tries: int = 10,
+    torso_height: float | None = None,
 ) -> Anchor:
     """A labelled place at the edge (turned by `turn` about the table's centre) and its chair, added to
-    `parts`. A chair that hits something already there (the top, a leg, a pedestal, a neighbour) is drawn back
-    until it fits, as a real one stops where its armrests meet the top; after `tries` draws in which it never
-    fits, the place has no chair."""
+    `parts` (whose first box is the top). A chair that hits something already there (the top, a leg, a
+    pedestal, a neighbour) is drawn back until it fits, as a real one stops where its armrests meet the top;
+    after `tries` draws in which it never fits, the place has no chair. Now and then the chair holds a bag or
+    a laptop: the place stays labelled (a person would move it)."""
     from .rooms import any_overlap
 
     state, push = "missing", 0.0
@@ -329,14 +511,18 @@ def _add_chair(
         state, push, swivel = chair_state(rng, seat_depth)
         if state == "missing":
             break
+        chair += _things_on_chair(rng, chair[0])
+        fully = push == np.inf
+        push = _deepest_push(chair, parts[0].z_range[0]) if fully else push
         for depth in np.arange(push, -MAX_PULL - STEP_BACK, -STEP_BACK):
             centre = edge_x + seat_depth / 2 - depth
             placed = [part.placed(centre, along, np.pi + swivel).placed(0, 0, turn) for part in chair]
             if not any_overlap(placed, nearby):
                 parts += placed
-                return _place_anchor(edge_x, along, turn, _chair_note(state, float(depth)))
+                note = _chair_note(state, float(depth), fully and depth == push)
+                return _place_anchor(edge_x, along, turn, note, torso_height)
         state = "missing"
-    return _place_anchor(edge_x, along, turn, _chair_note(state, push))
+    return _place_anchor(edge_x, along, turn, _chair_note(state, push), torso_height)
 
 
 def _rotated_anchor(anchor: Anchor, yaw: float) -> Anchor:
@@ -348,6 +534,7 @@ def _rotated_anchor(anchor: Anchor, yaw: float) -> Anchor:
         anchor.facing + yaw,
         [box.placed(0, 0, yaw) for box in anchor.clearance],
         anchor.note,
+        anchor.torso_height,
     )
 
 
@@ -432,6 +619,125 @@ def high_table(rng: np.random.Generator) -> Piece:
         [_standing_edge(depth / 2, length), _rotated_anchor(_standing_edge(depth / 2, length), np.pi)],
         note=f"high table {height:.2f} m",
     )
+
+
+# ---------------------------------------------------------------- counter-height seating
+
+# Seat below the top of a counter-height table: 0.21-0.27 m (people sit 0.25-0.30 m below a bar top; the
+# sitting skeleton's hands lie 0.28 m above its seat, so a larger gap would put them inside the top).
+BAR_GAP = (0.21, 0.27)
+BAR_SEAT = (0.65, 0.80)  # bar stool and high chair seats
+BAR_TOP = (0.90, 1.05)  # counter-height tables, kitchen islands, breakfast bars
+# Things on a table keep this far from the edges people work at: their hands rest 0.1-0.2 m inside the edge
+# (a person would push a cup aside, but the label's skeleton must fit as it is).
+WORK_EDGE_KEEP = 0.30
+
+
+def bar_seat_height(rng: np.random.Generator, top: float) -> float:
+    """A seat for a counter-height top: BAR_GAP below it, within BAR_SEAT."""
+    low, high = max(BAR_SEAT[0], top - BAR_GAP[1]), min(BAR_SEAT[1], top - BAR_GAP[0])
+    return float(rng.uniform(low, high))
+
+
+def bar_stool(rng: np.random.Generator, seat_h: float, back: bool = False) -> list[Box]:
+    """A bar stool (or, with `back`, a high chair) with its seat top at `seat_h`: square seat, four legs, a
+    footrest frame; facing +x, centred on the seat, seat first."""
+    size, color, metal = rng.uniform(0.34, 0.40), _pick(rng, WOOD + FABRIC[:2]), _pick(rng, METAL)
+    half, foot = size / 2, rng.uniform(0.26, 0.34)
+    parts = [
+        Box.span((-half, -half, seat_h - 0.05), (half, half, seat_h), color),
+        *_legs(rng, half, half, seat_h - 0.05, 0.03, metal, inset=0.02),
+    ]
+    parts += [  # the footrest: a frame between the legs
+        Box.span(
+            (-half + 0.02, side * (half - 0.035) - 0.01, foot),
+            (half - 0.02, side * (half - 0.035) + 0.01, foot + 0.02),
+            metal,
+        )
+        for side in (-1, 1)
+    ]
+    if back:
+        parts.append(
+            Box.span(
+                (-half, -half + 0.03, seat_h),
+                (-half + 0.04, half - 0.03, seat_h + rng.uniform(0.30, 0.45)),
+                color,
+            )
+        )
+    return parts
+
+
+def _bar_places(rng, parts: list[Box], edge_x: float, length: float, seat_h: float, turn: float = 0.0):
+    """2-4 places (as many as fit 0.6 m apart) along a counter-height edge, each with a bar stool or a high
+    chair in one of the CHAIR_STATES; labelled like any table place, torso at seat + TORSO_ABOVE_SEAT."""
+    places = min(int(rng.integers(2, 5)), int((length - 0.2) // 0.6))
+    back = bool(rng.random() < 0.5)
+    maker = lambda r: bar_stool(r, seat_h, back)  # noqa: E731
+    return [
+        _add_chair(
+            rng,
+            parts,
+            edge_x,
+            -length / 2 + (k + 0.5) * length / places,
+            maker,
+            turn,
+            torso_height=seat_h + TORSO_ABOVE_SEAT,
+        )
+        for k in range(places)
+    ]
+
+
+def kitchen_island(rng: np.random.Generator) -> Piece:
+    """A free-standing kitchen island at counter height: a cabinet body, worked at standing from its kitchen
+    side (-x); its top overhangs the other side by 0.45-0.55 m (room for knees and feet) over 2-4 bar stools
+    or high chairs, whose places are labelled; that free edge is a standing edge too."""
+    length, height = rng.uniform(1.4, 2.6), rng.uniform(*BAR_TOP)
+    body_depth, overhang, top_t = rng.uniform(0.60, 0.90), rng.uniform(0.45, 0.55), rng.uniform(0.03, 0.045)
+    edge, x0, y = (body_depth + overhang) / 2, -(body_depth + overhang) / 2, length / 2
+    body = _pick(rng, LAMINATE + WOOD)
+    parts = [
+        Box.span((x0, -y, height - top_t), (edge, y, height), _pick(rng, LAMINATE)),
+        Box.span((x0 + 0.03, -y, 0.10), (edge - overhang, y, height - top_t), body),
+        Box.span((x0 + 0.09, -y, 0.0), (edge - overhang, y, 0.10), METAL[0]),  # plinth, recessed for toes
+    ]
+    parts += _clutter(
+        rng,
+        (x0 + WORK_EDGE_KEEP, edge - WORK_EDGE_KEEP),
+        (-y + 0.05, y - 0.05),
+        height,
+        int(rng.integers(0, 4)),
+    )
+    seat_h = bar_seat_height(rng, height)
+    anchors = _bar_places(rng, parts, edge, length, seat_h)
+    anchors += [_standing_edge(edge, length), _rotated_anchor(_standing_edge(-x0, length), np.pi)]
+    note = f"kitchen island {height:.2f} m, {len(anchors) - 2} stools at {seat_h:.2f} m"
+    return Piece("kitchen-island", parts, anchors, note=note)
+
+
+def bar_table(rng: np.random.Generator, both_sides: bool = True) -> Piece:
+    """A counter-height table on legs with bar stools or high chairs: free-standing with places on both long
+    sides, or (`both_sides` False) a breakfast bar against a wall (-x) with places on its front. Every free
+    long edge is a standing edge as well."""
+    length, height = rng.uniform(1.0, 2.2), rng.uniform(*BAR_TOP)
+    depth = rng.uniform(0.85, 1.05) if both_sides else rng.uniform(0.50, 0.65)
+    parts = table(rng, length, depth, height, _pick(rng, WOOD + LAMINATE))
+    back_x = -depth / 2 + (WORK_EDGE_KEEP if both_sides else 0.05)
+    parts += _clutter(
+        rng,
+        (back_x, depth / 2 - WORK_EDGE_KEEP),
+        (-length / 2 + 0.1, length / 2 - 0.1),
+        height,
+        int(rng.integers(0, 3)),
+    )
+    seat_h = bar_seat_height(rng, height)
+    anchors = _bar_places(rng, parts, depth / 2, length, seat_h) + [_standing_edge(depth / 2, length)]
+    if both_sides:
+        anchors += _bar_places(rng, parts, depth / 2, length, seat_h, np.pi)
+        anchors.append(_rotated_anchor(_standing_edge(depth / 2, length), np.pi))
+    stools = sum(anchor.role == DESK_SEAT for anchor in anchors)
+    name = "bar table" if both_sides else "breakfast bar"
+    note = f"{name} {height:.2f} m, {stools} places at {seat_h:.2f} m"
+    return Piece(name.replace(" ", "-"), parts, anchors, note=note)
 
 
 def _standing_edge(edge_x: float, length: float) -> Anchor:

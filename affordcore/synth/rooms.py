@@ -368,15 +368,25 @@ def _program(kind: str, rng: np.random.Generator) -> list[tuple]:
     """(builder, placement) pairs in placement order: the big pieces first, then context and distractors."""
     n = lambda low, high: int(rng.integers(low, high + 1))  # noqa: E731
     maybe = lambda share, pieces: pieces if rng.random() < share else []  # noqa: E731
+    pick = lambda shares: list(shares)[int(rng.choice(len(shares), p=list(shares.values())))]  # noqa: E731
     # Every kind also gets, now and then, another kind's furniture, so that each affordance's model sees the
     # others' furniture as negatives in every kind of room (shares in docs/synthetic-rooms.md).
-    lounge_corner = [(F.sofa if rng.random() < 0.5 else F.armchair, "wall"), (F.coffee_table, "in-front")]
+    lounge_corner = [(pick({F.sofa: 0.4, F.armchair: 0.35, F.lounge_chair: 0.25}), "wall")]
+    lounge_corner.append((F.coffee_table, "in-front"))
     living = (
-        [(F.corner_sofa if rng.random() < 0.3 else F.sofa, "wall"), (F.coffee_table, "in-front")]
-        # before the armchairs and shelves: a table ringed by places finds no room once they stand
+        [
+            (pick({F.sofa: 0.55, F.corner_sofa: 0.25, F.chaise_sofa: 0.2}), "wall"),
+            (F.coffee_table, "in-front"),
+        ]
+        # before the armchairs and shelves: a table ringed by places finds no room once they stand (an
+        # island, ringed by stools and standing room, first of all)
+        + maybe(0.35, [_counter_height_seating(rng)])  # a kitchen-dining flavour
         + maybe(0.5, [(F.dining_table, "free")])
         + maybe(0.3, [(F.desk, "wall")])  # an office corner
-        + [(F.armchair, "free" if rng.random() < 0.5 else "wall") for _ in range(n(0, 2))]
+        + [
+            (pick({F.armchair: 0.65, F.lounge_chair: 0.35}), "free" if rng.random() < 0.5 else "wall")
+            for _ in range(n(0, 2))
+        ]
         + [(F.tv_unit, "wall")] * n(0, 1)
         + [(F.shelf, "wall")] * n(0, 2)
     )
@@ -387,9 +397,11 @@ def _program(kind: str, rng: np.random.Generator) -> list[tuple]:
         + [(F.shelf, "wall")] * n(0, 2)
         + maybe(0.3, lounge_corner)
         + maybe(0.3, [(F.counter, "wall")])  # a kitchenette
+        + maybe(0.15, [(lambda r: F.bar_table(r, both_sides=False), "wall")])  # its breakfast bar
     )
     workshop = (
         [(F.counter, "wall") for _ in range(n(1, 3))]
+        + maybe(0.35, [_counter_height_seating(rng)])  # a kitchen with an island or a bar
         + [(lambda r: F.workbench(r, both_sides=True), "free")] * n(0, 2)
         + [(F.workbench, "wall")] * n(0, 1)
         + [(F.high_table, "free")] * n(0, 1)
@@ -414,11 +426,23 @@ def _program(kind: str, rng: np.random.Generator) -> list[tuple]:
         + [(F.floor_clutter, "any") for _ in range(n(2, 6))]
     )
     if kind == "mixed":
-        main = living[:2] + office[: n(1, 2)] + workshop[: n(1, 2)] + [(F.armchair, "free")] * n(0, 1)
+        main = living[:2] + maybe(0.25, [_counter_height_seating(rng)]) + office[: n(1, 2)]
+        main += workshop[: n(1, 2)] + [(F.armchair, "free")] * n(0, 1)
     else:
         main = {"living": living, "office": office, "workshop": workshop}[kind]
     chosen = [distractors[i] for i in sorted(rng.permutation(len(distractors))[: n(2, 5)])]
     return main + chosen + decor
+
+
+def _counter_height_seating(rng: np.random.Generator) -> tuple:
+    """A kitchen island (half the time), a free-standing bar table or a breakfast bar against a wall, each
+    with bar stools or high chairs."""
+    draw = rng.random()
+    if draw < 0.5:
+        return (F.kitchen_island, "free")
+    if draw < 0.75:
+        return (F.bar_table, "free")
+    return (lambda r: F.bar_table(r, both_sides=False), "wall")
 
 
 def _place(
@@ -462,12 +486,8 @@ def reserve_body_space(piece: Piece, margin: float = 0.05) -> None:
     roles = role_affordances()
     for anchor in piece.anchors:
         skeleton = get_skeleton(roles[anchor.role])
-        ends = np.array(
-            [
-                [*anchor.start, skeleton.torso_height, anchor.facing],
-                [*anchor.end, skeleton.torso_height, anchor.facing],
-            ]
-        )
+        torso = skeleton.torso_height if anchor.torso_height is None else anchor.torso_height
+        ends = np.array([[*anchor.start, torso, anchor.facing], [*anchor.end, torso, anchor.facing]])
         joints = place_joints(skeleton.joints, ends).reshape(-1, 3)
         low, high = joints.min(axis=0) - margin, joints.max(axis=0) + margin
         anchor.clearance.append(Box.span((low[0], low[1], 0.0), (high[0], high[1], high[2]), (0, 0, 0)))

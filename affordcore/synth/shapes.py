@@ -110,6 +110,9 @@ class Anchor:
     facing: float
     clearance: list[Box] = field(default_factory=list)
     note: str = ""
+    # The torso's height above the floor when this place is used, where the seat is not at the usual height
+    # (a bar stool, a lounge chair); None: the skeleton's own torso height.
+    torso_height: float | None = None
 
     @property
     def is_point(self) -> bool:
