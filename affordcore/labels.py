@@ -5,7 +5,11 @@ A label is where a person's torso is while using an affordance: a segment ``from
 line, a counter's working edge) or a point ``at`` (one chair), with ``facing`` the theta of the person. A pose
 is positive when its (x, y) is within ``XY_TOLERANCE`` of a label of its affordance (distance to the segment,
 end caps included, or to the point) and its theta within ``THETA_TOLERANCE`` of the label's facing, angles
-compared modulo 2 pi; every z level counts. Poses whose (x, y) is inside an unlabelled region are excluded
+compared modulo 2 pi, at the torso levels within ``Z_TOLERANCE`` (one voxel) of the label's torso height: its
+optional ``z`` (a bar stool's place sits higher than a dining chair's), else the skeleton's own. DESIGN.md
+says "every z level counts" of a grid of three levels one voxel apart, which this is; a grid with levels
+above them (high seats, `torso_reach_above`) would otherwise call a skeleton floating 0.3 m over an ordinary
+chair a place. Poses whose (x, y) is inside an unlabelled region are excluded
 from training and scoring, whatever their theta. Both bounds are inclusive (with 1e-9 of slack, so a pose
 exactly on the tolerance of a round-number label is positive whatever the floating-point rounding).
 """
@@ -26,6 +30,7 @@ from .jsonfile import read_json
 FORMAT = "affordance-labels/1"
 XY_TOLERANCE = 0.15  # m, DESIGN.md
 THETA_TOLERANCE = 0.4  # rad, DESIGN.md
+Z_TOLERANCE = 0.1  # m: the torso levels one voxel either side of the label's height count
 _SLACK = 1e-9
 
 Point = tuple[float, float]
@@ -45,6 +50,7 @@ class Label:
     start: Point | None = None
     end: Point | None = None
     note: str | None = None
+    z: float | None = None  # the torso's height above the floor (m); None: the affordance skeleton's own
 
     def __post_init__(self) -> None:
         for name in ("at", "start", "end"):
@@ -146,6 +152,8 @@ def save_labels(path: str | Path, labels: LabelSet) -> Path:
             else {"from": list(label.start), "to": list(label.end)}
         )
         entry["facing"] = label.facing
+        if label.z is not None:
+            entry["z"] = label.z
         if label.note is not None:
             entry["note"] = label.note
         document["labels"].append(entry)
@@ -207,7 +215,9 @@ def _parse(document: Any, name: str) -> LabelSet:
                 "must have either 'at' (a point) or 'from' and 'to' (a segment)"
                 + (", not both" if has_at else ""),
             )
-        check_keys(entry, where, {"affordance", "facing"} | ({"at"} if has_at else {"from", "to"}), {"note"})
+        check_keys(
+            entry, where, {"affordance", "facing"} | ({"at"} if has_at else {"from", "to"}), {"note", "z"}
+        )
         labels.append(
             Label(
                 affordance=text(entry, "affordance", f"{where}.affordance", non_empty=True),
@@ -216,6 +226,7 @@ def _parse(document: Any, name: str) -> LabelSet:
                 start=None if has_at else point(entry["from"], f"{where}.from"),
                 end=None if has_at else point(entry["to"], f"{where}.to"),
                 note=text(entry, "note", f"{where}.note") if "note" in entry else None,
+                z=number(entry["z"], f"{where}.z") if "z" in entry else None,
             )
         )
     regions = []
@@ -252,16 +263,17 @@ def angle_gap(a: np.ndarray | float, b: np.ndarray | float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class GroundTruth:
-    """One affordance's ground truth on a pose grid. Labels do not depend on z, so they are held per
-    (theta, x, y); every z level of the grid repeats them."""
+    """One affordance's ground truth on a pose grid: per (theta, x, y) and, where labels hold at some torso
+    levels only, per level."""
 
     grid: PoseGrid
-    positive: np.ndarray  # (n_theta, nx, ny) bool, False where excluded
+    positive: np.ndarray  # (n_theta, nx, ny) bool: positive at some level; False where excluded
     excluded: np.ndarray  # (nx, ny) bool: inside an unlabelled region, every theta and z left out
+    by_level: np.ndarray | None = None  # (nz, n_theta, nx, ny) bool; None: every level repeats `positive`
 
     def pose_mask(self) -> np.ndarray:
         """(nz, n_theta, nx, ny) positives; ``.ravel()`` follows the grid's pose numbering."""
-        return np.broadcast_to(self.positive, self.grid.shape)
+        return self.by_level if self.by_level is not None else np.broadcast_to(self.positive, self.grid.shape)
 
     def scored_mask(self) -> np.ndarray:
         """(nz, n_theta, nx, ny): the poses used in training and scoring (not in an unlabelled region)."""
@@ -270,7 +282,7 @@ class GroundTruth:
     def counts(self) -> tuple[int, int]:
         """(positives, negatives) over every pose of the grid, excluded poses left out."""
         nz, n_theta = self.grid.shape[:2]
-        positives = int(self.positive.sum()) * nz
+        positives = int(self.pose_mask().sum())
         return positives, int((~self.excluded).sum()) * n_theta * nz - positives
 
 
@@ -280,16 +292,27 @@ def ground_truth(
     grid: PoseGrid,
     xy_tolerance: float = XY_TOLERANCE,
     theta_tolerance: float = THETA_TOLERANCE,
+    torso_height: float | None = None,
 ) -> GroundTruth:
-    """Which poses of ``grid`` are positive for ``affordance`` (see the module docstring)."""
+    """Which poses of ``grid`` are positive for ``affordance`` (see the module docstring); `torso_height` is
+    the skeleton's, for labels without a height of their own (None: every level counts for them)."""
     xy = np.stack(np.meshgrid(grid.x, grid.y, indexing="ij"), axis=-1)  # (nx, ny, 2)
-    positive = np.zeros((len(grid.theta), len(grid.x), len(grid.y)), dtype=bool)
+    by_level = np.zeros(grid.shape, dtype=bool)
+    every_level = True
     for label in labels.of(affordance):
         near = label.distance(xy) <= xy_tolerance + _SLACK
         facing = angle_gap(grid.theta, label.facing) <= theta_tolerance + _SLACK
-        positive |= facing[:, None, None] & near[None]
+        height = label.z if label.z is not None else torso_height
+        levels = (
+            np.abs(grid.z - height) <= Z_TOLERANCE + 1e-6
+            if height is not None
+            else np.ones(len(grid.z), bool)
+        )
+        every_level &= bool(levels.all())
+        by_level[levels] |= facing[:, None, None] & near[None]
     excluded = labels.unlabelled(xy)
-    return GroundTruth(grid, positive & ~excluded, excluded)
+    by_level &= ~excluded
+    return GroundTruth(grid, by_level.any(axis=0), excluded, None if every_level else by_level)
 
 
 class ClassCount(NamedTuple):
@@ -302,11 +325,19 @@ class ClassCount(NamedTuple):
         return cls(positives, negatives, f"1:{negatives // positives:,}" if positives else "no positives")
 
 
-def class_counts(labels: LabelSet, grids: dict[str, PoseGrid], **tolerances: float) -> dict[str, ClassCount]:
+def class_counts(
+    labels: LabelSet,
+    grids: dict[str, PoseGrid],
+    torso_heights: dict[str, float] | None = None,
+    **tolerances: float,
+) -> dict[str, ClassCount]:
     """Per affordance with a grid: positives, negatives and their ratio (sum the first two over rooms and
-    call `ClassCount.of` for a data set's table)."""
+    call `ClassCount.of` for a data set's table); `torso_heights`: each affordance skeleton's."""
+    heights = torso_heights or {}
     return {
-        name: ClassCount.of(*ground_truth(labels, name, grid, **tolerances).counts())
+        name: ClassCount.of(
+            *ground_truth(labels, name, grid, torso_height=heights.get(name), **tolerances).counts()
+        )
         for name, grid in sorted(grids.items())
     }
 

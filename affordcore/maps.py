@@ -3,10 +3,12 @@
 * positives: every pose scoring above the model's threshold;
 * confidence map: over the floor plan, each (x, y) cell's best score over theta and z, and the theta and z
   that reached it;
-* skeleton map: one skeleton per place. Greedy non-maximum suppression over the confidence map's cells above
-  the place threshold (the model's, or its cut for this room): the best cell becomes a skeleton (at its best
-  theta and z, with placed joints), and every cell within `nms_radius` of it is suppressed, whatever its
-  theta. Places are the loop, not poses: each step is one vectorised distance test over the remaining cells.
+* skeleton map: one skeleton per place. Greedy non-maximum suppression over the confidence map
+  (`places.peak_cells`): the best cell becomes a skeleton (at its best theta and z, with placed joints), and
+  every cell within `nms_radius` of it is suppressed, whatever its theta. With a place model
+  (affordcore/places.py) every such peak is a candidate with a probability, and the map keeps those whose
+  probability reaches `place_probability`; without one, the peaks above the place threshold (the model's,
+  or its cut for this room) are kept.
 """
 
 from __future__ import annotations
@@ -16,10 +18,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .grid import PoseGrid
+from .places import RULED_OUT, PlaceModel, peak_cells, place_candidates
 from .skeleton import Skeleton, place_joints
 
 FORMAT = "affordance-map/1"
-RULED_OUT = np.finfo(np.float32).min  # the score of a pose that is not a candidate at all
 
 
 def room_reference(scores: np.ndarray) -> float:
@@ -42,7 +44,21 @@ class AffordanceMap:
     positives: np.ndarray  # (n, 5): x, y, z, theta, score, best first
     skeletons: np.ndarray  # (k, 5): x, y, z, theta, score, best first
     joints: np.ndarray  # (k, 15, 3) placed joints of the skeletons
-    place_threshold: float  # what a place of the skeleton map scored above (the room's cut)
+    place_threshold: (
+        float  # what a place of the skeleton map scored above (the room's cut; NaN: by probability)
+    )
+    probabilities: (
+        np.ndarray
+    )  # (k,) each skeleton's probability that a person can use it (NaN: no place model)
+    place_probability: float  # what a place's probability reached to be kept (NaN: no place model)
+
+    def place_labels(self) -> list[str]:
+        """What a person reads beside each place: its probability, or its score for a model without a place
+        model."""
+        return [
+            f"p {p:.2f}" if np.isfinite(p) else f"{score:.2f}"
+            for score, p in zip(self.skeletons[:, 4], self.probabilities)
+        ]
 
     def to_json(self, model_id: str, world_from_input: np.ndarray) -> dict:
         return map_document(
@@ -55,6 +71,8 @@ class AffordanceMap:
             self.positives,
             world_from_input,
             self.place_threshold,
+            self.probabilities,
+            self.place_probability,
         )
 
 
@@ -68,28 +86,38 @@ def map_document(
     positives: np.ndarray,
     world_from_input: np.ndarray,
     place_threshold: float,
+    probabilities: np.ndarray | None = None,
+    place_probability: float = float("nan"),
 ) -> dict:
-    """The affordance-map/1 JSON document (what `afford map` writes and `afford watch` saves)."""
+    """The affordance-map/1 JSON document (what `afford map` writes and `afford watch` saves). A NaN (no place
+    model) is written as null."""
 
     def rows(values: np.ndarray) -> list[dict]:
         keys = ("x", "y", "z", "theta", "score")
         return [dict(zip(keys, (round(float(v), 4) for v in row))) for row in values]
 
+    probabilities = np.full(len(skeletons), np.nan) if probabilities is None else probabilities
     placed = rows(skeletons)
-    for skeleton, skeleton_joints in zip(placed, joints):
+    for skeleton, skeleton_joints, probability in zip(placed, joints, probabilities):
+        skeleton["probability"] = _number(probability)
         skeleton["joints"] = np.round(skeleton_joints, 4).tolist()
     return {
         "format": FORMAT,
         "affordance": affordance,
         "model": model_id,
         "threshold": float(threshold),
-        "place_threshold": float(place_threshold),
+        "place_threshold": _number(place_threshold),
+        "place_probability": _number(place_probability),
         "frame": "world: gravity-aligned, z up, floor at z = 0, metres",
         "world_from_input": np.asarray(world_from_input, dtype=float).round(9).tolist(),
         "grid": grid,
         "skeletons": placed,
         "positives": rows(positives),
     }
+
+
+def _number(value: float) -> float | None:
+    return None if not np.isfinite(value) else round(float(value), 4)
 
 
 def build_map(
@@ -101,10 +129,14 @@ def build_map(
     nms_radius: float = 0.45,
     allowed: np.ndarray | None = None,
     place_threshold: float | None = None,
+    place_model: PlaceModel | None = None,
+    place_probability: float = 0.5,
+    scanned: np.ndarray | None = None,
 ) -> AffordanceMap:
     """The three outputs from the scores of every pose (shaped like the grid: z, theta, x, y); cells where
     `allowed` (nx, ny) is False hold no positive and no skeleton (their confidence is float32's lowest).
-    Places of the skeleton map must score above `place_threshold` (default: `threshold`)."""
+    Places of the skeleton map must reach `place_probability` under `place_model` (with `scanned`, (nx, ny):
+    the cells the sensor saw), or without one score above `place_threshold` (default: `threshold`)."""
     if allowed is not None:
         scores = np.where(allowed[None, None], scores, RULED_OUT).astype(np.float32)
     nz, nt, nx, ny = grid.shape
@@ -119,25 +151,21 @@ def build_map(
         np.column_stack([grid.poses(above), scores.ravel()[above]]) if len(above) else np.empty((0, 5))
     )
 
-    place_threshold = threshold if place_threshold is None else place_threshold
-    cells = np.argwhere(confidence > place_threshold)
-    cells = cells[np.argsort(-confidence[cells[:, 0], cells[:, 1]], kind="stable")]
-    xy = np.column_stack([grid.x[cells[:, 0]], grid.y[cells[:, 1]]])
-    chosen, alive = [], np.ones(len(cells), dtype=bool)
-    while alive.any():
-        first = int(np.argmax(alive))  # cells are sorted best first
-        chosen.append(first)
-        alive &= np.hypot(*(xy - xy[first]).T) > nms_radius
-    picked = cells[chosen]
-    i, j = picked[:, 0], picked[:, 1]
-    skeletons = (
-        np.column_stack([grid.x[i], grid.y[j], best_z[i, j], best_theta[i, j], confidence[i, j]])
-        if len(picked)
-        else np.empty((0, 5))
-    )
+    if place_model is not None:
+        candidates = place_candidates(scores, grid, threshold, nms_radius, scanned)
+        probabilities = place_model.probability(candidates.evidence)
+        kept = np.flatnonzero(probabilities >= place_probability)
+        kept = kept[np.argsort(-probabilities[kept], kind="stable")]  # the likeliest place first
+        skeletons, probabilities = candidates.rows[kept], probabilities[kept]
+        place_threshold = float("nan")
+    else:
+        place_threshold = threshold if place_threshold is None else place_threshold
+        i, j = peak_cells(confidence, grid, place_threshold, nms_radius, None).T
+        skeletons = np.column_stack([grid.x[i], grid.y[j], best_z[i, j], best_theta[i, j], confidence[i, j]])
+        probabilities, place_probability = np.full(len(skeletons), np.nan), float("nan")
     joints = (
         place_joints(skeleton.joints, skeletons[:, :4])
-        if len(picked)
+        if len(skeletons)
         else np.empty((0, len(skeleton.joints), 3))
     )
     return AffordanceMap(
@@ -152,4 +180,6 @@ def build_map(
         skeletons,
         joints,
         float(place_threshold),
+        probabilities,
+        float(place_probability),
     )

@@ -161,7 +161,7 @@ def _close_with_maps(recording, maps) -> None:
 
 def summary_line(amap) -> str:
     """One line per map for people: places, poses above the threshold, the best score."""
-    best = f", best {amap.skeletons[0, 4]:.2f}" if len(amap.skeletons) else ""
+    best = f", best {amap.place_labels()[0]}" if len(amap.skeletons) else ""
     return (
         f"{amap.affordance:<18} {len(amap.skeletons):>3} places, "
         f"{len(amap.positives):>7,} poses above the threshold{best}"

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .features import FeatureLayout
-from .fields import SceneFields, compute_fields, observed_floor
+from .fields import SceneFields, compute_fields
 from .gravity import Alignment, align_to_gravity
 from .grid import PoseGrid
 from .scene import Cloud, thin_huge_cloud
@@ -142,6 +142,7 @@ class RoomMapper:
     def __init__(self, models: list, layout: FeatureLayout, settings: Settings | None = None):
         self.models, self.layout, self.settings = models, layout, settings or Settings()
         self.states: dict = {}  # {affordance: updates.ModelState}
+        self.scanned: dict = {}  # {affordance: (nx, ny) bool, the pose grid's cells the sensor saw}
         self.reports: dict = {}  # {affordance: updates.UpdateReport}
 
     def describe(self, affordances) -> str:
@@ -180,6 +181,9 @@ class RoomMapper:
                 model.threshold,
                 self.settings.map.nms_radius,
                 place_threshold=model.place_cut(scores),
+                place_model=model.places,
+                place_probability=self.settings.map.place_probability,
+                scanned=self.scanned[model.affordance],
             )
             if on_map:
                 on_map(model.affordance, maps[model.affordance])
@@ -187,14 +191,16 @@ class RoomMapper:
 
     def scores(self, model, fields: SceneFields) -> tuple[PoseGrid, np.ndarray]:
         """A model's pose grid over the room and its score of every pose (`inference.model_scores`); only
-        cells near scanned floor are scored (`map.floor_margin`), the rest hold float32's lowest."""
+        cells near scanned floor or under a scanned surface are scored (`fields.mapped_cells`), the rest hold
+        float32's lowest."""
+        from .fields import mapped_cells, scanned_cells
         from .inference import model_scores
         from .updates import ModelState, known_second_stage, updated_scores
 
         settings, skeleton = self.settings, model.as_skeleton()
         grid = pose_grid(fields, skeleton, settings)
         allowed = (
-            observed_floor(fields, grid.x, grid.y, settings.map.floor_margin)
+            mapped_cells(fields, grid.x, grid.y, settings.map.floor_margin, settings.map.hidden_floor)
             if settings.map.floor_margin >= 0
             else None
         )
@@ -205,6 +211,7 @@ class RoomMapper:
         known = None if report.reason else known_second_stage(previous, grid, stale)
         scores = model_scores(model, fields, grid, self.layout, allowed, linear, known)
         self.states[model.affordance] = ModelState(fields, grid, linear, scores)
+        self.scanned[model.affordance] = scanned_cells(fields, grid.x, grid.y)
         self.reports[model.affordance] = report
         return grid, scores
 

@@ -111,7 +111,7 @@ def plot_map(
         levels = np.linspace(amap.threshold, top, 8)
         filled = ax.contourf(grid.x, grid.y, confidence, levels=levels, cmap="viridis", alpha=0.55)
         figure.colorbar(filled, ax=ax, shrink=0.7, label="decision value (above the model's threshold)")
-    for x, y, _, theta, score in amap.skeletons:
+    for (x, y, _, theta, _), text in zip(amap.skeletons, amap.place_labels()):
         ax.plot(x, y, "o", color="crimson", ms=6)
         ax.annotate(
             "",
@@ -119,7 +119,7 @@ def plot_map(
             (x, y),
             arrowprops={"arrowstyle": "->", "color": "crimson", "lw": 1.6},
         )
-        ax.text(x, y - 0.18, f"{score:.2f}", color="crimson", fontsize=7, ha="center", va="top")
+        ax.text(x, y - 0.18, text, color="crimson", fontsize=7, ha="center", va="top")
     for label in labels.of(amap.affordance) if labels is not None else []:
         ends = np.array([label.at] if label.at is not None else [label.start, label.end])
         ax.plot(ends[:, 0], ends[:, 1], "-o", color="darkorange", lw=3, ms=4, alpha=0.8)
@@ -133,9 +133,14 @@ def plot_map(
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
+    kept = f" (probability >= {amap.place_probability:.2f})" if np.isfinite(amap.place_probability) else ""
     ax.set_title(
-        f"{amap.affordance}: {len(amap.skeletons)} places, {len(amap.positives):,} poses above the threshold"
+        f"{amap.affordance}: {len(amap.skeletons)} places{kept}, {len(amap.positives):,} poses above the "
+        "threshold"
     )
+    if len(amap.skeletons):
+        ax.plot([], [], "o", color="crimson", label="place (p: probability a person can use it)")
+        ax.legend(loc="upper right", fontsize=7)
     figure.savefig(path, dpi=110)
     plt.close(figure)
     return Path(path)

@@ -228,7 +228,9 @@ def log_map(recording, amap) -> None:
             components={
                 "count": rr.components.CountBatch(count),
                 "scores": rr.components.ScalarBatch(amap.skeletons[:, 4].astype(np.float64)),
+                "probabilities": rr.components.ScalarBatch(amap.probabilities.astype(np.float64)),
                 "place_threshold": rr.components.ScalarBatch(float(amap.place_threshold)),
+                "place_probability": rr.components.ScalarBatch(float(amap.place_probability)),
             },
         ),
     )
@@ -239,7 +241,7 @@ def log_map(recording, amap) -> None:
             torsos,
             radii=0.04,
             class_ids=class_id,
-            labels=[f"{score:.2f}" for score in amap.skeletons[:, 4]],
+            labels=amap.place_labels(),
         ),
     )
 

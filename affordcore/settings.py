@@ -118,6 +118,13 @@ class GravitySettings(BaseModel):
 
 
 class MapSettings(BaseModel):
+    place_probability: float = Field(
+        0.5,
+        ge=0,
+        le=1,
+        description="the skeleton map keeps the places a person can use with at least this probability "
+        "(models with a place model; docs/maps.md)",
+    )
     nms_radius: float = Field(
         0.45,
         gt=0,
@@ -125,8 +132,13 @@ class MapSettings(BaseModel):
     )
     floor_margin: float = Field(
         0.3,
-        description="only cells within this distance of scanned floor are mapped (m); negative: map every "
-        "cell",
+        description="only cells within this distance of scanned floor are mapped (m), and cells whose column "
+        "holds a scanned surface (map.hidden_floor); negative: map every cell",
+    )
+    hidden_floor: bool = Field(
+        True,
+        description="also map the cells whose floor is hidden under a scanned surface (a seat, a table top, "
+        "a pushed-in chair): unknown is not empty; false: only cells near scanned floor",
     )
     max_points: int = Field(
         5_000_000, ge=1000, description="a larger cloud is thinned (with a warning) to about this many points"

@@ -412,6 +412,7 @@ def map_message(
         model=model_id,
         threshold=amap.threshold,
         place_threshold=amap.place_threshold,
+        place_probability=_finite_or_none(amap.place_probability),
         positives=np.ascontiguousarray(amap.positives, dtype="<f4").tobytes(),
         confidence=np.ascontiguousarray(amap.confidence, dtype="<f4").tobytes(),
     )
@@ -425,12 +426,23 @@ def map_message(
     )
     spec.z.extend(grid["z"])
     spec.theta_step, spec.n_theta = grid["theta_step"], grid["n_theta"]
-    for row, joints in zip(amap.skeletons, amap.joints):
+    for row, joints, probability in zip(amap.skeletons, amap.joints, amap.probabilities):
         message.skeletons.add(
-            x=row[0], y=row[1], z=row[2], theta=row[3], score=row[4], joints=np.ravel(joints).tolist()
+            x=row[0],
+            y=row[1],
+            z=row[2],
+            theta=row[3],
+            score=row[4],
+            joints=np.ravel(joints).tolist(),
+            probability=_finite_or_none(probability),
         )
     _carry_source(message, fields.world_from_input, fields.cloud_timestamp, fields.frames, at)
     return message
+
+
+def _finite_or_none(value: float) -> float | None:
+    """A NaN is left unset on the wire: an optional field says "none" by its absence."""
+    return float(value) if np.isfinite(value) else None
 
 
 def _carry_source(message, world_from_input, cloud_timestamp, frames: int, at: float | None) -> None:
@@ -452,7 +464,8 @@ def map_grid(message: AffordanceMapMessage):
 
 
 def map_arrays(message: AffordanceMapMessage) -> dict[str, np.ndarray]:
-    """skeletons (k, 5), joints (k, 15, 3), positives (n, 5) and confidence (nx, ny) of a map message."""
+    """skeletons (k, 5), joints (k, 15, 3), probabilities (k,), positives (n, 5) and confidence (nx, ny) of a
+    map message."""
     spec = message.grid
     if len(message.confidence) != 4 * spec.nx * spec.ny:
         raise MessageError(
@@ -470,6 +483,9 @@ def map_arrays(message: AffordanceMapMessage) -> dict[str, np.ndarray]:
     return {
         "skeletons": np.array(rows, dtype=np.float64).reshape(-1, 5),
         "joints": np.array(joints).reshape(len(rows), len(JOINTS), 3),
+        "probabilities": np.array(
+            [s.probability if s.HasField("probability") else np.nan for s in message.skeletons], np.float64
+        ),
         "positives": np.frombuffer(message.positives, dtype="<f4").reshape(-1, 5).astype(np.float64),
         "confidence": np.frombuffer(message.confidence, dtype="<f4").reshape(spec.nx, spec.ny),
     }
@@ -490,4 +506,6 @@ def map_document_of(message: AffordanceMapMessage) -> dict:
         arrays["positives"],
         pose_matrix(message.world_from_input),
         message.place_threshold,
+        arrays["probabilities"],
+        message.place_probability if message.HasField("place_probability") else np.nan,
     )

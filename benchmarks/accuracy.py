@@ -72,7 +72,8 @@ def main() -> None:
     results: dict = {
         "split": {"train": train_names, "validation": validation_names, "test": [f.name for f in test]}
     }
-    results["rows"], results["curve"], models = [], [], {}
+    results["rows"], results["curve"], results["reliability"], models = [], [], [], {}
+    groups = test_groups(args.data, [f.name for f in test], [r.name for r in real])
     for affordance in args.affordances.split(","):
         task = Task(affordance, settings, layout)
         examples = {name: room_examples(rooms[name], task) for name in train_names + validation_names}
@@ -81,27 +82,38 @@ def main() -> None:
             model = train_on_rooms(examples, train_names, validation_names, task, learner, seed=args.seed)
             seconds = time.perf_counter() - t0
             models[(affordance, learner)] = model
-            for name, test_rooms in (("generated", [rooms[f.name] for f in test]), ("real", real)):
-                held = [r for r in test_rooms if r.labels.of(affordance)] if name == "real" else test_rooms
-                if held:
-                    row = score_rooms(model, held, task)
-                    results["rows"].append(
+            test_rooms = [rooms[f.name] for f in test] + real
+            results_of = room_results(model, test_rooms, task)
+            for group, names in groups.items():
+                row = {
+                    "affordance": affordance,
+                    "learner": learner,
+                    "rooms": group,
+                    "train_seconds": seconds,
+                    **summarise(model, results_of, names),
+                }
+                results["rows"].append(row)
+                if model.places is not None:
+                    results["reliability"].append(
                         {
                             "affordance": affordance,
                             "learner": learner,
-                            "rooms": name,
-                            "train_seconds": seconds,
-                            **row,
+                            "rooms": group,
+                            "bins": reliability(results_of, names),
                         }
                     )
-                    print_row(results["rows"][-1])
+                print_row(row)
+            del results_of
         for n in [int(v) for v in args.curve.split(",") if int(v) < len(train_names)] + [len(train_names)]:
             for learner in args.curve_learners.split(","):
                 model = models.get((affordance, learner)) if n == len(train_names) else None
                 model = model or train_on_rooms(
                     examples, train_names[:n], validation_names, task, learner, seed=args.seed
                 )
-                row = score_rooms(model, [rooms[f.name] for f in test], task, loose=False)
+                test_names = [f.name for f in test]
+                row = summarise(
+                    model, room_results(model, [rooms[n] for n in test_names], task, False), test_names, False
+                )
                 results["curve"].append(
                     {"affordance": affordance, "learner": learner, "train_rooms": n, **row}
                 )
@@ -132,10 +144,12 @@ def main() -> None:
     results["seconds"] = time.perf_counter() - started
     results["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     results["cores"] = os.cpu_count()
+    results["place_probability"] = settings.map.place_probability
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
     (args.out / "results.md").write_text(markdown(results, args))
     plot_curve(results["curve"], args.out / "learning-curve.png")
+    plot_reliability(results["reliability"], args.out / "reliability.png")
     print(markdown(results, args))
 
 
@@ -159,6 +173,20 @@ def generated_rooms(args) -> list:
     return rooms[: args.rooms]
 
 
+def test_groups(data: Path, generated: list[str], real: list[str]) -> dict[str, list[str]]:
+    """The rooms each row of the table is over: every generated test room, those of each scan style, the real
+    rooms together and each one alone."""
+    summary = json.loads((data / "summary.json").read_text())
+    style = {room["room"]: room.get("style", "fused") for room in summary["rooms"]}
+    groups = {"generated": generated}
+    for name in dict.fromkeys(style[n] for n in generated):
+        groups[f"generated/{name}"] = [n for n in generated if style[n] == name]
+    if real:
+        groups["real"] = real
+        groups.update({f"real/{name.split('_')[0]}": [name] for name in real})
+    return groups
+
+
 def generator_version() -> str:
     """A digest of the generator's source: rooms made by other code are made again."""
     import hashlib
@@ -169,26 +197,55 @@ def generator_version() -> str:
     return digest.hexdigest()[:16]
 
 
-def score_rooms(model, rooms: list, task, loose: bool = True) -> dict:
-    """Pose and place metrics of a model over rooms (strict tolerances, and loose ones when asked)."""
+def room_results(model, rooms: list, task, loose: bool = True) -> dict:
+    """Per room, scored once: what the summaries need, strict and (with `loose`) loose tolerances."""
+    from affordcore.learn.thresholds import room_scores
+    from affordcore.pipeline import score_model
+
+    results = {}
+    cut = task.settings.map.place_probability
+    absolute = model.validation.get("absolute_place_threshold", model.skeleton_threshold)
+    for room in rooms:
+        grid_and_scores = score_model(model, room.fields, task.layout, task.settings)
+        results[room.name] = {}
+        for prefix, tolerances in (("", {}), ("loose_", LOOSE)) if loose else (("", {}),):
+            r = room_scores(model, room, task.layout, task.settings, grid_and_scores, **tolerances)
+            result = {
+                "scores": r.scores,
+                "labels": r.labels,
+                "n_labels": len(r.label_best),
+                "score_cut": r.places(model.place_cut_from(r.reference)),
+                "absolute": r.places(absolute),
+            }
+            if model.places is not None:
+                candidates = r.candidates(model.threshold, task.settings.map.nms_radius)
+                p = model.places.probability(candidates.evidence)
+                result["probability"] = candidates.places(p, cut)
+                counted = ~candidates.ignored
+                result["reliability"] = (p[counted], candidates.used[counted])
+            results[room.name][prefix] = result
+    return results
+
+
+def summarise(model, results: dict, names: list[str], loose: bool = True) -> dict:
+    """Pose and place metrics of a model over rooms (`room_results`' entries of `names`). Places are the
+    model's own rule: its place model at `map.place_probability` when it has one, else its score cut; the
+    score cut and the absolute threshold are kept beside for comparison."""
     from sklearn.metrics import average_precision_score
 
-    from affordcore.learn.thresholds import room_scores
     from affordcore.learn.train import metrics
 
-    row = {}
-    for prefix, tolerances in (("", {}), ("loose_", LOOSE)) if loose else (("", {}),):
-        scored = [room_scores(model, room, task.layout, task.settings, **tolerances) for room in rooms]
-        scores = np.concatenate([r.scores for r in scored])
-        labels = np.concatenate([r.labels for r in scored])
+    row: dict = {"room_count": len(names)}
+    for prefix in ("", "loose_") if loose else ("",):
+        parts = [results[name][prefix] for name in names]
+        scores = np.concatenate([r["scores"] for r in parts])
+        labels = np.concatenate([r["labels"] for r in parts])
         at = metrics(scores, labels, model.threshold)
-        # the model's place rule (relative to each room's median score), and the absolute threshold that
-        # was the best choice on the same validation rooms, from the same scores
-        counts = np.sum([r.places(model.place_cut_from(r.reference)) for r in scored], axis=0)
-        absolute = model.validation.get("absolute_place_threshold", model.skeleton_threshold)
-        found_abs, _, false_abs = np.sum([r.places(absolute) for r in scored], axis=0)
-        found, _, false = counts
-        n_labels = sum(len(r.label_best) for r in scored)
+        n_labels = sum(r["n_labels"] for r in parts)
+        rule = "probability" if model.places is not None else "score_cut"
+        found, _, false = np.sum([r[rule] for r in parts], axis=0)
+        cut_found, _, cut_false = np.sum([r["score_cut"] for r in parts], axis=0)
+        found_abs, _, false_abs = np.sum([r["absolute"] for r in parts], axis=0)
         row.update(
             {
                 f"{prefix}precision": at["precision"],
@@ -199,16 +256,43 @@ def score_rooms(model, rooms: list, task, loose: bool = True) -> dict:
                 else 0.0,
                 f"{prefix}places": f"{found}/{n_labels}",
                 f"{prefix}place_recall": found / n_labels if n_labels else float("nan"),
-                f"{prefix}false_per_room": false / len(rooms),
+                f"{prefix}false_per_room": false / len(names),
+                f"{prefix}score_cut_places": f"{cut_found}/{n_labels}",
+                f"{prefix}score_cut_false_per_room": cut_false / len(names),
                 f"{prefix}absolute_places": f"{found_abs}/{n_labels}",
-                f"{prefix}absolute_false_per_room": false_abs / len(rooms),
+                f"{prefix}absolute_false_per_room": false_abs / len(names),
             }
         )
-        row[f"{prefix}per_room"] = {}
-        for r in scored:
-            found_here, _, false_here = r.places(model.place_cut_from(r.reference))
-            row[f"{prefix}per_room"][r.room] = {"missed": len(r.label_best) - found_here, "false": false_here}
+        rule_of = {name: results[name][prefix][rule] for name in names}
+        row[f"{prefix}per_room"] = {
+            name: {"missed": results[name][prefix]["n_labels"] - found_here, "false": false_here}
+            for name, (found_here, _, false_here) in rule_of.items()
+        }
     return row
+
+
+RELIABILITY_BINS = np.linspace(0.0, 1.0, 6)
+
+
+def reliability(results: dict, names: list[str]) -> list[dict]:
+    """Predicted against observed frequency of the candidate places of rooms `names`, in RELIABILITY_BINS."""
+    pairs = [results[name][""].get("reliability") for name in names]
+    pairs = [pair for pair in pairs if pair is not None]
+    if not pairs:
+        return []
+    p = np.concatenate([pair[0] for pair in pairs])
+    used = np.concatenate([pair[1] for pair in pairs])
+    which = np.clip(np.digitize(p, RELIABILITY_BINS[1:-1]), 0, len(RELIABILITY_BINS) - 2)
+    return [
+        {
+            "bin": [float(RELIABILITY_BINS[b]), float(RELIABILITY_BINS[b + 1])],
+            "candidates": int(np.sum(which == b)),
+            "predicted": float(p[which == b].mean()),
+            "observed": float(used[which == b].mean()),
+        }
+        for b in range(len(RELIABILITY_BINS) - 1)
+        if np.any(which == b)
+    ]
 
 
 def worst_room_figures(args, model, per_room: dict, test_rooms: list, files: list, task) -> None:
@@ -232,10 +316,10 @@ def worst_room_figures(args, model, per_room: dict, test_rooms: list, files: lis
 
 def print_row(row: dict) -> None:
     print(
-        f"{row['affordance']:17s} {row['learner']:13s} {row['rooms']:9s} P/R/F1 {row['precision']:.2f}/"
+        f"{row['affordance']:17s} {row['learner']:13s} {row['rooms']:20s} P/R/F1 {row['precision']:.2f}/"
         f"{row['recall']:.2f}/{row['f1']:.2f} AP {row['ap']:.2f} places {row['places']} false/room "
-        f"{row['false_per_room']:.1f} (absolute threshold: {row['absolute_places']}, "
-        f"{row['absolute_false_per_room']:.1f}) | loose F1 {row['loose_f1']:.2f} places "
+        f"{row['false_per_room']:.1f} (score cut: {row['score_cut_places']}, "
+        f"{row['score_cut_false_per_room']:.1f}) | loose F1 {row['loose_f1']:.2f} places "
         f"{row['loose_places']} false/room {row['loose_false_per_room']:.1f} ({row['train_seconds']:.0f} s)"
     )
 
@@ -245,24 +329,45 @@ def markdown(results: dict, args) -> str:
     split = results["split"]
     lines = [
         f"Command: `.venv/bin/python benchmarks/accuracy.py --rooms {args.rooms} --seed {args.seed} --test "
-        f"{args.test} --validation {args.validation} --curve {args.curve}`; {len(split['train'])} training, "
-        f"{len(split['validation'])} validation, {len(split['test'])} generated test rooms; "
-        f"{results['seconds'] / 60:.0f} min, peak RSS {results['peak_rss_gb']:.1f} GB, "
-        f"{results['cores']} cores.",
+        f"{args.test} --validation {args.validation} --curve {args.curve} --learners {args.learners}`; "
+        f"{len(split['train'])} training, {len(split['validation'])} validation, {len(split['test'])} "
+        f"generated test rooms; {results['seconds'] / 60:.0f} min, peak RSS {results['peak_rss_gb']:.1f} GB, "
+        f"{results['cores']} cores. Places: the model's place model at probability >= "
+        f"{results['place_probability']}; beside them the score cut of the models before (relative to the "
+        "room's median, floored).",
         "",
         "| affordance | learner | rooms | pose P / R / F1 | AP | places found | false / room | "
-        "absolute threshold: places, false / room | loose: F1 | loose: places | loose: false / room | "
+        "score cut: places, false / room | loose: F1 | loose: places | loose: false / room | "
         "paper SSVM P / R / F1 |",
         "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in results["rows"]:
         lines.append(
-            f"| {r['affordance']} | {r['learner']} | {r['rooms']} | {r['precision']:.2f} / "
-            f"{r['recall']:.2f} / **{r['f1']:.2f}** | {r['ap']:.2f} | {r['places']} | "
-            f"{r['false_per_room']:.1f} | {r['absolute_places']}, {r['absolute_false_per_room']:.1f} | "
+            f"| {r['affordance']} | {r['learner']} | {r['rooms']} ({r['room_count']}) | "
+            f"{r['precision']:.2f} / {r['recall']:.2f} / **{r['f1']:.2f}** | {r['ap']:.2f} | {r['places']} | "
+            f"{r['false_per_room']:.1f} | {r['score_cut_places']}, {r['score_cut_false_per_room']:.1f} | "
             f"{r['loose_f1']:.2f} | {r['loose_places']} | {r['loose_false_per_room']:.1f} | "
             f"{paper.get(r['affordance'], {}).get('structured_svm', '-')} |"
         )
+    lines += [
+        "",
+        "Reliability of the place probabilities (every candidate place of the rooms: mean predicted "
+        "probability against the share that is a labelled place, per bin; `n` candidates):",
+        "",
+        "| affordance | rooms | "
+        + " | ".join(f"{a:.1f}-{b:.1f}" for a, b in zip(RELIABILITY_BINS, RELIABILITY_BINS[1:]))
+        + " |",
+        "|---|---|" + "---|" * (len(RELIABILITY_BINS) - 1),
+    ]
+    for r in results["reliability"]:
+        cells = {tuple(b["bin"]): b for b in r["bins"]}
+        row = [
+            (lambda b: f"{b['predicted']:.2f} / {b['observed']:.2f} (n {b['candidates']})" if b else "")(
+                cells.get((float(a), float(b)))
+            )
+            for a, b in zip(RELIABILITY_BINS, RELIABILITY_BINS[1:])
+        ]
+        lines.append(f"| {r['affordance']} | {r['rooms']} | " + " | ".join(row) + " |")
     lines += [
         "",
         "Learning curve (generated test rooms):",
@@ -276,6 +381,48 @@ def markdown(results: dict, args) -> str:
             f"{r['place_recall']:.2f} | {r['false_per_room']:.1f} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def plot_reliability(reliability_rows: list[dict], path: Path) -> None:
+    """The reliability diagram: one panel per affordance, a line per group of rooms (every generated test
+    room, each scan style, the real rooms); the diagonal is perfect calibration."""
+    from affordcore.plots import pyplot
+
+    plt = pyplot()
+    affordances = list(dict.fromkeys(r["affordance"] for r in reliability_rows))
+    if not affordances:
+        return
+    figure, axes = plt.subplots(
+        1, len(affordances), figsize=(4.6 * len(affordances), 4.4), constrained_layout=True, squeeze=False
+    )
+    for affordance, ax in zip(affordances, axes[0]):
+        ax.plot([0, 1], [0, 1], color="grey", lw=1, ls=":")
+        for r in reliability_rows:
+            if r["affordance"] != affordance or not r["bins"] or r["rooms"].startswith("real/"):
+                continue
+            predicted = [b["predicted"] for b in r["bins"]]
+            observed = [b["observed"] for b in r["bins"]]
+            style = {"generated": "k-", "real": "r-"}.get(r["rooms"], "--")
+            ax.plot(
+                predicted,
+                observed,
+                style,
+                marker="o",
+                ms=3,
+                lw=1.4 if "/" not in r["rooms"] else 0.9,
+                label=r["rooms"],
+            )
+        ax.set(
+            xlim=(0, 1),
+            ylim=(0, 1),
+            xlabel="predicted probability",
+            ylabel="observed share of places",
+            title=affordance,
+        )
+        ax.set_aspect("equal")
+    axes[0][0].legend(fontsize=7)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
 
 
 def plot_curve(curve: list[dict], path: Path) -> None:

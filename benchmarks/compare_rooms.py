@@ -33,6 +33,7 @@ from affordcore.labels import affordance_colours, class_counts, load_labels
 from affordcore.pipeline import pose_grids_for_footprint
 from affordcore.scene import load_cloud
 from affordcore.settings import NormalSettings
+from affordcore.skeleton import all_skeletons
 
 VOXEL = 0.10
 FLOOR_BAND = 0.05  # a point within 5 cm of the floor plane is a floor point
@@ -170,7 +171,8 @@ def measure(ply: Path, room=None) -> tuple[dict, dict]:
     labels_path = ply.with_name(ply.name[: -len(".ply")] + ".labels.json")
     labels = load_labels(labels_path)
     footprint = (*points[:, :2].min(axis=0), *points[:, :2].max(axis=0))
-    counts = class_counts(labels, pose_grids_for_footprint(footprint))
+    heights = {skeleton.affordance: skeleton.torso_height for skeleton in all_skeletons()}
+    counts = class_counts(labels, pose_grids_for_footprint(footprint), heights)
     q1, q2, q3 = np.percentile(vox["count"], [25, 50, 75])
     numbers = {
         "points": len(points),

@@ -56,7 +56,9 @@ def main() -> None:
         short = cloud_path.stem.split("_")[0]
         for model in chosen:
             amap = maps[model.affordance]
-            truth = ground_truth(labels, model.affordance, amap.grid)
+            truth = ground_truth(
+                labels, model.affordance, amap.grid, torso_height=model.as_skeleton().torso_height
+            )
             scored = truth.scored_mask().ravel()
             y = np.where(truth.pose_mask().ravel()[scored], 1, -1)
             scores = amap.scores.ravel()[scored]  # as the map scored them (scanned floor only)

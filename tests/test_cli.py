@@ -50,8 +50,11 @@ def test_features_json_contract(small_room):
     report = json.loads(result.stdout)  # stdout holds exactly one JSON object
     assert set(report) == {"poses", "features", "seconds", "peak_rss_mb"}
     skeleton = get_skeleton("sitting-working")
-    expected = PoseGrid.over_footprint((-0.08, -0.08, 2.47, 1.96), skeleton.torso_height, 0.1)
-    assert report["poses"] == expected.size == 26 * 21 * 3 * 63
+    expected = PoseGrid.over_footprint(
+        (-0.08, -0.08, 2.47, 1.96), skeleton.torso_height, 0.1, reach_above=skeleton.torso_reach_above
+    )
+    # three torso levels one voxel apart, and sitting-working's two above them (bar stools' places)
+    assert report["poses"] == expected.size == 26 * 21 * 5 * 63
     assert report["features"] == FeatureLayout.from_settings(Settings()).n_features == 222
     assert report["seconds"] > 0 and report["peak_rss_mb"] > 50
 

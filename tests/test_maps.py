@@ -72,6 +72,7 @@ def test_json_holds_the_grid_and_every_positive():
         "z",
         "theta",
         "score",
+        "probability",
         "joints",
     }
 

@@ -53,7 +53,7 @@ def test_another_layout_is_refused_with_both_layouts_named(tmp_path):
 @pytest.mark.parametrize(
     "mutate, message",
     [
-        (lambda d: d.update(format="other/9"), "not an affordance-model/2"),
+        (lambda d: d.update(format="other/9"), "not an affordance-model/3"),
         (lambda d: d.pop("weights"), "malformed"),
         (lambda d: d.update(weights=[1.0, 2.0]), "2 weights for a layout of 222"),
         (lambda d: d.update(surprise=1), "malformed"),

@@ -11,10 +11,12 @@ import sys
 import numpy as np
 import pytest
 
+from affordcore.fields import scanned_cells
 from affordcore.learn.evaluate import deal_folds, evaluate, write_outputs
 from affordcore.learn.learners import LEARNERS
 from affordcore.learn.model import load_model
 from affordcore.learn.train import split_rooms, train
+from affordcore.places import place_candidates
 from affordcore.settings import FeatureSettings, GridSettings, Settings
 
 SMALL = {
@@ -244,10 +246,23 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
     assert live.sum() == min(wanted, model.rescorer["max_poses"])
     assert linear[live].min() >= linear[(linear > lowest) & ~live].max()
     amap = map_affordances(room.fields, layout, [model], settings)[affordance]
-    # places beat the place threshold counted from the room's median candidate score
+    # the score cut (counted from the room's median candidate score) stays on record ...
     cut = model.place_threshold + np.median(scores[live])
     assert model.place_reference == "room-median" and model.place_cut(scores) == pytest.approx(cut)
-    assert (amap.skeletons[:, 4] > cut).all()
+    # ... but the places are the candidates whose probability reaches map.place_probability
+    assert model.places is not None and model.place_model["trained_on"]["rooms"] == len(
+        model.validation["rooms"]
+    )
+    candidates = place_candidates(
+        scores, grid, model.threshold, settings.map.nms_radius, scanned_cells(room.fields, grid.x, grid.y)
+    )
+    p = model.places.probability(candidates.evidence)
+    kept = p >= settings.map.place_probability
+    assert 0 < kept.sum() < len(p)  # a model that keeps some candidates and drops others
+    np.testing.assert_allclose(np.sort(amap.probabilities), np.sort(p[kept]))
+    np.testing.assert_allclose(
+        amap.skeletons[np.argsort(amap.probabilities)], candidates.rows[kept][np.argsort(p[kept])]
+    )
 
 
 def test_split_by_index_deals_rooms_in_generation_order_and_refuses_too_few():

@@ -48,7 +48,7 @@ class Room:
 
     def grid_and_truth(self, skeleton: Skeleton, settings: Settings) -> tuple[PoseGrid, GroundTruth]:
         grid = pose_grid(self.fields, skeleton, settings)
-        return grid, ground_truth(self.labels, skeleton.affordance, grid)
+        return grid, ground_truth(self.labels, skeleton.affordance, grid, torso_height=skeleton.torso_height)
 
 
 @dataclass

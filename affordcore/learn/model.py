@@ -7,8 +7,9 @@ weights, bias and threshold, the training rooms with their class counts, and val
 (`learn/cascade.py`) also holds its second stage: the fraction of poses it rescores and its trees as node
 tables (data, never pickled code); `place_threshold` is the score a skeleton-map place must beat, counted from
 the median of the room's candidate scores when `place_reference` is "room-median", and never below
-`place_floor` when the model has one. Loading a
-model against a feature layout other than its own is a `ModelError`, not a silent wrong answer.
+`place_floor` when the model has one; a model with a `place_model` (affordcore/places.py) gives every
+candidate place a calibrated probability instead, and the map keeps those above `map.place_probability`.
+Loading a model against a feature layout other than its own is a `ModelError`, not a silent wrong answer.
 """
 
 from __future__ import annotations
@@ -24,12 +25,13 @@ import numpy as np
 from ..features import FeatureLayout
 from ..jsonfile import read_json
 from ..maps import room_reference
+from ..places import PlaceModel
 from ..skeleton import Skeleton
 from ..trees import TreeEnsemble
 
-FORMAT = "affordance-model/2"
-# /2 added the optional place_threshold, rescorer, place_reference, place_floor
-READABLE = ("affordance-model/1", FORMAT)
+FORMAT = "affordance-model/3"
+# /2 added the optional place_threshold, rescorer, place_reference, place_floor; /3 the optional place_model
+READABLE = ("affordance-model/1", "affordance-model/2", FORMAT)
 PLACE_REFERENCES = (None, "room-median")
 MODELS_DIR = Path(__file__).parents[1] / "data" / "models"  # the shipped default models, one per affordance
 
@@ -57,6 +59,9 @@ class AffordanceModel:
     # "room-median": place_threshold counts from the median candidate score of the room (room_reference)
     place_reference: str | None = None
     place_floor: float | None = None  # and a place must also beat this absolute score (None: no floor)
+    # places.PlaceModel.to_dict(): each place's probability from its evidence; when set, it decides the
+    # skeleton map and the score cuts above are kept only as a record
+    place_model: dict | None = None
 
     def __post_init__(self) -> None:
         if self.place_reference not in PLACE_REFERENCES:
@@ -75,14 +80,20 @@ class AffordanceModel:
     @property
     def id(self) -> str:
         """affordance/learner/hash of the weights: names exactly this model in the maps it makes."""
-        floor = [] if self.place_floor is None else [self.place_floor]  # ids of models without one unchanged
+        # ids of models without a floor or a place model unchanged
+        floor = [] if self.place_floor is None else [self.place_floor]
+        floor += [] if self.place_model is None else [self.place_model]
         second = json.dumps([self.place_threshold, self.rescorer, *floor], sort_keys=True) + (
             self.place_reference or ""
         )
         digest = hashlib.sha256(
             np.asarray(self.weights, dtype=np.float64).tobytes()
             + repr((self.bias, self.threshold)).encode()
-            + (second.encode() if self.place_threshold is not None or self.rescorer else b"")
+            + (
+                second.encode()
+                if self.place_threshold is not None or self.rescorer or self.place_model
+                else b""
+            )
         )
         return f"{self.affordance}/{self.learner}/{digest.hexdigest()[:12]}"
 
@@ -115,6 +126,11 @@ class AffordanceModel:
         """`place_cut` for a room whose reference (`maps.room_reference`) is known."""
         cut = self.skeleton_threshold + (reference if self.place_reference == "room-median" else 0.0)
         return cut if self.place_floor is None else max(cut, self.place_floor)
+
+    @cached_property
+    def places(self) -> PlaceModel | None:
+        """The place model that gives each candidate place its probability (None: places by score cut)."""
+        return PlaceModel.from_dict(self.place_model) if self.place_model else None
 
     @cached_property
     def trees(self) -> TreeEnsemble | None:
@@ -152,7 +168,7 @@ def load_model(path: str | Path, layout: FeatureLayout | None = None) -> Afforda
         document.pop("format")
         weights = np.asarray(document.pop("weights"), dtype=np.float64)
         model = AffordanceModel(weights=weights, **document)
-        _ = model.trees  # a malformed second stage fails here, not in the middle of a map
+        _ = model.trees, model.places  # a malformed second stage fails here, not in the middle of a map
     except (KeyError, TypeError, ValueError) as error:
         raise ModelError(f"{path}: malformed model ({error})") from error
     if len(model.weights) != model.layout.get("n_features"):

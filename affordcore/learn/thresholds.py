@@ -16,13 +16,16 @@ room's: this step puts every learner's threshold back on the real distribution.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..labels import ground_truth, place_matches
+from ..fields import scanned_cells
+from ..grid import PoseGrid
+from ..labels import LabelSet, ground_truth, place_matches
 from ..maps import RULED_OUT, build_map, room_reference
 from ..pipeline import score_model
+from ..places import PlaceModel, fit_place_model, place_candidates
 from ..settings import Settings
 from .baselines import tune_threshold
 from .examples import Room
@@ -40,18 +43,69 @@ class RoomScores:
     place_false: np.ndarray  # (k,) bool: matches no label (ignored ones are left out)
     label_best: np.ndarray  # (n_labels,) the best score of a skeleton matching each label (RULED_OUT: none)
     reference: float  # maps.room_reference of the room's scores
+    # what the place model's candidates need: the whole grid of scores, the cells the sensor saw, the labels
+    grid: PoseGrid | None = None
+    grid_scores: np.ndarray | None = None
+    scanned: np.ndarray | None = None
+    label_set: LabelSet | None = None
+    affordance: str = ""
+    tolerances: dict = field(default_factory=dict)
 
     def places(self, cut: float) -> tuple[int, int, int]:
         """(labelled places found, skeletons kept, false skeletons) when places must beat `cut`."""
         kept = self.place_scores > cut
         return int(np.sum(self.label_best > cut)), int(kept.sum()), int(np.sum(self.place_false & kept))
 
+    def candidates(self, threshold: float, nms_radius: float) -> PlaceCandidates:
+        """The room's candidate places as a map with pose threshold `threshold` finds them, matched to its
+        labels."""
+        found = place_candidates(self.grid_scores, self.grid, threshold, nms_radius, self.scanned)
+        matches, ignored = place_matches(
+            self.label_set, self.affordance, found.rows[:, [0, 1, 3]], **self.tolerances
+        )
+        return PlaceCandidates(found.evidence, matches, ignored)
 
-def room_scores(model, room: Room, layout, settings: Settings, **tolerances: float) -> RoomScores:
-    """The room scored by `model` as `afford map` scores it; `tolerances` (xy_tolerance, theta_tolerance)
-    loosen the ground truth and the place matching alike."""
-    grid, scores = score_model(model, room.fields, layout, settings)
-    truth = ground_truth(room.labels, model.affordance, grid, **tolerances)
+
+@dataclass
+class PlaceCandidates:
+    evidence: np.ndarray  # (k, len(places.EVIDENCE))
+    matches: np.ndarray  # (n_labels, k) bool: which candidate matches which label
+    ignored: np.ndarray  # (k,) bool: in an unlabelled region (neither a place nor a false one)
+
+    def places(self, probabilities: np.ndarray, cut: float) -> tuple[int, int, int]:
+        """(labelled places found, skeletons kept, false skeletons) when places need probability `cut`."""
+        kept = probabilities >= cut
+        false = kept & ~self.matches.any(axis=0) & ~self.ignored
+        return int(self.matches[:, kept].any(axis=1).sum()), int(kept.sum()), int(false.sum())
+
+    @property
+    def used(self) -> np.ndarray:
+        """(k,) bool of the candidates that count: a person can use the place (it matches a label)."""
+        return self.matches.any(axis=0)
+
+
+def fit_places(rooms: list[RoomScores], threshold: float, nms_radius: float) -> PlaceModel | None:
+    """The place model fitted on the rooms' candidates (None when they hold no place, or only places)."""
+    candidates = [room.candidates(threshold, nms_radius) for room in rooms]
+    evidence = np.concatenate([c.evidence[~c.ignored] for c in candidates])
+    used = np.concatenate([c.used[~c.ignored] for c in candidates])
+    if used.all() or not used.any():
+        return None
+    model = fit_place_model(evidence, used)
+    model.trained_on["rooms"] = len(rooms)
+    return model
+
+
+def room_scores(
+    model, room: Room, layout, settings: Settings, grid_and_scores: tuple | None = None, **tolerances: float
+) -> RoomScores:
+    """The room scored by `model` as `afford map` scores it (or `grid_and_scores` when the caller has
+    them); `tolerances` (xy_tolerance, theta_tolerance) loosen the ground truth and the place matching
+    alike."""
+    grid, scores = grid_and_scores or score_model(model, room.fields, layout, settings)
+    truth = ground_truth(
+        room.labels, model.affordance, grid, torso_height=model.as_skeleton().torso_height, **tolerances
+    )
     scored = truth.scored_mask().ravel()
     y = np.where(truth.pose_mask().ravel()[scored], 1, -1).astype(np.int8)
     live = scores[scores > RULED_OUT]
@@ -72,6 +126,12 @@ def room_scores(model, room: Room, layout, settings: Settings, **tolerances: flo
         ~matches.any(axis=0)[counted],
         label_best,
         room_reference(scores),
+        grid,
+        scores,
+        scanned_cells(room.fields, grid.x, grid.y),
+        room.labels,
+        model.affordance,
+        tolerances,
     )
 
 

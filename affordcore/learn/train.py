@@ -21,7 +21,7 @@ from .examples import RoomExamples, Task, data_set_rooms, load_rooms, room_examp
 from .f1_argmax import f1_loss
 from .learners import Fitted, get_learner
 from .model import AffordanceModel
-from .thresholds import place_floor, place_threshold, pose_threshold, room_scores
+from .thresholds import fit_places, place_floor, place_threshold, pose_threshold, room_scores
 
 
 def metrics(scores: np.ndarray, labels: np.ndarray, threshold: float) -> dict:
@@ -55,6 +55,24 @@ def split_rooms(
         validation += [group[i] for i in order[:held]]
     validation = sorted(validation)
     return [n for n in names if n not in validation], validation
+
+
+def place_model_report(scored: list, model: AffordanceModel, settings: Settings) -> dict:
+    """Place recall and false skeletons per room of the place model on the rooms it was fitted on, at
+    `map.place_probability`."""
+    cut = settings.map.place_probability
+    counts = np.sum(
+        [
+            c.places(model.places.probability(c.evidence), cut)
+            for c in (r.candidates(model.threshold, settings.map.nms_radius) for r in scored)
+        ],
+        axis=0,
+    )
+    labels = sum(len(r.label_best) for r in scored)
+    return {
+        "probability_place_recall": counts[0] / labels if labels else 0.0,
+        "probability_false_per_room": counts[2] / max(1, len(scored)),
+    }
 
 
 def fit(learner: str, train: RoomExamples, validation: RoomExamples, params: dict, seed: int) -> Fitted:
@@ -142,6 +160,11 @@ def train_on_rooms(
     # ... floored by an absolute score where that does better: a room with few or none of the affordance's
     # places has a low median, and the relative cut alone lets its best non-places through
     model.place_floor, places = place_floor(scored, model.place_threshold)
+    # ... and the place model that replaces those cuts: each candidate place's probability from its evidence
+    place_model = fit_places(scored, model.threshold, task.settings.map.nms_radius)
+    model.place_model = place_model.to_dict() if place_model else None
+    if place_model:
+        places.update(place_model_report(scored, model, task.settings))
     positives = sum(int((r.labels > 0).sum()) for r in scored)
     model.validation = {
         "rooms": validation_names,

@@ -114,6 +114,7 @@ def make_room(options: SynthOptions, out: Path, index: int, seed: np.random.Seed
     from ..labels import class_counts, load_labels
     from ..pipeline import pose_grids_for_footprint
     from ..scene import Cloud, save_cloud
+    from ..skeleton import all_skeletons
     from .scanner import sample_room_uniform
     from .styles import scan_in_style
 
@@ -135,7 +136,8 @@ def make_room(options: SynthOptions, out: Path, index: int, seed: np.random.Seed
     labels_path.write_text(json.dumps(document, indent=1) + "\n")
     labels = load_labels(labels_path)  # what was written must read back valid
     footprint = (*points[:, :2].min(axis=0), *points[:, :2].max(axis=0))
-    counts = class_counts(labels, pose_grids_for_footprint(footprint))
+    heights = {skeleton.affordance: skeleton.torso_height for skeleton in all_skeletons()}
+    counts = class_counts(labels, pose_grids_for_footprint(footprint), heights)
     if options.sequences:
         write_sequence(room, rng, out / f"{name}.sequence", options.sensor, options.frames)
     return {

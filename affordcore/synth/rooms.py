@@ -157,6 +157,8 @@ def _label(piece: Piece, anchor, roles: dict[str, str]) -> dict:
     else:
         label["from"], label["to"] = _rounded(start), _rounded(end)
     label["facing"] = round(facing, 4)
+    if anchor.torso_height is not None:  # a place at its own height (a bar stool's), not the skeleton's
+        label["z"] = round(float(anchor.torso_height), 3)
     label["note"] = f"{piece.note}; {anchor.note}"
     return label
 

@@ -97,23 +97,25 @@ class PoseGridSpec(_message.Message):
     def __init__(self, x0: _Optional[float] = ..., y0: _Optional[float] = ..., step: _Optional[float] = ..., nx: _Optional[int] = ..., ny: _Optional[int] = ..., z: _Optional[_Iterable[float]] = ..., theta_step: _Optional[float] = ..., n_theta: _Optional[int] = ...) -> None: ...
 
 class PlacedSkeleton(_message.Message):
-    __slots__ = ("x", "y", "z", "theta", "score", "joints")
+    __slots__ = ("x", "y", "z", "theta", "score", "joints", "probability")
     X_FIELD_NUMBER: _ClassVar[int]
     Y_FIELD_NUMBER: _ClassVar[int]
     Z_FIELD_NUMBER: _ClassVar[int]
     THETA_FIELD_NUMBER: _ClassVar[int]
     SCORE_FIELD_NUMBER: _ClassVar[int]
     JOINTS_FIELD_NUMBER: _ClassVar[int]
+    PROBABILITY_FIELD_NUMBER: _ClassVar[int]
     x: float
     y: float
     z: float
     theta: float
     score: float
     joints: _containers.RepeatedScalarFieldContainer[float]
-    def __init__(self, x: _Optional[float] = ..., y: _Optional[float] = ..., z: _Optional[float] = ..., theta: _Optional[float] = ..., score: _Optional[float] = ..., joints: _Optional[_Iterable[float]] = ...) -> None: ...
+    probability: float
+    def __init__(self, x: _Optional[float] = ..., y: _Optional[float] = ..., z: _Optional[float] = ..., theta: _Optional[float] = ..., score: _Optional[float] = ..., joints: _Optional[_Iterable[float]] = ..., probability: _Optional[float] = ...) -> None: ...
 
 class AffordanceMap(_message.Message):
-    __slots__ = ("timestamp", "frame_id", "affordance", "model", "threshold", "grid", "skeletons", "positives", "confidence", "world_from_input", "cloud_timestamp", "frames", "place_threshold")
+    __slots__ = ("timestamp", "frame_id", "affordance", "model", "threshold", "grid", "skeletons", "positives", "confidence", "world_from_input", "cloud_timestamp", "frames", "place_threshold", "place_probability")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
     AFFORDANCE_FIELD_NUMBER: _ClassVar[int]
@@ -127,6 +129,7 @@ class AffordanceMap(_message.Message):
     CLOUD_TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAMES_FIELD_NUMBER: _ClassVar[int]
     PLACE_THRESHOLD_FIELD_NUMBER: _ClassVar[int]
+    PLACE_PROBABILITY_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     frame_id: str
     affordance: str
@@ -140,4 +143,5 @@ class AffordanceMap(_message.Message):
     cloud_timestamp: _timestamp_pb2.Timestamp
     frames: int
     place_threshold: float
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., affordance: _Optional[str] = ..., model: _Optional[str] = ..., threshold: _Optional[float] = ..., grid: _Optional[_Union[PoseGridSpec, _Mapping]] = ..., skeletons: _Optional[_Iterable[_Union[PlacedSkeleton, _Mapping]]] = ..., positives: _Optional[bytes] = ..., confidence: _Optional[bytes] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ..., place_threshold: _Optional[float] = ...) -> None: ...
+    place_probability: float
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., affordance: _Optional[str] = ..., model: _Optional[str] = ..., threshold: _Optional[float] = ..., grid: _Optional[_Union[PoseGridSpec, _Mapping]] = ..., skeletons: _Optional[_Iterable[_Union[PlacedSkeleton, _Mapping]]] = ..., positives: _Optional[bytes] = ..., confidence: _Optional[bytes] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ..., place_threshold: _Optional[float] = ..., place_probability: _Optional[float] = ...) -> None: ...

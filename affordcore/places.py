@@ -1,0 +1,178 @@
+"""Places a robot can trust: each candidate place of a skeleton map gets a calibrated probability that a
+person can use it, from place-level evidence rather than a raw score cut.
+
+Why: a pose score is a ranking. Its scale moves with the scan (a five-frame Kinect capture, a mesh, a laser
+scan each shift every score of a room together), so one absolute cut learned on some rooms throws away the
+places of rooms scanned otherwise, and a cut relative to the room cannot say "nothing here". A place's
+evidence is more than its peak: how far the peak stands above the rest of the room, how many poses and
+orientations around it agree, and how much of its surroundings was scanned at all.
+
+* candidates: greedy non-maximum suppression over the confidence map (each (x, y) cell's best score), best
+  first, among every pose the model scored; at most `PLACE_CANDIDATES` per room;
+* evidence (`EVIDENCE`): one row per candidate, computed for all of them at once from the grid of scores;
+* `PlaceModel`: logistic regression over the standardised evidence, fitted on the candidates of validation
+  rooms (found a label or not); logistic regression is Platt's calibration with more inputs, so its output
+  is a probability (benchmarks/accuracy.py draws its reliability diagram per scan style and on real rooms).
+
+The skeleton map keeps the candidates whose probability reaches `map.place_probability`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .grid import PoseGrid
+
+RULED_OUT = np.finfo(np.float32).min  # the score of a pose that is not a candidate (maps.RULED_OUT)
+PLACE_CANDIDATES = 40  # per room: far more than any room's places, few enough to stay cheap
+SUPPORT_RADIUS = 0.3  # m: poses this near a peak count as its support (DESIGN's loose place tolerance)
+SURROUNDINGS_RADIUS = 1.0  # m: a person's reach around the place, for how much of it was scanned
+EVIDENCE = (
+    "score",  # the peak's own score
+    "over_median",  # above the median score of the room's candidate poses
+    "below_best",  # below the room's best score (0 for the best place)
+    "rank",  # log(1 + the peak's rank among the room's candidates)
+    "support",  # log(1 + poses within SUPPORT_RADIUS scoring above the model's pose threshold)
+    "near_peak",  # log(1 + poses within SUPPORT_RADIUS scoring within 1 of the peak)
+    "turns",  # share of orientations with a pose above the pose threshold within SUPPORT_RADIUS
+    "scanned",  # share of the cells within SURROUNDINGS_RADIUS near scanned floor
+)
+
+
+@dataclass
+class Candidates:
+    """A room's candidate places, best first."""
+
+    cells: np.ndarray  # (k, 2) grid cell (i, j)
+    rows: np.ndarray  # (k, 5) x, y, z, theta, score of the cell's best pose
+    evidence: np.ndarray  # (k, len(EVIDENCE))
+
+
+def peak_cells(confidence: np.ndarray, grid: PoseGrid, floor: float, radius: float, limit: int) -> np.ndarray:
+    """(k, 2) cells of the confidence map above `floor` kept by greedy non-maximum suppression, best first:
+    the best cell is kept and every cell within `radius` of it suppressed, whatever its theta; at most
+    `limit` (None: all). The loop is over places, each step one vectorised distance test."""
+    cells = np.argwhere(confidence > floor)
+    cells = cells[np.argsort(-confidence[cells[:, 0], cells[:, 1]], kind="stable")]
+    xy = np.column_stack([grid.x[cells[:, 0]], grid.y[cells[:, 1]]])
+    chosen, alive = [], np.ones(len(cells), dtype=bool)
+    while alive.any() and (limit is None or len(chosen) < limit):
+        first = int(np.argmax(alive))  # cells are sorted best first
+        chosen.append(first)
+        alive &= np.hypot(*(xy - xy[first]).T) > radius
+    return cells[chosen].reshape(-1, 2)
+
+
+def place_candidates(
+    scores: np.ndarray,
+    grid: PoseGrid,
+    threshold: float,
+    nms_radius: float,
+    scanned: np.ndarray | None = None,
+    limit: int = PLACE_CANDIDATES,
+) -> Candidates:
+    """The room's candidate places and their evidence. `scores` (z, theta, x, y) as mapped (RULED_OUT where
+    not scored), `threshold` the model's pose threshold, `scanned` (nx, ny): the cells the sensor saw (None:
+    every cell)."""
+    nz, nt, nx, ny = grid.shape
+    flat = scores.reshape(nz * nt, nx, ny)
+    best = flat.argmax(axis=0)
+    confidence = np.take_along_axis(flat, best[None], axis=0)[0]
+    cells = peak_cells(confidence, grid, RULED_OUT, nms_radius, limit)
+    i, j = cells[:, 0], cells[:, 1]
+    rows = np.column_stack(
+        [grid.x[i], grid.y[j], grid.z[best[i, j] // nt], grid.theta[best[i, j] % nt], confidence[i, j]]
+    )
+    return Candidates(cells, rows, _evidence(scores, confidence, cells, grid, threshold, scanned))
+
+
+def _evidence(scores, confidence, cells, grid: PoseGrid, threshold: float, scanned) -> np.ndarray:
+    live = scores[scores > RULED_OUT]
+    peak = confidence[cells[:, 0], cells[:, 1]].astype(np.float64)
+    median = float(np.median(live)) if len(live) else 0.0
+    best = float(peak.max()) if len(peak) else 0.0
+    near = _window(scores, cells, grid.step, SUPPORT_RADIUS)  # (z, theta, k, disc)
+    scanned_map = np.ones(confidence.shape, bool) if scanned is None else scanned
+    surroundings = _window(scanned_map, cells, grid.step, SURROUNDINGS_RADIUS, fill=False)
+    return np.column_stack(
+        [
+            peak,
+            peak - median,
+            peak - best,
+            np.log1p(np.arange(len(cells))),
+            np.log1p((near > threshold).sum(axis=(0, 1, 3))),
+            np.log1p((near > peak[:, None] - 1.0).sum(axis=(0, 1, 3))),
+            (near > threshold).any(axis=(0, 3)).mean(axis=0),
+            surroundings.mean(axis=-1),
+        ]
+    ).reshape(-1, len(EVIDENCE))
+
+
+def _window(values: np.ndarray, cells: np.ndarray, step: float, radius: float, fill=RULED_OUT) -> np.ndarray:
+    """values[..., i, j] over the disc of `radius` around each cell (k, 2), shaped (..., k, disc);
+    cells off the grid hold `fill`. Every candidate's disc at once, by one fancy index."""
+    reach = int(np.floor(radius / step + 1e-9))
+    di, dj = np.mgrid[-reach : reach + 1, -reach : reach + 1].reshape(2, -1)
+    disc = np.hypot(di, dj) * step <= radius + 1e-9
+    ii, jj = cells[:, :1] + di[disc], cells[:, 1:] + dj[disc]
+    nx, ny = values.shape[-2:]
+    inside = (ii >= 0) & (ii < nx) & (jj >= 0) & (jj < ny)
+    gathered = values[..., np.clip(ii, 0, nx - 1), np.clip(jj, 0, ny - 1)]
+    return np.where(inside, gathered, fill)
+
+
+@dataclass
+class PlaceModel:
+    """P(a person can use the place | its evidence): logistic regression over the standardised evidence."""
+
+    evidence: tuple[str, ...]
+    mean: np.ndarray
+    scale: np.ndarray
+    coef: np.ndarray
+    intercept: float
+    trained_on: dict  # what it was fitted on: candidates, places, rooms
+
+    def probability(self, evidence: np.ndarray) -> np.ndarray:
+        if tuple(self.evidence) != EVIDENCE:
+            raise ValueError(f"a place model of evidence {self.evidence}; this code computes {EVIDENCE}")
+        z = (np.asarray(evidence, np.float64) - self.mean) / self.scale @ self.coef + self.intercept
+        return 1.0 / (1.0 + np.exp(-np.clip(z, -50, 50)))
+
+    def to_dict(self) -> dict:
+        return {
+            "evidence": list(self.evidence),
+            "mean": self.mean.round(9).tolist(),
+            "scale": self.scale.round(9).tolist(),
+            "coef": self.coef.round(9).tolist(),
+            "intercept": round(float(self.intercept), 9),
+            "trained_on": self.trained_on,
+        }
+
+    @classmethod
+    def from_dict(cls, document: dict) -> PlaceModel:
+        arrays = [np.asarray(document[k], np.float64) for k in ("mean", "scale", "coef")]
+        if any(a.shape != (len(document["evidence"]),) for a in arrays):
+            raise ValueError("a place model's mean, scale and coef must each hold one value per evidence")
+        return cls(tuple(document["evidence"]), *arrays, float(document["intercept"]), document["trained_on"])
+
+
+def fit_place_model(evidence: np.ndarray, used: np.ndarray, regularisation: float = 1.0) -> PlaceModel:
+    """Logistic regression of `used` (k,) bool (the candidate matched a labelled place) on `evidence` (k, F).
+    Unweighted: the candidates' own base rate is what the probabilities must reproduce."""
+    from sklearn.linear_model import LogisticRegression
+
+    if used.all() or not used.any():
+        raise ValueError("a place model needs candidates that are places and candidates that are not")
+    mean, scale = evidence.mean(axis=0), evidence.std(axis=0)
+    scale = np.where(scale > 1e-9, scale, 1.0)
+    fitted = LogisticRegression(C=regularisation, max_iter=1000).fit((evidence - mean) / scale, used)
+    return PlaceModel(
+        EVIDENCE,
+        mean,
+        scale,
+        fitted.coef_[0].astype(np.float64),
+        float(fitted.intercept_[0]),
+        {"candidates": int(len(used)), "places": int(used.sum())},
+    )

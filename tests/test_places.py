@@ -1,0 +1,174 @@
+"""Places with a probability: the candidates and their evidence against brute-force counts, the place model's
+calibration, and the probability carried through the map, its JSON, the model file and the wire."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from affordcore.features import FeatureLayout
+from affordcore.grid import PoseGrid
+from affordcore.learn.model import AffordanceModel, load_model
+from affordcore.maps import build_map
+from affordcore.places import EVIDENCE, SUPPORT_RADIUS, PlaceModel, fit_place_model, place_candidates
+from affordcore.skeleton import get_skeleton
+
+
+def _grid() -> PoseGrid:
+    return PoseGrid(
+        np.arange(30) * 0.1 + 0.05, np.arange(20) * 0.1 + 0.05, np.array([0.5, 0.6]), np.arange(8) * np.pi / 4
+    )
+
+
+def _scores(grid: PoseGrid) -> np.ndarray:
+    """A broad bump at (0.85, 0.85) over four orientations, a narrow spike at (2.25, 1.45) in one slab, noise
+    below -3 elsewhere."""
+    rng = np.random.default_rng(3)
+    xx, yy = np.meshgrid(grid.x, grid.y, indexing="ij")
+    scores = rng.uniform(-5, -3, grid.shape)
+    for it in range(4):
+        scores[:, it] = np.maximum(scores[:, it], 2.0 - np.hypot(xx - 0.85, yy - 0.85) / 0.1)
+    scores[1, 6, 22, 14] = 2.5
+    return scores.astype(np.float32)
+
+
+def test_candidates_are_peaks_best_first_with_evidence_counted_pose_by_pose():
+    grid = _grid()
+    scores = _scores(grid)
+    threshold = 0.0
+    candidates = place_candidates(scores, grid, threshold, nms_radius=0.45)
+    # the spike (2.5) before the bump (2.0), then noise peaks; no two within 0.45 m
+    np.testing.assert_allclose(candidates.rows[0], [2.25, 1.45, 0.6, 6 * np.pi / 4, 2.5], atol=1e-6)
+    np.testing.assert_allclose(candidates.rows[1, [0, 1, 4]], [0.85, 0.85, 2.0], atol=1e-6)
+    xy = candidates.rows[:, :2]
+    assert np.all(np.diff(candidates.rows[:, 4]) <= 0)
+    assert (np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1)) + np.eye(len(xy)) > 0.45).all()
+    # an independent oracle: walk every pose of the grid
+    poses = grid.poses(np.arange(grid.size))
+    flat = scores.ravel()
+    evidence = dict(zip(EVIDENCE, candidates.evidence.T))
+    for k, (x, y, _, _, peak) in enumerate(candidates.rows[:2]):
+        near = np.hypot(poses[:, 0] - x, poses[:, 1] - y) <= SUPPORT_RADIUS + 1e-9
+        assert evidence["support"][k] == pytest.approx(np.log1p(np.sum(near & (flat > threshold))))
+        assert evidence["near_peak"][k] == pytest.approx(np.log1p(np.sum(near & (flat > peak - 1))))
+        turns = len(np.unique(poses[near & (flat > threshold), 3]))
+        assert evidence["turns"][k] == pytest.approx(turns / len(grid.theta))
+    assert evidence["turns"][1] == pytest.approx(0.5) and evidence["turns"][0] == pytest.approx(1 / 8)
+    assert evidence["below_best"][0] == 0 and evidence["below_best"][1] == pytest.approx(-0.5)
+    assert evidence["over_median"][0] == pytest.approx(2.5 - np.median(flat))
+
+
+def test_scanned_share_counts_the_cells_the_sensor_saw():
+    grid = _grid()
+    scanned = np.zeros((30, 20), bool)
+    scanned[:15] = True  # the half x < 1.5 m was seen
+    candidates = place_candidates(_scores(grid), grid, 0.0, 0.45, scanned)
+    share = candidates.evidence[:, EVIDENCE.index("scanned")]
+    xx, yy = np.meshgrid(grid.x, grid.y, indexing="ij")
+    for (x, y), got in zip(candidates.rows[:, :2], share):
+        # cells off the grid are outside the scanned footprint: they count as unseen
+        disc = int(np.sum(np.hypot(*np.mgrid[-10:11, -10:11]) <= 10 + 1e-9))
+        within = np.hypot(xx - x, yy - y) <= 1.0 + 1e-9
+        assert got == pytest.approx(np.sum(within & scanned) / disc)
+    assert share[0] < 0.1 < 0.5 < share[1]  # the spike stands in the unseen half, the bump in the seen one
+
+
+def _synthetic_places(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Evidence rows whose true place probability is a known logistic function of two columns."""
+    rng = np.random.default_rng(seed)
+    evidence = rng.normal(size=(n, len(EVIDENCE)))
+    truth = 1 / (1 + np.exp(-(2.0 * evidence[:, 0] + 1.0 * evidence[:, 4] - 2.5)))
+    return evidence, rng.random(n) < truth
+
+
+def test_the_place_model_is_calibrated_on_rooms_it_never_saw():
+    evidence, used = _synthetic_places(6000, 0)
+    model = fit_place_model(evidence, used)
+    held, held_used = _synthetic_places(6000, 1)
+    p = model.probability(held)
+    for low, high in ((0.0, 0.2), (0.2, 0.5), (0.5, 0.8), (0.8, 1.0)):
+        inside = (p >= low) & (p < high)
+        assert inside.sum() > 100
+        assert abs(p[inside].mean() - held_used[inside].mean()) < 0.05, (low, high)
+    # it ranks by the evidence that matters, not the noise columns
+    assert model.coef[0] > 1.0 and abs(model.coef[2]) < 0.2
+    again = PlaceModel.from_dict(json.loads(json.dumps(model.to_dict())))
+    np.testing.assert_allclose(again.probability(held), p, atol=1e-7)
+
+
+def test_a_place_model_of_other_evidence_is_refused():
+    model = fit_place_model(*_synthetic_places(500, 0))
+    model.evidence = (*EVIDENCE[:-1], "something-else")
+    with pytest.raises(ValueError, match="evidence"):
+        model.probability(np.zeros((1, len(EVIDENCE))))
+    with pytest.raises(ValueError, match="places and candidates that are not"):
+        fit_place_model(np.zeros((5, len(EVIDENCE))), np.zeros(5, bool))
+
+
+def _place_model_on_score(weight: float, intercept: float) -> PlaceModel:
+    """P = sigmoid(weight * (score - 0) + intercept): a place model that looks at the peak score only."""
+    coef = np.zeros(len(EVIDENCE))
+    coef[0] = weight
+    return PlaceModel(EVIDENCE, np.zeros(len(EVIDENCE)), np.ones(len(EVIDENCE)), coef, intercept, {})
+
+
+def test_the_map_keeps_the_places_that_reach_the_probability_likeliest_first():
+    grid, skeleton = _grid(), get_skeleton("sitting-working")
+    scores = _scores(grid)
+    model = _place_model_on_score(4.0, -8.5)  # p(2.5) = 0.82, p(2.0) = 0.38, p(noise) ~ 0
+    kept = build_map("a", scores, grid, skeleton, 0.0, place_model=model, place_probability=0.5)
+    assert len(kept.skeletons) == 1 and kept.probabilities[0] == pytest.approx(1 / (1 + np.exp(-1.5)))
+    both = build_map("a", scores, grid, skeleton, 0.0, place_model=model, place_probability=0.3)
+    assert len(both.skeletons) == 2 and np.all(np.diff(both.probabilities) <= 0)
+    assert both.joints.shape == (2, 15, 3) and np.isnan(both.place_threshold)
+    document = both.to_json("m", np.eye(4))
+    assert [s["probability"] for s in document["skeletons"]] == pytest.approx(both.probabilities, abs=1e-4)
+    assert document["place_probability"] == 0.3 and document["place_threshold"] is None
+    assert both.place_labels()[0] == f"p {both.probabilities[0]:.2f}"
+    # without a place model: the score cut, and no probability
+    plain = build_map("a", scores, grid, skeleton, 0.0)
+    assert (
+        np.isnan(plain.probabilities).all()
+        and plain.to_json("m", np.eye(4))["skeletons"][0]["probability"] is None
+    )
+
+
+def test_the_model_file_carries_its_place_model(tmp_path):
+    layout = FeatureLayout(cell_size=0.25)
+    place = fit_place_model(*_synthetic_places(800, 0))
+    model = AffordanceModel(
+        "leaning", layout.describe(), layout.fingerprint, np.ones(layout.n_features), 0.0, 0.1, "ssvm"
+    )
+    without = model.id
+    model.place_model = place.to_dict()
+    loaded = load_model(model.save(tmp_path / "m.json"), layout)
+    assert loaded.id == model.id != without
+    evidence = _synthetic_places(10, 5)[0]
+    np.testing.assert_allclose(loaded.places.probability(evidence), place.probability(evidence), atol=1e-7)
+    document = json.loads((tmp_path / "m.json").read_text())
+    document["place_model"]["coef"] = [1.0]
+    (tmp_path / "bad.json").write_text(json.dumps(document))
+    with pytest.raises(ValueError, match="one value per evidence"):
+        load_model(tmp_path / "bad.json")
+
+
+def test_probabilities_cross_the_wire_and_none_stays_none():
+    from affordwire.messages import map_arrays, map_document_of, map_message
+    from affordwire.proto.maps_pb2 import SceneFields as SceneFieldsMessage
+
+    grid, skeleton = _grid(), get_skeleton("sitting-working")
+    scores = _scores(grid)
+    fields = SceneFieldsMessage()
+    with_model = build_map(
+        "a", scores, grid, skeleton, 0.0, place_model=_place_model_on_score(4.0, -8.5), place_probability=0.3
+    )
+    arrays = map_arrays(map_message(with_model, "m", fields))
+    np.testing.assert_allclose(arrays["probabilities"], with_model.probabilities)
+    document = map_document_of(map_message(with_model, "m", fields))
+    assert document["place_probability"] == 0.3
+    plain = build_map("a", scores, grid, skeleton, 0.0)
+    message = map_message(plain, "m", fields)
+    assert not message.HasField("place_probability") and not message.skeletons[0].HasField("probability")
+    assert np.isnan(map_arrays(message)["probabilities"]).all()
