@@ -14,6 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .rooms import Room
 from .scanner import (
@@ -78,31 +79,34 @@ def fused_scan(room: Room, rng: np.random.Generator, regime: str = "full") -> Sc
 # -- mesh: a reconstruction's vertices -----------------------------------------------------------------------
 
 MESH_FLAT_SPACING = (0.04, 0.08)  # m, drawn per room: how far apart decimation leaves flat-surface vertices
-MESH_EDGE_SPACING = 0.015  # m: vertices kept at edges, corners and small parts
-# Surface variation (smallest covariance eigenvalue over their sum) above which a point counts as on an edge,
-# measured over 2 cm cell means, 30 neighbours within 6 cm: on the floors of three rooms 85-90 % of points are
-# below it, over whole rooms about 75 %.
-EDGE_VARIATION = 0.03
+MESH_EDGE_SPACING = 0.015  # m: vertices kept near edges and corners
+MESH_EDGE_BAND = 0.03  # m: points this near a box edge count as on the edge
 # A reconstruction averages each surface over many frames (TSDF fusion), and its poses come from a global
 # optimisation: less noise, fewer mixed pixels and a smaller registration error than a fusion of raw frames.
 MESH_AVERAGED_FRAMES = 9
 MESH_FLYING = 0.1
 MESH_REGISTRATION = (0.002, 0.1)
+BOX_EDGES = np.array(
+    [[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]]
+)
 
 
 def mesh_scan(room: Room, rng: np.random.Generator) -> Scan:
     """A reconstruction's mesh vertices, as ScanNet or Replica ship them: a walk round the whole room (the
     `full` viewpoints) fused at 1 cm, its noise that of a TSDF averaging 9 frames, then decimated as mesh
-    simplification does: one vertex per 4-8 cm cell on flat surfaces, one per 1.5 cm where the surface bends
-    (edges, corners, legs, clutter)."""
-    raycaster = _raycaster(room)
+    simplification does: one vertex per 4-8 cm cell on flat surfaces, one per 1.5 cm within 3 cm of an edge
+    or a corner (a simplifier keeps vertices where the shape bends; the room's true box edges say where that
+    is, which the noisy points say poorly: their surface variation on a floor is as high as at an edge)."""
+    boxes = room.shell_boxes() + room.furniture_boxes()
+    raycaster = Raycaster(boxes)
     poses = viewpoints(room, rng, regime="full")
     camera = replace(
         DepthCamera.qvga().with_kinect_noise(), averaged_frames=MESH_AVERAGED_FRAMES, flying=MESH_FLYING
     )
     points, colors = fuse_frames(raycaster, poses, rng, camera, MESH_REGISTRATION)
     flat_spacing = rng.uniform(*MESH_FLAT_SPACING)
-    edge = coarse_surface_variation(points) > EDGE_VARIATION
+    to_edge, _ = cKDTree(edge_samples(boxes)).query(points, workers=-1)
+    edge = to_edge < MESH_EDGE_BAND
     keep_flat = one_per_cell(points[~edge], flat_spacing, rng)
     keep_edge = one_per_cell(points[edge], MESH_EDGE_SPACING, rng)
     kept = np.sort(np.concatenate([np.flatnonzero(~edge)[keep_flat], np.flatnonzero(edge)[keep_edge]]))
@@ -110,35 +114,26 @@ def mesh_scan(room: Room, rng: np.random.Generator) -> Scan:
     return Scan(points[kept], colors[kept], _eyes(poses), views)
 
 
-def coarse_surface_variation(points: np.ndarray, cell: float = 0.02, radius: float = 0.06) -> np.ndarray:
-    """`surface_variation` of each point's `cell` mean: averaging first keeps the noise of the surface out of
-    the measure of its shape (a quarter of the cost, too)."""
-    _, inverse, counts = np.unique(
-        np.floor(points / cell).astype(np.int64), axis=0, return_inverse=True, return_counts=True
-    )
-    inverse = inverse.ravel()
-    means = np.stack([np.bincount(inverse, points[:, k]) for k in range(3)], axis=1) / counts[:, None]
-    return surface_variation(means, radius=radius)[inverse]
-
-
-def surface_variation(points: np.ndarray, neighbours: int = 30, radius: float = 0.04) -> np.ndarray:
-    """Per point, its neighbourhood's smallest covariance eigenvalue over their sum: 0 on a plane, up to 1/3
-    where points spread evenly in 3D (a corner, an edge, a leg)."""
-    import open3d as o3d
-
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    cloud.estimate_covariances(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=neighbours))
-    eigenvalues = np.linalg.eigvalsh(np.asarray(cloud.covariances))
-    return eigenvalues[:, 0] / np.maximum(eigenvalues.sum(axis=1), 1e-12)
+def edge_samples(boxes, step: float = 0.005) -> np.ndarray:
+    """Points (n, 3) every `step` along every edge of every box."""
+    segments = np.concatenate([box.mesh_arrays()[0][BOX_EDGES] for box in boxes])  # (edges, 2, 3)
+    counts = np.ceil(np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1) / step).astype(int) + 1
+    which = np.repeat(np.arange(len(segments)), counts)
+    # the position along each segment, 0 to 1, from the running count
+    first = np.repeat(np.cumsum(counts) - counts, counts)
+    along = (np.arange(len(which)) - first) / np.repeat(np.maximum(counts - 1, 1), counts)
+    return segments[which, 0] + along[:, None] * (segments[which, 1] - segments[which, 0])
 
 
 def one_per_cell(points: np.ndarray, cell: float, rng: np.random.Generator) -> np.ndarray:
     """Indices of one point, drawn at random, per occupied `cell`: an actual surface point (a vertex), not a
-    cell mean, which would float off a corner between the two surfaces it averages."""
+    cell mean, which would float off a corner between the two surfaces it averages. Cells are centred on
+    multiples of `cell`, so the floor (z = 0, give or take the noise) lies mid-cell rather than on a face,
+    where it would keep two vertices per cell, one each side."""
     if not len(points):
         return np.zeros(0, np.int64)
     order = rng.permutation(len(points))
-    keys = np.floor(points[order] / cell).astype(np.int64)
+    keys = np.floor(points[order] / cell + 0.5).astype(np.int64)
     _, first = np.unique(keys, axis=0, return_index=True)
     return np.sort(order[first])
 
@@ -217,26 +212,50 @@ def _piece_and_spot(room: Room, rng: np.random.Generator):
 
 # -- walk: a robot's walk through the assembler --------------------------------------------------------------
 
-WALK_FRAMES = (60, 101)  # frames per walk, drawn per room (a frame costs about 0.2 s: depth and registration)
+WALK_FRAMES = (60, 81)  # frames per walk, drawn per room (a frame costs 0.2-0.3 s: depth and registration)
 WALK_STEP = 0.021  # m between frames: every third frame of a 0.2 m/s walk at 30 Hz
 WALK_RATE = 10.0  # frames a second, the stamps given to the assembler
 
 
+# wheel odometry's error per frame: translation (share of the step, per axis) and rotation (degrees)
+ODOMETRY_ERROR = (0.05, 0.1)
+
+
 def walk_scan(room: Room, rng: np.random.Generator) -> Scan:
-    """A robot's (or a person's) walk round a loop through the room (`scanner.trajectory`), VGA depth frames
-    with the full Kinect noise, registered by the project's own assembler (KISS-ICP) with gravity from an IMU
-    rather than placed at their true poses: the map is what the assembler built, partial and drifting."""
+    """A robot's walk round a loop through the room (`scanner.trajectory`), VGA depth frames with the full
+    Kinect noise, registered by the project's own assembler (KISS-ICP) with gravity from an IMU and the
+    robot's drifting wheel odometry as its pose guess, rather than placed at their true poses: the map is
+    what the assembler built, partial and drifting."""
     poses = trajectory(room, rng, int(rng.integers(*WALK_FRAMES)), step=WALK_STEP)
-    return assemble_walk(_raycaster(room), poses, rng)
+    return assemble_walk(_raycaster(room), poses, rng, guesses=odometry(poses, rng))
+
+
+def odometry(poses: list[np.ndarray], rng: np.random.Generator) -> list[np.ndarray]:
+    """Wheel odometry along the true `poses`: each true motion between frames with an error of
+    `ODOMETRY_ERROR`, summed up, so the guess drifts further the further the robot goes. Without a guess the
+    assembler predicts constant velocity, and KISS-ICP cannot tell how far a camera that sees little but the
+    floor moved along it (a generated office walk stood still: 1.2 m off after 1.3 m)."""
+    share, degrees = ODOMETRY_ERROR
+    guesses = [poses[0]]
+    for before, after in zip(poses[:-1], poses[1:]):
+        motion = np.linalg.inv(before) @ after
+        step = float(np.linalg.norm(motion[:3, 3]))
+        guesses.append(guesses[-1] @ perturbed(motion, rng, (share * step, degrees)))
+    return guesses
 
 
 def assemble_walk(
-    raycaster: Raycaster, poses: list[np.ndarray], rng: np.random.Generator, camera: DepthCamera | None = None
+    raycaster: Raycaster,
+    poses: list[np.ndarray],
+    rng: np.random.Generator,
+    camera: DepthCamera | None = None,
+    guesses: list[np.ndarray] | None = None,
 ) -> Scan:
     """Depth frames at the true `poses` through `Assembler.add`, as the assembler service takes them (16-bit
     millimetres). The assembler's odometry frame is the first accepted frame's camera frame, so that frame's
     true pose brings its map (and its trajectory: the origins) into the room's frame; every later error is
-    the assembler's own drift. A frame the assembler refuses is left out, as the service leaves it out."""
+    the assembler's own drift. `guesses`: the robot's odometry, world_from_camera per frame (a frame's
+    SensorFrame.pose_guess). A frame the assembler refuses is left out, as the service leaves it out."""
     from ..assembly import Assembler, SensorFrame
     from ..depth import DepthImage
 
@@ -247,7 +266,9 @@ def assemble_walk(
         image = DepthImage(np.round(depth * 1000).astype(np.uint16), camera.intrinsics)
         down = pose[:3, :3].T @ np.array([0.0, 0.0, -1.0])  # what an IMU on the camera reports
         try:
-            assembler.add(SensorFrame("camera", k / WALK_RATE, depth=image, gravity=down), k / WALK_RATE)
+            guess = None if guesses is None else guesses[k]
+            frame = SensorFrame("camera", k / WALK_RATE, depth=image, gravity=down, pose_guess=guess)
+            assembler.add(frame, k / WALK_RATE)
         except ValueError:
             continue
         first = pose if first is None else first
