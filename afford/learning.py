@@ -211,11 +211,11 @@ def models_rebuild(
         None, "--evaluation", help="an afford evaluate results.json: each affordance gets its best learner"
     ),
     rooms: int = typer.Option(
-        150,
+        200,
         "--rooms",
-        min=41,
-        help="generated rooms: the last 24 are held out for benchmarks/accuracy.py, the 16 before them "
-        "choose the thresholds, the rest train",
+        min=81,
+        help="generated rooms: the last 40 are held out for benchmarks/accuracy.py, the 40 before them "
+        "choose the thresholds and fit the place models, the rest train",
     ),
     seed: int = typer.Option(1, "--seed", help="same seed, same models"),
     out: Path | None = typer.Option(

@@ -446,7 +446,7 @@ def test_depth_sequence_frames_back_project_onto_the_room(tmp_path):
 def test_depth_scanned_rooms_are_the_same_bytes_with_any_worker_count(tmp_path):
     from affordcore.synth.dataset import SynthOptions, synthesize
 
-    options = SynthOptions(2, 1, ("office", "living"), styles=("fused",))
+    options = SynthOptions(2, 2, ("office", "living"), styles=("fused",))
     reports = {workers: synthesize(options, tmp_path / str(workers), workers)["rooms"] for workers in (1, 2)}
     # both viewpoint regimes are exercised (if the generator changes, pick another seed that does)
     assert {room["views"] for room in reports[1]} == {"full", "few"}

@@ -1,6 +1,6 @@
 """The shipped default models, rebuilt reproducibly: generate rooms, train every affordance, write the files.
 
-The rooms are `afford synth --rooms 150 --seed 1`, dealt by generation index as `benchmarks/accuracy.py`
+The rooms are `afford synth --rooms 200 --seed 1`, dealt by generation index as `benchmarks/accuracy.py`
 deals them: the last `TEST` rooms are held out (the benchmark measures the shipped models on them), the
 `VALIDATION` before them choose the thresholds, the rest train. So the default rebuild makes exactly the
 models whose figures docs/accuracy.md shows.
@@ -17,7 +17,7 @@ import numpy as np
 from ..settings import Settings
 from ..skeleton import skeleton_files
 
-ROOMS, SEED, VALIDATION, TEST, LEARNER = 150, 1, 16, 24, "cascade"
+ROOMS, SEED, VALIDATION, TEST, LEARNER = 200, 1, 40, 40, "cascade"
 
 
 def winners(results_json: Path) -> dict[str, str]:

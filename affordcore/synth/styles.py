@@ -215,6 +215,9 @@ def _piece_and_spot(room: Room, rng: np.random.Generator):
 WALK_FRAMES = (60, 81)  # frames per walk, drawn per room (a frame costs 0.2-0.3 s: depth and registration)
 WALK_STEP = 0.021  # m between frames: every third frame of a 0.2 m/s walk at 30 Hz
 WALK_RATE = 10.0  # frames a second, the stamps given to the assembler
+# the walk stops where the assembler has drifted this far from the truth: the room's labels are the true
+# room's, and a real labeller labels the map it is given, so a map smeared past this would teach false places
+WALK_MAX_DRIFT = 0.05  # m
 
 
 # wheel odometry's error per frame: translation (share of the step, per axis) and rotation (degrees)
@@ -272,12 +275,19 @@ def assemble_walk(
         except ValueError:
             continue
         first = pose if first is None else first
+        if _drift(assembler, np.linalg.inv(first) @ pose) > WALK_MAX_DRIFT:
+            break
     if first is None:
         raise RuntimeError("the assembler refused every frame of the walk")
     points = assembler.map_points() @ first[:3, :3].T + first[:3, 3]
     origins = np.array([(first @ pose)[:3, 3] for pose in assembler.trajectory.poses])
     views = f"{assembler.frames} of {len(poses)} frames assembled"
     return Scan(points, _grey(len(points)), origins, views)
+
+
+def _drift(assembler, odom_from_camera: np.ndarray) -> float:
+    """How far (m) the assembler's latest pose is from the true one, both in its odometry frame."""
+    return float(np.linalg.norm(assembler.trajectory.poses[-1][:3, 3] - odom_from_camera[:3, 3]))
 
 
 STYLES: dict[str, Callable[[Room, np.random.Generator], Scan]] = {
