@@ -148,10 +148,10 @@ def evaluate(
 ) -> None:
     """Compare learners by k-fold over rooms: the paper's table, its imbalance test, the SSVM's iterations."""
     with user_errors():
+        from affordcore.geometry.skeleton import skeleton_files
         from affordcore.learn.evaluate import evaluate as run_evaluation
         from affordcore.learn.evaluate import write_outputs
         from affordcore.settings import Settings
-        from affordcore.skeleton import skeleton_files
 
         require_extra("learn")
         output_folder(out)

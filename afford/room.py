@@ -49,10 +49,10 @@ def map_room(
 ) -> list[Path]:
     """load -> align -> fields -> score -> map -> write, each one call into the library (the maps and their
     files in worker processes, `outputs.map_and_write`)."""
-    from affordcore.features import FeatureLayout
+    from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.model import choose_models
-    from affordcore.outputs import default_workers, map_and_write, summary_line
-    from affordcore.pipeline import parse_gravity, prepare_scene
+    from affordcore.mapping.outputs import default_workers, map_and_write, summary_line
+    from affordcore.mapping.pipeline import parse_gravity, prepare_scene
     from affordcore.settings import Settings
 
     output_folder(out)
@@ -95,7 +95,7 @@ def _children_peak_mb() -> float:
 
 def _loaded(path: Path):
     """The cloud at `path`; what loading did to it (points that are not finite, dropped) goes to stderr."""
-    from affordcore.scene import load_cloud
+    from affordcore.geometry.scene import load_cloud
 
     cloud = load_cloud(path)
     _warn(cloud.notes)
@@ -118,7 +118,7 @@ def demo(
     """Map the built-in example room with the shipped models and say where the outputs are."""
     with user_errors():
         from affordcore.example import example_room
-        from affordcore.scene import save_cloud
+        from affordcore.geometry.scene import save_cloud
 
         output_folder(out)
         cloud_path = out / "example-room.ply"
@@ -136,8 +136,8 @@ def align(
 ) -> None:
     """Bring a cloud into the world frame (z up, floor at z = 0) and say what was done."""
     with user_errors():
-        from affordcore.pipeline import parse_gravity, to_world
-        from affordcore.scene import save_cloud
+        from affordcore.geometry.scene import save_cloud
+        from affordcore.mapping.pipeline import parse_gravity, to_world
         from affordcore.settings import Settings
 
         if out:
@@ -191,9 +191,9 @@ def features(
 ) -> None:
     """Compute every grid pose's features for one affordance (distance, collision, normal cube)."""
     with user_errors():
-        from affordcore.pipeline import parse_gravity, prepare_scene, stream_features
+        from affordcore.geometry.skeleton import get_skeleton
+        from affordcore.mapping.pipeline import parse_gravity, prepare_scene, stream_features
         from affordcore.settings import Settings
-        from affordcore.skeleton import get_skeleton
 
         if out:
             output_file(out)

@@ -17,8 +17,8 @@ app.add_typer(skeletons_app, name="skeletons", rich_help_panel="Skeletons")
 def skeletons_list() -> None:
     """List the affordance types (one skeleton file each)."""
     with user_errors():
+        from affordcore.geometry.skeleton import all_skeletons
         from affordcore.settings import Settings
-        from affordcore.skeleton import all_skeletons
 
         for skeleton in all_skeletons(Settings().skeleton_dirs):
             typer.echo(f"{skeleton.affordance:<20} torso {skeleton.torso_height:.2f} m  {skeleton.source}")
@@ -35,9 +35,9 @@ def skeletons_show(
 ) -> None:
     """Draw the skeletons (front and side views on the floor) as one PNG."""
     with user_errors():
-        from affordcore.plots import plot_skeletons
+        from affordcore.geometry.skeleton import all_skeletons, get_skeleton
+        from affordcore.mapping.plots import plot_skeletons
         from affordcore.settings import Settings
-        from affordcore.skeleton import all_skeletons, get_skeleton
 
         output_file(out)
         folders = Settings().skeleton_dirs
@@ -60,9 +60,9 @@ def skeletons_derive(
     """Derive the skeleton files from real Kinect skeletons: filter, canonicalise, K-means, medoid, adult
     scale."""
     with user_errors():
-        from affordcore.plots import plot_skeletons
-        from affordcore.skeleton import BUILTIN_DIR
-        from affordcore.skeleton_models import default_data_path, derive, write_skeleton
+        from affordcore.geometry.skeleton import BUILTIN_DIR
+        from affordcore.geometry.skeleton_models import default_data_path, derive, write_skeleton
+        from affordcore.mapping.plots import plot_skeletons
 
         require_extra("learn")  # K-means and silhouettes: scikit-learn
         output_folder(

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .scene import Cloud
+from .geometry.scene import Cloud
 
 # (name, (x0, y0, z0), (x1, y1, z1), RGB): axis-aligned boxes, metres, z up, floor at z = 0.
 _BOXES = [

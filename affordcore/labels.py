@@ -24,7 +24,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .grid import PoseGrid
+from .geometry.grid import PoseGrid
 from .jsonfile import read_json
 
 FORMAT = "affordance-labels/1"

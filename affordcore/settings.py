@@ -34,7 +34,8 @@ class VoxelSettings(BaseModel):
     )
 
 
-# which way normals steeper than 60 deg face (affordcore.fields): the cloud's mean point in plan, or the side
+# which way normals steeper than 60 deg face (affordcore.geometry.fields): the cloud's mean point in plan, or
+# the side
 # with more scanned floor
 SteepFacing = Literal["centre", "floor"]
 STEEP_FACINGS = get_args(SteepFacing)

@@ -13,9 +13,9 @@ import time
 
 import numpy as np
 
-from affordcore.depth import DepthImage
+from affordcore.assembly.depth import DepthImage
+from affordcore.geometry.skeleton import JOINTS
 from affordcore.settings import STEEP_FACINGS, LimitSettings
-from affordcore.skeleton import JOINTS
 
 from .proto import geometry_pb2, maps_pb2, sensing_pb2, service_pb2
 
@@ -254,7 +254,8 @@ def depth_frame_message(
 
 
 def depth_image(message: DepthFrame, limits: LimitSettings | None = None) -> DepthImage:
-    """The depth image a DepthFrame carries, checked (affordcore.depth.back_project turns it into points)."""
+    """The depth image a DepthFrame carries, checked (affordcore.assembly.depth.back_project turns it into
+    points)."""
     limits = limits or LimitSettings()
     width, height = message.width, message.height
     if width == 0 or height == 0:
@@ -346,7 +347,7 @@ def scene_fields(
 ):
     """The `SceneFields` a message carries (arrays are read-only views of the payload), checked: at most
     `max_voxels`, finite, and consistent with its grid."""
-    from affordcore.fields import SceneFields, VoxelLattice
+    from affordcore.geometry.fields import SceneFields, VoxelLattice
 
     limits = limits or LimitSettings()
     grid = message.grid
@@ -454,7 +455,7 @@ def _carry_source(message, world_from_input, cloud_timestamp, frames: int, at: f
 
 def map_grid(message: AffordanceMapMessage):
     """The PoseGrid a map message was scored on."""
-    from affordcore.grid import PoseGrid
+    from affordcore.geometry.grid import PoseGrid
 
     spec = message.grid
     step = spec.step if np.isfinite(spec.step) else 0.0  # a single position has no step
@@ -493,7 +494,7 @@ def map_arrays(message: AffordanceMapMessage) -> dict[str, np.ndarray]:
 
 def map_document_of(message: AffordanceMapMessage) -> dict:
     """The affordance-map/1 JSON document of a map message: what `afford map` writes for the same map."""
-    from affordcore.maps import map_document
+    from affordcore.mapping.maps import map_document
 
     arrays = map_arrays(message)
     return map_document(

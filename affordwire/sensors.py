@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from affordcore.assembly import SensorFrame
+from affordcore.assembly.assembler import SensorFrame
 from affordcore.settings import LimitSettings
 
 from . import messages

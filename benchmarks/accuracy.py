@@ -50,7 +50,7 @@ def main() -> None:
     parser.add_argument("--models", type=Path, help="also write the full run's cascade models here")
     args = parser.parse_args()
 
-    from affordcore.features import FeatureLayout
+    from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.defaults import data_record, split_by_index
     from affordcore.learn.examples import Task, data_set_rooms, load_rooms, room_examples
     from affordcore.learn.train import train_on_rooms
@@ -200,7 +200,7 @@ def generator_version() -> str:
 def room_results(model, rooms: list, task, loose: bool = True) -> dict:
     """Per room, scored once: what the summaries need, strict and (with `loose`) loose tolerances."""
     from affordcore.learn.thresholds import room_scores
-    from affordcore.pipeline import score_model
+    from affordcore.mapping.pipeline import score_model
 
     results = {}
     cut = task.settings.map.place_probability
@@ -298,9 +298,9 @@ def reliability(results: dict, names: list[str]) -> list[dict]:
 def worst_room_figures(args, model, per_room: dict, test_rooms: list, files: list, task) -> None:
     """Plan views of the two generated test rooms where `model` errs most (`per_room`: its missed and false
     places per room, from the table's run)."""
-    from affordcore.pipeline import map_affordances
-    from affordcore.plots import plot_map
-    from affordcore.scene import load_cloud
+    from affordcore.geometry.scene import load_cloud
+    from affordcore.mapping.pipeline import map_affordances
+    from affordcore.mapping.plots import plot_map
 
     affordance = model.affordance
     worst = sorted(per_room, key=lambda n: -(per_room[n]["missed"] + per_room[n]["false"]))[:2]
@@ -386,7 +386,7 @@ def markdown(results: dict, args) -> str:
 def plot_reliability(reliability_rows: list[dict], path: Path) -> None:
     """The reliability diagram: one panel per affordance, a line per group of rooms (every generated test
     room, each scan style, the real rooms); the diagonal is perfect calibration."""
-    from affordcore.plots import pyplot
+    from affordcore.mapping.plots import pyplot
 
     plt = pyplot()
     affordances = list(dict.fromkeys(r["affordance"] for r in reliability_rows))
@@ -426,7 +426,7 @@ def plot_reliability(reliability_rows: list[dict], path: Path) -> None:
 
 
 def plot_curve(curve: list[dict], path: Path) -> None:
-    from affordcore.plots import pyplot
+    from affordcore.mapping.plots import pyplot
 
     plt = pyplot()
     affordances = list(dict.fromkeys(r["affordance"] for r in curve))

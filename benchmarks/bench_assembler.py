@@ -46,12 +46,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from affordcore.assembly import Assembler, SensorFrame, kiss_config, trajectory_errors  # noqa: E402
-from affordcore.checkpoint import AssemblerStore  # noqa: E402
-from affordcore.depth import DepthImage, back_project  # noqa: E402
-from affordcore.gravity import align_to_gravity  # noqa: E402
-from affordcore.recording import close_recording, log_scan, open_recording, set_time  # noqa: E402
-from affordcore.sequence import INVALID_DEPTH, read_sequence  # noqa: E402
+from affordcore.assembly.assembler import Assembler, SensorFrame, kiss_config, trajectory_errors  # noqa: E402
+from affordcore.assembly.checkpoint import AssemblerStore  # noqa: E402
+from affordcore.assembly.depth import DepthImage, back_project  # noqa: E402
+from affordcore.assembly.sequence import INVALID_DEPTH, read_sequence  # noqa: E402
+from affordcore.geometry.gravity import align_to_gravity  # noqa: E402
+from affordcore.mapping.recording import close_recording, log_scan, open_recording, set_time  # noqa: E402
 from affordcore.settings import AssemblerSettings, GravitySettings  # noqa: E402
 
 SEQUENCE = (

@@ -1,4 +1,5 @@
-"""Benchmark of per-pose feature production (affordcore.features.iter_features) over a whole pose grid.
+"""Benchmark of per-pose feature production (affordcore.geometry.features.iter_features) over a whole pose
+grid.
 
 What is measured, on a synthetic room built in code (walls 2.5 m high with a door gap, sofas, tables, desks,
 counters and shelves spread over the floor, sampled with affordcore.example.box_surface_points, fixed seed):
@@ -49,13 +50,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from affordcore.example import box_surface_points
-from affordcore.features import FeatureLayout, iter_features
-from affordcore.fields import SceneFields
-from affordcore.grid import PoseGrid
-from affordcore.pipeline import PreparedScene, prepare_scene
-from affordcore.scene import Cloud
+from affordcore.geometry.features import FeatureLayout, iter_features
+from affordcore.geometry.fields import SceneFields
+from affordcore.geometry.grid import PoseGrid
+from affordcore.geometry.scene import Cloud
+from affordcore.geometry.skeleton import Skeleton, get_skeleton
+from affordcore.mapping.pipeline import PreparedScene, prepare_scene
 from affordcore.settings import Settings
-from affordcore.skeleton import Skeleton, get_skeleton
 
 AFFORDANCE = "sitting-relaxing"
 SEED = 7
@@ -213,7 +214,8 @@ def trilinear(field: np.ndarray, origin: np.ndarray, res: float, point) -> np.nd
 
 
 def naive_features(room: Room, skeleton: Skeleton, layout: FeatureLayout, pose) -> list[float]:
-    """One pose's feature vector, the slow obvious way (same definition and order as affordcore.features)."""
+    """One pose's feature vector, the slow obvious way (same definition and order as
+    affordcore.geometry.features)."""
     fields = room.scene.fields
     origin, res = fields.lattice.origin, fields.lattice.resolution
     x, y, z, theta = (float(v) for v in pose)

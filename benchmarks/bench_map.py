@@ -41,7 +41,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_features import POINTS_PER_M2, SEED, room_boxes  # noqa: E402
 
 from affordcore.example import box_surface_points  # noqa: E402
-from affordcore.scene import Cloud  # noqa: E402
+from affordcore.geometry.scene import Cloud  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 ROOMS = ROOT / "bench-data" / "map"
@@ -188,9 +188,9 @@ TOP_STAGES = ("load the cloud", "gravity alignment", "voxel fields", "maps and o
 
 
 def one_run(cloud: Cloud, settings, models) -> tuple[dict[str, float], object]:
-    from affordcore.gravity import align_to_gravity
-    from affordcore.outputs import write_map_outputs
-    from affordcore.pipeline import map_affordances, prepare_scene
+    from affordcore.geometry.gravity import align_to_gravity
+    from affordcore.mapping.outputs import write_map_outputs
+    from affordcore.mapping.pipeline import map_affordances, prepare_scene
 
     seconds = {}
     start = time.perf_counter()
@@ -217,8 +217,8 @@ def one_run(cloud: Cloud, settings, models) -> tuple[dict[str, float], object]:
 def materialised(scene, model, settings) -> tuple[float, float, float]:
     """Seconds to score one affordance by features @ w and by applying w to the fields (side by side), and
     the largest difference between the two."""
-    from affordcore.features import iter_features
-    from affordcore.inference import score_poses
+    from affordcore.geometry.features import iter_features
+    from affordcore.mapping.inference import score_poses
 
     skeleton = model.as_skeleton()
     grid = scene.pose_grid(skeleton, settings)
@@ -241,8 +241,8 @@ def second_stage(scene, models, settings, repeats: int) -> list[tuple[str, int, 
     first stage's alone, timed alternately, median over `repeats`."""
     import dataclasses
 
-    from affordcore.maps import RULED_OUT
-    from affordcore.pipeline import score_model
+    from affordcore.mapping.maps import RULED_OUT
+    from affordcore.mapping.pipeline import score_model
 
     rows = []
     for model in (m for m in models if m.rescorer):
@@ -262,9 +262,9 @@ def library_table(args, files: dict[str, Path]) -> None:
     import open3d  # noqa: F401  (import costs are the command's table's, not the stages')
     import rerun  # noqa: F401
 
+    from affordcore.geometry.scene import load_cloud
     from affordcore.learn.model import load_model, shipped_models
-    from affordcore.plots import pyplot
-    from affordcore.scene import load_cloud
+    from affordcore.mapping.plots import pyplot
     from affordcore.settings import Settings
 
     pyplot()

@@ -39,7 +39,7 @@ AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")
 
 def example_fields() -> messages.SceneFieldsMessage:
     from affordcore.example import example_room
-    from affordcore.fields import compute_fields
+    from affordcore.geometry.fields import compute_fields
     from affordcore.settings import Settings
 
     points = example_room(seed=0).points.astype(np.float32)

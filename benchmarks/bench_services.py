@@ -21,8 +21,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from affordcore.assembly.sequence import read_sequence  # noqa: E402
 from affordcore.learn.model import shipped_models  # noqa: E402
-from affordcore.sequence import read_sequence  # noqa: E402
 from affordwire import messages  # noqa: E402
 from services.clients import publish_sequence, sequence_messages  # noqa: E402
 from services.launch import Stack  # noqa: E402

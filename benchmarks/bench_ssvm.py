@@ -58,7 +58,7 @@ def room_set(affordance: str, rooms: Path, cache: Path) -> Path:
     path = cache / f"{affordance}-{TRAIN_ROOMS}.npz"
     if path.exists():
         return path
-    from affordcore.features import FeatureLayout
+    from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.defaults import split_by_index
     from affordcore.learn.examples import Task, data_set_rooms, load_rooms, room_examples, stack
     from affordcore.settings import Settings

@@ -45,7 +45,7 @@ def main() -> None:
     parser.add_argument("--local-cap", type=float, default=1.0, help="the local layout's distance cap (m)")
     args = parser.parse_args()
 
-    from affordcore.fields import compute_fields
+    from affordcore.geometry.fields import compute_fields
     from affordcore.learn.model import shipped_models
 
     layouts = {"paper": layout_and_models(None, "centre", list(shipped_models().values()))}
@@ -78,7 +78,7 @@ def main() -> None:
 
 def layout_and_models(cap: float | None, facing: str, paths: list[Path]):
     """(settings, feature layout, its models) of one layout; the models must have been trained with it."""
-    from affordcore.features import FeatureLayout
+    from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.model import load_model
     from affordcore.settings import Settings
 
@@ -125,8 +125,8 @@ def open_floor(fields) -> tuple[float, float]:
 def compare_fields(settings, before: np.ndarray, after: np.ndarray, repeats: int) -> dict:
     """The fields of the changed room from scratch and with the normals of the room before (NormalCache),
     alternating; the largest difference between the two."""
-    from affordcore.fields import compute_fields
-    from affordcore.updates import NormalCache
+    from affordcore.geometry.fields import compute_fields
+    from affordcore.mapping.updates import NormalCache
 
     scratch_s, cached_s = [], []
     for repeat in range(repeats):
@@ -151,7 +151,7 @@ def compare_fields(settings, before: np.ndarray, after: np.ndarray, repeats: int
 
 
 def compare(models, layout, settings, old, new, repeats: int) -> dict:
-    from affordcore.pipeline import RoomMapper
+    from affordcore.mapping.pipeline import RoomMapper
 
     update_s, full_s = [], []
     for repeat in range(repeats):

@@ -10,7 +10,8 @@ and compare_rooms.json to --out. What is measured and why: docs/synthetic-rooms.
 
 Every measure is taken the same way on every cloud. Heights are above a floor plane fitted to the cloud
 (least squares, refitted to the points within 3 cm of it), so the real kitchen's tilt (1.7 degrees) does not
-smear its table and counter heights. Voxels are 10 cm with centres at multiples of 0.1 m (affordcore.fields).
+smear its table and counter heights. Voxels are 10 cm with centres at multiples of 0.1 m
+(affordcore.geometry.fields).
 """
 
 from __future__ import annotations
@@ -28,12 +29,12 @@ ROOT = Path(__file__).resolve().parents[1]
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "rooms"
 sys.path.insert(0, str(ROOT))
 
-from affordcore.fields import estimate_normals
+from affordcore.geometry.fields import estimate_normals
+from affordcore.geometry.scene import load_cloud
+from affordcore.geometry.skeleton import all_skeletons
 from affordcore.labels import affordance_colours, class_counts, load_labels
-from affordcore.pipeline import pose_grids_for_footprint
-from affordcore.scene import load_cloud
+from affordcore.mapping.pipeline import pose_grids_for_footprint
 from affordcore.settings import NormalSettings
-from affordcore.skeleton import all_skeletons
 
 VOXEL = 0.10
 FLOOR_BAND = 0.05  # a point within 5 cm of the floor plane is a floor point

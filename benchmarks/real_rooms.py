@@ -16,13 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
+from affordcore.geometry.scene import load_cloud
 from affordcore.labels import ground_truth, load_labels, match_places
 from affordcore.learn.baselines import tune_threshold
 from affordcore.learn.model import load_model, shipped_models
 from affordcore.learn.train import metrics
-from affordcore.pipeline import map_affordances, prepare_scene
-from affordcore.plots import plot_map
-from affordcore.scene import load_cloud
+from affordcore.mapping.pipeline import map_affordances, prepare_scene
+from affordcore.mapping.plots import plot_map
 from affordcore.settings import Settings
 
 ROOMS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "rooms"

@@ -37,7 +37,7 @@ import numpy as np
 from lightgbm import LGBMClassifier
 from sklearn.metrics import average_precision_score
 
-from affordcore.features import FeatureLayout
+from affordcore.geometry.features import FeatureLayout
 from affordcore.learn.cascade import (
     TreeSettings,
     second_stage_examples,

@@ -36,7 +36,7 @@ SERVICES = ("assembler", "features", "inference")
 
 def back_and_forth(folder: Path):
     """(index, message) for ever: the frames forward, then backward, then forward again."""
-    from affordcore.sequence import read_sequence
+    from affordcore.assembly.sequence import read_sequence
 
     sequence = read_sequence(folder)
     frames = [message for _, message in sequence_messages(sequence, range(len(sequence.frames)))]

@@ -1,7 +1,8 @@
 """Scan assembly: scan/** (any message affordwire.sensors decodes) in; map/pose per frame and map/cloud
 (rate-limited, and once more when the scans stop) out. Registration and the global map are
-affordcore.assembly's; with a state folder (`--state`) every accepted frame is journaled before its pose goes
-out, and the map checkpointed, by affordcore.checkpoint."""
+affordcore.assembly.assembler's; with a state folder (`--state`) every accepted frame is journaled before its
+pose goes
+out, and the map checkpointed, by affordcore.assembly.checkpoint."""
 
 from __future__ import annotations
 
@@ -9,9 +10,9 @@ import time
 
 import numpy as np
 
-from affordcore.assembly import Assembler
-from affordcore.checkpoint import AssemblerStore
-from affordcore.recording import log_cloud, log_scan, log_trajectory, set_time
+from affordcore.assembly.assembler import Assembler
+from affordcore.assembly.checkpoint import AssemblerStore
+from affordcore.mapping.recording import log_cloud, log_scan, log_trajectory, set_time
 from affordwire import messages
 from affordwire.sensors import decode_sensor
 

@@ -116,9 +116,10 @@ def publish_sequence(
 
 
 def sequence_messages(sequence, indices, with_gravity: bool = True):
-    """(index, DepthFrame or Scan) for each frame of an affordcore.sequence.Sequence, with the gravity
+    """(index, DepthFrame or Scan) for each frame of an affordcore.assembly.sequence.Sequence, with the
+    gravity
     direction an IMU would report when the folder has gravity-direction.txt and poses."""
-    from affordcore.sequence import DEPTH_SCALE, INVALID_DEPTH
+    from affordcore.assembly.sequence import DEPTH_SCALE, INVALID_DEPTH
 
     for index in indices:
         if sequence.kind == "depth":
@@ -288,8 +289,8 @@ def watch(session, keys: Keys, watcher: MapWatcher, timeout: float) -> bool:
 def load_as_map(path: Path, gravity: str, settings) -> tuple[messages.CloudMessage, list[str]]:
     """A finished room scan from a file, brought to the world frame by the library's one path (thinned when
     huge, gravity-aligned), so map/cloud always holds world-frame points; and the warnings to show."""
-    from affordcore.pipeline import parse_gravity, to_world
-    from affordcore.scene import load_cloud
+    from affordcore.geometry.scene import load_cloud
+    from affordcore.mapping.pipeline import parse_gravity, to_world
 
     cloud = load_cloud(path)
     world = to_world(cloud, settings, parse_gravity(gravity))
@@ -300,7 +301,7 @@ def load_as_map(path: Path, gravity: str, settings) -> tuple[messages.CloudMessa
 
 def scan_message(path: Path, sensor: str) -> messages.Scan:
     """One cloud file as a single Scan (points in the sensor frame)."""
-    from affordcore.scene import load_cloud
+    from affordcore.geometry.scene import load_cloud
 
     scan = messages.Scan(frame_id=sensor)
     messages.pack_points(scan, load_cloud(path).points)
@@ -309,7 +310,7 @@ def scan_message(path: Path, sensor: str) -> messages.Scan:
 
 def folder_frames(folder: Path, first: int, frames: int, step: int, imu: bool):
     """(sequence, its frames to publish as (index, message) pairs, how many) of a recorded folder."""
-    from affordcore.sequence import read_sequence
+    from affordcore.assembly.sequence import read_sequence
 
     sequence = read_sequence(folder)
     indices = list(range(first, len(sequence.frames), step))[: frames or None]

@@ -1,16 +1,17 @@
 """Feature extraction: map/cloud in, fields out (occupancy, distance transform and normals of the room, which
-every affordance's scores are read from), by affordcore.pipeline's one path from a cloud to its fields. A
+every affordance's scores are read from), by affordcore.mapping.pipeline's one path from a cloud to its
+fields. A
 cloud in the world frame must be levelled already (checked); one in any other frame is levelled here, by the
 same alignment `afford map` uses, and its fields carry the world_from_input that did it. No floor: refused
 on error/features, never answered with empty maps."""
 
 from __future__ import annotations
 
-from affordcore.gravity import check_levelled
-from affordcore.pipeline import prepare_scene
-from affordcore.recording import log_cloud, log_fields, set_time
-from affordcore.scene import Cloud
-from affordcore.updates import NormalCache
+from affordcore.geometry.gravity import check_levelled
+from affordcore.geometry.scene import Cloud
+from affordcore.mapping.pipeline import prepare_scene
+from affordcore.mapping.recording import log_cloud, log_fields, set_time
+from affordcore.mapping.updates import NormalCache
 from affordwire import messages
 
 from .node import Inbound, Node

@@ -1,5 +1,5 @@
 """Model inference: fields in, affordance/<name> out, one AffordanceMap per model (the shipped models unless
-others are configured). Scoring and maps are affordcore.pipeline's `map_affordances`.
+others are configured). Scoring and maps are affordcore.mapping.pipeline's `map_affordances`.
 
 One robot (`afford serve inference --robot R`): every fields message of R is mapped. A sharded worker (`afford
 serve inference --robots '*'`, a node with `WorkerKeys`) maps only its share of the fields of every robot it
@@ -10,9 +10,9 @@ from __future__ import annotations
 import threading
 import time
 
-from affordcore.features import FeatureLayout
-from affordcore.pipeline import RoomMapper
-from affordcore.recording import log_map, set_time
+from affordcore.geometry.features import FeatureLayout
+from affordcore.mapping.pipeline import RoomMapper
+from affordcore.mapping.recording import log_map, set_time
 from affordwire import messages
 
 from .node import Inbound, Node, unused_path
@@ -268,7 +268,7 @@ class ShardedInference(InferenceService):
     def _recording(self, robot: str):
         """The worker's recording of one robot, `<rrd>-<robot>.rrd`, with that robot's recording id (it opens
         with the robot's other recordings as one)."""
-        from affordcore.recording import open_recording
+        from affordcore.mapping.recording import open_recording
 
         if robot not in self.recordings:
             rrd = self.node.rrd
@@ -279,7 +279,7 @@ class ShardedInference(InferenceService):
         return self.recordings[robot]
 
     def _close_recordings(self) -> str:
-        from affordcore.recording import close_recording
+        from affordcore.mapping.recording import close_recording
 
         for recording in self.recordings.values():
             close_recording(recording)

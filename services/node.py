@@ -202,7 +202,7 @@ class Node:
         keys=None,
     ):
         """`keys`: the key space when it is not one robot's (a sharded worker's, services/shard.py)."""
-        from affordcore.recording import open_recording
+        from affordcore.mapping.recording import open_recording
 
         self.service, self.keys = service, keys if keys is not None else Keys(robot)
         self.settings = settings or ServiceSettings()
@@ -472,7 +472,7 @@ class Node:
         return True
 
     def close(self) -> None:
-        from affordcore.recording import close_recording
+        from affordcore.mapping.recording import close_recording
 
         try:
             self.publish_status(messages.Status.STOPPING, "shutting down")

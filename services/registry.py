@@ -66,7 +66,7 @@ def run_service(
         raise ValueError(f"unknown service {name!r}; choose one of {', '.join(SERVICES)}")
     if robots and not spec.shards:
         raise ValueError(f"{name} serves one robot (--robot); only {', '.join(_sharding())} shard")
-    from affordcore.features import FeatureLayout
+    from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.model import choose_models, shipped_models
 
     from .node import Node

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from affordcore.assembly import SensorFrame
+from affordcore.assembly.assembler import SensorFrame
 from affordwire import messages, ros
 
 from .node import Inbound, Inbox, Node

@@ -79,7 +79,7 @@ def generated_sequence(tmp_path_factory) -> Path:
 def small_room(tmp_path_factory) -> str:
     """A 2.5 m x 2 m room (floor, two walls, a table) as a PLY file: a cloud the commands map in seconds."""
     from affordcore.example import box_surface_points
-    from affordcore.scene import Cloud, save_cloud
+    from affordcore.geometry.scene import Cloud, save_cloud
 
     rng = np.random.default_rng(0)
     # Sizes off the 10 cm lattice, so the grid's extent does not hinge on rounding at a cell edge.

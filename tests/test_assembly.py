@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import SHARED_DATA
 
-from affordcore.assembly import (
+from affordcore.assembly.assembler import (
     Assembler,
     SensorFrame,
     kiss_config,
@@ -16,7 +16,7 @@ from affordcore.assembly import (
     scaled_motion,
     trajectory_errors,
 )
-from affordcore.depth import DepthImage, back_project
+from affordcore.assembly.depth import DepthImage, back_project
 from affordcore.example import box_surface_points
 from affordcore.settings import AssemblerSettings
 from affordcore.synth.scanner import DepthCamera, Raycaster, depth_frame, look_at
@@ -191,7 +191,7 @@ def test_the_aligned_map_has_the_floor_at_zero_and_z_up(room_frames, room_run):
 
 
 def test_a_map_whose_floor_search_fails_keeps_the_last_levelling_and_a_checkpoint_keeps_it(room_run):
-    from affordcore.gravity import NoFloorError
+    from affordcore.geometry.gravity import NoFloorError
     from affordcore.settings import GravitySettings, Settings
 
     assembler, _ = room_run
@@ -215,7 +215,7 @@ def test_a_map_whose_floor_search_fails_keeps_the_last_levelling_and_a_checkpoin
 
 def test_a_levelling_that_barely_moves_the_map_is_not_taken(room_run):
     """Every map cloud would otherwise move by the levelling's noise, and the services would map the whole
-    room again each time instead of what changed (affordcore.updates)."""
+    room again each time instead of what changed (affordcore.mapping.updates)."""
     assembler, _ = room_run
     _, levelled = assembler.aligned_map()
     try:
@@ -237,8 +237,8 @@ def test_every_map_the_assembler_levels_passes_the_features_check(generated_sequ
     drifting hand-held walk (its floor smeared over decimetres) must pass that check whenever the assembler
     found a floor at all. A fresh floor search settled on another patch of the smear and refused a third of
     them, so a service restarted mid-walk got no map."""
-    from affordcore.gravity import check_levelled
-    from affordcore.sequence import read_sequence
+    from affordcore.assembly.sequence import read_sequence
+    from affordcore.geometry.gravity import check_levelled
     from affordcore.settings import Settings
 
     sequence, settings = read_sequence(generated_sequence), Settings()
@@ -428,7 +428,7 @@ def test_a_depth_frame_off_the_wire_back_projects_as_its_image():
 
 @pytest.mark.skipif(not KITCHEN.is_dir(), reason=f"the 7-Scenes kitchen frames are not at {KITCHEN}")
 def test_the_defaults_on_the_first_100_real_kitchen_frames():
-    from affordcore.sequence import INVALID_DEPTH, read_sequence
+    from affordcore.assembly.sequence import INVALID_DEPTH, read_sequence
 
     sequence = read_sequence(KITCHEN)
     settings = AssemblerSettings()

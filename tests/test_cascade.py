@@ -8,7 +8,7 @@ import pytest
 
 from affordcore.learn.model import AffordanceModel, ModelError, load_model
 from affordcore.learn.thresholds import RoomScores, place_floor, place_threshold
-from affordcore.trees import TreeEnsemble
+from affordcore.learn.trees import TreeEnsemble
 
 
 @pytest.fixture(scope="module")
@@ -77,8 +77,8 @@ def test_a_cascade_model_file_round_trips_and_a_broken_one_is_named(boosted, tmp
 
 
 def test_the_second_stage_takes_the_best_fraction_of_the_candidates_and_at_most_max_poses():
-    from affordcore.inference import best_poses
-    from affordcore.maps import RULED_OUT
+    from affordcore.mapping.inference import best_poses
+    from affordcore.mapping.maps import RULED_OUT
 
     scores = np.random.default_rng(0).normal(size=1000).astype(np.float32)
     scores[::2] = RULED_OUT  # 500 candidates

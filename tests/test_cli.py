@@ -9,10 +9,10 @@ import sys
 import numpy as np
 import pytest
 
-from affordcore.features import FeatureLayout
-from affordcore.grid import PoseGrid
+from affordcore.geometry.features import FeatureLayout
+from affordcore.geometry.grid import PoseGrid
+from affordcore.geometry.skeleton import all_skeletons, get_skeleton
 from affordcore.settings import Settings
-from affordcore.skeleton import all_skeletons, get_skeleton
 
 
 def afford(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
@@ -99,7 +99,7 @@ def test_no_floor_is_an_error_not_a_frame(tmp_path):
 
 
 def test_align_reports_the_frame_it_found(small_room, tmp_path):
-    from affordcore.scene import load_cloud
+    from affordcore.geometry.scene import load_cloud
 
     cloud = load_cloud(small_room)
     y_up = cloud.points @ np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]], float).T + [0, 0.8, 0]
@@ -180,7 +180,7 @@ def test_an_out_that_cannot_be_written_is_one_line(tmp_path):
 
 
 def test_points_that_are_not_finite_are_counted_on_stderr(small_room, tmp_path):
-    from affordcore.scene import load_cloud
+    from affordcore.geometry.scene import load_cloud
 
     points = load_cloud(small_room).points
     bad = np.full((len(points) // 10, 3), np.nan)

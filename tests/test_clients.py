@@ -72,7 +72,7 @@ def test_the_minimal_client_imports_only_zenoh_protobuf_numpy_and_generated_code
     "line",
     [
         "from affordwire import messages",
-        "import affordcore.skeleton",
+        "import affordcore.geometry.skeleton",
         "from services.transport import Keys",
         "import afford.app",
         "from afford import v1",
@@ -98,7 +98,7 @@ def test_docs_clients_md_lists_the_client_file_exactly():
 
 
 def test_docs_clients_md_names_the_joints_in_order():
-    from affordcore.skeleton import JOINTS
+    from affordcore.geometry.skeleton import JOINTS
 
     numbered = ", ".join(f"{index} {name}" for index, name in enumerate(JOINTS))
     assert numbered in re.sub(r"\s*\n\s*", " ", DOC.read_text())  # lines joined up
@@ -132,7 +132,7 @@ def test_the_client_reads_ply_and_xyz_files(generated, tmp_path):
     """Its PLY reader (ascii and binary, extra vertex properties) and XYZ reader give the points back."""
     import plyfile
 
-    from affordcore.scene import Cloud, save_cloud
+    from affordcore.geometry.scene import Cloud, save_cloud
 
     rng = np.random.default_rng(5)
     points = rng.uniform(-5, 5, size=(300, 3)).astype(np.float32)
@@ -207,7 +207,7 @@ def test_the_minimal_client_gets_the_maps_of_its_own_unlevelled_cloud(generated,
     per shipped affordance answers it, and the sofa's places, brought back into the client's frame with the
     maps' world_from_input, lie on the sofa."""
     from affordcore.example import example_room
-    from affordcore.scene import Cloud, save_cloud
+    from affordcore.geometry.scene import Cloud, save_cloud
 
     room = example_room()
     in_map = room.points @ MAP_FROM_WORLD[:3, :3].T + MAP_FROM_WORLD[:3, 3]

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from affordcore.grid import PoseGrid
-from affordcore.maps import build_map
-from affordcore.skeleton import JOINTS, get_skeleton
+from affordcore.geometry.grid import PoseGrid
+from affordcore.geometry.skeleton import JOINTS, get_skeleton
+from affordcore.mapping.maps import build_map
 from affordwire import messages
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import SHARED_DATA, needs_shared, rrd_verify
 
-from affordcore.recording import recorded_entities
+from affordcore.mapping.recording import recorded_entities
 from services.launch import Stack
 
 AFFORD = [sys.executable, "-m", "afford"]  # the command line of this interpreter, as a user runs it
@@ -134,9 +134,9 @@ def _latest_cloud(stack: Stack):
 def _assert_same_as_afford_map(cloud, documents: dict) -> None:
     """The services' maps are what `afford map`'s path computes from the same cloud: the same places at the
     same scores, the same cut, whatever the models find in this scan."""
+    from affordcore.geometry.scene import Cloud
     from affordcore.learn.model import choose_models
-    from affordcore.pipeline import map_affordances, prepare_scene
-    from affordcore.scene import Cloud
+    from affordcore.mapping.pipeline import map_affordances, prepare_scene
     from affordcore.settings import Settings
     from affordwire import messages
 

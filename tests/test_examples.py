@@ -8,13 +8,13 @@ import json
 import numpy as np
 import pytest
 
-from affordcore.features import FeatureLayout, compute_features
+from affordcore.geometry.features import FeatureLayout, compute_features
+from affordcore.geometry.scene import Cloud, load_cloud, save_cloud
+from affordcore.geometry.skeleton import get_skeleton
 from affordcore.labels import ground_truth, load_labels
 from affordcore.learn.examples import Task, data_set_rooms, load_rooms, room_examples
-from affordcore.pipeline import prepare_scene
-from affordcore.scene import Cloud, load_cloud, save_cloud
+from affordcore.mapping.pipeline import prepare_scene
 from affordcore.settings import GridSettings, Settings
-from affordcore.skeleton import get_skeleton
 from affordcore.synth.rooms import generate_room
 from affordcore.synth.scanner import sample_room_uniform
 

@@ -6,11 +6,17 @@ import numpy as np
 import pytest
 
 from affordcore.example import box_surface_points
-from affordcore.features import FeatureLayout, ReachError, compute_features, features_at, iter_features
-from affordcore.fields import compute_fields
-from affordcore.grid import PoseGrid
+from affordcore.geometry.features import (
+    FeatureLayout,
+    ReachError,
+    compute_features,
+    features_at,
+    iter_features,
+)
+from affordcore.geometry.fields import compute_fields
+from affordcore.geometry.grid import PoseGrid
+from affordcore.geometry.skeleton import JOINTS, get_skeleton, place_joints
 from affordcore.settings import NormalSettings, VoxelSettings
-from affordcore.skeleton import JOINTS, get_skeleton, place_joints
 
 RNG_SEED = 7
 

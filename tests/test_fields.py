@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from affordcore.example import box_surface_points
-from affordcore.fields import (
+from affordcore.geometry.fields import (
     cell_keys,
     cells_of_keys,
     compute_fields,

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from affordcore.grid import PoseGrid
+from affordcore.geometry.grid import PoseGrid
+from affordcore.geometry.skeleton import JOINTS, get_skeleton, place_joints
 from affordcore.labels import polygon_contains
-from affordcore.skeleton import JOINTS, get_skeleton, place_joints
 from affordcore.synth import furniture as F
 from affordcore.synth.rooms import generate_room, role_affordances
 from affordcore.synth.shapes import Box, boxes_overlap

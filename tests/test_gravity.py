@@ -8,7 +8,13 @@ import pytest
 from conftest import SHARED_DATA, needs_shared
 
 from affordcore.example import box_surface_points, example_room
-from affordcore.gravity import Alignment, NoFloorError, align_to_gravity, check_levelled, rotation_between
+from affordcore.geometry.gravity import (
+    Alignment,
+    NoFloorError,
+    align_to_gravity,
+    check_levelled,
+    rotation_between,
+)
 from affordcore.settings import GravitySettings
 
 Z = np.array([0.0, 0.0, 1.0])
@@ -318,7 +324,7 @@ ROOMS = sorted((SHARED_DATA / "rooms").glob("*.ply")) if SHARED_DATA.is_dir() el
 def real_room(request):
     if request.param is None:
         pytest.skip(f"no rooms under {SHARED_DATA}")
-    from affordcore.scene import load_cloud
+    from affordcore.geometry.scene import load_cloud
 
     points = load_cloud(request.param).points
     return request.param.name, points, align_to_gravity(points)
@@ -364,7 +370,7 @@ def test_real_room_in_other_frames(real_room, frame):
 def test_real_office_camera_frame():
     import open3d as o3d
 
-    from affordcore.scene import load_cloud
+    from affordcore.geometry.scene import load_cloud
 
     cloud = load_cloud(SHARED_DATA / "single_frames" / "pcl_test_office1.pcd")
     assert cloud.dropped_nonfinite > 0  # an organised frame: invalid pixels are NaN

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from conftest import eventually
 
-from affordcore.fields import compute_fields
+from affordcore.geometry.fields import compute_fields
 from affordwire import messages
 from services.launch import Stack
 from services.transport import Keys, encoding_of, open_session

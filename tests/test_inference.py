@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from test_features import _fields, _sparse_grid
 
-from affordcore.features import FeatureLayout, compute_features
-from affordcore.grid import PoseGrid
-from affordcore.inference import score_poses
-from affordcore.skeleton import get_skeleton
+from affordcore.geometry.features import FeatureLayout, compute_features
+from affordcore.geometry.grid import PoseGrid
+from affordcore.geometry.skeleton import get_skeleton
+from affordcore.mapping.inference import score_poses
 
 
 @pytest.mark.parametrize("cell_size, step, cap", [(0.25, 0.1, 0.5), (0.10, 0.1, None), (0.5, 0.2, 0.3)])

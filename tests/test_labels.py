@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from affordcore.grid import PoseGrid
+from affordcore.geometry.grid import PoseGrid
 from affordcore.labels import (
     THETA_TOLERANCE,
     XY_TOLERANCE,
@@ -25,7 +25,7 @@ from affordcore.labels import (
     match_places,
     save_labels,
 )
-from affordcore.plots import plot_labels
+from affordcore.mapping.plots import plot_labels
 
 TWO_PI = 2 * math.pi
 
@@ -335,7 +335,7 @@ def test_plot_writes_a_readable_png(tmp_path):
 
 @pytest.fixture(scope="module")
 def real_rooms(shared_data):
-    from affordcore.scene import load_cloud
+    from affordcore.geometry.scene import load_cloud
 
     rooms = []
     for path in sorted((shared_data / "rooms").glob("*.labels.json")):
@@ -347,7 +347,7 @@ def real_rooms(shared_data):
 
 @pytest.mark.slow  # loading the two real clouds takes seconds
 def test_real_label_files(real_rooms, tmp_path):
-    from affordcore.skeleton import all_skeletons
+    from affordcore.geometry.skeleton import all_skeletons
 
     for path, labels, cloud in real_rooms:
         footprint = (*cloud.points[:, :2].min(axis=0), *cloud.points[:, :2].max(axis=0))

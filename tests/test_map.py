@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from affordcore.example import example_room
-from affordcore.features import FeatureLayout
+from affordcore.geometry.features import FeatureLayout
+from affordcore.geometry.scene import Cloud, load_cloud, save_cloud, thin_huge_cloud
 from affordcore.learn.model import load_model, shipped_models
-from affordcore.recording import recorded_entities
-from affordcore.scene import Cloud, load_cloud, save_cloud, thin_huge_cloud
+from affordcore.mapping.recording import recorded_entities
 from affordcore.settings import MapSettings, Settings
 
 AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")

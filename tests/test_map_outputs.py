@@ -8,11 +8,11 @@ import sys
 import pytest
 
 from affordcore.example import example_room
-from affordcore.features import FeatureLayout
+from affordcore.geometry.features import FeatureLayout
 from affordcore.learn.model import choose_models
-from affordcore.outputs import map_and_write, write_map_outputs
-from affordcore.pipeline import map_affordances, prepare_scene
-from affordcore.recording import recorded_entities
+from affordcore.mapping.outputs import map_and_write, write_map_outputs
+from affordcore.mapping.pipeline import map_affordances, prepare_scene
+from affordcore.mapping.recording import recorded_entities
 from affordcore.settings import Settings
 
 

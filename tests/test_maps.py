@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from affordcore.grid import PoseGrid
-from affordcore.maps import build_map
-from affordcore.skeleton import get_skeleton
+from affordcore.geometry.grid import PoseGrid
+from affordcore.geometry.skeleton import get_skeleton
+from affordcore.mapping.maps import build_map
 
 
 def _grid() -> PoseGrid:
@@ -106,7 +106,7 @@ def test_cells_away_from_scanned_floor_hold_no_skeleton():
 
 
 def test_observed_floor_is_the_scanned_floor_and_a_margin():
-    from affordcore.fields import compute_fields, observed_floor
+    from affordcore.geometry.fields import compute_fields, observed_floor
     from affordcore.settings import NormalSettings, VoxelSettings
 
     rng = np.random.default_rng(0)

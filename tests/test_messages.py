@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from affordcore.depth import back_project
-from affordcore.grid import PoseGrid
-from affordcore.maps import build_map
-from affordcore.skeleton import get_skeleton
+from affordcore.assembly.depth import back_project
+from affordcore.geometry.grid import PoseGrid
+from affordcore.geometry.skeleton import get_skeleton
+from affordcore.mapping.maps import build_map
 from affordwire import messages
 from affordwire.messages import MessageError
 
@@ -460,7 +460,7 @@ def test_a_cloud_needs_a_hundred_finite_points():
 @pytest.fixture(scope="module")
 def small_fields():
     """Fields of a small synthetic room corner (a floor and a wall), normals given so no estimation runs."""
-    from affordcore.fields import compute_fields
+    from affordcore.geometry.fields import compute_fields
 
     rng = np.random.default_rng(7)
     floor = np.column_stack([rng.uniform(0, 1.5, 3000), rng.uniform(0, 1.0, 3000), np.zeros(3000)])
@@ -564,7 +564,7 @@ def real_map():
     model."""
     from affordcore.example import example_room
     from affordcore.learn.model import choose_models
-    from affordcore.pipeline import map_affordances, prepare_scene
+    from affordcore.mapping.pipeline import map_affordances, prepare_scene
     from affordcore.settings import Settings
 
     settings = Settings()

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from affordcore.features import FeatureLayout
+from affordcore.geometry.features import FeatureLayout
 from affordcore.learn.model import AffordanceModel, ModelError, load_model
 
 
@@ -75,7 +75,7 @@ def test_missing_file(tmp_path):
 
 
 def test_a_relative_place_threshold_counts_from_the_room_s_median_candidate_score(tmp_path):
-    from affordcore.maps import RULED_OUT
+    from affordcore.mapping.maps import RULED_OUT
 
     layout = FeatureLayout(cell_size=0.25)
     model = _model(layout)

@@ -154,7 +154,7 @@ class _Worker:
     runs)."""
 
     def __init__(self, endpoint: str, worker: str, folder: Path):
-        from affordcore.features import FeatureLayout
+        from affordcore.geometry.features import FeatureLayout
         from affordcore.learn.model import choose_models
         from services.inference import InferenceService
         from services.node import Node
@@ -255,7 +255,7 @@ def test_two_workers_share_the_robots_and_the_survivor_maps_what_a_lost_worker_t
     from conftest import eventually
     from test_services import _box_room_scan
 
-    from affordcore.fields import compute_fields
+    from affordcore.geometry.fields import compute_fields
     from affordcore.settings import VoxelSettings
     from services.launch import free_port
     from services.shard import owner
@@ -338,9 +338,9 @@ def test_in_a_secured_site_only_the_inference_identity_joins_the_workers(tmp_pat
     and maps, and drops a token another site identity declares in the workers' group (it would take a share
     of the units and never map them)."""
     from affordcore.example import example_room
-    from affordcore.features import FeatureLayout
+    from affordcore.geometry.features import FeatureLayout
+    from affordcore.geometry.scene import Cloud, save_cloud
     from affordcore.learn.model import choose_models
-    from affordcore.scene import Cloud, save_cloud
     from affordcore.settings import Settings
     from services.launch import Stack
     from services.security import Site, write_site
@@ -563,7 +563,7 @@ def test_two_hosts_two_routers_a_worker_killed_mid_run_and_every_map_still_deliv
     if reason:
         pytest.skip(reason)
     from affordcore.example import example_room
-    from affordcore.scene import Cloud, save_cloud
+    from affordcore.geometry.scene import Cloud, save_cloud
     from services.shard import owner
 
     robots = ("r1", "r2")

@@ -8,12 +8,12 @@ import json
 import numpy as np
 import pytest
 
-from affordcore.features import FeatureLayout
-from affordcore.grid import PoseGrid
+from affordcore.geometry.features import FeatureLayout
+from affordcore.geometry.grid import PoseGrid
+from affordcore.geometry.skeleton import get_skeleton
 from affordcore.learn.model import AffordanceModel, load_model
-from affordcore.maps import build_map
-from affordcore.places import EVIDENCE, SUPPORT_RADIUS, PlaceModel, fit_place_model, place_candidates
-from affordcore.skeleton import get_skeleton
+from affordcore.mapping.maps import build_map
+from affordcore.mapping.places import EVIDENCE, SUPPORT_RADIUS, PlaceModel, fit_place_model, place_candidates
 
 
 def _grid() -> PoseGrid:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from plyfile import PlyData, PlyElement
 
-from affordcore.scene import CloudError, _read_ascii_ply_vertices, load_cloud
+from affordcore.geometry.scene import CloudError, _read_ascii_ply_vertices, load_cloud
 
 N = 2_000
 

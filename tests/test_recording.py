@@ -12,9 +12,10 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
-from affordcore.grid import PoseGrid
-from affordcore.maps import build_map
-from affordcore.recording import (
+from affordcore.geometry.grid import PoseGrid
+from affordcore.geometry.skeleton import BONE_ENDS, JOINTS, get_skeleton
+from affordcore.mapping.maps import build_map
+from affordcore.mapping.recording import (
     affordance_colors,
     close_recording,
     log_map,
@@ -22,7 +23,6 @@ from affordcore.recording import (
     recorded_entities,
     set_time,
 )
-from affordcore.skeleton import BONE_ENDS, JOINTS, get_skeleton
 
 
 def _map(affordance: str, places: list[tuple[int, int, float]], skeleton: str = "sitting-relaxing"):

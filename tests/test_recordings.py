@@ -158,8 +158,8 @@ def test_publish_refuses_a_bag_without_the_cloud_topic_it_needs_and_names_the_to
 def test_a_folder_of_ply_and_pcd_scans_is_read_in_natural_name_order(tmp_path):
     import open3d as o3d
 
-    from affordcore.scene import Cloud, save_cloud
-    from affordcore.sequence import read_sequence
+    from affordcore.assembly.sequence import read_sequence
+    from affordcore.geometry.scene import Cloud, save_cloud
     from services.clients import sequence_messages
 
     rng = np.random.default_rng(0)
@@ -197,7 +197,7 @@ def test_bags_in_both_storages_stream_into_affordance_maps(generated_sequence, t
     services: the maps of all 40 come out, the assembler having taken every scan with its IMU gravity."""
     from test_end_to_end import EVERY_FRAME, _assert_same_as_afford_map, _check_maps, _latest_cloud
 
-    from affordcore.sequence import read_sequence
+    from affordcore.assembly.sequence import read_sequence
     from services.launch import Stack
 
     sequence = read_sequence(generated_sequence)
@@ -246,9 +246,9 @@ def test_a_folder_of_ply_scans_streams_into_the_assembler_in_order(generated_seq
     is refused by the motion limits: fewer than 40 poses."""
     from test_ros import organised_cloud
 
-    from affordcore.assembly import Assembler
-    from affordcore.scene import Cloud, load_cloud, save_cloud
-    from affordcore.sequence import read_sequence
+    from affordcore.assembly.assembler import Assembler
+    from affordcore.assembly.sequence import read_sequence
+    from affordcore.geometry.scene import Cloud, load_cloud, save_cloud
     from affordcore.settings import Settings
     from services.launch import Stack
     from services.transport import Keys

@@ -11,10 +11,11 @@ import pytest
 from typer.testing import CliRunner
 
 from afford.app import app
-from affordcore.assembly import SensorFrame
+from affordcore.assembly.assembler import SensorFrame
 from affordcore.learn import learners as learner_registry
 from affordcore.learn.examples import RoomExamples
-from affordcore.learn.learners import LEARNERS, Fitted, Learner
+from affordcore.learn.fitted import Fitted
+from affordcore.learn.learners import LEARNERS, Learner
 from affordcore.learn.train import fit
 from affordwire import messages, sensors
 from affordwire.sensors import SENSOR_DECODERS, decode_sensor

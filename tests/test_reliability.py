@@ -10,9 +10,9 @@ import time
 import numpy as np
 import pytest
 
-from affordcore.assembly import Assembler
-from affordcore.checkpoint import AssemblerStore, read_journal
-from affordcore.fields import compute_fields
+from affordcore.assembly.assembler import Assembler
+from affordcore.assembly.checkpoint import AssemblerStore, read_journal
+from affordcore.geometry.fields import compute_fields
 from affordcore.settings import LimitSettings, VoxelSettings
 from affordwire import messages
 from affordwire.messages import MessageError

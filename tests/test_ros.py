@@ -440,7 +440,7 @@ def organised_cloud(sequence, index: int) -> np.ndarray:
     """A depth frame of an afford synth sequence as the organised cloud a ROS depth driver publishes
     (depth_image_proc's point_cloud_xyz): one point per 2 x 2 block at its mean measured depth, NaN where
     the block has none, in the camera's optical frame (x right, y down, z ahead). (H/2, W/2, 3)."""
-    from affordcore.sequence import DEPTH_SCALE, INVALID_DEPTH
+    from affordcore.assembly.sequence import DEPTH_SCALE, INVALID_DEPTH
 
     depth = sequence.depth(index)
     rows, columns = depth.shape[0] // 2, depth.shape[1] // 2
@@ -479,7 +479,7 @@ def test_a_ros2_robot_on_rmw_zenoh_keys_gets_affordance_maps(generated_sequence,
     import zenoh
     from test_end_to_end import AFFORD, EVERY_FRAME, _assert_same_as_afford_map, _check_maps, _latest_cloud
 
-    from affordcore.sequence import read_sequence
+    from affordcore.assembly.sequence import read_sequence
     from services.launch import Stack
     from services.transport import Keys
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from affordcore.scene import SUPPORTED_SUFFIXES, Cloud, CloudError, load_cloud, save_cloud
+from affordcore.geometry.scene import SUPPORTED_SUFFIXES, Cloud, CloudError, load_cloud, save_cloud
 
 N = 300
 

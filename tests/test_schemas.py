@@ -169,7 +169,7 @@ def test_the_protos_refer_to_nothing_outside_them():
 
 
 def test_maps_proto_states_the_joint_order_of_the_skeletons():
-    from affordcore.skeleton import JOINTS
+    from affordcore.geometry.skeleton import JOINTS
 
     numbered = ", ".join(f"{index} {name}" for index, name in enumerate(JOINTS))
     assert numbered in _comments("maps")

@@ -174,7 +174,7 @@ def test_no_service_listens_so_nothing_bypasses_the_router(stack):
 def test_a_mapper_publishes_a_room_and_a_viewer_gets_its_maps(stack, site, tmp_path):
     """The README's secured walk-through: every command with its identity's --zenoh-config."""
     from affordcore.example import example_room
-    from affordcore.scene import save_cloud
+    from affordcore.geometry.scene import save_cloud
 
     room = tmp_path / "example.ply"
     save_cloud(room, example_room())

@@ -1,4 +1,5 @@
-"""affordcore.sequence: recorded sequences on disk (7-Scenes depth frames, LiDAR scans) and the folders that
+"""affordcore.assembly.sequence: recorded sequences on disk (7-Scenes depth frames, LiDAR scans) and the
+folders that
 are not."""
 
 from __future__ import annotations
@@ -10,8 +11,8 @@ import pytest
 from conftest import SHARED_DATA
 from PIL import Image
 
-from affordcore.depth import back_project
-from affordcore.sequence import DEPTH_SCALE, INVALID_DEPTH, SequenceError, read_sequence
+from affordcore.assembly.depth import back_project
+from affordcore.assembly.sequence import DEPTH_SCALE, INVALID_DEPTH, SequenceError, read_sequence
 from affordwire import messages
 
 K = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0], [0.0, 0.0, 1.0]])

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 from conftest import eventually
 
-from affordcore.features import FeatureLayout
+from affordcore.geometry.features import FeatureLayout
 from affordcore.learn.model import choose_models
-from affordcore.recording import recorded_entities
+from affordcore.mapping.recording import recorded_entities
 from affordwire import messages
 from services.clients import _publisher
 from services.launch import free_port
@@ -217,7 +217,7 @@ def test_features_level_a_cloud_in_its_own_frame_refuse_a_world_one_without_a_fl
 
 
 def test_inference_refuses_fields_at_another_resolution_or_facing(router, client, tmp_path):
-    from affordcore.fields import compute_fields
+    from affordcore.geometry.fields import compute_fields
     from affordcore.settings import NormalSettings, VoxelSettings
     from services.inference import InferenceService
 
@@ -240,8 +240,8 @@ def test_inference_refuses_fields_at_another_resolution_or_facing(router, client
 def test_inference_updates_the_maps_of_a_changed_room_as_a_mapping_from_scratch_would(
     router, client, tmp_path
 ):
-    from affordcore.fields import compute_fields
-    from affordcore.pipeline import map_affordances
+    from affordcore.geometry.fields import compute_fields
+    from affordcore.mapping.pipeline import map_affordances
     from services.inference import InferenceService
 
     maps = _listen(client, KEYS.affordance("sitting-relaxing"))
@@ -278,7 +278,7 @@ def test_a_recording_whose_viewer_is_absent_still_writes_the_whole_file(tmp_path
     import subprocess
     import sys
 
-    from affordcore.recording import close_recording, log_cloud, open_recording
+    from affordcore.mapping.recording import close_recording, log_cloud, open_recording
 
     rrd = tmp_path / "sub" / "with-viewer.rrd"
     recording = open_recording(
@@ -307,7 +307,7 @@ def _afford(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_publish_as_map_sends_the_room_in_the_world_frame(router, client, tmp_path):
-    from affordcore.scene import Cloud, save_cloud
+    from affordcore.geometry.scene import Cloud, save_cloud
 
     points = _box_room_scan(np.random.default_rng(5))
     y_up = points[:, [0, 2, 1]] * [1, 1, -1] + [0, 0.8, 0]  # y up, floor at y = +0.8
@@ -327,7 +327,7 @@ def test_publish_as_map_sends_the_room_in_the_world_frame(router, client, tmp_pa
 
 
 def test_publish_sends_a_cloud_file_as_one_scan(router, client, tmp_path):
-    from affordcore.scene import Cloud, save_cloud
+    from affordcore.geometry.scene import Cloud, save_cloud
 
     points = np.random.default_rng(6).uniform(-2, 2, (500, 3))
     save_cloud(tmp_path / "scan.npy", Cloud(points))
@@ -342,7 +342,7 @@ def test_publish_sends_a_cloud_file_as_one_scan(router, client, tmp_path):
 
 
 def test_publish_with_no_service_listening_says_so_and_exits_2(router, tmp_path):
-    from affordcore.scene import Cloud, save_cloud
+    from affordcore.geometry.scene import Cloud, save_cloud
 
     save_cloud(tmp_path / "scan.npy", Cloud(np.zeros((10, 3))))
     result = _afford(

@@ -10,10 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from affordcore.features import FeatureLayout
-from affordcore.grid import PoseGrid
-from affordcore.settings import Settings
-from affordcore.skeleton import (
+from affordcore.geometry.features import FeatureLayout
+from affordcore.geometry.grid import PoseGrid
+from affordcore.geometry.skeleton import (
     BUILTIN_DIR,
     JOINTS,
     SkeletonError,
@@ -22,6 +21,7 @@ from affordcore.skeleton import (
     load_skeleton,
     skeleton_files,
 )
+from affordcore.settings import Settings
 
 PACKAGE = Path(__file__).resolve().parents[1] / "affordcore"
 

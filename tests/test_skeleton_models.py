@@ -12,8 +12,8 @@ import pytest
 from typer.testing import CliRunner
 
 from afford.app import app
-from affordcore.skeleton import BUILTIN_DIR, JOINTS, rotation_z
-from affordcore.skeleton_models import (
+from affordcore.geometry.skeleton import BUILTIN_DIR, JOINTS, rotation_z
+from affordcore.geometry.skeleton_models import (
     Frames,
     bone_lengths,
     canonicalise,

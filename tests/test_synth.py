@@ -9,10 +9,10 @@ import sys
 import numpy as np
 import pytest
 
+from affordcore.geometry.skeleton import all_skeletons, get_skeleton, place_joints
 from affordcore.labels import load_labels, polygon_contains, save_labels
-from affordcore.skeleton import all_skeletons, get_skeleton, place_joints
 from affordcore.synth import furniture as F
-from affordcore.synth.rooms import KINDS, any_overlap, generate_room, inside_polygon, role_affordances
+from affordcore.synth.rooms import KINDS, generate_room, inside_polygon, role_affordances
 from affordcore.synth.scanner import (
     DepthCamera,
     Raycaster,
@@ -25,7 +25,7 @@ from affordcore.synth.scanner import (
     scan_room,
     viewpoints,
 )
-from affordcore.synth.shapes import Box, boxes_overlap
+from affordcore.synth.shapes import Box, any_overlap, boxes_overlap
 
 ROOMS = [(kind, seed) for kind in KINDS for seed in range(6)]
 

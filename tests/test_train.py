@@ -11,12 +11,12 @@ import sys
 import numpy as np
 import pytest
 
-from affordcore.fields import scanned_cells
+from affordcore.geometry.fields import scanned_cells
 from affordcore.learn.evaluate import deal_folds, evaluate, write_outputs
 from affordcore.learn.learners import LEARNERS
 from affordcore.learn.model import load_model
 from affordcore.learn.train import split_rooms, train
-from affordcore.places import place_candidates
+from affordcore.mapping.places import place_candidates
 from affordcore.settings import FeatureSettings, GridSettings, Settings
 
 SMALL = {
@@ -220,9 +220,9 @@ def test_the_evaluation_picks_each_affordance_its_best_learner(tmp_path):
 
 
 def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set, tmp_path):
-    from affordcore.features import FeatureLayout
+    from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.examples import data_set_rooms, load_room
-    from affordcore.pipeline import map_affordances, score_model
+    from affordcore.mapping.pipeline import map_affordances, score_model
 
     settings = _settings()
     affordance = _affordance(data_set)
@@ -288,7 +288,7 @@ def test_default_models_train_on_the_split_the_benchmark_uses_and_are_reproducib
     assert result.returncode == 0, result.stderr
     first = train_default_models(data, tmp_path / "a", "linear-tuned", validation=1, test=1)
     second = train_default_models(data, tmp_path / "b", "linear-tuned", validation=1, test=1)
-    from affordcore.skeleton import skeleton_files
+    from affordcore.geometry.skeleton import skeleton_files
 
     shipped = sorted(skeleton_files(Settings().skeleton_dirs))
     assert [p.name for p in first] == [f"{a}.model.json" for a in shipped]

@@ -7,17 +7,17 @@ import numpy as np
 import pytest
 from test_features import _room
 
-from affordcore import inference
 from affordcore.example import box_surface_points
-from affordcore.features import FeatureLayout
-from affordcore.fields import compute_fields, voxel_down_sample
-from affordcore.inference import score_poses
+from affordcore.geometry.features import FeatureLayout
+from affordcore.geometry.fields import compute_fields, voxel_down_sample
+from affordcore.geometry.skeleton import get_skeleton
 from affordcore.learn.model import AffordanceModel
-from affordcore.pipeline import RoomMapper, map_affordances, pose_grid
+from affordcore.learn.trees import TreeEnsemble
+from affordcore.mapping import inference
+from affordcore.mapping.inference import score_poses
+from affordcore.mapping.pipeline import RoomMapper, map_affordances, pose_grid
+from affordcore.mapping.updates import ModelState, reach_voxels, updated_scores
 from affordcore.settings import NormalSettings, Settings, VoxelSettings
-from affordcore.skeleton import get_skeleton
-from affordcore.trees import TreeEnsemble
-from affordcore.updates import ModelState, reach_voxels, updated_scores
 
 # the local layout: truncated distance, steep normals facing the scanned floor (docs/geometry.md)
 LAYOUT = FeatureLayout(1.0, 0.25, 0.10, distance_cap=0.5, steep_facing="floor")
@@ -154,7 +154,7 @@ def test_thinning_for_normals_keeps_every_other_point_when_a_point_lands_beyond_
 
 
 def test_a_normal_cache_estimates_only_near_a_change_and_gives_the_fields_of_a_fresh_estimate(rooms):
-    from affordcore.updates import NormalCache
+    from affordcore.mapping.updates import NormalCache
 
     rng = np.random.default_rng(3)
     base = _room(size=6.0)

@@ -14,17 +14,18 @@ library. LightGBM ranks as well and fits faster (benchmarks/second_stage_trees.p
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..features import features_at
-from ..inference import best_poses
-from ..maps import RULED_OUT
-from ..pipeline import score_model
-from ..trees import TreeEnsemble
+from ..geometry.features import features_at
+from ..mapping.inference import best_poses
+from ..mapping.maps import RULED_OUT
+from ..mapping.pipeline import score_model
 from .examples import Room, RoomExamples, Task
-from .learners import Fitted, get_learner
+from .fitted import Fitted
+from .trees import TreeEnsemble
 
 
 @dataclass(frozen=True)
@@ -110,17 +111,17 @@ def fit_trees(examples: RoomExamples, settings: TreeSettings, seed: int) -> Tree
     return TreeEnsemble.from_sklearn(model)
 
 
-def fit_cascade(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> Fitted:
-    """params: ``first`` (the first stage's learner, default ``linear-tuned``), ``fraction`` and ``max_poses``
-    (default `learn.rescore_fraction`, `learn.rescore_max_poses`), ``first_params``, and any `TreeSettings`
-    field."""
+def fit_cascade(
+    train: RoomExamples, validation: RoomExamples, params: dict, rng, fit_first: Callable[..., Fitted]
+) -> Fitted:
+    """`fit_first`: the first stage's fit (the learner named by params ``first``, default ``linear-tuned``).
+    params: ``fraction`` and ``max_poses`` (default `learn.rescore_fraction`, `learn.rescore_max_poses`),
+    ``first_params``, and any `TreeSettings` field."""
     task = train.task
     if task is None or not train.rooms:
         raise ValueError("the cascade learns from rooms: train it with `afford train` / `train.train`")
     first_name = params.get("first", "linear-tuned")
-    if first_name == "cascade":
-        raise ValueError("a cascade's first stage must be a linear learner")
-    first = get_learner(first_name).fit(train, validation, params.get("first_params", {}), rng)
+    first = fit_first(train, validation, params.get("first_params", {}), rng)
     fraction = float(params.get("fraction", task.settings.learn.rescore_fraction))
     max_poses = int(params.get("max_poses", task.settings.learn.rescore_max_poses))
     trees_settings = TreeSettings(

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..geometry.skeleton import skeleton_files
 from ..settings import Settings
-from ..skeleton import skeleton_files
 
 ROOMS, SEED, VALIDATION, TEST, LEARNER = 200, 1, 40, 40, "cascade"
 
@@ -80,7 +80,7 @@ def train_default_models(
     test: int = TEST,
 ) -> list[Path]:
     """Train every affordance on a generated data set split by `split_by_index`, write the model files."""
-    from ..features import FeatureLayout
+    from ..geometry.features import FeatureLayout
     from .examples import Task, data_set_rooms, load_rooms, room_examples
     from .train import train_on_rooms
 

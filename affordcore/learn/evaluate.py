@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..features import FeatureLayout
+from ..geometry.features import FeatureLayout
 from ..labels import load_labels
 from ..settings import Settings
 from .examples import RoomExamples, Task, data_set_rooms, load_rooms, room_examples
@@ -256,7 +256,7 @@ def write_outputs(evaluation: Evaluation, out: str | Path) -> list[Path]:
     paths = [out / "results.json", out / "results.md", out / "imbalance.png", out / "ssvm_iterations.png"]
     paths[0].write_text(json.dumps(evaluation.to_json(), indent=1) + "\n")
     paths[1].write_text(results_markdown(evaluation))
-    from ..plots import plot_imbalance, plot_ssvm_iterations
+    from ..mapping.plots import plot_imbalance, plot_ssvm_iterations
 
     plot_imbalance(evaluation, paths[2])
     plot_ssvm_iterations(evaluation, paths[3])

@@ -22,14 +22,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..features import FeatureLayout, features_at
-from ..fields import SceneFields
-from ..grid import PoseGrid
+from ..geometry.features import FeatureLayout, features_at
+from ..geometry.fields import SceneFields
+from ..geometry.grid import PoseGrid
+from ..geometry.scene import load_cloud
+from ..geometry.skeleton import Skeleton, get_skeleton
 from ..labels import GroundTruth, LabelSet, ground_truth, load_labels
-from ..pipeline import pose_grid, prepare_scene
-from ..scene import load_cloud
+from ..mapping.pipeline import pose_grid, prepare_scene
 from ..settings import Settings
-from ..skeleton import Skeleton, get_skeleton
 
 
 class RoomFiles(NamedTuple):

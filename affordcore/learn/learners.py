@@ -5,25 +5,15 @@ a learner fits, so the command line can list them instantly."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
+
+from .fitted import Fitted
 
 if TYPE_CHECKING:
     import numpy as np
 
     from .examples import RoomExamples
-
-
-@dataclass
-class Fitted:
-    """What a learner returns: the linear (first) stage, its threshold, what the learner reports, and a
-    cascade's second stage."""
-
-    weights: np.ndarray
-    bias: float
-    threshold: float
-    report: dict = field(default_factory=dict)
-    rescorer: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -102,7 +92,11 @@ def _linear_tuned(train, validation, params, rng):
 def _cascade(train, validation, params, rng) -> Fitted:
     from .cascade import fit_cascade
 
-    return fit_cascade(train, validation, params, rng)
+    first = params.get("first", "linear-tuned")
+    if first == "cascade":
+        raise ValueError("a cascade's first stage must be a linear learner")
+    # the cascade is handed its first stage's fit: it need not know the registry that lists it
+    return fit_cascade(train, validation, params, rng, get_learner(first).fit)
 
 
 LEARNERS: dict[str, Learner] = {

@@ -7,7 +7,7 @@ weights, bias and threshold, the training rooms with their class counts, and val
 (`learn/cascade.py`) also holds its second stage: the fraction of poses it rescores and its trees as node
 tables (data, never pickled code); `place_threshold` is the score a skeleton-map place must beat, counted from
 the median of the room's candidate scores when `place_reference` is "room-median", and never below
-`place_floor` when the model has one; a model with a `place_model` (affordcore/places.py) gives every
+`place_floor` when the model has one; a model with a `place_model` (affordcore/mapping/places.py) gives every
 candidate place a calibrated probability instead, and the map keeps those above `map.place_probability`.
 Loading a model against a feature layout other than its own is a `ModelError`, not a silent wrong answer.
 """
@@ -22,12 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..features import FeatureLayout
+from ..geometry.features import FeatureLayout
+from ..geometry.skeleton import Skeleton
 from ..jsonfile import read_json
-from ..maps import room_reference
-from ..places import PlaceModel
-from ..skeleton import Skeleton
-from ..trees import TreeEnsemble
+from ..mapping.maps import room_reference
+from ..mapping.places import PlaceModel
+from .trees import TreeEnsemble
 
 FORMAT = "affordance-model/3"
 # /2 added the optional place_threshold, rescorer, place_reference, place_floor; /3 the optional place_model

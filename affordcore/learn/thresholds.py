@@ -20,12 +20,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..fields import scanned_cells
-from ..grid import PoseGrid
+from ..geometry.fields import scanned_cells
+from ..geometry.grid import PoseGrid
 from ..labels import LabelSet, ground_truth, place_matches
-from ..maps import RULED_OUT, build_map, room_reference
-from ..pipeline import score_model
-from ..places import PlaceModel, fit_place_model, place_candidates
+from ..mapping.maps import RULED_OUT, build_map, room_reference
+from ..mapping.pipeline import score_model
+from ..mapping.places import PlaceModel, fit_place_model, place_candidates
 from ..settings import Settings
 from .baselines import tune_threshold
 from .examples import Room

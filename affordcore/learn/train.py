@@ -14,12 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..features import FeatureLayout
+from ..geometry.features import FeatureLayout
 from ..settings import Settings
 from .baselines import undersampled_indices
 from .examples import RoomExamples, Task, data_set_rooms, load_rooms, room_examples, stack
 from .f1_argmax import f1_loss
-from .learners import Fitted, get_learner
+from .fitted import Fitted
+from .learners import get_learner
 from .model import AffordanceModel
 from .thresholds import fit_places, place_floor, place_threshold, pose_threshold, room_scores
 

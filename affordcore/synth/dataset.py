@@ -111,10 +111,10 @@ def _run(options: SynthOptions, out: Path, seeds, workers: int) -> Iterator[dict
 
 def make_room(options: SynthOptions, out: Path, index: int, seed: np.random.SeedSequence) -> dict:
     """Generate, scan and label one room; returns its report (points, labels and class counts)."""
+    from ..geometry.scene import Cloud, save_cloud
+    from ..geometry.skeleton import all_skeletons
     from ..labels import class_counts, load_labels
-    from ..pipeline import pose_grids_for_footprint
-    from ..scene import Cloud, save_cloud
-    from ..skeleton import all_skeletons
+    from ..mapping.pipeline import pose_grids_for_footprint
     from .scanner import sample_room_uniform
     from .styles import scan_in_style
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .shapes import Anchor, Box, Piece, rot2
+from .shapes import Anchor, Box, Piece, any_overlap, rot2
 
 LOUNGE, DESK_SEAT, STANDING_EDGE = "lounge-seat", "desk-seat", "standing-work-edge"
 
@@ -499,8 +499,6 @@ def _add_chair(
     pedestal, a neighbour) is drawn back until it fits, as a real one stops where its armrests meet the top;
     after `tries` draws in which it never fits, the place has no chair. Now and then the chair holds a bag or
     a laptop: the place stays labelled (a person would move it)."""
-    from .rooms import any_overlap
-
     state, push = "missing", 0.0
     # only what is near the place can stop its chair (a top, at most 2.6 m long, has its centre within 2 m)
     place = rot2(turn) @ (edge_x, along)

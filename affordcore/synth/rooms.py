@@ -22,7 +22,7 @@ import numpy as np
 
 from ..labels import polygon_contains
 from . import furniture as F
-from .shapes import Box, Piece, rot2
+from .shapes import Box, Piece, any_overlap, rot2
 
 KINDS = ("living", "office", "workshop", "mixed")
 ROLES_FILE = Path(__file__).resolve().parents[1] / "data" / "furniture_roles.json"
@@ -483,7 +483,7 @@ def _place(
 def reserve_body_space(piece: Piece, margin: float = 0.05) -> None:
     """Add to each anchor's free space the box its affordance's skeleton fills along the whole label (from the
     floor to above the head), so nothing else is placed where that person's knees, feet or elbows would be."""
-    from ..skeleton import get_skeleton, place_joints
+    from ..geometry.skeleton import get_skeleton, place_joints
 
     roles = role_affordances()
     for anchor in piece.anchors:
@@ -509,51 +509,6 @@ def fits(room: Room, piece: Piece) -> bool:
     )
 
 
-def any_overlap(boxes: list[Box], others: list[Box], tolerance: float = 1e-3) -> bool:
-    """Do any of `boxes` overlap any of `others`? Axis-aligned bounds first (vectorised), then exact tests."""
-    from .shapes import boxes_overlap
-
-    return any(
-        boxes_overlap(boxes[i], others[j], tolerance) for i, j in _candidate_pairs(boxes, others, tolerance)
-    )
-
-
-def overlaps_any(boxes: list[Box], others: list[Box], tolerance: float = 1e-3) -> np.ndarray:
-    """(len(boxes),) whether each of `boxes` overlaps any of `others`."""
-    from .shapes import boxes_overlap
-
-    hit = np.zeros(len(boxes), bool)
-    for i, j in _candidate_pairs(boxes, others, tolerance):
-        hit[i] = hit[i] or boxes_overlap(boxes[i], others[j], tolerance)
-    return hit
-
-
-def _candidate_pairs(boxes: list[Box], others: list[Box], tolerance: float) -> np.ndarray:
-    """(i, j) pairs whose axis-aligned bounds overlap by more than `tolerance`."""
-    if not boxes or not others:
-        return np.zeros((0, 2), int)
-    a, b = _bounds(boxes), _bounds(others)
-    return np.argwhere(
-        np.all(
-            (a[:, None, :3] < b[None, :, 3:] - tolerance) & (b[None, :, :3] < a[:, None, 3:] - tolerance),
-            axis=2,
-        )
-    )
-
-
-def _bounds(boxes: list[Box]) -> np.ndarray:
-    """(n, 6) axis-aligned bounds: x, y, z minima then maxima."""
-    centre, size = np.array([box.centre for box in boxes]), np.array([box.size for box in boxes])
-    cos, sin = np.abs(np.cos([box.yaw for box in boxes])), np.abs(np.sin([box.yaw for box in boxes]))
-    half = (
-        np.column_stack(
-            [cos * size[:, 0] + sin * size[:, 1], sin * size[:, 0] + cos * size[:, 1], size[:, 2]]
-        )
-        / 2
-    )
-    return np.hstack([centre - half, centre + half])
-
-
 def world_anchor_boxes(piece: Piece) -> list[tuple]:
     """(anchor, its clearance boxes in the world) for every anchor of a placed piece."""
     return [
@@ -567,7 +522,6 @@ __all__ = [
     "Room",
     "generate_room",
     "fits",
-    "any_overlap",
     "inside_polygon",
     "role_affordances",
     "rot2",

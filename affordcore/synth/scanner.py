@@ -21,9 +21,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..scene import voxel_thin
-from .rooms import Room, inside_polygon, overlaps_any
-from .shapes import Box
+from ..geometry.scene import voxel_thin
+from .rooms import Room, inside_polygon
+from .shapes import Box, overlaps_any
 
 FUSION_VOXEL = 0.01
 # A Kinect v1's faults beyond axial noise, quantisation and grazing: half the pixels on a depth edge mix the

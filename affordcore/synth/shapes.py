@@ -152,3 +152,44 @@ class Piece:
     def local_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         corners = np.vstack([part.corners_xy() for part in self.parts])
         return corners.min(axis=0), corners.max(axis=0)
+
+
+def any_overlap(boxes: list[Box], others: list[Box], tolerance: float = 1e-3) -> bool:
+    """Do any of `boxes` overlap any of `others`? Axis-aligned bounds first (vectorised), then exact tests."""
+    return any(
+        boxes_overlap(boxes[i], others[j], tolerance) for i, j in _candidate_pairs(boxes, others, tolerance)
+    )
+
+
+def overlaps_any(boxes: list[Box], others: list[Box], tolerance: float = 1e-3) -> np.ndarray:
+    """(len(boxes),) whether each of `boxes` overlaps any of `others`."""
+    hit = np.zeros(len(boxes), bool)
+    for i, j in _candidate_pairs(boxes, others, tolerance):
+        hit[i] = hit[i] or boxes_overlap(boxes[i], others[j], tolerance)
+    return hit
+
+
+def _candidate_pairs(boxes: list[Box], others: list[Box], tolerance: float) -> np.ndarray:
+    """(i, j) pairs whose axis-aligned bounds overlap by more than `tolerance`."""
+    if not boxes or not others:
+        return np.zeros((0, 2), int)
+    a, b = _bounds(boxes), _bounds(others)
+    return np.argwhere(
+        np.all(
+            (a[:, None, :3] < b[None, :, 3:] - tolerance) & (b[None, :, :3] < a[:, None, 3:] - tolerance),
+            axis=2,
+        )
+    )
+
+
+def _bounds(boxes: list[Box]) -> np.ndarray:
+    """(n, 6) axis-aligned bounds: x, y, z minima then maxima."""
+    centre, size = np.array([box.centre for box in boxes]), np.array([box.size for box in boxes])
+    cos, sin = np.abs(np.cos([box.yaw for box in boxes])), np.abs(np.sin([box.yaw for box in boxes]))
+    half = (
+        np.column_stack(
+            [cos * size[:, 0] + sin * size[:, 1], sin * size[:, 0] + cos * size[:, 1], size[:, 2]]
+        )
+        / 2
+    )
+    return np.hstack([centre - half, centre + half])

@@ -259,8 +259,8 @@ def assemble_walk(
     true pose brings its map (and its trajectory: the origins) into the room's frame; every later error is
     the assembler's own drift. `guesses`: the robot's odometry, world_from_camera per frame (a frame's
     SensorFrame.pose_guess). A frame the assembler refuses is left out, as the service leaves it out."""
-    from ..assembly import Assembler, SensorFrame
-    from ..depth import DepthImage
+    from ..assembly.assembler import Assembler, SensorFrame
+    from ..assembly.depth import DepthImage
 
     camera = camera or DepthCamera().with_kinect_noise()
     assembler, first = Assembler(), None

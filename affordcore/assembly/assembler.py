@@ -7,7 +7,7 @@ bare KISS-ICP's. The odometry frame is the first sensor frame; `aligned_map` bri
 frame (gravity-aligned, z up, floor at 0) with the same alignment `afford map` uses.
 
 Frames arrive as `SensorFrame`s, whatever message brought them (affordwire.sensors decodes them); depth images
-are back-projected by `affordcore.depth.back_project`.
+are back-projected by `affordcore.assembly.depth.back_project`.
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..settings import AssemblerSettings, LimitSettings, Settings
 from .depth import DepthImage, back_project
-from .settings import AssemblerSettings, LimitSettings, Settings
 
 
 @dataclass
@@ -44,7 +44,8 @@ class Trajectory:
 
 @dataclass
 class FrameRecord:
-    """What one accepted frame changed: enough to replay it onto a restored assembler (affordcore.checkpoint
+    """What one accepted frame changed: enough to replay it onto a restored assembler
+    (affordcore.assembly.checkpoint
     journals these)."""
 
     index: int  # the frame's number, from 0
@@ -255,7 +256,8 @@ class Assembler:
             self.keyframes += 1
 
     def state_arrays(self) -> dict[str, np.ndarray]:
-        """Everything `load_state` needs to rebuild this assembler's map and trajectory (affordcore.checkpoint
+        """Everything `load_state` needs to rebuild this assembler's map and trajectory
+        (affordcore.assembly.checkpoint
         saves it)."""
         trajectory = self.trajectory
         return {
@@ -315,9 +317,9 @@ class Assembler:
         `levelling_kept` says why): odometry drift smears a floor seen from a few frames over decimetres, and
         the search can then fail on one map and succeed on the next; a robot's world frame should not
         vanish in between."""
-        from .gravity import NoFloorError
-        from .pipeline import to_world
-        from .scene import Cloud
+        from ..geometry.gravity import NoFloorError
+        from ..geometry.scene import Cloud
+        from ..mapping.pipeline import to_world
 
         known = self._gravity_sum if np.linalg.norm(self._gravity_sum) > 0 else "auto"
         cloud = Cloud(self.map_points(), source="assembler map")
@@ -335,7 +337,7 @@ class Assembler:
         return world.cloud.points, self.world_from_odom
 
     def _levelled_as_before(self, cloud, settings: Settings | None) -> tuple[np.ndarray, np.ndarray]:
-        from .pipeline import to_world
+        from ..mapping.pipeline import to_world
 
         kept = to_world(cloud, settings, "none").cloud.transformed(self.world_from_odom)
         return kept.points, self.world_from_odom

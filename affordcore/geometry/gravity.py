@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..settings import GravitySettings
 from .scene import voxel_thin
-from .settings import GravitySettings
 
 _BELOW_MARGIN = 0.05  # a point this far under a floor plane is "below the floor"
 _AREA_CELL = 0.10  # floor area is counted in cells of this size

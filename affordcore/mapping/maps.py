@@ -6,7 +6,8 @@
 * skeleton map: one skeleton per place. Greedy non-maximum suppression over the confidence map
   (`places.peak_cells`): the best cell becomes a skeleton (at its best theta and z, with placed joints), and
   every cell within `nms_radius` of it is suppressed, whatever its theta. With a place model
-  (affordcore/places.py) every such peak is a candidate with a probability, and the map keeps those whose
+  (affordcore/mapping/places.py) every such peak is a candidate with a probability, and the map keeps those
+  whose
   probability reaches `place_probability`; without one, the peaks above the place threshold (the model's,
   or its cut for this room) are kept.
 """
@@ -17,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .grid import PoseGrid
+from ..geometry.grid import PoseGrid
+from ..geometry.skeleton import Skeleton, place_joints
 from .places import RULED_OUT, PlaceModel, peak_cells, place_candidates
-from .skeleton import Skeleton, place_joints
 
 FORMAT = "affordance-map/1"
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .assembly import Assembler, FrameRecord
+from .assembler import Assembler, FrameRecord
 
 _LENGTH = struct.Struct("<Q")
 

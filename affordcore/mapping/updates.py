@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .features import FeatureLayout
-from .fields import (
+from ..geometry.features import FeatureLayout
+from ..geometry.fields import (
     SceneFields,
     VoxelLattice,
     cell_keys,
@@ -39,9 +39,9 @@ from .fields import (
     normals_at,
     thin_cells,
 )
-from .grid import PoseGrid
+from ..geometry.grid import PoseGrid
+from ..geometry.skeleton import Skeleton
 from .maps import RULED_OUT
-from .skeleton import Skeleton
 
 FIELD_TOLERANCE = 1e-4  # field values closer than this count as unchanged (normals, metres, occupancy)
 _SAME_MEAN = 1e-7  # m: thinned points closer than this to the last cloud's keep their normals

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .skeleton import BONE_ENDS, JOINTS
+from ..geometry.skeleton import BONE_ENDS, JOINTS
 
 APPLICATION_ID = "affordmap"
 CONFIDENCE_COLORMAP = "viridis"  # matplotlib's and Rerun's (rr.components.Colormap.Viridis) alike

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .fields import SceneFields
-from .grid import PoseGrid
-from .labels import GroundTruth, LabelSet, affordance_colours
-from .skeleton import BONE_ENDS, BONES, Skeleton, skeleton_files
+from ..geometry.fields import SceneFields
+from ..geometry.grid import PoseGrid
+from ..geometry.skeleton import BONE_ENDS, BONES, Skeleton, skeleton_files
+from ..labels import GroundTruth, LabelSet, affordance_colours
 
 
 def pyplot():

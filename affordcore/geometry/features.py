@@ -31,13 +31,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..settings import STEEP_FACINGS, Settings
 from .fields import SceneFields
 from .grid import PoseGrid
-from .settings import STEEP_FACINGS, Settings
 from .skeleton import JOINTS, Skeleton, rotation_z
 
 FEATURE_VERSION = 1
-# how the normal field is oriented (`NormalSettings.steep_facing`, affordcore.fields): in the fingerprint
+# how the normal field is oriented (`NormalSettings.steep_facing`, affordcore.geometry.fields): in the
+# fingerprint
 _NORMAL_RULES = {
     "centre": "scatter-tensor principal axis; up if |n_z| > 0.5 else towards the room centre in plan",
     "floor": "scatter-tensor principal axis; up if |n_z| > 0.5 else towards more scanned floor "
@@ -54,7 +55,8 @@ class FeatureLayout:
     voxel_resolution: float = 0.10
     # Distances beyond this read as this (m); None: the paper's untruncated distance. Truncated, a surface
     # changes the distance feature only within the cap of itself, so a change of the room changes the scores
-    # only near it (affordcore.updates); beyond a skeleton's reach a distance says little about a pose.
+    # only near it (affordcore.mapping.updates); beyond a skeleton's reach a distance says little about a
+    # pose.
     distance_cap: float | None = None
     # which way steep normals face (`NormalSettings.steep_facing`): the fields must be computed with the same
     steep_facing: str = "centre"

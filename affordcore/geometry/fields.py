@@ -11,7 +11,8 @@ of horizontal face up (people sit and lean on the top of things); steeper ones (
 face the room's centre in plan, the cloud's mean point (`centre`, the default: walls face in), or the side
 with more scanned floor around them (`floor`: walls face the room, whose floor the sensor saw; a sofa's back
 faces the seat and the floor in front of it). The floor rule is local, so a room that grows flips no normal
-far from the growth (affordcore.updates); the mean point moves with every scan and flips faces metres away.
+far from the growth (affordcore.mapping.updates); the mean point moves with every scan and flips faces metres
+away.
 Voxels without points have a zero normal, so a cell average over them measures how much surface there is as
 well as which way it faces.
 """
@@ -23,7 +24,7 @@ from functools import partial
 
 import numpy as np
 
-from .settings import NormalSettings, VoxelSettings
+from ..settings import NormalSettings, VoxelSettings
 
 _UP_FACING_NZ = 0.5  # |n_z| above this (within 60 deg of vertical) means "faces up"
 # a steep surface faces the side whose disc of this radius (m), this far out (m), holds more scanned floor
@@ -152,7 +153,7 @@ def voxel_down_sample(points: np.ndarray, voxel: float) -> np.ndarray:
     by cell. Like open3d's `PointCloud.voxel_down_sample`, 8x
     faster, except that open3d anchors its cells at the cloud's minimum: there, a point added beyond the
     minimum moves every cell and every thinned point of the room, here only its own cell changes (map
-    updates rely on that, affordcore.updates)."""
+    updates rely on that, affordcore.mapping.updates)."""
     return thin_cells(points, voxel)[0]
 
 

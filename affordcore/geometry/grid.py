@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .settings import GridSettings
+from ..settings import GridSettings
 
 
 @dataclass(frozen=True)

@@ -18,11 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .features import FeatureLayout, _SlabSampler, features_at
-from .fields import SceneFields
-from .grid import PoseGrid
+from ..geometry.features import FeatureLayout, _SlabSampler, features_at
+from ..geometry.fields import SceneFields
+from ..geometry.grid import PoseGrid
+from ..geometry.skeleton import JOINTS, Skeleton, rotation_z
 from .maps import RULED_OUT
-from .skeleton import JOINTS, Skeleton, rotation_z
 
 
 def score_poses(
@@ -153,7 +153,8 @@ def model_scores(
     pose, and its second stage rescores the best `fraction` of them (at most `max_poses`) from their full
     features (log-odds); every other pose holds float32's lowest: the first stage ruled it out.
 
-    For updates (affordcore.updates): `linear` is the first stage's scores when the caller has them, and
+    For updates (affordcore.mapping.updates): `linear` is the first stage's scores when the caller has them,
+    and
     `known` (shaped like the grid) holds second-stage scores that still hold, float32's lowest elsewhere; a
     pose of the best set with a known score is not rescored."""
     skeleton = model.as_skeleton()

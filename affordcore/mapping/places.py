@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .grid import PoseGrid
+from ..geometry.grid import PoseGrid
 
 RULED_OUT = np.finfo(np.float32).min  # the score of a pose that is not a candidate (maps.RULED_OUT)
 PLACE_CANDIDATES = 40  # per room: far more than any room's places, few enough to stay cheap

@@ -63,7 +63,7 @@ class Sequence:
     def scan(self, index: int) -> np.ndarray:
         """The points (N, 3) of a LiDAR scan or cloud file (NaN or infinite points dropped)."""
         if self.frames[index].suffix.lower() in CLOUD_SUFFIXES:
-            from .scene import load_cloud
+            from ..geometry.scene import load_cloud
 
             return load_cloud(self.frames[index]).points
         size = self.frames[index].stat().st_size

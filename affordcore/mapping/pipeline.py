@@ -11,13 +11,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .features import FeatureLayout
-from .fields import SceneFields, compute_fields
-from .gravity import Alignment, align_to_gravity
-from .grid import PoseGrid
-from .scene import Cloud, thin_huge_cloud
-from .settings import Settings
-from .skeleton import Skeleton
+from ..geometry.features import FeatureLayout
+from ..geometry.fields import SceneFields, compute_fields
+from ..geometry.gravity import Alignment, align_to_gravity
+from ..geometry.grid import PoseGrid
+from ..geometry.scene import Cloud, thin_huge_cloud
+from ..geometry.skeleton import Skeleton
+from ..settings import Settings
 
 
 @dataclass
@@ -51,7 +51,7 @@ def pose_grids_for_footprint(
     footprint: tuple[float, float, float, float], settings: Settings | None = None
 ) -> dict[str, PoseGrid]:
     """One pose grid per affordance type (they differ in their torso heights) over a floor footprint."""
-    from .skeleton import all_skeletons
+    from ..geometry.skeleton import all_skeletons
 
     settings = settings or Settings()
     return {
@@ -136,7 +136,8 @@ def map_affordances(
 
 class RoomMapper:
     """Maps one room again and again as it changes (a robot's map growing): each time, only the poses within
-    reach of a field that changed since the last maps are scored afresh (affordcore.updates), and the maps
+    reach of a field that changed since the last maps are scored afresh (affordcore.mapping.updates), and the
+    maps
     equal those of a mapping from scratch. `reports` says, per affordance, how much the last call rescored."""
 
     def __init__(self, models: list, layout: FeatureLayout, settings: Settings | None = None):
@@ -193,7 +194,7 @@ class RoomMapper:
         """A model's pose grid over the room and its score of every pose (`inference.model_scores`); only
         cells near scanned floor or under a scanned surface are scored (`fields.mapped_cells`), the rest hold
         float32's lowest."""
-        from .fields import mapped_cells, scanned_cells
+        from ..geometry.fields import mapped_cells, scanned_cells
         from .inference import model_scores
         from .updates import ModelState, known_second_stage, updated_scores
 
@@ -233,7 +234,7 @@ def stream_features(
     """Every grid pose's features for one skeleton, chunk by chunk (never the whole matrix in memory), written
     as a (poses x features) float32 .npy at `out` when given; `on_rows(n)` hears of each chunk. Returns
     (poses, features)."""
-    from .features import iter_features
+    from ..geometry.features import iter_features
 
     grid = scene.pose_grid(skeleton, settings)
     layout = scene.layout

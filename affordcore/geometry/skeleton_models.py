@@ -17,7 +17,7 @@ import numpy as np
 
 from .skeleton import BONE_ENDS, BONES, FORMAT, JOINTS, Skeleton, rotation_z
 
-SOURCES = Path(__file__).parent / "data" / "skeleton_sources.json"
+SOURCES = Path(__file__).parents[1] / "data" / "skeleton_sources.json"
 SOURCES_FORMAT = "affordance-skeleton-sources/1"
 FRAME = "skeleton frame: torso at the origin, facing +x, z up, metres"
 K_MAX = 8  # K-means K candidates 2..K_MAX, and at most a third of the recordings (see ``cluster``)
@@ -104,7 +104,7 @@ def load_sources(path: str | Path = SOURCES) -> dict:
 def default_data_path(sources: dict | None = None) -> Path:
     """The shared data set beside the project: <root>/shared/data/<data_file> (the project is <root>/main)."""
     sources = sources or load_sources()
-    return Path(__file__).resolve().parents[2] / "shared" / "data" / sources["data_file"]
+    return Path(__file__).resolve().parents[3] / "shared" / "data" / sources["data_file"]
 
 
 def load_frames(path: str | Path, actions: set[str], trials: set[str]) -> Frames:

@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from .learn.model import AffordanceModel
+from ..learn.model import AffordanceModel
 
 _JOB: tuple | None = None  # (scene, models, settings, out, plan): what forked workers read, never pickled
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .jsonfile import read_json
+from ..jsonfile import read_json
 
 # OpenNI / CAD-60 order (DESIGN.md)
 JOINTS = (
@@ -53,7 +53,7 @@ BONES = (
 BONE_ENDS = np.array([[JOINTS.index(a), JOINTS.index(b)] for a, b in BONES])  # (bones, 2) joint indices
 
 FORMAT = "affordance-skeleton/1"
-BUILTIN_DIR = Path(__file__).parent / "data" / "skeletons"
+BUILTIN_DIR = Path(__file__).parents[1] / "data" / "skeletons"
 _FLOOR_SLACK = 0.05  # a joint may dip this far under the floor (ankle markers sit a little above it)
 
 
