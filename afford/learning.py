@@ -196,9 +196,15 @@ def models_list() -> None:
         for name, path in shipped_models().items():
             model = load_model(path)
             v = model.validation
+            places = (
+                f"; places: recall {v['probability_place_recall']:.2f}, "
+                f"{v['probability_false_per_room']:.1f} false per room (place model)"
+                if "probability_place_recall" in v
+                else f"; places: recall {v.get('place_recall', 0):.2f} (score cut)"
+            )
             typer.echo(
                 f"{name:<18} {model.learner:<13} {model.id}  validation P/R/F1 {v.get('precision', 0):.2f}/"
-                f"{v.get('recall', 0):.2f}/{v.get('f1', 0):.2f} on {', '.join(v.get('rooms', []))}"
+                f"{v.get('recall', 0):.2f}/{v.get('f1', 0):.2f} on {len(v.get('rooms', []))} rooms{places}"
             )
 
 

@@ -159,7 +159,14 @@ def describe(key: str, schema: str, payload: bytes) -> str:
     if name == "Error":
         return f"{key}: REJECTED {message.key}: {message.reason}"
     if name == "AffordanceMap":
-        best = f", best {message.skeletons[0].score:.2f}" if message.skeletons else ""
+        first = message.skeletons[0] if message.skeletons else None
+        best = (
+            ""
+            if first is None
+            else f", best p {first.probability:.2f}"
+            if first.HasField("probability")
+            else f", best {first.score:.2f}"
+        )
         poses = len(message.positives) // 20  # five float32 per pose
         places = len(message.skeletons)
         return f"{key}: {places} places, {poses:,} poses above the threshold{best} ({message.frames} frames)"
