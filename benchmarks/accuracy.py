@@ -52,7 +52,7 @@ def main() -> None:
 
     from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.defaults import data_record, split_by_index
-    from affordcore.learn.examples import Task, data_set_rooms, load_rooms, room_examples
+    from affordcore.learn.examples import Task, data_set_rooms, load_rooms, split_examples
     from affordcore.learn.train import train_on_rooms
     from affordcore.settings import Settings
 
@@ -76,7 +76,7 @@ def main() -> None:
     groups = test_groups(args.data, [f.name for f in test], [r.name for r in real])
     for affordance in args.affordances.split(","):
         task = Task(affordance, settings, layout)
-        examples = {name: room_examples(rooms[name], task) for name in train_names + validation_names}
+        examples = split_examples(rooms, train_names, validation_names, task)
         for learner in args.learners.split(","):
             t0 = time.perf_counter()
             model = train_on_rooms(examples, train_names, validation_names, task, learner, seed=args.seed)
@@ -218,9 +218,9 @@ def room_results(model, rooms: list, task, loose: bool = True) -> dict:
                 "absolute": r.places(absolute),
             }
             if model.places is not None:
-                candidates = r.candidates(model.threshold, task.settings.map.nms_radius)
+                candidates = r.candidates(model.threshold, model.places.candidate_spacing)
                 p = model.places.probability(candidates.evidence)
-                result["probability"] = candidates.places(p, cut)
+                result["probability"] = candidates.places(p, cut, task.settings.map.nms_radius)
                 counted = ~candidates.ignored
                 result["reliability"] = (p[counted], candidates.used[counted])
             results[room.name][prefix] = result
@@ -384,8 +384,9 @@ def markdown(results: dict, args) -> str:
 
 
 def plot_reliability(reliability_rows: list[dict], path: Path) -> None:
-    """The reliability diagram: one panel per affordance, a line per group of rooms (every generated test
-    room, each scan style, the real rooms); the diagonal is perfect calibration."""
+    """The reliability diagram: one panel per affordance, every generated test room (black) and the real rooms
+    (red); each bin's dot is as large as its number of candidates, and the diagonal is perfect calibration.
+    Per scan style: the table in results.md (too few candidates per style and bin for a readable line)."""
     from affordcore.mapping.plots import pyplot
 
     plt = pyplot()
@@ -393,34 +394,32 @@ def plot_reliability(reliability_rows: list[dict], path: Path) -> None:
     if not affordances:
         return
     figure, axes = plt.subplots(
-        1, len(affordances), figsize=(4.6 * len(affordances), 4.4), constrained_layout=True, squeeze=False
+        1, len(affordances), figsize=(4.6 * len(affordances), 4.6), constrained_layout=True, squeeze=False
     )
     for affordance, ax in zip(affordances, axes[0]):
-        ax.plot([0, 1], [0, 1], color="grey", lw=1, ls=":")
+        ax.plot([0, 1], [0, 1], color="grey", lw=1, ls=":", label="calibrated")
         for r in reliability_rows:
-            if r["affordance"] != affordance or not r["bins"] or r["rooms"].startswith("real/"):
+            if r["affordance"] != affordance or r["rooms"] not in ("generated", "real") or not r["bins"]:
                 continue
+            colour = "black" if r["rooms"] == "generated" else "crimson"
             predicted = [b["predicted"] for b in r["bins"]]
             observed = [b["observed"] for b in r["bins"]]
-            style = {"generated": "k-", "real": "r-"}.get(r["rooms"], "--")
-            ax.plot(
-                predicted,
-                observed,
-                style,
-                marker="o",
-                ms=3,
-                lw=1.4 if "/" not in r["rooms"] else 0.9,
-                label=r["rooms"],
-            )
+            counts = np.array([b["candidates"] for b in r["bins"]])
+            ax.plot(predicted, observed, "-", color=colour, lw=1.2, alpha=0.7)
+            ax.scatter(predicted, observed, s=12 + 6 * np.sqrt(counts), color=colour, label=r["rooms"])
+            for x, y, n in zip(predicted, observed, counts):
+                ax.annotate(
+                    f"{n}", (x, y), textcoords="offset points", xytext=(5, -10), fontsize=7, color=colour
+                )
         ax.set(
-            xlim=(0, 1),
-            ylim=(0, 1),
-            xlabel="predicted probability",
-            ylabel="observed share of places",
+            xlim=(-0.02, 1.02),
+            ylim=(-0.02, 1.02),
+            xlabel="predicted probability of a place",
+            ylabel="share that are labelled places",
             title=affordance,
         )
         ax.set_aspect("equal")
-    axes[0][0].legend(fontsize=7)
+        ax.legend(fontsize=8, loc="upper left")
     figure.savefig(path, dpi=110)
     plt.close(figure)
 

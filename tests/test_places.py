@@ -13,7 +13,15 @@ from affordcore.geometry.grid import PoseGrid
 from affordcore.geometry.skeleton import get_skeleton
 from affordcore.learn.model import AffordanceModel, load_model
 from affordcore.mapping.maps import build_map
-from affordcore.mapping.places import EVIDENCE, SUPPORT_RADIUS, PlaceModel, fit_place_model, place_candidates
+from affordcore.mapping.places import (
+    CANDIDATE_SPACING,
+    EVIDENCE,
+    SUPPORT_RADIUS,
+    PlaceModel,
+    choose_places,
+    fit_place_model,
+    place_candidates,
+)
 
 
 def _grid() -> PoseGrid:
@@ -172,3 +180,21 @@ def test_probabilities_cross_the_wire_and_none_stays_none():
     message = map_message(plain, "m", fields)
     assert not message.HasField("place_probability") and not message.skeletons[0].HasField("probability")
     assert np.isnan(map_arrays(message)["probabilities"]).all()
+
+
+def test_places_are_chosen_likeliest_first_one_per_persons_width():
+    xy = np.array([[0.0, 0.0], [0.25, 0.0], [0.5, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    p = np.array([0.6, 0.9, 0.7, 0.4, 0.55])
+    # 0.9 at 0.25 m suppresses its neighbours within 0.45 m (0.6 and 0.7); 0.4 is below the cut
+    np.testing.assert_array_equal(choose_places(xy, p, 0.5, 0.45), [1, 4])
+    np.testing.assert_array_equal(choose_places(xy, p, 0.5, 0.2), [1, 2, 0, 4])
+    assert len(choose_places(xy, p, 0.95, 0.45)) == 0
+
+
+def test_candidates_are_denser_than_places_and_the_spacing_travels_with_the_model():
+    grid = _grid()
+    dense = place_candidates(_scores(grid), grid, 0.0, CANDIDATE_SPACING)
+    sparse = place_candidates(_scores(grid), grid, 0.0, 0.45)
+    assert len(dense.rows) > len(sparse.rows)
+    model = fit_place_model(*_synthetic_places(500, 0))
+    assert PlaceModel.from_dict(model.to_dict()).candidate_spacing == CANDIDATE_SPACING

@@ -81,7 +81,7 @@ def train_default_models(
 ) -> list[Path]:
     """Train every affordance on a generated data set split by `split_by_index`, write the model files."""
     from ..geometry.features import FeatureLayout
-    from .examples import Task, data_set_rooms, load_rooms, room_examples
+    from .examples import Task, data_set_rooms, load_rooms, split_examples
     from .train import train_on_rooms
 
     settings = Settings()
@@ -93,7 +93,7 @@ def train_default_models(
     for affordance in sorted(skeleton_files(settings.skeleton_dirs)):
         learner = learners if isinstance(learners, str) else learners.get(affordance, LEARNER)
         task = Task(affordance, settings, layout)
-        examples = {name: room_examples(rooms[name], task) for name in train_names + validation_names}
+        examples = split_examples(rooms, train_names, validation_names, task)
         model = train_on_rooms(examples, train_names, validation_names, task, learner, seed=seed)
         model.parameters["data"] = data_record(len(rooms), seed, test_names)
         written.append(model.save(out / f"{affordance}.model.json"))

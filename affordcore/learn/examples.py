@@ -160,6 +160,20 @@ def room_examples(
     return RoomExamples(room.name, X, y, weights, [room], task)
 
 
+def split_examples(
+    rooms: dict[str, Room], train_names: list[str], validation_names: list[str], task: Task
+) -> dict[str, RoomExamples]:
+    """The examples of the training and validation rooms. Training keeps at most `learn.max_negatives`
+    negatives in all (`stack`), so a training room gives at most 1.5 times its share of them: 20,000 from each
+    of 120 rooms, to keep 500,000, would hold 2.4 million feature rows in memory for nothing."""
+    share = int(np.ceil(1.5 * task.settings.learn.max_negatives / max(1, len(train_names))))
+    per_room = min(task.settings.learn.negatives_per_room, share)
+    return {
+        name: room_examples(rooms[name], task, per_room if name in train_names else None)
+        for name in [*train_names, *validation_names]
+    }
+
+
 def stack(
     examples: dict[str, RoomExamples],
     names: list[str],

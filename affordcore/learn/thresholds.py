@@ -25,7 +25,13 @@ from ..geometry.grid import PoseGrid
 from ..labels import LabelSet, ground_truth, place_matches
 from ..mapping.maps import RULED_OUT, build_map, room_reference
 from ..mapping.pipeline import score_model
-from ..mapping.places import PlaceModel, fit_place_model, place_candidates
+from ..mapping.places import (
+    CANDIDATE_SPACING,
+    PlaceModel,
+    choose_places,
+    fit_place_model,
+    place_candidates,
+)
 from ..settings import Settings
 from .baselines import tune_threshold
 from .examples import Room
@@ -56,14 +62,14 @@ class RoomScores:
         kept = self.place_scores > cut
         return int(np.sum(self.label_best > cut)), int(kept.sum()), int(np.sum(self.place_false & kept))
 
-    def candidates(self, threshold: float, nms_radius: float) -> PlaceCandidates:
-        """The room's candidate places as a map with pose threshold `threshold` finds them, matched to its
-        labels."""
-        found = place_candidates(self.grid_scores, self.grid, threshold, nms_radius, self.scanned)
+    def candidates(self, threshold: float, spacing: float = CANDIDATE_SPACING) -> PlaceCandidates:
+        """The room's candidate places `spacing` apart as a map with pose threshold `threshold` finds them,
+        matched to its labels."""
+        found = place_candidates(self.grid_scores, self.grid, threshold, spacing, self.scanned)
         matches, ignored = place_matches(
             self.label_set, self.affordance, found.rows[:, [0, 1, 3]], **self.tolerances
         )
-        return PlaceCandidates(found.evidence, matches, ignored)
+        return PlaceCandidates(found.evidence, matches, ignored, found.rows[:, :2])
 
 
 @dataclass
@@ -71,10 +77,13 @@ class PlaceCandidates:
     evidence: np.ndarray  # (k, len(places.EVIDENCE))
     matches: np.ndarray  # (n_labels, k) bool: which candidate matches which label
     ignored: np.ndarray  # (k,) bool: in an unlabelled region (neither a place nor a false one)
+    xy: np.ndarray  # (k, 2) where they stand
 
-    def places(self, probabilities: np.ndarray, cut: float) -> tuple[int, int, int]:
-        """(labelled places found, skeletons kept, false skeletons) when places need probability `cut`."""
-        kept = probabilities >= cut
+    def places(self, probabilities: np.ndarray, cut: float, radius: float) -> tuple[int, int, int]:
+        """(labelled places found, skeletons kept, false skeletons) of the skeleton map that keeps the places
+        of probability `cut`, one within `radius` (`places.choose_places`)."""
+        kept = np.zeros(len(probabilities), bool)
+        kept[choose_places(self.xy, probabilities, cut, radius)] = True
         false = kept & ~self.matches.any(axis=0) & ~self.ignored
         return int(self.matches[:, kept].any(axis=1).sum()), int(kept.sum()), int(false.sum())
 
@@ -84,9 +93,9 @@ class PlaceCandidates:
         return self.matches.any(axis=0)
 
 
-def fit_places(rooms: list[RoomScores], threshold: float, nms_radius: float) -> PlaceModel | None:
+def fit_places(rooms: list[RoomScores], threshold: float) -> PlaceModel | None:
     """The place model fitted on the rooms' candidates (None when they hold no place, or only places)."""
-    candidates = [room.candidates(threshold, nms_radius) for room in rooms]
+    candidates = [room.candidates(threshold) for room in rooms]
     evidence = np.concatenate([c.evidence[~c.ignored] for c in candidates])
     used = np.concatenate([c.used[~c.ignored] for c in candidates])
     if used.all() or not used.any():

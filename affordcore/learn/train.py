@@ -64,8 +64,8 @@ def place_model_report(scored: list, model: AffordanceModel, settings: Settings)
     cut = settings.map.place_probability
     counts = np.sum(
         [
-            c.places(model.places.probability(c.evidence), cut)
-            for c in (r.candidates(model.threshold, settings.map.nms_radius) for r in scored)
+            c.places(model.places.probability(c.evidence), cut, settings.map.nms_radius)
+            for c in (r.candidates(model.threshold, model.places.candidate_spacing) for r in scored)
         ],
         axis=0,
     )
@@ -162,7 +162,7 @@ def train_on_rooms(
     # places has a low median, and the relative cut alone lets its best non-places through
     model.place_floor, places = place_floor(scored, model.place_threshold)
     # ... and the place model that replaces those cuts: each candidate place's probability from its evidence
-    place_model = fit_places(scored, model.threshold, task.settings.map.nms_radius)
+    place_model = fit_places(scored, model.threshold)
     model.place_model = place_model.to_dict() if place_model else None
     if place_model:
         places.update(place_model_report(scored, model, task.settings))

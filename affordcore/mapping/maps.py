@@ -3,13 +3,12 @@
 * positives: every pose scoring above the model's threshold;
 * confidence map: over the floor plan, each (x, y) cell's best score over theta and z, and the theta and z
   that reached it;
-* skeleton map: one skeleton per place. Greedy non-maximum suppression over the confidence map
-  (`places.peak_cells`): the best cell becomes a skeleton (at its best theta and z, with placed joints), and
-  every cell within `nms_radius` of it is suppressed, whatever its theta. With a place model
-  (affordcore/mapping/places.py) every such peak is a candidate with a probability, and the map keeps those
-  whose
-  probability reaches `place_probability`; without one, the peaks above the place threshold (the model's,
-  or its cut for this room) are kept.
+* skeleton map: one skeleton per place, at its best theta and z, with placed joints. With a place model
+  (affordcore/mapping/places.py) the peaks of the confidence map are candidates with a probability, and the
+  map keeps the likeliest that reach `place_probability`, one within `nms_radius`; without one, greedy
+  non-maximum suppression over the confidence map's cells above the place threshold (the model's, or its
+  cut for this room): the best cell becomes a skeleton and every cell within `nms_radius` of it is
+  suppressed, whatever its theta.
 """
 
 from __future__ import annotations
@@ -20,7 +19,7 @@ import numpy as np
 
 from ..geometry.grid import PoseGrid
 from ..geometry.skeleton import Skeleton, place_joints
-from .places import RULED_OUT, PlaceModel, peak_cells, place_candidates
+from .places import RULED_OUT, PlaceModel, choose_places, peak_cells, place_candidates
 
 FORMAT = "affordance-map/1"
 
@@ -153,11 +152,10 @@ def build_map(
     )
 
     if place_model is not None:
-        candidates = place_candidates(scores, grid, threshold, nms_radius, scanned)
+        candidates = place_candidates(scores, grid, threshold, place_model.candidate_spacing, scanned)
         probabilities = place_model.probability(candidates.evidence)
-        kept = np.flatnonzero(probabilities >= place_probability)
-        kept = kept[np.argsort(-probabilities[kept], kind="stable")]  # the likeliest place first
-        skeletons, probabilities = candidates.rows[kept], probabilities[kept]
+        kept = choose_places(candidates.rows[:, :2], probabilities, place_probability, nms_radius)
+        skeletons, probabilities = candidates.rows[kept].reshape(-1, 5), probabilities[kept]
         place_threshold = float("nan")
     else:
         place_threshold = threshold if place_threshold is None else place_threshold

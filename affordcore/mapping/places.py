@@ -8,13 +8,16 @@ evidence is more than its peak: how far the peak stands above the rest of the ro
 orientations around it agree, and how much of its surroundings was scanned at all.
 
 * candidates: greedy non-maximum suppression over the confidence map (each (x, y) cell's best score), best
-  first, among every pose the model scored; at most `PLACE_CANDIDATES` per room;
+  first, among every pose the model scored, `CANDIDATE_SPACING` apart (closer than places are: a place's best
+  spot is the one whose evidence is best, not always the peak of its score); at most `PLACE_CANDIDATES` per
+  room;
 * evidence (`EVIDENCE`): one row per candidate, computed for all of them at once from the grid of scores;
 * `PlaceModel`: logistic regression over the standardised evidence, fitted on the candidates of validation
   rooms (found a label or not); logistic regression is Platt's calibration with more inputs, so its output
   is a probability (benchmarks/accuracy.py draws its reliability diagram per scan style and on real rooms).
 
-The skeleton map keeps the candidates whose probability reaches `map.place_probability`.
+The skeleton map keeps, likeliest first, the candidates whose probability reaches `map.place_probability`,
+each suppressing the others within `map.nms_radius` of it (`choose_places`).
 """
 
 from __future__ import annotations
@@ -26,7 +29,10 @@ import numpy as np
 from ..geometry.grid import PoseGrid
 
 RULED_OUT = np.finfo(np.float32).min  # the score of a pose that is not a candidate (maps.RULED_OUT)
-PLACE_CANDIDATES = 40  # per room: far more than any room's places, few enough to stay cheap
+PLACE_CANDIDATES = 80  # per room: far more than any room's places, few enough to stay cheap
+# m between candidates: on the generated validation rooms, 0.25 m put a candidate on 131 of 149 labelled
+# places against 117 at the skeleton map's 0.45 m (docs/maps.md)
+CANDIDATE_SPACING = 0.25
 SUPPORT_RADIUS = 0.3  # m: poses this near a peak count as its support (DESIGN's loose place tolerance)
 SURROUNDINGS_RADIUS = 1.0  # m: a person's reach around the place, for how much of it was scanned
 EVIDENCE = (
@@ -123,6 +129,19 @@ def _window(values: np.ndarray, cells: np.ndarray, step: float, radius: float, f
     return np.where(inside, gathered, fill)
 
 
+def choose_places(xy: np.ndarray, probabilities: np.ndarray, cut: float, radius: float) -> np.ndarray:
+    """Indices of the places kept from candidates at `xy` (k, 2): those whose probability reaches `cut`,
+    likeliest first, each suppressing the candidates within `radius` of it (one place per person's width)."""
+    order = np.flatnonzero(probabilities >= cut)
+    order = order[np.argsort(-probabilities[order], kind="stable")]
+    chosen, alive = [], np.ones(len(order), dtype=bool)
+    while alive.any():
+        first = int(np.argmax(alive))
+        chosen.append(order[first])
+        alive &= np.hypot(*(xy[order] - xy[order[first]]).T) > radius
+    return np.array(chosen, dtype=np.int64)
+
+
 @dataclass
 class PlaceModel:
     """P(a person can use the place | its evidence): logistic regression over the standardised evidence."""
@@ -133,6 +152,7 @@ class PlaceModel:
     coef: np.ndarray
     intercept: float
     trained_on: dict  # what it was fitted on: candidates, places, rooms
+    candidate_spacing: float = CANDIDATE_SPACING  # the candidates it was fitted on were this far apart (m)
 
     def probability(self, evidence: np.ndarray) -> np.ndarray:
         if tuple(self.evidence) != EVIDENCE:
@@ -148,6 +168,7 @@ class PlaceModel:
             "coef": self.coef.round(9).tolist(),
             "intercept": round(float(self.intercept), 9),
             "trained_on": self.trained_on,
+            "candidate_spacing": self.candidate_spacing,
         }
 
     @classmethod
@@ -155,7 +176,13 @@ class PlaceModel:
         arrays = [np.asarray(document[k], np.float64) for k in ("mean", "scale", "coef")]
         if any(a.shape != (len(document["evidence"]),) for a in arrays):
             raise ValueError("a place model's mean, scale and coef must each hold one value per evidence")
-        return cls(tuple(document["evidence"]), *arrays, float(document["intercept"]), document["trained_on"])
+        return cls(
+            tuple(document["evidence"]),
+            *arrays,
+            float(document["intercept"]),
+            document["trained_on"],
+            float(document.get("candidate_spacing", CANDIDATE_SPACING)),
+        )
 
 
 def fit_place_model(evidence: np.ndarray, used: np.ndarray, regularisation: float = 1.0) -> PlaceModel:
