@@ -45,13 +45,14 @@ def main() -> None:
     args.figures.mkdir(parents=True, exist_ok=True)
     print(
         "| room | affordance | labels | positive poses | P / R / F1 at the threshold "
-        "| oracle-threshold F1 | places found | false skeletons |"
+        "| oracle-threshold F1 | places found | false skeletons | probabilities of the places |"
     )
-    print("|---|---|---:|---:|---|---:|---:|---:|")
+    print("|---|---|---:|---:|---|---:|---:|---:|---|")
     for cloud_path in sorted(ROOMS.glob("*.ply")):
         labels = load_labels(cloud_path.with_name(cloud_path.stem + ".labels.json"))
         scene = prepare_scene(load_cloud(cloud_path), settings, args.gravity)
-        chosen = [models[name] for name in labels.affordances if name in models]
+        # every affordance in every room: a skeleton where the room labels none of its affordance is false
+        chosen = list(models.values())
         maps = map_affordances(scene.fields, scene.layout, chosen, settings)
         short = cloud_path.stem.split("_")[0]
         for model in chosen:
@@ -69,7 +70,8 @@ def main() -> None:
                 f"| {short} | {model.affordance} | {len(labels.of(model.affordance))} | "
                 f"{at['positives']:,} | "
                 f"{at['precision']:.2f} / {at['recall']:.2f} / {at['f1']:.2f} | {oracle:.2f} | "
-                f"{int(places.found.sum())} / {len(places.found)} | {int(places.false.sum())} |"
+                f"{int(places.found.sum())} / {len(places.found)} | {int(places.false.sum())} | "
+                f"{', '.join(amap.place_labels()) or '-'} |"
             )
             plot_map(
                 scene.cloud.points, amap, args.figures / f"{short}-{model.affordance}.png", labels=labels
