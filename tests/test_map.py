@@ -59,16 +59,19 @@ def test_map_writes_json_png_and_a_verified_recording(mapped):
         assert document["affordance"] == affordance and document["model"].startswith(affordance + "/")
         assert np.array(document["world_from_input"]).shape == (4, 4)
         grid = document["grid"]
-        assert grid["step"] == pytest.approx(0.1) and grid["n_theta"] == 63 and len(grid["z"]) == 3
+        # three torso levels, and sitting-working's two above them for bar stools and high chairs
+        levels = 5 if affordance == "sitting-working" else 3
+        assert grid["step"] == pytest.approx(0.1) and grid["n_theta"] == 63 and len(grid["z"]) == levels
         scores = [p["score"] for p in document["positives"]]
         assert all(s > document["threshold"] - 1e-4 for s in scores) and scores == sorted(
             scores, reverse=True
         )
-        for skeleton in document["skeletons"]:
-            assert (
-                np.array(skeleton["joints"]).shape == (15, 3)
-                and skeleton["score"] > document["place_threshold"] - 1e-4
-            )
+        # the shipped models' places are those a person can use with at least the documented probability,
+        # the likeliest first
+        probabilities = [skeleton["probability"] for skeleton in document["skeletons"]]
+        assert document["place_probability"] == 0.5 and document["place_threshold"] is None
+        assert all(p >= 0.5 for p in probabilities) and probabilities == sorted(probabilities, reverse=True)
+        assert all(np.array(skeleton["joints"]).shape == (15, 3) for skeleton in document["skeletons"])
         assert (out / f"{affordance}.png").stat().st_size > 20_000
     verify = subprocess.run(
         [sys.executable, "-m", "rerun", "rrd", "verify", str(out / "map.rrd")], capture_output=True, text=True

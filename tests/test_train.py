@@ -16,7 +16,7 @@ from affordcore.learn.evaluate import deal_folds, evaluate, write_outputs
 from affordcore.learn.learners import LEARNERS
 from affordcore.learn.model import load_model
 from affordcore.learn.train import split_rooms, train
-from affordcore.mapping.places import place_candidates
+from affordcore.mapping.places import choose_places, place_candidates
 from affordcore.settings import FeatureSettings, GridSettings, Settings
 
 SMALL = {
@@ -254,15 +254,17 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
         model.validation["rooms"]
     )
     candidates = place_candidates(
-        scores, grid, model.threshold, settings.map.nms_radius, scanned_cells(room.fields, grid.x, grid.y)
+        scores,
+        grid,
+        model.threshold,
+        model.places.candidate_spacing,
+        scanned_cells(room.fields, grid.x, grid.y),
     )
     p = model.places.probability(candidates.evidence)
-    kept = p >= settings.map.place_probability
-    assert 0 < kept.sum() < len(p)  # a model that keeps some candidates and drops others
-    np.testing.assert_allclose(np.sort(amap.probabilities), np.sort(p[kept]))
-    np.testing.assert_allclose(
-        amap.skeletons[np.argsort(amap.probabilities)], candidates.rows[kept][np.argsort(p[kept])]
-    )
+    kept = choose_places(candidates.rows[:, :2], p, settings.map.place_probability, settings.map.nms_radius)
+    assert 0 < len(kept) < len(p)  # a model that keeps some candidates and drops others
+    np.testing.assert_allclose(amap.probabilities, p[kept])
+    np.testing.assert_allclose(amap.skeletons, candidates.rows[kept])
 
 
 def test_split_by_index_deals_rooms_in_generation_order_and_refuses_too_few():

@@ -30,7 +30,7 @@ from ..geometry.grid import PoseGrid
 
 RULED_OUT = np.finfo(np.float32).min  # the score of a pose that is not a candidate (maps.RULED_OUT)
 PLACE_CANDIDATES = 80  # per room: far more than any room's places, few enough to stay cheap
-# m between candidates: on the generated validation rooms, 0.25 m put a candidate on 131 of 149 labelled
+# m between candidates: on the generated validation rooms, 0.25 m put a candidate on 130 of 149 labelled
 # places against 117 at the skeleton map's 0.45 m (docs/maps.md)
 CANDIDATE_SPACING = 0.25
 SUPPORT_RADIUS = 0.3  # m: poses this near a peak count as its support (DESIGN's loose place tolerance)
