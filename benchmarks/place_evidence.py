@@ -1,0 +1,127 @@
+"""Which place evidence survives a change of scan: place models fitted on the validation rooms of some scan
+styles and tested on the test rooms of the others, for variants of the evidence.
+
+The real rooms are a test set, so the shift between generated and real scans cannot be tuned on. The scan
+styles give a shift of the same kind inside generated data: fused depth frames, meshes and laser scans see a
+room whole, raw frames and walks see it from one side. A place model whose evidence survives fitting on the
+one and testing on the other is the one to trust on a scan nobody generated. Variants:
+
+* all: every `places.EVIDENCE` column (the shipped place models);
+* no-score: without the peak's own score, the column a score shift moves most;
+* relative: only what is counted from the room itself (margin over the median, below the best, rank, support
+  near the peak, scanned share).
+
+Reads the data set and the shipped models of `benchmarks/accuracy.py` (the last 80 rooms: 40 validation, 40
+test); prints places found at probability 0.5, false skeletons per room and the log-loss per candidate.
+
+    .venv/bin/python benchmarks/place_evidence.py        # about 6 minutes on 2 cores
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DENSE, SPARSE = {"fused", "mesh", "laser"}, {"frames", "walk"}
+SPLITS = {
+    "dense -> sparse": (DENSE, SPARSE),
+    "sparse -> dense": (SPARSE, DENSE),
+    "all -> all": (DENSE | SPARSE,) * 2,
+}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=ROOT / "bench-data" / "accuracy")
+    parser.add_argument("--validation", type=int, default=40)
+    parser.add_argument("--test", type=int, default=40)
+    args = parser.parse_args()
+    from affordcore.mapping.places import EVIDENCE
+
+    candidates = collect(args)
+    variants = {
+        "all": list(range(len(EVIDENCE))),
+        "no-score": [i for i, name in enumerate(EVIDENCE) if name != "score"],
+        "relative": [
+            EVIDENCE.index(n) for n in ("over_median", "below_best", "rank", "near_peak", "scanned")
+        ],
+    }
+    print(
+        f"{os.cpu_count()} cores; places found at p >= 0.5, false skeletons per room, log-loss per candidate"
+    )
+    print("| affordance | fitted on -> tested on | " + " | ".join(variants) + " |")
+    print("|---|---|" + "---|" * len(variants))
+    for affordance in sorted({c["affordance"] for c in candidates}):
+        for split, (fit_styles, test_styles) in SPLITS.items():
+            cells = [
+                evaluate(candidates, affordance, fit_styles, test_styles, columns)
+                for columns in variants.values()
+            ]
+            print(f"| {affordance} | {split} | " + " | ".join(cells) + " |")
+
+
+def collect(args) -> list[dict]:
+    """Every candidate place of the validation and test rooms under the shipped models, with its evidence."""
+    from affordcore.geometry.features import FeatureLayout
+    from affordcore.learn.defaults import split_by_index
+    from affordcore.learn.examples import data_set_rooms, load_rooms
+    from affordcore.learn.model import load_model, shipped_models
+    from affordcore.learn.thresholds import room_scores
+    from affordcore.settings import Settings
+
+    settings = Settings()
+    layout = FeatureLayout.from_settings(settings)
+    style = {r["room"]: r["style"] for r in json.loads((args.data / "summary.json").read_text())["rooms"]}
+    files = {f.name: f for f in data_set_rooms(args.data)}
+    _, validation, test = split_by_index(list(files), args.validation, args.test)
+    part = {**{n: "validation" for n in validation}, **{n: "test" for n in test}}
+    rooms = load_rooms([files[n] for n in validation + test], settings)
+    found = []
+    for name, path in shipped_models().items():
+        model = load_model(path, layout)
+        for room in rooms:
+            scored = room_scores(model, room, layout, settings)
+            c = scored.candidates(model.threshold, model.places.candidate_spacing)
+            found.append(
+                {"affordance": name, "style": style[room.name], "part": part[room.name], "candidates": c}
+            )
+    return found
+
+
+def evaluate(candidates: list[dict], affordance: str, fit_styles, test_styles, columns: list[int]) -> str:
+    from sklearn.linear_model import LogisticRegression
+
+    def chosen(part, styles):
+        return [
+            c["candidates"]
+            for c in candidates
+            if c["affordance"] == affordance and c["part"] == part and c["style"] in styles
+        ]
+
+    fit = chosen("validation", fit_styles)
+    X = np.concatenate([c.evidence[~c.ignored][:, columns] for c in fit])
+    y = np.concatenate([c.used[~c.ignored] for c in fit])
+    if y.all() or not y.any():
+        return "-"
+    mean, scale = X.mean(axis=0), np.where(X.std(axis=0) > 1e-9, X.std(axis=0), 1.0)
+    model = LogisticRegression(max_iter=1000).fit((X - mean) / scale, y)
+    tested = chosen("test", test_styles)
+    found = labels = false = 0
+    losses = []
+    for c in tested:
+        p = model.predict_proba((c.evidence[:, columns] - mean) / scale)[:, 1]
+        f, _, fa = c.places(p, 0.5, 0.45)
+        found, labels, false = found + f, labels + c.matches.shape[0], false + fa
+        counted = np.clip(p[~c.ignored], 1e-6, 1 - 1e-6)
+        used = c.used[~c.ignored]
+        losses.append(-(used * np.log(counted) + ~used * np.log(1 - counted)))
+    return f"{found}/{labels}, {false / max(1, len(tested)):.1f}, {np.concatenate(losses).mean():.3f}"
+
+
+if __name__ == "__main__":
+    main()
