@@ -94,7 +94,10 @@ def collect(args) -> list[dict]:
 
 
 def evaluate(candidates: list[dict], affordance: str, fit_styles, test_styles, columns: list[int]) -> str:
-    from sklearn.linear_model import LogisticRegression
+    """Place model of the `columns` of the evidence, fitted on the validation rooms of `fit_styles`, on the
+    test rooms of `test_styles`. The other columns are held at 0: constant, they weigh nothing, and the place
+    model stays the shipped one's code (`places.fit_place_model`)."""
+    from affordcore.mapping.places import fit_place_model
 
     def chosen(part, styles):
         return [
@@ -103,23 +106,26 @@ def evaluate(candidates: list[dict], affordance: str, fit_styles, test_styles, c
             if c["affordance"] == affordance and c["part"] == part and c["style"] in styles
         ]
 
+    def kept(evidence: np.ndarray) -> np.ndarray:
+        only = np.zeros_like(evidence)
+        only[:, columns] = evidence[:, columns]
+        return only
+
     fit = chosen("validation", fit_styles)
-    X = np.concatenate([c.evidence[~c.ignored][:, columns] for c in fit])
-    y = np.concatenate([c.used[~c.ignored] for c in fit])
-    if y.all() or not y.any():
+    used = np.concatenate([c.used[~c.ignored] for c in fit])
+    if used.all() or not used.any():
         return "-"
-    mean, scale = X.mean(axis=0), np.where(X.std(axis=0) > 1e-9, X.std(axis=0), 1.0)
-    model = LogisticRegression(max_iter=1000).fit((X - mean) / scale, y)
+    model = fit_place_model(np.concatenate([kept(c.evidence[~c.ignored]) for c in fit]), used)
     tested = chosen("test", test_styles)
     found = labels = false = 0
     losses = []
     for c in tested:
-        p = model.predict_proba((c.evidence[:, columns] - mean) / scale)[:, 1]
+        p = model.probability(kept(c.evidence))
         f, _, fa = c.places(p, 0.5, 0.45)
         found, labels, false = found + f, labels + c.matches.shape[0], false + fa
         counted = np.clip(p[~c.ignored], 1e-6, 1 - 1e-6)
-        used = c.used[~c.ignored]
-        losses.append(-(used * np.log(counted) + ~used * np.log(1 - counted)))
+        truth = c.used[~c.ignored]
+        losses.append(-(truth * np.log(counted) + ~truth * np.log(1 - counted)))
     return f"{found}/{labels}, {false / max(1, len(tested)):.1f}, {np.concatenate(losses).mean():.3f}"
 
 

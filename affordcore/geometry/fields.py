@@ -281,28 +281,30 @@ def observed_floor(fields: SceneFields, x: np.ndarray, y: np.ndarray, margin: fl
     if reach > 0:
         dy, dx = np.mgrid[-reach : reach + 1, -reach : reach + 1]
         seen = ndimage.binary_dilation(seen, dx**2 + dy**2 <= reach**2)
-    ix = np.clip(np.rint((x - lattice.origin[0]) / lattice.resolution).astype(int), 0, lattice.shape[0] - 1)
-    iy = np.clip(np.rint((y - lattice.origin[1]) / lattice.resolution).astype(int), 0, lattice.shape[1] - 1)
-    return seen[np.ix_(ix, iy)]
+    return _at_columns(seen, lattice, x, y)
 
 
 def scanned_cells(fields: SceneFields, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """(len(x), len(y)) bool: whether the sensor saw anything in each (x, y)'s voxel column: scanned floor,
     or a surface above it (a seat or a table top hides the floor under it, yet the place was seen). A column
     with neither was never looked at: unknown, not empty."""
-    lattice = fields.lattice
-    seen = fields.occupancy.any(axis=2)
-    ix = np.clip(np.rint((x - lattice.origin[0]) / lattice.resolution).astype(int), 0, lattice.shape[0] - 1)
-    iy = np.clip(np.rint((y - lattice.origin[1]) / lattice.resolution).astype(int), 0, lattice.shape[1] - 1)
-    return seen[np.ix_(ix, iy)]
+    return _at_columns(fields.occupancy.any(axis=2), fields.lattice, x, y)
 
 
 def mapped_cells(
-    fields: SceneFields, x: np.ndarray, y: np.ndarray, margin: float, hidden_floor: bool = True
+    fields: SceneFields, x: np.ndarray, y: np.ndarray, margin: float, scanned: np.ndarray | None = None
 ) -> np.ndarray:
     """(len(x), len(y)) bool: the cells a place may stand on. Near scanned floor (`observed_floor`), and with
-    `hidden_floor` also where a scanned surface hides the floor (`scanned_cells`): a table place whose chair
-    is pushed in, or a seat, has its floor in the shadow of what the sensor did see. A column where nothing at
-    all was seen stays unmapped: no phantom place in a region the scan never reached."""
+    `scanned` (`scanned_cells` of the same cells) also where a scanned surface hides the floor: a table place
+    whose chair is pushed in, or a seat, has its floor in the shadow of what the sensor did see. A column
+    where nothing at all was seen stays unmapped: no phantom place in a region the scan never reached."""
     mapped = observed_floor(fields, x, y, margin)
-    return mapped | scanned_cells(fields, x, y) if hidden_floor else mapped
+    return mapped if scanned is None else mapped | scanned
+
+
+def _at_columns(plan: np.ndarray, lattice: VoxelLattice, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(len(x), len(y)): `plan` (one value per voxel column) at the column under each (x, y), the lattice's
+    edge columns for positions beyond it."""
+    ix = np.clip(np.rint((x - lattice.origin[0]) / lattice.resolution).astype(int), 0, lattice.shape[0] - 1)
+    iy = np.clip(np.rint((y - lattice.origin[1]) / lattice.resolution).astype(int), 0, lattice.shape[1] - 1)
+    return plan[np.ix_(ix, iy)]

@@ -25,8 +25,7 @@ import numpy as np
 from ..geometry.features import FeatureLayout
 from ..geometry.skeleton import Skeleton
 from ..jsonfile import read_json
-from ..mapping.maps import room_reference
-from ..mapping.places import PlaceModel
+from ..mapping.places import PlaceModel, room_reference
 from .trees import TreeEnsemble
 
 FORMAT = "affordance-model/3"
@@ -123,7 +122,7 @@ class AffordanceModel:
         return self.place_cut_from(room_reference(scores) if self.place_reference else 0.0)
 
     def place_cut_from(self, reference: float) -> float:
-        """`place_cut` for a room whose reference (`maps.room_reference`) is known."""
+        """`place_cut` for a room whose reference (`places.room_reference`) is known."""
         cut = self.skeleton_threshold + (reference if self.place_reference == "room-median" else 0.0)
         return cut if self.place_floor is None else max(cut, self.place_floor)
 

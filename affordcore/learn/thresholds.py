@@ -23,7 +23,7 @@ import numpy as np
 from ..geometry.fields import scanned_cells
 from ..geometry.grid import PoseGrid
 from ..labels import LabelSet, ground_truth, place_matches
-from ..mapping.maps import RULED_OUT, build_map, room_reference
+from ..mapping.maps import RULED_OUT, build_map
 from ..mapping.pipeline import score_model
 from ..mapping.places import (
     CANDIDATE_SPACING,
@@ -31,6 +31,7 @@ from ..mapping.places import (
     choose_places,
     fit_place_model,
     place_candidates,
+    room_reference,
 )
 from ..settings import Settings
 from .baselines import tune_threshold
@@ -48,7 +49,7 @@ class RoomScores:
     place_scores: np.ndarray  # (k,) the candidate skeletons' scores
     place_false: np.ndarray  # (k,) bool: matches no label (ignored ones are left out)
     label_best: np.ndarray  # (n_labels,) the best score of a skeleton matching each label (RULED_OUT: none)
-    reference: float  # maps.room_reference of the room's scores
+    reference: float  # places.room_reference of the room's scores
     # what the place model's candidates need: the whole grid of scores, the cells the sensor saw, the labels
     grid: PoseGrid | None = None
     grid_scores: np.ndarray | None = None
@@ -158,7 +159,7 @@ def pose_threshold(rooms: list[RoomScores]) -> float:
 def place_threshold(rooms: list[RoomScores], relative: bool = False) -> tuple[float, dict]:
     """(threshold, what it gives) with the best place F1 over the rooms: recall = labelled places found /
     labelled places, precision = true skeletons / skeletons. `relative`: the threshold counts from each
-    room's reference (`maps.room_reference`), as a model with place_reference "room-median" applies it."""
+    room's reference (`places.room_reference`), as a model with place_reference "room-median" applies it."""
     shift = [r.reference if relative else 0.0 for r in rooms]
     candidates = np.unique(np.concatenate([r.place_scores - s for r, s in zip(rooms, shift)] + [[RULED_OUT]]))
     return _best_cut(rooms, candidates, lambda t: [t + s for s in shift])

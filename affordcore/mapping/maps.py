@@ -19,17 +19,9 @@ import numpy as np
 
 from ..geometry.grid import PoseGrid
 from ..geometry.skeleton import Skeleton, place_joints
-from .places import RULED_OUT, PlaceModel, choose_places, peak_cells, place_candidates
+from .places import RULED_OUT, PlaceModel, best_slabs, choose_places, peak_cells, place_candidates
 
 FORMAT = "affordance-map/1"
-
-
-def room_reference(scores: np.ndarray) -> float:
-    """The median score of a room's candidate poses (0 when it has none): what a relative place threshold
-    is counted from. A scan unlike the training rooms (fewer viewpoints, other noise) moves a room's scores
-    together, the places with the rest; a threshold above this median moves with them."""
-    live = scores[scores > RULED_OUT]
-    return float(np.median(live)) if len(live) else 0.0
 
 
 @dataclass
@@ -42,14 +34,10 @@ class AffordanceMap:
     best_theta: np.ndarray  # (nx, ny) radians
     best_z: np.ndarray  # (nx, ny) metres
     positives: np.ndarray  # (n, 5): x, y, z, theta, score, best first
-    skeletons: np.ndarray  # (k, 5): x, y, z, theta, score, best first
+    skeletons: np.ndarray  # (k, 5): x, y, z, theta, score; the likeliest (else the best) first
     joints: np.ndarray  # (k, 15, 3) placed joints of the skeletons
-    place_threshold: (
-        float  # what a place of the skeleton map scored above (the room's cut; NaN: by probability)
-    )
-    probabilities: (
-        np.ndarray
-    )  # (k,) each skeleton's probability that a person can use it (NaN: no place model)
+    place_threshold: float  # the score cut places beat in this room (NaN: kept by probability)
+    probabilities: np.ndarray  # (k,) that a person can use each place (NaN: no place model)
     place_probability: float  # what a place's probability reached to be kept (NaN: no place model)
 
     def place_labels(self) -> list[str]:
@@ -139,10 +127,8 @@ def build_map(
     the cells the sensor saw), or without one score above `place_threshold` (default: `threshold`)."""
     if allowed is not None:
         scores = np.where(allowed[None, None], scores, RULED_OUT).astype(np.float32)
-    nz, nt, nx, ny = grid.shape
-    flat = scores.reshape(nz * nt, nx, ny)
-    best = flat.argmax(axis=0)  # per (x, y): the best (z, theta) slab
-    confidence = np.take_along_axis(flat, best[None], axis=0)[0]
+    confidence, best = best_slabs(scores, grid)
+    nt = grid.shape[1]
     best_z, best_theta = grid.z[best // nt], grid.theta[best % nt]
 
     above = np.flatnonzero(scores.ravel() > threshold)

@@ -200,8 +200,10 @@ class RoomMapper:
 
         settings, skeleton = self.settings, model.as_skeleton()
         grid = pose_grid(fields, skeleton, settings)
+        scanned = scanned_cells(fields, grid.x, grid.y)
+        hidden = scanned if settings.map.hidden_floor else None
         allowed = (
-            mapped_cells(fields, grid.x, grid.y, settings.map.floor_margin, settings.map.hidden_floor)
+            mapped_cells(fields, grid.x, grid.y, settings.map.floor_margin, hidden)
             if settings.map.floor_margin >= 0
             else None
         )
@@ -212,7 +214,7 @@ class RoomMapper:
         known = None if report.reason else known_second_stage(previous, grid, stale)
         scores = model_scores(model, fields, grid, self.layout, allowed, linear, known)
         self.states[model.affordance] = ModelState(fields, grid, linear, scores)
-        self.scanned[model.affordance] = scanned_cells(fields, grid.x, grid.y)
+        self.scanned[model.affordance] = scanned
         self.reports[model.affordance] = report
         return grid, scores
 

@@ -56,6 +56,23 @@ class Candidates:
     evidence: np.ndarray  # (k, len(EVIDENCE))
 
 
+def room_reference(scores: np.ndarray) -> float:
+    """The median score of a room's candidate poses (0 when it has none): what a relative place threshold
+    is counted from. A scan unlike the training rooms (fewer viewpoints, other noise) moves a room's scores
+    together, the places with the rest; a threshold above this median moves with them."""
+    live = scores[scores > RULED_OUT]
+    return float(np.median(live)) if len(live) else 0.0
+
+
+def best_slabs(scores: np.ndarray, grid: PoseGrid) -> tuple[np.ndarray, np.ndarray]:
+    """(the confidence map: each (x, y) cell's best score over theta and z, (nx, ny); the (z, theta) slab that
+    reached it, as a flat index z * n_theta + theta) of scores shaped like the grid."""
+    nz, nt, nx, ny = grid.shape
+    flat = scores.reshape(nz * nt, nx, ny)
+    best = flat.argmax(axis=0)
+    return np.take_along_axis(flat, best[None], axis=0)[0], best
+
+
 def peak_cells(confidence: np.ndarray, grid: PoseGrid, floor: float, radius: float, limit: int) -> np.ndarray:
     """(k, 2) cells of the confidence map above `floor` kept by greedy non-maximum suppression, best first:
     the best cell is kept and every cell within `radius` of it suppressed, whatever its theta; at most
@@ -63,12 +80,18 @@ def peak_cells(confidence: np.ndarray, grid: PoseGrid, floor: float, radius: flo
     cells = np.argwhere(confidence > floor)
     cells = cells[np.argsort(-confidence[cells[:, 0], cells[:, 1]], kind="stable")]
     xy = np.column_stack([grid.x[cells[:, 0]], grid.y[cells[:, 1]]])
-    chosen, alive = [], np.ones(len(cells), dtype=bool)
+    return cells[suppress(xy, radius, limit)].reshape(-1, 2)
+
+
+def suppress(xy: np.ndarray, radius: float, limit: int | None = None) -> np.ndarray:
+    """Greedy non-maximum suppression of points (k, 2) sorted best first: indices of the kept ones, each
+    suppressing the later ones within `radius` of it; at most `limit` (None: all)."""
+    chosen, alive = [], np.ones(len(xy), dtype=bool)
     while alive.any() and (limit is None or len(chosen) < limit):
-        first = int(np.argmax(alive))  # cells are sorted best first
+        first = int(np.argmax(alive))
         chosen.append(first)
         alive &= np.hypot(*(xy - xy[first]).T) > radius
-    return cells[chosen].reshape(-1, 2)
+    return np.array(chosen, dtype=np.int64)
 
 
 def place_candidates(
@@ -82,10 +105,8 @@ def place_candidates(
     """The room's candidate places and their evidence. `scores` (z, theta, x, y) as mapped (RULED_OUT where
     not scored), `threshold` the model's pose threshold, `scanned` (nx, ny): the cells the sensor saw (None:
     every cell)."""
-    nz, nt, nx, ny = grid.shape
-    flat = scores.reshape(nz * nt, nx, ny)
-    best = flat.argmax(axis=0)
-    confidence = np.take_along_axis(flat, best[None], axis=0)[0]
+    confidence, best = best_slabs(scores, grid)
+    nt = grid.shape[1]
     cells = peak_cells(confidence, grid, RULED_OUT, nms_radius, limit)
     i, j = cells[:, 0], cells[:, 1]
     rows = np.column_stack(
@@ -95,9 +116,8 @@ def place_candidates(
 
 
 def _evidence(scores, confidence, cells, grid: PoseGrid, threshold: float, scanned) -> np.ndarray:
-    live = scores[scores > RULED_OUT]
     peak = confidence[cells[:, 0], cells[:, 1]].astype(np.float64)
-    median = float(np.median(live)) if len(live) else 0.0
+    median = room_reference(scores)
     best = float(peak.max()) if len(peak) else 0.0
     near = _window(scores, cells, grid.step, SUPPORT_RADIUS)  # (z, theta, k, disc)
     scanned_map = np.ones(confidence.shape, bool) if scanned is None else scanned
@@ -134,12 +154,7 @@ def choose_places(xy: np.ndarray, probabilities: np.ndarray, cut: float, radius:
     likeliest first, each suppressing the candidates within `radius` of it (one place per person's width)."""
     order = np.flatnonzero(probabilities >= cut)
     order = order[np.argsort(-probabilities[order], kind="stable")]
-    chosen, alive = [], np.ones(len(order), dtype=bool)
-    while alive.any():
-        first = int(np.argmax(alive))
-        chosen.append(order[first])
-        alive &= np.hypot(*(xy[order] - xy[order[first]]).T) > radius
-    return np.array(chosen, dtype=np.int64)
+    return order[suppress(xy[order], radius)]
 
 
 @dataclass
