@@ -3,6 +3,7 @@ and an entry added in the one place takes effect everywhere without another edit
 
 from __future__ import annotations
 
+import inspect
 import re
 from pathlib import Path
 
@@ -55,9 +56,15 @@ def test_every_registered_service_is_documented_and_composed():
 
 
 def test_every_registered_service_class_takes_a_node():
+    """`afford serve` builds every service as service_class(node) and calls its run(): both signatures must
+    fit that call (binding the arguments checks them without starting a service)."""
     for spec in SERVICES.values():
         service_class = spec.service_class()
+        constructor = inspect.signature(service_class)
+        assert list(constructor.parameters)[:1] == ["node"], f"{spec.target}{constructor}"
+        constructor.bind(object())  # TypeError: a constructor that wants more than the node
         assert callable(getattr(service_class, "run", None)), f"{spec.target} has no run()"
+        inspect.signature(service_class.run).bind(object())  # run(self) and nothing more
 
 
 # -- learners ------------------------------------------------------------------------------------------------
