@@ -166,14 +166,29 @@ def test_out_is_checked_before_the_work(tmp_path, args, message):
     assert not list(folder.iterdir())
 
 
+# Imported at the start of the afford process (sitecustomize): making any folder under one named "locked"
+# is refused as a read-only folder refuses it. A mode would not do: root (CI, containers) writes anyway.
+LOCKED_FOLDER = """
+import errno, os, pathlib
+make = pathlib.Path.mkdir
+def refuse(self, *args, **kwargs):
+    if "locked" in self.parts:
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(self))
+    return make(self, *args, **kwargs)
+pathlib.Path.mkdir = refuse
+"""
+
+
 def test_an_out_that_cannot_be_written_is_one_line(tmp_path):
     import os
 
-    if os.geteuid() != 0:  # root writes anywhere a mode allows nothing; /sys refuses even root
-        locked = tmp_path / "locked"
-        locked.mkdir(mode=0o500)
-        result = afford("synth", "--rooms", "1", "--out", str(locked / "rooms"))
-        assert result.returncode == 2 and "cannot be made: Permission denied" in result.stderr
+    (tmp_path / "site").mkdir()
+    (tmp_path / "site" / "sitecustomize.py").write_text(LOCKED_FOLDER)
+    path = os.pathsep.join(filter(None, [str(tmp_path / "site"), os.environ.get("PYTHONPATH")]))
+    out = tmp_path / "locked" / "rooms"
+    result = afford("synth", "--rooms", "1", "--out", str(out), env={**os.environ, "PYTHONPATH": path})
+    assert result.returncode == 2, result.stderr
+    assert result.stderr == f"error: --out {out} cannot be made: Permission denied\n"
     result = afford("synth", "--rooms", "1", "--out", "/sys/afford-rooms")
     assert result.returncode == 2, result.stderr
     assert result.stderr == "error: --out /sys/afford-rooms cannot be made: Operation not permitted\n"
