@@ -10,7 +10,7 @@ from __future__ import annotations
 from affordcore.geometry.gravity import check_levelled
 from affordcore.geometry.scene import Cloud
 from affordcore.mapping.pipeline import prepare_scene
-from affordcore.mapping.recording import log_cloud, log_fields, set_time
+from affordcore.mapping.recording import log_fields, set_time
 from affordcore.mapping.updates import NormalCache
 from affordwire import messages
 
@@ -53,7 +53,7 @@ class FeaturesService:
         message = messages.fields_message(scene.fields, cloud, world_from_input)
         self.node.publish(self.node.keys.fields, message)
         set_time(self.node.recording, messages.seconds(cloud.timestamp))
-        log_cloud(self.node.recording, scene.cloud.points)
+        # the cloud itself is the assembler's to log: an entity comes from one process only
         log_fields(self.node.recording, scene.fields)
         levelling = "" if levelled else f"; {scene.alignment.describe()}"
         self.node.publish_status(

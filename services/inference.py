@@ -268,14 +268,16 @@ class ShardedInference(InferenceService):
     def _recording(self, robot: str):
         """The worker's recording of one robot, `<rrd>-<robot>.rrd`, with that robot's recording id (it opens
         with the robot's other recordings as one)."""
-        from affordcore.mapping.recording import open_recording
+        from affordcore.mapping.recording import open_recording, recording_name
 
         if robot not in self.recordings:
             rrd = self.node.rrd
             path = unused_path(rrd.with_name(f"{rrd.stem}-{robot}{rrd.suffix}"))
             recording_id = self.node.settings.service.recording_id or f"afford-{robot}"
             affordances = [model.affordance for model in self.models]
-            self.recordings[robot] = open_recording(path, affordances, recording_id)
+            self.recordings[robot] = open_recording(
+                path, affordances, recording_id, name=recording_name(robot)
+            )
         return self.recordings[robot]
 
     def _close_recordings(self) -> str:

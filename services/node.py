@@ -202,7 +202,7 @@ class Node:
         keys=None,
     ):
         """`keys`: the key space when it is not one robot's (a sharded worker's, services/shard.py)."""
-        from affordcore.mapping.recording import open_recording
+        from affordcore.mapping.recording import open_recording, recording_name
 
         self.service, self.keys = service, keys if keys is not None else Keys(robot)
         self.settings = settings or ServiceSettings()
@@ -218,7 +218,9 @@ class Node:
         self._lock = threading.Lock()
         recording_id = self.settings.service.recording_id or f"afford-{robot}"
         self.rrd = unused_path(Path(rrd or f"{service}.rrd"))
-        self.recording = open_recording(self.rrd, affordances or [], recording_id, viewer)
+        self.recording = open_recording(
+            self.rrd, affordances or [], recording_id, viewer, name=recording_name(robot)
+        )
         service_settings = self.settings.service
         self.session = open_session(
             endpoints, service_settings.mode, listen, service_settings.zenoh_config, None, self.stop_event

@@ -29,7 +29,7 @@ ENTITIES = {
         "/world/odom/trajectory",
         "/world/cloud",
     },
-    "features": {"/world/cloud", "/world/fields/occupied", "/world/fields/normals"},
+    "features": {"/world/fields/occupied", "/world/fields/normals"},  # the cloud is the assembler's
     "inference": {
         f"/world/{name}/{part}" for name in AFFORDANCES for part in ("confidence", "skeletons", "places")
     },

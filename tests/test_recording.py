@@ -1,5 +1,6 @@
 """The Rerun recording as its users read it: skeletons as keypoints of an AnnotationContext (joint names,
-bones, a class and colour per affordance), confidence as scalar values with a colormap and its range.
+bones, a class and colour per affordance, the names hidden until hovered), confidence as scalar values with
+a colour bar and its range, the places as a table, the plan view, static data static and a named recording.
 
 Every test writes a recording through the real logging functions and reads the .rrd back."""
 
@@ -9,15 +10,16 @@ import matplotlib
 import numpy as np
 import pyarrow as pa
 import pytest
-import rerun as rr
 from rerun.chunk import RrdReader
 
 from affordcore.geometry.grid import PoseGrid
 from affordcore.geometry.skeleton import BONE_ENDS, JOINTS, get_skeleton
 from affordcore.mapping.maps import build_map
 from affordcore.mapping.recording import (
+    CEILING_CUT,
     affordance_colors,
     close_recording,
+    log_cloud,
     log_map,
     open_recording,
     recorded_entities,
@@ -111,6 +113,7 @@ def test_each_skeleton_is_one_entity_of_keypoints_with_its_affordance_class(reco
             entity = f"/world/{affordance}/skeletons/{rank}"
             assert _last(path, entity, "Points3D:class_ids") == [class_id]
             assert _last(path, entity, "Points3D:keypoint_ids") == list(range(15))
+            assert _last(path, entity, "Points3D:show_labels") == [False]  # joint names only on hover
             np.testing.assert_allclose(_last(path, entity, "Points3D:positions"), joints, atol=1e-5)
         assert f"/world/{affordance}/skeletons/{len(amap.joints)}" not in entities
         # the skeleton map's summary and the places, in the affordance's colour (its class)
@@ -160,26 +163,47 @@ def test_confidence_is_the_scalar_value_with_its_colormap_and_range(recorded):
     assert len(values) == 4 and values.max() == pytest.approx(2.0)  # two places and their weaker neighbours
     low, high = _last(path, entity, "affordmap.Confidence:value_range")[0]
     assert (low, high) == pytest.approx((amap.threshold, 2.0))
-    assert _last(path, entity, "affordmap.Confidence:colormap") == [rr.components.Colormap.Viridis.value]
-    # the colours are viridis over that range: the best cell the top of the map, the others in between
-    viridis = matplotlib.colormaps["viridis"]
+    # the colours run from a pale tint of the affordance's colour (the threshold) to that colour (the best)
     packed = np.array(_last(path, entity, "Points3D:colors"), dtype=np.uint32)
-    rgb = np.column_stack([(packed >> shift) & 0xFF for shift in (24, 16, 8)])
-    expected = (viridis((values - low) / (high - low))[:, :3] * 255).astype(np.uint8)
-    np.testing.assert_array_equal(rgb, expected)
-    assert np.array_equal(rgb[values.argmax()], (np.array(viridis(1.0)[:3]) * 255).astype(np.uint8))
-    # the legend in the scene: the colormap's ends labelled with the range's ends
-    labels = _last(path, "/world/sitting-relaxing/legend", "Points3D:labels")
-    assert labels[0] == f"sitting-relaxing confidence {low:.2f}" and labels[-1] == f"{high:.2f}"
-    legend = np.array(_last(path, "/world/sitting-relaxing/legend", "Points3D:colors"), dtype=np.uint32)
-    assert ((legend[-1] >> 24) & 0xFF, (legend[-1] >> 16) & 0xFF) == tuple(
-        (np.array(viridis(1.0)[:2]) * 255).astype(np.uint8)
-    )
-    # each affordance's legend has its own place (the "every affordance" view shows all three)
-    starts = {
-        tuple(np.round(_last(path, f"/world/{name}/legend", "Points3D:positions")[0], 3)) for name in maps
-    }
-    assert len(starts) == 3
+    rgb = np.column_stack([(packed >> shift) & 0xFF for shift in (24, 16, 8)]).astype(float)
+    blue = np.array(matplotlib.colormaps["tab10"](0)[:3]) * 255  # sitting-relaxing: the first class
+    np.testing.assert_allclose(rgb[values.argmax()], blue, atol=1)
+    t = (values - low) / (high - low)
+    pale = 0.25 * blue + 0.75 * 255
+    np.testing.assert_allclose(rgb, pale + t[:, None] * (blue - pale), atol=1)
+    assert len({tuple(c) for c in rgb}) == len(set(values))  # one colour per value
+    # the plan shows the same map as an image: its opaque pixels are the cells above the threshold
+    image = _last(path, "/plan/sitting-relaxing/confidence", "Image:buffer")
+    assert int(np.count_nonzero(np.array(image[0], dtype=np.uint8).reshape(-1, 4)[:, 3])) == 4
+    # each affordance's colour bar is named with its range, in a row of its own below the plan
+    label = _last(path, "/plan/sitting-relaxing/legend/range", "Points2D:labels")
+    assert label == [f"sitting-relaxing: {low:.2f} (pale) to {high:.2f}"]
+    rows = {_last(path, f"/plan/{name}/legend/range", "Points2D:positions")[0][1] for name in maps}
+    assert len(rows) == 3
+
+
+def test_the_places_table_lists_every_place_with_its_probability_or_says_none_was_found(recorded, tmp_path):
+    path, maps = recorded
+    (text,) = _last(path, "/places", "TextDocument:text")
+    rows = [line.split("|")[1:-1] for line in text.splitlines()[2:]]
+    # these maps have no place model: their places read as scores (a shipped model's as probabilities,
+    # tests/test_map.py)
+    assert all(np.isnan(amap.probabilities).all() for amap in maps.values())
+    expected = [
+        (f"{name} ({colour})", str(rank + 1), f"score {score:.2f}")
+        for (name, amap), colour in zip(maps.items(), ("blue", "orange", "green"))
+        for rank, score in enumerate(amap.skeletons[:, 4])
+    ]
+    assert expected[0][2] == "score 2.00" and len(expected) == 4
+    assert [tuple(cell.strip() for cell in row[:3]) for row in rows] == expected
+    # an affordance without a place says so; one not mapped yet too
+    path = tmp_path / "empty.rrd"
+    recording = open_recording(path, ["sitting-relaxing", "standing-working"])
+    log_map(recording, _map("standing-working", [], "standing-working"))
+    close_recording(recording)
+    (text,) = _last(path, "/places", "TextDocument:text")
+    assert "| sitting-relaxing | not mapped yet |" in text
+    assert "| standing-working (orange) | **no place found** |" in text
 
 
 def test_an_empty_map_records_an_empty_skeleton_map_and_a_valid_range(tmp_path):
@@ -205,3 +229,29 @@ def test_affordance_colours_are_distinct_and_the_same_for_the_same_list():
         affordance_colors(names[:3]), colors[:3]
     )  # by order, not by the list's length
     assert affordance_colors([]).shape == (0, 3)
+
+
+def test_an_offline_recording_is_static_named_and_keeps_the_ceiling_out_of_the_first_view(tmp_path):
+
+    path = tmp_path / "map.rrd"
+    recording = open_recording(path, ["sitting-relaxing"], name="example-room map 2026-01-02 03:04:05")
+    floor = np.column_stack([np.random.default_rng(0).uniform(0, 3, (500, 2)), np.zeros(500)])
+    ceiling = floor + [0.0, 0.0, 2.6]
+    log_cloud(recording, np.vstack([floor, ceiling]))
+    log_map(recording, _map("sitting-relaxing", [(5, 3, 2.0)]))
+    close_recording(recording)
+    # no time was set: everything is static (no log_time or log_tick stamps)
+    rows = [row for entity in recorded_entities(path) for row in _rows(path, entity)]
+    assert rows and all(row["static"] for row in rows)
+    assert all(
+        set(chunk.to_record_batch().schema.names).isdisjoint({"log_time", "log_tick"})
+        for chunk in RrdReader(str(path)).stream().to_chunks()
+    )
+    # the points above CEILING_CUT have an entity of their own (which the first view leaves out)
+    below = np.array(_last(path, "/world/cloud", "Points3D:positions"))
+    above = np.array(_last(path, "/world/cloud/above", "Points3D:positions"))
+    assert (len(below), len(above)) == (500, 500)
+    assert below[:, 2].max() <= CEILING_CUT < above[:, 2].min()
+    # the recording's id is its name: a person recognises it in the viewer
+    ids = {(r.application_id, r.recording_id) for r in RrdReader(str(path)).recordings()}
+    assert ("affordmap", "example-room map 2026-01-02 03:04:05") in ids

@@ -211,9 +211,9 @@ def test_features_level_a_cloud_in_its_own_frame_refuse_a_world_one_without_a_fl
     finally:
         running.stop()
     assert eventually(lambda: _alive(client) == []), "the liveliness token outlived the service"
-    assert {"/world/cloud", "/world/fields/occupied", "/world/fields/normals"} <= recorded_entities(
-        tmp_path / "features.rrd"
-    )
+    entities = recorded_entities(tmp_path / "features.rrd")
+    assert {"/world/fields/occupied", "/world/fields/normals"} <= entities
+    assert "/world/cloud" not in entities  # the assembler's: one process logs an entity
 
 
 def test_inference_refuses_fields_at_another_resolution_or_facing(router, client, tmp_path):

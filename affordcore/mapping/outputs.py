@@ -35,7 +35,7 @@ def write_map_outputs(
     for affordance, amap in maps.items():
         written += _json_and_png(scene, amap, ids[affordance], out, plan)
     if rrd is not None:
-        recording = _open_with_cloud(rrd, list(maps), scene.cloud.points)
+        recording = _open_with_cloud(rrd, list(maps), scene.cloud)
         _close_with_maps(recording, maps.values())
         written.append(rrd)
     return written
@@ -80,9 +80,7 @@ def map_and_write(
         if workers == 1:
             for index in range(len(models)):
                 collected(index, _map_one(index))
-            recording = (
-                _open_with_cloud(rrd, [m.affordance for m in models], scene.cloud.points) if rrd else None
-            )
+            recording = _open_with_cloud(rrd, [m.affordance for m in models], scene.cloud) if rrd else None
         else:
             import multiprocessing
             from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -94,7 +92,7 @@ def map_and_write(
                 futures = {pool.submit(_map_one, index): index for index in range(len(models))}
                 start = time.perf_counter()
                 recording = (
-                    _open_with_cloud(rrd, [m.affordance for m in models], scene.cloud.points) if rrd else None
+                    _open_with_cloud(rrd, [m.affordance for m in models], scene.cloud) if rrd else None
                 )
                 timings["recording: the cloud"] = time.perf_counter() - start
                 for future in as_completed(futures):
@@ -143,11 +141,12 @@ def _json_and_png(scene, amap, model_id: str, out: Path, plan) -> list[Path]:
     return [path, plot_map(scene.cloud.points, amap, out / f"{amap.affordance}.png", plan=plan)]
 
 
-def _open_with_cloud(rrd: Path, affordances: list[str], points):
-    from .recording import log_cloud, open_recording
+def _open_with_cloud(rrd: Path, affordances: list[str], cloud):
+    """The recording, named after the cloud's file and the time, with the cloud in it."""
+    from .recording import log_cloud, open_recording, recording_name
 
-    recording = open_recording(rrd, affordances)
-    log_cloud(recording, points)
+    recording = open_recording(rrd, affordances, name=recording_name(f"{Path(cloud.source).stem} map"))
+    log_cloud(recording, cloud.points)
     return recording
 
 

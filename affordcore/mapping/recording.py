@@ -1,28 +1,42 @@
 """Rerun recordings: one place that knows the entity paths, the z-up frame and the default blueprint.
 
-Entity paths (everything under ``world/``, gravity-aligned, z up, metres):
+What opens is the answer: a 3D view of the room seen from above (its points above ``CEILING_CUT`` left out
+of it) with the skeletons as bones in their affordance's colour, beside a plan view and the places as text;
+the fields and the scans have a tab of their own. A recording without a time (``afford map``) is one static
+snapshot; the services stamp what they log on the ``stamp`` timeline (``set_time``).
 
-* ``world/cloud``: the room's points;
-* ``world``: the z-up view coordinates and, once a map is logged, the skeletons' AnnotationContext (static):
-  class i + 1 per affordance (its name and a colour, tab10 in the order the recording was opened with; an
-  affordance not in that list is appended), each naming the 15 joints as keypoints 0..14 (``skeleton.JOINTS``)
-  and connecting them by ``skeleton.BONES``;
+Entity paths (3D under ``world/``, gravity-aligned, z up, metres; the plan under ``plan/``, x right and y up
+on screen, metres):
+
+* ``world``: the z-up view coordinates (static, with the room) and, once a map is logged, the skeletons'
+  AnnotationContext (static): class i + 1 per affordance (its name and a colour, tab10 in the order the
+  recording was opened with; an affordance not in that list is appended), each naming the 15 joints as
+  keypoints 0..14 (``skeleton.JOINTS``) and connecting them by ``skeleton.BONES``;
+* ``world/cloud``: the room's points up to ``CEILING_CUT``; ``world/cloud/above``: the points above it
+  (the ceiling, shown only in the "fields and scans" tab);
+* ``plan/room``: the room from above, an image of the highest point up to ``CEILING_CUT`` per 8 cm cell
+  (darker = higher);
 * ``world/<affordance>/confidence``: the confidence map, one point per floor cell above the model's threshold,
-  coloured by viridis over [threshold, the map's best value]; the cells' values themselves, that range and
-  the colormap are on the same entity (``affordmap.Confidence:value`` / ``:value_range`` / ``:colormap``),
-  shown when a cell or the entity is selected;
-* ``world/<affordance>/legend``: the colormap's legend in the scene, five points along the grid's low-y edge
-  labelled with the values their colours stand for;
+  coloured from pale (the threshold) to the affordance's colour (the map's best value); the cells' values
+  themselves and that range are on the same entity (``affordmap.Confidence:value`` / ``:value_range``),
+  shown when a cell or the entity is selected; ``plan/<affordance>/confidence``: the same colours as an
+  image over the plan;
+* ``plan/<affordance>/legend``: the colour bar of that map, below the plan, its ends labelled with the
+  range's ends;
 * ``world/<affordance>/skeletons/<rank>``: each skeleton of the skeleton map (0 the best) as 15 keypoints with
-  the affordance's class id: the viewer draws the bones, colours them by affordance and names the joints.
-  One entity per skeleton, as the viewer joins keypoints by (class id, keypoint id) within an entity. A map
-  with fewer skeletons than the last one clears the extra entities;
-* ``world/<affordance>/skeletons``: how many skeletons the map has, their scores and the place threshold
-  (``affordmap.SkeletonMap:count`` / ``:scores`` / ``:place_threshold``);
-* ``world/<affordance>/places``: each skeleton's torso, in the affordance's colour, labelled with its score.
+  the affordance's class id: the viewer draws the bones in the affordance's colour and names the joints when
+  a keypoint is hovered or selected. One entity per skeleton, as the viewer joins keypoints by (class id,
+  keypoint id) within an entity. A map with fewer skeletons than the last one clears the extra entities;
+  ``plan/<affordance>/skeletons``: their bones from above;
+* ``world/<affordance>/skeletons``: how many skeletons the map has, their scores and probabilities and the
+  place threshold (``affordmap.SkeletonMap:count`` / ``:scores`` / ``:probabilities`` / ...);
+* ``world/<affordance>/places`` and ``plan/<affordance>/places``: each skeleton's torso, in the affordance's
+  colour, labelled with its rank and probability (or score);
+* ``places``: a markdown table of every affordance's places, their probabilities, positions and facings, or
+  "no place found".
 
 The services add (all on the ``stamp`` timeline, the time of the message logged, so the recordings of
-different processes line up):
+different processes line up; each entity is logged by one service only):
 
 * ``world/odom``: world_from_odom, the gravity alignment of the assembler's odometry frame (the first
   sensor frame), updated at each map it publishes;
@@ -34,6 +48,7 @@ different processes line up):
 
 from __future__ import annotations
 
+import time
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,41 +58,66 @@ import numpy as np
 from ..geometry.skeleton import BONE_ENDS, JOINTS
 
 APPLICATION_ID = "affordmap"
-CONFIDENCE_COLORMAP = "viridis"  # matplotlib's and Rerun's (rr.components.Colormap.Viridis) alike
-CONFIDENCE_ARCHETYPE = "affordmap.Confidence"  # the confidence cells' scalar values, range and colormap
+CONFIDENCE_ARCHETYPE = "affordmap.Confidence"  # the confidence cells' scalar values and range
 SKELETONS_ARCHETYPE = "affordmap.SkeletonMap"  # how many skeletons the map has, their scores
-LEGEND_TICKS = 5
-LEGEND_OFFSET = 0.3  # m: each affordance's legend runs along the grid's low-y edge, this far apart
-LEGEND_RADIUS = 0.05
+CEILING_CUT = 2.0  # m above the floor: the view from above looks into the room under the points above this
+PLAN_CELL = 0.08  # m: the plan's room image
+LEGEND_OFFSET = 0.5  # m: each affordance's colour bar runs below the grid's low-y edge, this far apart
+LEGEND_HEIGHT = 0.12  # m
+LEGEND_STEPS = 64
 SKELETON_RADIUS = 0.03
+TAB10_NAMES = ("blue", "orange", "green", "red", "purple", "brown", "pink", "grey", "olive", "cyan")
+# the plan's layers, bottom to top
+DRAW_ORDER = {"room": 0.0, "confidence": 1.0, "legend": 1.0, "skeletons": 2.0, "places": 3.0}
 
 
-_CLASSES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # recording -> _Classes
+_STATE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # recording -> _State
 
 
 @dataclass
-class _Classes:
-    """Per recording: the affordances in class-id order, whether the context holding them is logged, and
-    how many skeleton entities each affordance's last map left (so a smaller map clears the rest)."""
+class _State:
+    """Per recording: the affordances in class-id order, whether the context holding them is logged, how
+    many skeleton entities each affordance's last map left (so a smaller map clears the rest), each mapped
+    affordance's rows of the places table, whether a time was set (until then all is static) and
+    whether the view was framed on the room."""
 
     affordances: list[str] = field(default_factory=list)
     logged: bool = False
     skeletons: dict[str, int] = field(default_factory=dict)
+    sections: dict[str, list[str]] = field(default_factory=dict)
+    timed: bool = False
+    framed: bool = False
+
+
+def _state(recording) -> _State:
+    return _STATE.setdefault(recording, _State())
+
+
+def recording_name(subject: str) -> str:
+    """What the viewer lists a recording as: its robot or room and when it was made (local time)."""
+    return f"{subject} {time.strftime('%Y-%m-%d %H:%M:%S')}"
 
 
 def open_recording(
-    path: str | Path, affordances: list[str], recording_id: str | None = None, viewer: str | None = None
+    path: str | Path,
+    affordances: list[str],
+    recording_id: str | None = None,
+    viewer: str | None = None,
+    name: str | None = None,
 ):
     """A recording that streams to an .rrd file with the default blueprint and, given a viewer URL
-    (rerun+http://HOST:9876/proxy), to that viewer too. The file never waits for the viewer."""
+    (rerun+http://HOST:9876/proxy), to that viewer too. The file never waits for the viewer. `name` (what
+    the viewer lists it as, `recording_name`) is also its id when no id is given: recordings of several
+    processes that share an id open as one."""
     import rerun as rr
 
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    recording = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id)
+    name = name or recording_name(Path(path).stem)
+    recording = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id or name)
     sinks = [rr.FileSink(str(path))] + ([rr.GrpcSink(viewer)] if viewer else [])
-    recording.set_sinks(*sinks, default_blueprint=blueprint(affordances))
-    _CLASSES[recording] = _Classes(list(affordances))  # class ids in the order of the tabs
-    recording.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    recording.set_sinks(*sinks, default_blueprint=blueprint())
+    recording.send_recording_name(name)
+    _STATE[recording] = _State(list(affordances))  # class ids in the order of the tabs
     return recording
 
 
@@ -93,28 +133,118 @@ def close_recording(recording, timeout: float = 5.0) -> str | None:
 
 
 def set_time(recording, seconds: float) -> None:
+    """Stamp what follows at `seconds`; from the first call on, nothing the recording logs is static."""
+    _state(recording).timed = True
     recording.set_time("stamp", timestamp=seconds)
 
 
-def blueprint(affordances: list[str]):
+def _log(recording, entity: str, *archetypes) -> None:
+    """Log at the recording's time, or as static data when it has none (an offline map)."""
+    recording.log(entity, *archetypes, static=not _state(recording).timed)
+
+
+def blueprint(room: tuple[np.ndarray, np.ndarray, int] | None = None):
+    """The first tab answers "where can a person sit, work, stand?": the room in 3D from above (without the
+    points above ``CEILING_CUT``, the fields and the scans) beside the plan and the places; the second shows
+    everything. `room`: the floor's (low, high) (x, y) corners and how many colour bars run below it, which
+    the 3D eye and the plan frame (else the viewer's own choice)."""
     import rerun.blueprint as rrb
 
-    views = [rrb.Spatial3DView(origin="world", name="room and every affordance")]
-    views += [
-        rrb.Spatial3DView(origin="world", contents=["world/cloud", f"world/{name}/**"], name=name)
-        for name in affordances
-    ]
-    return rrb.Blueprint(rrb.Tabs(*views), collapse_panels=True)
+    eye, bounds = _framing(*room) if room is not None else (None, None)
+    answer = rrb.Horizontal(
+        rrb.Spatial3DView(
+            origin="world",
+            contents=["+ world/**", "- world/cloud/above", "- world/fields/**", "- world/odom/sensor/**"],
+            name="room from above",
+            eye_controls=eye,
+        ),
+        rrb.Vertical(
+            rrb.Spatial2DView(origin="plan", name="plan", visual_bounds=bounds),
+            rrb.TextDocumentView(origin="places", name="places"),
+            row_shares=[3, 2],
+        ),
+        column_shares=[3, 2],
+        name="places",
+    )
+    everything = rrb.Spatial3DView(origin="world", name="fields and scans")
+    return rrb.Blueprint(rrb.Tabs(answer, everything, active_tab=0), collapse_panels=True)
+
+
+def _framing(low: np.ndarray, high: np.ndarray, bars: int):
+    """The 3D eye, in orbit above the room's low-y side looking down at its middle about 30 degrees from
+    the vertical (so the plan's "up" is the 3D view's too), and the plan's bounds: the floor and its
+    colour bars, with a margin."""
+    import rerun.blueprint as rrb
+
+    centre, span = (low + high) / 2, float(np.max(high - low))
+    eye = rrb.EyeControls3D(
+        kind=rrb.Eye3DKind.Orbital,
+        position=[centre[0], centre[1] - 0.6 * span, 1.1 * span + 1.0],
+        look_target=[centre[0], centre[1], 0.3],
+        eye_up=[0.0, 0.0, 1.0],
+    )
+    margin = 0.4
+    bounds = rrb.VisualBounds2D(
+        x_range=[low[0] - margin, high[0] + margin],
+        y_range=[-high[1] - margin, -low[1] + LEGEND_OFFSET * bars + margin],
+    )
+    return eye, bounds
+
+
+def _frame_room(recording, grid) -> None:
+    """Once per recording, at its first map: make the default blueprint frame the map's floor (the pose
+    grid's) and the colour bars of the affordances it knows."""
+    state = _state(recording)
+    if not state.framed:
+        room = (np.array([grid.x[0], grid.y[0]]), np.array([grid.x[-1], grid.y[-1]]), len(state.affordances))
+        recording.send_blueprint(blueprint(room), make_active=True, make_default=True)
+        state.framed = True
 
 
 def log_cloud(recording, points: np.ndarray, max_points: int = 2_000_000) -> None:
+    """The room's points (those above ``CEILING_CUT`` apart) and the plan's room image."""
     import rerun as rr
+
+    from .plots import plan_heights
 
     if len(points) > max_points:
         points = points[:: int(np.ceil(len(points) / max_points))]
+    points = points.astype(np.float32)
     heights = np.clip(points[:, 2] / 2.5, 0, 1)
     colors = (np.column_stack([0.35 + 0.4 * heights] * 3) * 255).astype(np.uint8)
-    recording.log("world/cloud", rr.Points3D(points.astype(np.float32), colors=colors, radii=0.01))
+    below = points[:, 2] <= CEILING_CUT
+    recording.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    _log(recording, "world/cloud", rr.Points3D(points[below], colors=colors[below], radii=0.01))
+    _log(recording, "world/cloud/above", rr.Points3D(points[~below], colors=colors[~below], radii=0.01))
+    if below.any():
+        top, corner = plan_heights(points[below], PLAN_CELL)
+        grey = 235 - 150 * np.clip(np.nan_to_num(top, nan=0.0) / CEILING_CUT, 0, 1)
+        rgba = np.stack([grey, grey, grey, np.where(np.isnan(top), 0, 255)], axis=-1).astype(np.uint8)
+        _log_plan_image(recording, "plan/room", rgba, corner, PLAN_CELL)
+
+
+def _log_plan_image(recording, entity: str, rgba: np.ndarray, corner, cell) -> None:
+    """An (nx, ny, 4) image of floor cells, [ix, iy] covering corner + (ix, iy) * cell onward, on the plan
+    (whose v axis is -y: image rows run from the room's high-y side down)."""
+    import rerun as rr
+
+    cell = np.broadcast_to(np.asarray(cell, dtype=np.float64), (2,))
+    height = rgba.shape[1] * cell[1]
+    _log(
+        recording,
+        entity,
+        rr.Image(
+            np.ascontiguousarray(rgba.transpose(1, 0, 2)[::-1]),
+            color_model="RGBA",
+            draw_order=DRAW_ORDER[entity.split("/")[-1]],
+        ),
+        rr.Transform3D(translation=[corner[0], -(corner[1] + height), 0.0], scale=[cell[0], cell[1], 1.0]),
+    )
+
+
+def _plan(xy: np.ndarray) -> np.ndarray:
+    """World (x, y) to the plan's (u, v): v is -y, as the 2D view's v axis points down the screen."""
+    return np.asarray(xy)[..., :2] * np.array([1.0, -1.0])
 
 
 def affordance_colors(affordances: list[str]) -> np.ndarray:
@@ -126,6 +256,14 @@ def affordance_colors(affordances: list[str]) -> np.ndarray:
     return (np.array([tab10(i % 10)[:3] for i in range(len(affordances))]).reshape(-1, 3) * 255).astype(
         np.uint8
     )
+
+
+def confidence_colors(values: np.ndarray, low: float, high: float, color: np.ndarray) -> np.ndarray:
+    """(n, 3) uint8: each value's colour on an affordance's colour bar, from a pale tint of `color` at `low`
+    to `color` itself at `high` (one hue per affordance, so maps drawn together stay apart)."""
+    t = np.clip((np.asarray(values, dtype=np.float64) - low) / (high - low), 0, 1)[:, None]
+    pale = 0.25 * color + 0.75 * 255.0
+    return np.round(pale + t * (np.asarray(color, dtype=np.float64) - pale)).astype(np.uint8)
 
 
 def annotation_context(affordances: list[str]):
@@ -150,18 +288,18 @@ def annotation_context(affordances: list[str]):
 def _class_id(recording, affordance: str) -> int:
     """The affordance's class id in this recording, logging the (static) context the first time and again
     when an affordance the recording was not opened with turns up."""
-    classes = _CLASSES.setdefault(recording, _Classes())
-    if affordance not in classes.affordances:
-        classes.affordances.append(affordance)
-        classes.logged = False
-    if not classes.logged:
-        recording.log("world", annotation_context(classes.affordances), static=True)
-        classes.logged = True
-    return classes.affordances.index(affordance) + 1
+    state = _state(recording)
+    if affordance not in state.affordances:
+        state.affordances.append(affordance)
+        state.logged = False
+    if not state.logged:
+        recording.log("world", annotation_context(state.affordances), static=True)
+        state.logged = True
+    return state.affordances.index(affordance) + 1
 
 
 def confidence_range(amap) -> tuple[float, float]:
-    """What the confidence colormap spans: the model's threshold (the lowest value shown) to the map's best
+    """What the confidence colour bar spans: the model's threshold (the lowest value shown) to the map's best
     value; threshold to threshold + 1 when no cell is above the threshold."""
     low = float(amap.threshold)
     best = float(amap.confidence.max()) if amap.confidence.size else low
@@ -169,21 +307,28 @@ def confidence_range(amap) -> tuple[float, float]:
 
 
 def log_map(recording, amap) -> None:
-    """The confidence map, the legend of its colormap, the skeleton map (one keypoint entity per skeleton)
-    and the places, under ``world/<affordance>/``."""
-    import matplotlib
+    """One affordance map: its confidence (3D and plan) and colour bar, its skeletons (one keypoint entity
+    per skeleton, and their bones on the plan), its places and its rows of the places table."""
+    class_id = _class_id(recording, amap.affordance)
+    color = affordance_colors(_state(recording).affordances)[class_id - 1]
+    _log_confidence(recording, amap, color)
+    _log_skeletons(recording, amap, class_id, color)
+    _log_places_document(recording, amap, class_id)
+    _frame_room(recording, amap.grid)
+
+
+def _log_confidence(recording, amap, color: np.ndarray) -> None:
     import rerun as rr
 
     name, grid = amap.affordance, amap.grid
-    class_id = _class_id(recording, name)
-
     low, high = confidence_range(amap)
-    ix, iy = np.nonzero(amap.confidence > amap.threshold)
+    above = amap.confidence > amap.threshold
+    ix, iy = np.nonzero(above)
     values = amap.confidence[ix, iy].astype(np.float64)
-    viridis = matplotlib.colormaps[CONFIDENCE_COLORMAP]
-    colors = (viridis((values - low) / (high - low))[:, :3] * 255).astype(np.uint8)
+    colors = confidence_colors(values, low, high, color)
     cells = np.column_stack([grid.x[ix], grid.y[iy], np.full(len(ix), 0.02)])
-    recording.log(
+    _log(
+        recording,
         f"world/{name}/confidence",
         rr.Points3D(cells, colors=colors, radii=grid.step / 2),
         rr.DynamicArchetype(
@@ -191,37 +336,60 @@ def log_map(recording, amap) -> None:
             components={
                 "value": rr.components.ScalarBatch(values),
                 "value_range": rr.components.ValueRangeBatch([low, high]),
-                "colormap": rr.components.ColormapBatch(CONFIDENCE_COLORMAP),
             },
         ),
     )
-    ticks = np.linspace(low, high, LEGEND_TICKS)
-    start = np.array([grid.x[0], grid.y[0] - LEGEND_OFFSET * class_id, 0.02])
-    along = np.linspace(0.0, max(float(grid.x[-1] - grid.x[0]), 1.0), LEGEND_TICKS)
-    recording.log(
-        f"world/{name}/legend",
-        rr.Points3D(
-            start + np.column_stack([along, np.zeros((LEGEND_TICKS, 2))]),
-            colors=(viridis(np.linspace(0, 1, LEGEND_TICKS))[:, :3] * 255).astype(np.uint8),
-            radii=LEGEND_RADIUS,
-            labels=[f"{name} confidence {v:.2f}" if i == 0 else f"{v:.2f}" for i, v in enumerate(ticks)],
+    rgba = np.zeros((*amap.confidence.shape, 4), dtype=np.uint8)
+    rgba[ix, iy, :3], rgba[ix, iy, 3] = colors, 200
+    corner = np.array([grid.x[0], grid.y[0]]) - grid.step / 2
+    _log_plan_image(recording, f"plan/{name}/confidence", rgba, corner, grid.step)
+
+    # the colour bar: below the grid, one row per affordance in class order, named with its range above it
+    rank = _state(recording).affordances.index(name)
+    width = max(float(grid.x[-1] - grid.x[0]) / 2, 1.0)
+    bar = confidence_colors(np.linspace(low, high, LEGEND_STEPS), low, high, color)
+    start = np.array([grid.x[0], grid.y[0] - LEGEND_OFFSET * (rank + 1)])
+    rgba = np.concatenate([bar, np.full((LEGEND_STEPS, 1), 255, np.uint8)], axis=1)
+    rgba = np.repeat(rgba[:, None], 2, axis=1)  # two rows: the SDK reads a one-row image as a column
+    _log_plan_image(recording, f"plan/{name}/legend", rgba, start, [width / LEGEND_STEPS, LEGEND_HEIGHT / 2])
+    _log(
+        recording,
+        f"plan/{name}/legend/range",
+        rr.Points2D(
+            _plan(start + [width / 2, LEGEND_HEIGHT + 0.12]),
+            radii=0.001,
+            colors=color,
+            labels=f"{name}: {low:.2f} (pale) to {high:.2f}",
+            draw_order=DRAW_ORDER["places"],
         ),
     )
 
-    count = len(amap.joints)
-    classes = _CLASSES[recording]
+
+def _log_skeletons(recording, amap, class_id: int, color: np.ndarray) -> None:
+    import rerun as rr
+
+    name, count = amap.affordance, len(amap.joints)
+    state = _state(recording)
     keypoint_ids = np.arange(len(JOINTS), dtype=np.uint16)
     # one entity per skeleton: the viewer connects keypoints by (class id, keypoint id) within an entity,
-    # so two skeletons in one batch would be drawn as one
+    # so two skeletons in one batch would be drawn as one; the joints' names only on hover
     for rank, joints in enumerate(amap.joints):
-        recording.log(
+        _log(
+            recording,
             f"world/{name}/skeletons/{rank}",
-            rr.Points3D(joints, class_ids=class_id, keypoint_ids=keypoint_ids, radii=SKELETON_RADIUS),
+            rr.Points3D(
+                joints,
+                class_ids=class_id,
+                keypoint_ids=keypoint_ids,
+                radii=SKELETON_RADIUS,
+                show_labels=False,
+            ),
         )
-    for rank in range(count, classes.skeletons.get(name, 0)):
-        recording.log(f"world/{name}/skeletons/{rank}", rr.Clear(recursive=False))
-    classes.skeletons[name] = count
-    recording.log(
+    for rank in range(count, state.skeletons.get(name, 0)):
+        _log(recording, f"world/{name}/skeletons/{rank}", rr.Clear(recursive=False))
+    state.skeletons[name] = count
+    _log(
+        recording,
         f"world/{name}/skeletons",
         rr.DynamicArchetype(
             SKELETONS_ARCHETYPE,
@@ -234,26 +402,66 @@ def log_map(recording, amap) -> None:
             },
         ),
     )
-    torsos = amap.joints[:, JOINTS.index("TORSO")] if count else np.empty((0, 3))
-    recording.log(
-        f"world/{name}/places",
-        rr.Points3D(
-            torsos,
-            radii=0.04,
-            class_ids=class_id,
-            labels=amap.place_labels(),
-        ),
+    bones = _plan(amap.joints[:, BONE_ENDS]).reshape(-1, 2, 2)  # (k * 15 bones, 2 ends, u v)
+    _log(
+        recording,
+        f"plan/{name}/skeletons",
+        rr.LineStrips2D(bones, radii=0.025, colors=color, draw_order=DRAW_ORDER["skeletons"]),
     )
+    torsos = amap.joints[:, JOINTS.index("TORSO")] if count else np.empty((0, 3))
+    labels = [f"{rank + 1}: {label}" for rank, label in enumerate(amap.place_labels())]
+    _log(
+        recording, f"world/{name}/places", rr.Points3D(torsos, radii=0.04, class_ids=class_id, labels=labels)
+    )
+    _log(
+        recording,
+        f"plan/{name}/places",
+        rr.Points2D(_plan(torsos), radii=0.06, colors=color, labels=labels, draw_order=DRAW_ORDER["places"]),
+    )
+
+
+def places_rows(amap, colour: str) -> list[str]:
+    """An affordance's rows of the places table: each place's rank, probability (or score, for a model
+    without a place model), position and facing, or one row saying "no place found"."""
+    name = f"{amap.affordance} ({colour})"
+    if not len(amap.skeletons):
+        return [f"| {name} | **no place found** | | | |"]
+    return [
+        f"| {name} | {rank + 1} | {f'{p:.2f}' if np.isfinite(p) else f'score {score:.2f}'} "
+        f"| {x:.2f}, {y:.2f} | {np.degrees(theta) % 360:.0f}° |"
+        for rank, (p, (x, y, _, theta, score)) in enumerate(zip(amap.probabilities, amap.skeletons))
+    ]
+
+
+PLACES_HEADER = "| affordance | place | probability | x, y (m) | facing |\n|---|---|---|---|---|"
+
+
+def _log_places_document(recording, amap, class_id: int) -> None:
+    """The ``places`` document: one table of every affordance the recording knows, mapped or not yet, in
+    class order."""
+    import rerun as rr
+
+    state = _state(recording)
+    state.sections[amap.affordance] = places_rows(amap, TAB10_NAMES[(class_id - 1) % 10])
+    rows = [
+        row
+        for name in state.affordances
+        for row in state.sections.get(name, [f"| {name} | not mapped yet | | | |"])
+    ]
+    text = "\n".join([PLACES_HEADER, *rows]) + "\n"
+    _log(recording, "places", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN))
 
 
 def log_scan(recording, points: np.ndarray, odom_from_sensor: np.ndarray) -> None:
     import rerun as rr
 
-    recording.log(
+    _log(
+        recording,
         "world/odom/sensor",
         rr.Transform3D(translation=odom_from_sensor[:3, 3], mat3x3=odom_from_sensor[:3, :3]),
     )
-    recording.log(
+    _log(
+        recording,
         "world/odom/sensor/scan",
         rr.Points3D(np.asarray(points, dtype=np.float32), radii=0.01, colors=[70, 140, 230]),
     )
@@ -262,10 +470,13 @@ def log_scan(recording, points: np.ndarray, odom_from_sensor: np.ndarray) -> Non
 def log_trajectory(recording, positions: np.ndarray, world_from_odom: np.ndarray) -> None:
     import rerun as rr
 
-    recording.log(
-        "world/odom", rr.Transform3D(translation=world_from_odom[:3, 3], mat3x3=world_from_odom[:3, :3])
+    _log(
+        recording,
+        "world/odom",
+        rr.Transform3D(translation=world_from_odom[:3, 3], mat3x3=world_from_odom[:3, :3]),
     )
-    recording.log(
+    _log(
+        recording,
         "world/odom/trajectory",
         rr.LineStrips3D([np.asarray(positions, dtype=np.float32)], radii=0.01, colors=[240, 160, 30]),
     )
@@ -281,12 +492,15 @@ def log_fields(recording, fields, max_normals: int = 20_000) -> None:
     colors = (
         np.column_stack([0.3 + 0.5 * heights, 0.45 * np.ones_like(heights), 0.8 - 0.5 * heights]) * 255
     ).astype(np.uint8)
-    recording.log(
-        "world/fields/occupied", rr.Points3D(centres, colors=colors, radii=fields.lattice.resolution / 3)
+    _log(
+        recording,
+        "world/fields/occupied",
+        rr.Points3D(centres, colors=colors, radii=fields.lattice.resolution / 3),
     )
     normals = fields.normals[tuple(index.T)]
     keep = np.flatnonzero(np.any(normals != 0, axis=1))[:: max(1, int(np.ceil(len(index) / max_normals)))]
-    recording.log(
+    _log(
+        recording,
         "world/fields/normals",
         rr.Arrows3D(
             origins=centres[keep], vectors=normals[keep] * fields.lattice.resolution, colors=[120, 200, 120]
