@@ -40,10 +40,15 @@ if [ ! -x .venv/bin/python ] && ! "$PY" -c 'import ensurepip, venv' 2>/dev/null;
   missing+=("python3-venv")
 fi
 # For the tests only, and only where apt-get runs as root: protoc and the protobuf C++ headers, with which
-# tests/test_cpp_client.py builds a C++ client from schemas/ (elsewhere that test skips and says why).
+# tests/test_cpp_client.py builds a C++ client from schemas/, and Xvfb with a software Vulkan driver, with
+# which tests/test_screenshots.py runs the Rerun viewer (elsewhere those tests skip and say why).
 if [ "$job" = test ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
   command -v protoc >/dev/null 2>&1                  || missing+=(protobuf-compiler)
   [ -e /usr/include/google/protobuf/message.h ]      || missing+=(libprotobuf-dev)
+  # the Rerun viewer, headless, for tests/test_screenshots.py (it skips without them)
+  command -v Xvfb >/dev/null 2>&1                    || missing+=(xvfb)
+  have_lib 'libvulkan.so.1 '                         || missing+=(libvulkan1 mesa-vulkan-drivers)
+  have_lib 'libxkbcommon-x11.so.0 '                  || missing+=(libxkbcommon-x11-0)
 fi
 if [ ${#missing[@]} -gt 0 ]; then
   line="apt-get update && apt-get install -y --no-install-recommends ${missing[*]}"
