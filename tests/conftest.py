@@ -61,15 +61,27 @@ def eventually(condition: Callable[[], bool], timeout: float = 10.0, poll: float
     return True
 
 
+def living_e2e_room():
+    """The generated living room `generated_sequence` walks through (its ground truth: labels, furniture) and
+    the random generator, in the state that goes on to scan it."""
+    from affordcore.synth.rooms import generate_room
+
+    rng = np.random.default_rng(3)
+    return generate_room("living", rng, "living-e2e"), rng
+
+
+@pytest.fixture(scope="session")
+def generated_room():
+    return living_e2e_room()[0]
+
+
 @pytest.fixture(scope="session")
 def generated_sequence(tmp_path_factory) -> Path:
     """A generated living room seen by a virtual Kinect along a hand-held path (120 frames, published every
     third: 40 frames over 0.84 m of walk, enough to see the floor of a cluttered room)."""
     from affordcore.synth.dataset import write_sequence
-    from affordcore.synth.rooms import generate_room
 
-    rng = np.random.default_rng(3)
-    room = generate_room("living", rng, "living-e2e")
+    room, rng = living_e2e_room()
     folder = tmp_path_factory.mktemp("sequence") / "living-e2e.sequence"
     write_sequence(room, rng, folder, "depth", frames=120)
     return folder

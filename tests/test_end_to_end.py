@@ -147,27 +147,104 @@ def _assert_same_as_afford_map(cloud, documents: dict) -> None:
         expected = maps[name].to_json("", np.eye(4))
         got = documents[name]
         assert got["place_threshold"] == pytest.approx(expected["place_threshold"], abs=1e-3), name
-        rows = [[s[k] for k in ("x", "y", "z", "theta", "score")] for s in got["skeletons"]]
-        want = [[s[k] for k in ("x", "y", "z", "theta", "score")] for s in expected["skeletons"]]
-        assert np.allclose(np.array(rows).reshape(-1, 5), np.array(want).reshape(-1, 5), atol=1e-3), name
+        # assert_allclose compares shapes too: np.allclose would broadcast a missing place against one
+        np.testing.assert_allclose(place_rows(got), place_rows(expected), atol=1e-3, err_msg=name)
         assert len(got["positives"]) == len(expected["positives"]), name
 
 
+def place_rows(document: dict) -> np.ndarray:
+    """(n, 5) rows of (x, y, z, theta, score), one per place of an affordance-map/1 document."""
+    rows = [[s[k] for k in ("x", "y", "z", "theta", "score")] for s in document["skeletons"]]
+    return np.array(rows, dtype=np.float64).reshape(-1, 5)
+
+
+def _room_from_world(sequence, document: dict) -> np.ndarray:
+    """A map's world frame into the generated room's: the odometry frame is the first camera's, whose true
+    pose (camera to room) the generator wrote."""
+    return sequence.pose(0) @ np.linalg.inv(np.array(document["world_from_input"]))
+
+
+def _places_in_room(document: dict, room_from_world: np.ndarray) -> np.ndarray:
+    """(n, 3) rows of (x, y, facing) of a map's places in the generated room's frame."""
+    rows = place_rows(document)
+    xyz = rows[:, :3] @ room_from_world[:3, :3].T + room_from_world[:3, 3]
+    ahead = np.stack([np.cos(rows[:, 3]), np.sin(rows[:, 3]), np.zeros(len(rows))], axis=1)
+    ahead = ahead @ room_from_world[:3, :3].T
+    return np.column_stack([xyz[:, :2], np.arctan2(ahead[:, 1], ahead[:, 0])])
+
+
+def _truth_labels(room, affordance: str) -> list:
+    """The generated room's ground-truth labels of an affordance, from the generator (not from a map)."""
+    from affordcore.labels import Label
+
+    return [
+        Label(d["affordance"], d["facing"], at=d.get("at"), start=d.get("from"), end=d.get("to"))
+        for d in room.labels()["labels"]
+        if d["affordance"] == affordance
+    ]
+
+
+def assert_a_place_on_a_label(documents: dict, room, sequence) -> None:
+    """Some place of the maps (of a walk through the generated `room`, `sequence`) lies at a ground-truth
+    label of its affordance, facing its way. The tolerances are DESIGN's (0.15 m, 0.4 rad) plus the
+    registration's drift over the walk."""
+    from affordcore.labels import angle_gap
+
+    room_from_world = _room_from_world(sequence, documents[AFFORDANCES[0]])
+
+    found = [
+        (name, x, y, facing)
+        for name, document in documents.items()
+        for x, y, facing in _places_in_room(document, room_from_world)
+        for label in _truth_labels(room, name)
+        if label.distance(np.array([x, y])) <= 0.25 and angle_gap(facing, label.facing) <= 0.5
+    ]
+    assert found, "no place of the maps is at a place of the room's ground truth"
+
+
+def _assert_poses_follow_the_true_walk(poses: list, sequence, indices) -> None:
+    """The assembler's pose of every frame against the generator's true camera pose relative to the first
+    camera (the odometry frame)."""
+    from affordwire import messages
+
+    assert len(poses) == len(indices)
+    first = np.linalg.inv(sequence.pose(0))
+    got = np.array([messages.pose_matrix(messages.parse(messages.Pose, p))[:3, 3] for p in poses])
+    want = np.array([(first @ sequence.pose(i))[:3, 3] for i in indices])
+    assert np.linalg.norm(want[-1]) > 0.5  # the walk goes somewhere
+    # KISS-ICP drifts 0.16 m over this 0.8 m walk (7 degrees of turn); a stuck or lost assembler is 0.8 m off
+    assert np.linalg.norm(got - want, axis=1).max() < 0.25
+
+
 def test_generated_depth_frames_become_affordance_maps_through_the_three_services(
-    generated_sequence, tmp_path
+    generated_sequence, generated_room, tmp_path
 ):
+    from affordcore.assembly.sequence import read_sequence
+    from services.transport import Keys
+
     env = {"AFFORD_SERVICE__RECORDING_ID": "e2e-generated", **EVERY_FRAME}
     stack = Stack(tmp_path / "run", env=env).start()
     try:
+        session = stack.session()
+        poses = []
+        subscriber = session.declare_subscriber(
+            Keys(stack.robot).pose, lambda sample: poses.append(sample.payload.to_bytes())
+        )
         watched = _stream_and_watch(
             stack, generated_sequence, tmp_path / "maps", ["--rate", "30", "--step", "3"], frames=40
         )
         cloud = _latest_cloud(stack)
+        subscriber.undeclare()
+        session.close()
     finally:
         codes = stack.stop()
     assert codes == {"assembler": 0, "features": 0, "inference": 0, "router": 0}, stack.logs()
     assert cloud.frames == 40
-    _assert_same_as_afford_map(cloud, _check_maps(tmp_path / "maps", 40, watched))
+    documents = _check_maps(tmp_path / "maps", 40, watched)
+    _assert_same_as_afford_map(cloud, documents)
+    sequence = read_sequence(generated_sequence)
+    _assert_poses_follow_the_true_walk(poses, sequence, range(0, 120, 3))
+    assert_a_place_on_a_label(documents, generated_room, sequence)
     _check_recordings(tmp_path / "run", "e2e-generated")
     assert "0 rejected" in (tmp_path / "run" / "assembler.log").read_text()
 

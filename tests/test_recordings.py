@@ -192,10 +192,16 @@ def _kitchen_like_bag(sequence, folder, storage: str, start: float):
 
 
 @pytest.mark.slow
-def test_bags_in_both_storages_stream_into_affordance_maps(generated_sequence, tmp_path):
+def test_bags_in_both_storages_stream_into_affordance_maps(generated_sequence, generated_room, tmp_path):
     """The first 20 scans from a sqlite3 bag, the next 20 from the MCAP file of another, into the three
     services: the maps of all 40 come out, the assembler having taken every scan with its IMU gravity."""
-    from test_end_to_end import EVERY_FRAME, _assert_same_as_afford_map, _check_maps, _latest_cloud
+    from test_end_to_end import (
+        EVERY_FRAME,
+        _assert_same_as_afford_map,
+        _check_maps,
+        _latest_cloud,
+        assert_a_place_on_a_label,
+    )
 
     from affordcore.assembly.sequence import read_sequence
     from services.launch import Stack
@@ -234,7 +240,9 @@ def test_bags_in_both_storages_stream_into_affordance_maps(generated_sequence, t
     assert "20 with gravity from /imu" in published[1]
     assert cloud.frames == 40
     assert messages.seconds(cloud.timestamp) == pytest.approx(start + 3.9, abs=1e-3)  # the last scan's stamp
-    _assert_same_as_afford_map(cloud, _check_maps(tmp_path / "maps", 40, watched))
+    documents = _check_maps(tmp_path / "maps", 40, watched)
+    _assert_same_as_afford_map(cloud, documents)
+    assert_a_place_on_a_label(documents, generated_room, sequence)
     assert "0 rejected" in (tmp_path / "run" / "assembler.log").read_text()
 
 

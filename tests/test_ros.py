@@ -414,7 +414,9 @@ def test_the_assembler_takes_clouds_and_imu_on_both_key_formats_and_answers_bad_
         cdr(imu_message([0.0, -G, 0.0], sec=int(base), nanosec=0, frame_id="lidar"), ros.IMU),
     )
     put("robot1/imu", cdr(imu_message([0.0, 0.0, 1.0], sec=int(base), nanosec=0), ros.IMU))  # in g
-    time.sleep(0.5)
+    # the clouds must find the good reading held and the bad one refused: wait until both are answered
+    taken = eventually(lambda: service.ros.counts.imu == 1 and len(errors) == 1, timeout=20, poll=0.02)
+    assert taken, (service.ros.counts.imu, errors)
     for k, key in enumerate([rmw_zenoh_key("/robot1/points", ros.POINTCLOUD2), "robot1/points"]):
         message = cloud_message(floor, sec=int(base), nanosec=(k + 1) * 100_000_000, frame_id="lidar")
         put(key, cdr(message))
@@ -472,12 +474,19 @@ def _angle_deg(a, b) -> float:
 
 
 @pytest.mark.slow
-def test_a_ros2_robot_on_rmw_zenoh_keys_gets_affordance_maps(generated_sequence, tmp_path):
+def test_a_ros2_robot_on_rmw_zenoh_keys_gets_affordance_maps(generated_sequence, generated_room, tmp_path):
     """PointCloud2 and Imu as rmw_zenoh publishes them (CDR on <domain>/<topic>/<DDS type>/<RIHS01 hash>),
     through the three services, to the maps `afford watch` writes; the IMU's up-pointing acceleration must
     come out as a map whose up is the room's."""
     import zenoh
-    from test_end_to_end import AFFORD, EVERY_FRAME, _assert_same_as_afford_map, _check_maps, _latest_cloud
+    from test_end_to_end import (
+        AFFORD,
+        EVERY_FRAME,
+        _assert_same_as_afford_map,
+        _check_maps,
+        _latest_cloud,
+        assert_a_place_on_a_label,
+    )
 
     from affordcore.assembly.sequence import read_sequence
     from services.launch import Stack
@@ -524,7 +533,9 @@ def test_a_ros2_robot_on_rmw_zenoh_keys_gets_affordance_maps(generated_sequence,
         codes = stack.stop()
     assert codes == {"assembler": 0, "features": 0, "inference": 0, "router": 0}, stack.logs()
     assert cloud.frames == 40
-    _assert_same_as_afford_map(cloud, _check_maps(tmp_path / "maps", 40, watched))
+    documents = _check_maps(tmp_path / "maps", 40, watched)
+    _assert_same_as_afford_map(cloud, documents)
+    assert_a_place_on_a_label(documents, generated_room, sequence)
     log = (tmp_path / "run" / "assembler.log").read_text()
     assert "0 rejected" in log and "40 clouds" in log and "40 with an Imu gravity" in log, log[-3000:]
     assert "NaN or infinite and dropped" in log
