@@ -6,7 +6,8 @@
 #
 # Needs only Python >= 3.11. Missing system libraries (open3d needs libGL, libEGL and libusb) are
 # installed with apt-get when running as root; otherwise the script stops and prints the line to run. As root,
-# `test` also installs protoc and the protobuf C++ headers (the C++ client test; it skips without them).
+# `test` also installs protoc, the protobuf C++ headers, g++ and pkg-config (the C++ client test, which then
+# must run: it fails rather than skips).
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -39,12 +40,16 @@ have_lib 'libgomp.so.1 '      || missing+=(libgomp1)
 if [ ! -x .venv/bin/python ] && ! "$PY" -c 'import ensurepip, venv' 2>/dev/null; then
   missing+=("python3-venv")
 fi
-# For the tests only, and only where apt-get runs as root: protoc and the protobuf C++ headers, with which
-# tests/test_cpp_client.py builds a C++ client from schemas/, and Xvfb with a software Vulkan driver, with
+# For the tests only, and only where apt-get runs as root: protoc, the protobuf C++ headers, g++ and
+# pkg-config, with which tests/test_cpp_client.py builds a C++ client from schemas/ (AFFORD_TEST_CPP=required
+# makes a missing piece a failure there, never a quiet skip), and Xvfb with a software Vulkan driver, with
 # which tests/test_screenshots.py runs the Rerun viewer (elsewhere those tests skip and say why).
 if [ "$job" = test ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
   command -v protoc >/dev/null 2>&1                  || missing+=(protobuf-compiler)
   [ -e /usr/include/google/protobuf/message.h ]      || missing+=(libprotobuf-dev)
+  command -v g++ >/dev/null 2>&1                     || missing+=(g++)
+  command -v pkg-config >/dev/null 2>&1              || missing+=(pkg-config)
+  export AFFORD_TEST_CPP=required
   # the Rerun viewer, headless, for tests/test_screenshots.py (it skips without them)
   command -v Xvfb >/dev/null 2>&1                    || missing+=(xvfb)
   have_lib 'libvulkan.so.1 '                         || missing+=(libvulkan1 mesa-vulkan-drivers)
