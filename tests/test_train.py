@@ -65,13 +65,28 @@ def _affordance(folder) -> str:
     return json.loads(next(folder.glob("*.labels.json")).read_text())["labels"][0]["affordance"]
 
 
+# Validation F1 each learner reaches on this data set (seeds 0-3: min - max), less 0.1 for seed variation
+# and platform differences: a learner that falls below has lost quality, not luck.
+# ssvm 0.56-0.56, undersample 0.44-0.47, focused 0.18-0.50, zsvm 0.55-0.58, dcm 0.48-0.50,
+# linear-tuned 0.50-0.52, cascade 0.63 (seed 0). Chance at 1:117 is an F1 of about 0.02.
+F1_FLOOR = {
+    "ssvm": 0.45,
+    "undersample": 0.34,
+    "focused": 0.08,
+    "zsvm": 0.44,
+    "dcm": 0.38,
+    "linear-tuned": 0.40,
+    "cascade": 0.50,
+}
+
+
 @pytest.mark.parametrize("learner", LEARNERS)
 def test_every_learner_trains_and_beats_chance(data_set, learner):
     params = {"max_iterations": 60} if learner == "ssvm" else {}
     model = train(data_set, _affordance(data_set), learner, _settings(), params)
     assert model.learner == learner and len(model.weights) == 30 + 3 * 8
     assert set(model.training["rooms"]).isdisjoint(model.validation["rooms"])  # split by room
-    assert model.validation["recall"] > 0 and model.validation["f1"] > 0.05  # better than nothing at 1:300
+    assert model.validation["f1"] >= F1_FLOOR[learner], model.validation
 
 
 def test_split_is_by_room_and_seeded():
@@ -154,8 +169,10 @@ def test_evaluate_runs_every_learner_per_fold_and_the_imbalance_test(data_set, t
         assert points[0][1] == pytest.approx(1.0, rel=0.01) and points[1][1] == pytest.approx(4.0, rel=0.01)
         assert points[2][1] > 10  # all data: every positive and the sampled negatives
     # plain SVM at 1:1 predicts far more positives than at the full imbalance: recall up, precision down
+    # (measured 0.85 against 0.40, and 0.15 against 0.44; a ratio that changed nothing would tie)
     plain = {o.ratio: o for o in sweep if o.learner == "undersample"}
-    assert plain[1].recall >= plain[None].recall and plain[1].precision <= plain[None].precision
+    assert plain[1].recall > plain[None].recall + 0.2, (plain[1].recall, plain[None].recall)
+    assert plain[1].precision < plain[None].precision - 0.1, (plain[1].precision, plain[None].precision)
 
     paths = write_outputs(evaluation, tmp_path / "eval")
     results = json.loads(paths[0].read_text())["results"]
@@ -232,7 +249,8 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
     assert (
         model.rescorer and model.trees is not None and model.parameters["report"]["first"] == "linear-tuned"
     )
-    assert model.place_threshold is not None and 0 <= model.validation["place_recall"] <= 1
+    # it finds the validation room's places (all of them here: 1.0; one or two missed at most)
+    assert model.place_threshold is not None and model.validation["place_recall"] >= 0.75
     layout = FeatureLayout.from_settings(settings)
     room = load_room(data_set_rooms(data_set)[0], settings)
     grid, scores = score_model(model, room.fields, layout, settings)
