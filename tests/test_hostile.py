@@ -25,6 +25,8 @@ PER_KEY = 1000  # hostile inputs per input key
 ROBOT = "fuzzbot"
 KEYS = Keys(ROBOT)
 ANSWER_TIMEOUT = 60.0  # seconds an input may take to be answered (a valid cloud is computed)
+AFFORDANCES = ["sitting-relaxing", "sitting-working", "standing-working"]  # the shipped models
+DAMAGE = ("random bytes", "truncated", "bit flips", "wrong encoding", "spoiled field")
 
 
 def _room(rng: np.random.Generator, n: int = 3000) -> np.ndarray:
@@ -134,9 +136,8 @@ def hostile_inputs(
     right = encoding_of(message_class)
     others = [encoding_of(cls) for cls in messages.MESSAGE_CLASSES.values() if cls is not message_class]
     spoilers = _message_mutations(message, rng)
-    kinds = ["random bytes", "truncated", "bit flips", "wrong encoding", "spoiled field"]
     for index in range(count):
-        kind = kinds[index % len(kinds)]
+        kind = DAMAGE[index % len(DAMAGE)]
         payload, encoding = valid, right
         if kind == "random bytes":
             payload = rng.bytes(int(rng.integers(0, 4096)))
@@ -181,12 +182,14 @@ class Counter:
         self.count += 1
 
 
-def _fire(session, stack: Stack, service: str, key: str, inputs) -> dict:
+def _fire(session, stack: Stack, service: str, key: str, inputs, output: str) -> dict:
     """Send each input and wait until the service has taken or refused it and is idle again; returns the
-    counts."""
-    _settle(session)
-    before = _status(session, service)
+    counts, with the messages seen on its `output` key."""
     errors = Counter(session, KEYS.error(service))
+    outputs = Counter(session, output)  # declared early so it is in place; counts from after the settling
+    _settle(session)
+    errors.count = outputs.count = 0
+    before = _status(session, service)
     sent, kinds = 0, {}
     for payload, encoding, kind in inputs:
         session.put(key, payload, encoding=encoding)
@@ -206,7 +209,16 @@ def _fire(session, stack: Stack, service: str, key: str, inputs) -> dict:
     assert eventually(lambda: errors.count == rejected, poll=0.05), (errors.count, rejected)
     skipped = status.skipped - before.skipped  # superseded (the assembler's own maps reach features too)
     accepted = status.accepted - before.accepted
-    return {"sent": sent, "accepted": accepted, "rejected": rejected, "skipped": skipped, "kinds": kinds}
+    published = status.published - before.published
+    return {
+        "sent": sent,
+        "accepted": accepted,
+        "rejected": rejected,
+        "skipped": skipped,
+        "published": published,
+        "outputs": outputs,
+        "kinds": kinds,
+    }
 
 
 def _settle(session, quiet: float = 2.0, timeout: float = 120.0) -> None:
@@ -237,6 +249,14 @@ def stack(tmp_path_factory):
     assert all(code == 0 for code in codes.values()), (codes, stack.logs())
 
 
+# output key, and outputs per accepted input: a pose per scan, fields per cloud, a map per affordance
+OUTPUTS = {
+    "assembler": (KEYS.pose, 1),
+    "features": (KEYS.fields, 1),
+    "inference": (KEYS.affordance("*"), len(AFFORDANCES)),
+}
+
+
 @pytest.mark.parametrize(
     "service, key, inputs",
     [
@@ -251,21 +271,41 @@ def test_a_thousand_hostile_inputs_per_key_are_all_answered_and_nothing_exits(st
     valid = _valid_inputs(rng)
     per_kind = math.ceil(PER_KEY / len(inputs))
     streams = [hostile_inputs(*valid[name], rng, per_kind) for name in inputs]
-    counts = _fire(session, stack, service, key, (item for stream in streams for item in stream))
+    output, per_input = OUTPUTS[service]
+    counts = _fire(session, stack, service, key, (item for stream in streams for item in stream), output)
     print(f"{service}: {counts}")
     assert counts["sent"] >= PER_KEY
+    # every kind of damage went out, about as often as any other
+    assert set(counts["kinds"]) == set(DAMAGE)
+    assert min(counts["kinds"].values()) >= counts["sent"] // (2 * len(DAMAGE)), counts["kinds"]
     # most of it is worth refusing (bit flips in point data make valid clouds of odd points: those are taken)
     assert counts["rejected"] >= 0.75 * counts["sent"]
+    # ... and every input taken was answered with its outputs, as published and as seen on the output key
+    assert counts["accepted"] + counts["rejected"] + counts["skipped"] == counts["sent"]
+    assert counts["accepted"] > 0, "bit flips in point data leave some inputs valid: none was taken"
+    wanted = counts["accepted"] * per_input
+    assert eventually(lambda: counts["outputs"].count == wanted, poll=0.05), (counts["outputs"].count, wanted)
+    if service != "assembler":  # the assembler also publishes its map between scans: poses are its answers
+        assert counts["published"] == wanted
 
 
 def test_after_the_fire_a_valid_room_still_yields_all_three_maps(stack):
     """Run last in this module: the services that took the hostile inputs map a valid cloud."""
     stack, session = stack
     room = _room(np.random.default_rng(7), 20_000)
-    maps = Counter(session, KEYS.affordance("*"))
-    session.put(
-        KEYS.cloud,
-        messages.cloud_message(room, np.eye(4), "valid").SerializeToString(),
-        encoding=encoding_of(messages.CloudMessage),
+    maps = []
+    subscriber = session.declare_subscriber(
+        KEYS.affordance("*"),
+        lambda s: maps.append(messages.parse(messages.AffordanceMapMessage, s.payload.to_bytes())),
     )
-    assert eventually(lambda: maps.count >= 3, timeout=120, poll=0.05), stack.logs()
+    _settle(session)
+    cloud = messages.cloud_message(room, np.eye(4), "valid")
+    session.put(KEYS.cloud, cloud.SerializeToString(), encoding=encoding_of(messages.CloudMessage))
+
+    def of_the_cloud() -> list[str]:
+        return sorted(m.affordance for m in maps if m.cloud_timestamp == cloud.timestamp)
+
+    assert eventually(lambda: len(of_the_cloud()) >= len(AFFORDANCES), timeout=120, poll=0.05), stack.logs()
+    _settle(session)  # a second map of an affordance would come now
+    subscriber.undeclare()
+    assert of_the_cloud() == AFFORDANCES  # one map per affordance, of this cloud
