@@ -15,6 +15,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import psutil
 import pytest
 from conftest import eventually
@@ -121,8 +122,9 @@ def test_plain_tcp_no_certificate_and_a_foreign_ca_are_refused(stack, site, tmp_
 
 
 def test_only_owners_write_their_keys_and_a_viewer_writes_nothing(stack):
-    viewer, intruder, robot, assembler = (
-        stack.session(wait=10, identity=name) for name in ("viewer", "intruder", "robot", "assembler")
+    viewer, intruder, robot, assembler, inference = (
+        stack.session(wait=10, identity=name)
+        for name in ("viewer", "intruder", "robot", "assembler", "inference")
     )
     seen: list[tuple[str, bytes]] = []
     subscriber = viewer.declare_subscriber(
@@ -131,6 +133,10 @@ def test_only_owners_write_their_keys_and_a_viewer_writes_nothing(stack):
     fake_map = intruder.declare_queryable(
         KEYS.affordance("sitting-relaxing"),
         lambda query: query.reply(KEYS.affordance("sitting-relaxing"), b"forged map"),
+    )
+    # the positive control: the inference identity, which owns affordance/*, may answer for a map
+    owned_map = inference.declare_queryable(
+        KEYS.affordance("control"), lambda query: query.reply(KEYS.affordance("control"), b"owned map")
     )
     try:
         time.sleep(1.0)  # declarations reach the router
@@ -152,11 +158,13 @@ def test_only_owners_write_their_keys_and_a_viewer_writes_nothing(stack):
         replies = list(viewer.get(KEYS.affordance("*"), timeout=3.0))
     finally:
         fake_map.undeclare()
+        owned_map.undeclare()
         subscriber.undeclare()
-        for session in (viewer, intruder, robot, assembler):
+        for session in (viewer, intruder, robot, assembler, inference):
             session.close()
     assert [key for key, payload in seen if payload == b"forged"] == []
-    assert all(r.ok is None or r.ok.payload.to_bytes() != b"forged map" for r in replies)
+    answers = [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
+    assert b"owned map" in answers and b"forged map" not in answers, answers
     # the sensor's bytes reached the assembler, which refused them on its error key: the one way in works
     assert any(key == KEYS.error("assembler") for key, _ in seen)
 
@@ -198,5 +206,19 @@ def test_a_mapper_publishes_a_room_and_a_viewer_gets_its_maps(stack, site, tmp_p
     assert published.returncode == 0, published.stderr
     out, err = watch.communicate(timeout=300)
     assert watch.returncode == 0, (out, err, stack.logs())
+    # the maps the viewer got are the room's: what `afford map` makes of the same file, without the site
+    from test_end_to_end import place_rows
+
+    alone = subprocess.run(
+        [*afford, "map", str(room), "--out", str(tmp_path / "alone"), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert alone.returncode == 0, alone.stderr
     for name in ("sitting-relaxing", "sitting-working", "standing-working"):
-        assert json.loads((tmp_path / f"{name}.json").read_text())["affordance"] == name
+        got = json.loads((tmp_path / f"{name}.json").read_text())
+        want = json.loads((tmp_path / "alone" / f"{name}.json").read_text())
+        assert got["affordance"] == name
+        np.testing.assert_allclose(place_rows(got), place_rows(want), atol=1e-3, err_msg=name)
+        assert len(got["positives"]) == len(want["positives"]), name
