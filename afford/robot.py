@@ -46,10 +46,22 @@ def router(
 def certs(
     out: Path = typer.Argument(..., help="folder for the site's CA, certificates, keys and zenoh configs"),
     sensor: list[str] = typer.Option(
-        ["robot"], "--sensor", help="a client that may publish scans on scan/** (repeatable)"
+        ["robot"],
+        "--sensor",
+        help="a client that may publish scans: NAME@ROBOT on ROBOT's scan/** only, a plain NAME on every "
+        "robot's (repeatable)",
     ),
     mapper: list[str] = typer.Option(
-        [], "--mapper", help="a client that may publish a finished room on map/cloud (repeatable)"
+        [],
+        "--mapper",
+        help="a client that may publish a finished room on map/cloud: NAME@ROBOT on ROBOT's only "
+        "(repeatable)",
+    ),
+    robot: list[str] = typer.Option(
+        [],
+        "--robot",
+        help="a robot whose services get identities of their own, assembler@ROBOT etc., that write only its "
+        "keys (repeatable; a robot a --sensor or --mapper names gets them too)",
     ),
     viewer: list[str] = typer.Option(
         ["viewer"], "--viewer", help="a read-only client, e.g. for afford watch (repeatable)"
@@ -73,7 +85,7 @@ def certs(
     with user_errors():
         from services.security import Site, write_site
 
-        site = Site(sensor, mapper, viewer, router_host, connect, listen)
+        site = Site(sensor, mapper, viewer, router_host, connect, listen, robots=robot)
         write_site(site, out, mount, days)
         typer.echo(
             f"site in {out}: router.json5 for afford router, <name>.json5 for each of "

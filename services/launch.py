@@ -92,8 +92,12 @@ class Stack:
         self._readers: list[threading.Thread] = []
 
     def config(self, identity: str) -> str | None:
-        """The zenoh config file of `identity` in the site, if the stack is secured."""
-        return str(self.site / f"{identity}.json5") if self.site else None
+        """The zenoh config file of `identity` in the site, if the stack is secured: the robot's own
+        (`<identity>@<robot>.json5`, limited to its keys) when the site made one, else the site-wide one."""
+        if not self.site:
+            return None
+        own = self.site / f"{identity}@{self.robot}.json5"
+        return str(own if own.is_file() else self.site / f"{identity}.json5")
 
     def _spawn(self, name: str, command: list[str]) -> None:
         self.folder.mkdir(parents=True, exist_ok=True)
@@ -134,12 +138,16 @@ class Stack:
             ),
         )
 
-    def start(self, timeout: float = 60.0, cancel: threading.Event | None = None) -> Stack:
-        """Start the router and the services and wait until every service is ready (or `cancel` is set)."""
-        self._spawn(
-            "router",
-            python_call("services.clients:run_router", [self.listen], zenoh_config=self.config("router")),
-        )
+    def start(
+        self, timeout: float = 60.0, cancel: threading.Event | None = None, router: bool = True
+    ) -> Stack:
+        """Start the router and the services and wait until every service is ready (or `cancel` is set);
+        `router=False`: the services join the router already at `listen` (another robot's on one site)."""
+        if router:
+            self._spawn(
+                "router",
+                python_call("services.clients:run_router", [self.listen], zenoh_config=self.config("router")),
+            )
         for service in self.services:
             self._spawn_service(service)
         self.wait_ready(timeout, cancel)

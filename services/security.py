@@ -9,6 +9,9 @@ What this module writes is the policy (docs/security.md):
 * each service may write (put, answer queries, assert liveliness) only its own keys: the assembler
   `map/cloud` and `map/pose`, features `fields`, inference `affordance/*`, each its `status/` and `error/`;
 * sensors (listed clients) may put `scan/**`; mappers (listed clients) may put a finished `map/cloud`;
+* one identity per robot: a sensor or mapper named `NAME@ROBOT`, and the services of a robot given with
+  `robots` (`assembler@ROBOT`, ...), write only under `afford/@v1/<ROBOT>/`; a plain `NAME` (and the plain
+  `assembler`, `features`, `inference`) writes under every robot's name, as a single-robot site needs;
 * anything else is denied, and the router is the only place links meet: services and clients run in client
   mode, listen on nothing and neither scout nor gossip, so no direct link bypasses the router.
 """
@@ -36,10 +39,26 @@ _READ = ["declare_subscriber", "query", "declare_liveliness_subscriber", "liveli
 _ALL = sorted({*_WRITE, *_READ})
 
 
+def bound(identity: str) -> tuple[str, str | None]:
+    """An identity's name and the robot it is bound to: `NAME@ROBOT` writes only that robot's keys, a plain
+    `NAME` every robot's (`@` is in no identity or robot name, so the split is unambiguous)."""
+    name, at, robot = identity.partition("@")
+    return name, robot if at else None
+
+
+def _check_name(what: str, name: str) -> None:
+    # names become file names and certificate common names: keep them to a portable alphabet
+    if not name or not all(c.isalnum() or c in "-_." for c in name):
+        raise ValueError(f"{what} {name!r}: use letters, digits, '-', '_' or '.'")
+
+
 @dataclass
 class Site:
     """Who is in a secured site: the services, the sensors that may publish scans, the mappers that may
-    publish a finished room, and read-only viewers (`afford watch`)."""
+    publish a finished room, and read-only viewers (`afford watch`).
+
+    A sensor or mapper `NAME@ROBOT` is bound to ROBOT; each robot in `robots`, and each a sensor or mapper
+    is bound to, also gets its own service identities (`assembler@ROBOT`, ...) bound likewise."""
 
     sensors: list[str] = field(default_factory=lambda: ["robot"])
     mappers: list[str] = field(default_factory=list)
@@ -47,28 +66,54 @@ class Site:
     router_names: list[str] = field(default_factory=lambda: ["localhost", "127.0.0.1"])
     router_endpoint: str = "tls/localhost:7447"
     listen: str = "tls/0.0.0.0:7447"
+    robots: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
+        for identity in self.viewers:
+            if "@" in identity:
+                raise ValueError(
+                    f"viewer {identity!r}: a viewer reads every robot and writes nothing, so it is bound to "
+                    "none (NAME@ROBOT is for sensors and mappers)"
+                )
+        for robot in self.robots:
+            _check_name("robot name", robot)
+        for identity in [*self.sensors, *self.mappers, *self.viewers]:
+            name, robot = bound(identity)
+            _check_name(f"identity {identity!r}: name" if robot is not None else "identity name", name)
+            if robot is not None:
+                _check_name(f"identity {identity!r}: robot", robot)
         names = self.clients()
         taken = {n for n in names if names.count(n) > 1} | ({ROUTER, CA} & set(names))
         if taken:
             raise ValueError(f"identity names must be unique and not 'router' or 'ca': {sorted(taken)}")
-        for name in names:
-            if not name or not all(c.isalnum() or c in "-_." for c in name):
-                raise ValueError(f"identity name {name!r}: use letters, digits, '-', '_' or '.'")
+
+    def robot_names(self) -> list[str]:
+        """The robots with identities of their own: those given, then those a sensor or mapper names."""
+        named = [bound(identity)[1] for identity in [*self.sensors, *self.mappers]]
+        return list(dict.fromkeys([*self.robots, *(robot for robot in named if robot)]))
 
     def clients(self) -> list[str]:
-        return [*SERVICES, *self.sensors, *self.mappers, *self.viewers]
+        services = [f"{service}@{robot}" for robot in self.robot_names() for service in SERVICES]
+        return [*SERVICES, *services, *self.sensors, *self.mappers, *self.viewers]
 
     def writes(self) -> dict[str, list[str]]:
         """{identity: key expressions it alone may write}."""
-        keys = {name: [*OWNED[name], f"status/{name}", f"error/{name}"] for name in SERVICES}
-        keys.update({name: ["scan/**"] for name in self.sensors})
-        for name in self.mappers:
-            keys.setdefault(name, []).append("map/cloud")
-        writes = {name: [f"{PREFIX}/*/{key}" for key in ks] for name, ks in keys.items()}
-        # sharded inference workers (docs/deploy.md): refusals on error/inference-<worker>, and their own
-        # tokens and status under the workers' verbatim chunk
+
+        def under(robot: str | None, key: str) -> str:
+            return f"{PREFIX}/{robot or '*'}/{key}"
+
+        writes = {}
+        for robot in [None, *self.robot_names()]:
+            for service in SERVICES:
+                identity = f"{service}@{robot}" if robot else service
+                owned = [*OWNED[service], f"status/{service}", f"error/{service}"]
+                writes[identity] = [under(robot, key) for key in owned]
+        for identity in self.sensors:
+            writes[identity] = [under(bound(identity)[1], "scan/**")]
+        for identity in self.mappers:
+            writes.setdefault(identity, []).append(under(bound(identity)[1], "map/cloud"))
+        # sharded inference workers (docs/deploy.md), which serve many robots and so run as the site-wide
+        # `inference`: refusals on error/inference-<worker>, their tokens and status under `@workers`
         writes["inference"] += [f"{PREFIX}/*/error/inference-$*", f"{WORKERS}/inference-$*/**"]
         return writes
 
