@@ -236,7 +236,7 @@ def publish(
                     typer.echo(f"warning: {note}", err=True)
                 typer.echo(
                     f"published {stats.describe(sent, source)} "
-                    f"(afford watch --frames {sent} waits for the maps of all of them)"
+                    f"(afford watch --frames {sent} waits for the maps that cover all of them)"
                 )
             elif source.is_dir():
                 sequence, messages, count = folder_frames(source, first, frames, step, imu)
@@ -248,7 +248,7 @@ def publish(
                     )
                 typer.echo(
                     f"published {sent} {sequence.kind} frames of {source} "
-                    f"(afford watch --frames {sent} waits for the maps of all of them)"
+                    f"(afford watch --frames {sent} waits for the maps that cover all of them)"
                 )
             elif as_map:
                 cloud, warnings = load_as_map(source, gravity, settings)
@@ -292,7 +292,8 @@ def watch(
         0,
         "--frames",
         min=0,
-        help="only maps built from at least this many scans (what afford publish printed)",
+        help="only maps that cover at least this many scans (what afford publish printed): scans the "
+        "assembler fused or skipped to keep up",
     ),
     since: str | None = typer.Option(
         None,
@@ -325,7 +326,7 @@ def watch(
                 + (f" -> {out / (name + '.json')}" if out else "")
             )
         if not arrived:
-            fail(f"timed out after {timeout:.0f} s waiting for {', '.join(watcher.missing)}", code=1)
+            fail(f"timed out after {timeout:.0f} s waiting for {watcher.waiting_for()}", code=1)
 
 
 def _nanoseconds(text: str) -> int:

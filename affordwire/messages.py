@@ -284,9 +284,16 @@ def depth_image(message: DepthFrame, limits: LimitSettings | None = None) -> Dep
 
 
 def cloud_message(
-    points: np.ndarray, world_from_input: np.ndarray, source: str, frames: int = 0, at: float | None = None
+    points: np.ndarray,
+    world_from_input: np.ndarray,
+    source: str,
+    frames: int = 0,
+    at: float | None = None,
+    scans_received: int = 0,
 ) -> CloudMessage:
-    message = CloudMessage(frame_id=WORLD, frames=frames, source=source)
+    """A map Cloud of `points`; `frames` scans fused into it out of the `scans_received` the assembler had
+    received (the rest skipped to keep up or refused)."""
+    message = CloudMessage(frame_id=WORLD, frames=frames, source=source, scans_received=scans_received)
     pack_points(message, points)
     set_pose(message.world_from_input, world_from_input, WORLD, "input", at)
     stamp(message.timestamp, at)
@@ -338,7 +345,7 @@ def fields_message(
     if world_from_input is not None:
         pose = Pose()
         set_pose(pose, world_from_input, WORLD, "input", seconds(cloud.timestamp))
-    _carry_source(message, pose, cloud.timestamp, cloud.frames, at)
+    _carry_source(message, pose, cloud, at)
     return message
 
 
@@ -437,7 +444,7 @@ def map_message(
             joints=np.ravel(joints).tolist(),
             probability=_finite_or_none(probability),
         )
-    _carry_source(message, fields.world_from_input, fields.cloud_timestamp, fields.frames, at)
+    _carry_source(message, fields.world_from_input, fields, at)
     return message
 
 
@@ -446,10 +453,13 @@ def _finite_or_none(value: float) -> float | None:
     return float(value) if np.isfinite(value) else None
 
 
-def _carry_source(message, world_from_input, cloud_timestamp, frames: int, at: float | None) -> None:
+def _carry_source(message, world_from_input, source, at: float | None) -> None:
+    """What fields and maps say of the Cloud they answer, from that Cloud or from the fields that carry it."""
     message.world_from_input.CopyFrom(world_from_input)
-    message.cloud_timestamp.CopyFrom(cloud_timestamp)
-    message.frames = frames
+    message.cloud_timestamp.CopyFrom(
+        source.timestamp if isinstance(source, CloudMessage) else source.cloud_timestamp
+    )
+    message.frames, message.scans_received = source.frames, source.scans_received
     stamp(message.timestamp, at)
 
 

@@ -58,6 +58,9 @@ class AssemblerService:
         else:
             frame = decode_sensor(item.schema, item.payload, self.limits)
         at = frame.stamp or item.arrived
+        # a refused scan changes no map, but the next map says it was received: afford watch waits for the
+        # map that covers the last scan published, whatever became of it
+        self.pending = True
         record = self.assembler.add(frame, at)  # a refused frame raises here and changes nothing
         if self.store:
             self.store.append(record)  # before anything goes out about it
@@ -100,7 +103,12 @@ class AssemblerService:
             self.pending = False
             return
         cloud = messages.cloud_message(
-            points, world_from_odom, self.node.service, self.assembler.frames, self.last_stamp
+            points,
+            world_from_odom,
+            self.node.service,
+            self.assembler.frames,
+            self.last_stamp,
+            scans_received=self.inbox.settled(),
         )
         self.node.publish(self.node.keys.cloud, cloud)
         self.last_published, self.pending = time.monotonic(), False

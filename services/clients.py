@@ -186,8 +186,9 @@ def describe(key: str, schema: str, payload: bytes) -> str:
 class MapWatcher:
     """Collects the affordance maps of one robot; `done` once every wanted affordance has a map of a cloud no
     older than `since` (nanoseconds since the epoch; `watch` sets it to the newest cloud the features service
-    has when 0) and of at least `min_frames` scans. A refusal of that very cloud ends the watch too
-    (`refused` says why)."""
+    has when 0) that covers at least `min_frames` scans: scans the assembler received, fused or skipped to
+    keep up (a busy assembler skips scans, and a map of every one published would never come). A refusal of
+    that very cloud ends the watch too (`refused` says why)."""
 
     def __init__(
         self,
@@ -202,6 +203,7 @@ class MapWatcher:
         self.out, self.echo, self.since = out, echo, since
         self.received: dict[str, dict] = {}
         self.refused: str | None = None
+        self.newest_covered = 0  # scans covered by the newest map seen: what a timeout reports
         self.done = threading.Event()
         self._lock = threading.Lock()
 
@@ -222,7 +224,13 @@ class MapWatcher:
             return
         if messages.nanoseconds(message.cloud_timestamp) < self.since:
             return  # the answer to an older cloud than the one waited for
-        if message.frames < self.min_frames:
+        covered = covered_scans(message)
+        self.newest_covered = max(self.newest_covered, covered)
+        if covered < self.min_frames:
+            self.echo(
+                f"  (a map of {message.frames} fused of {covered} scans received; waiting for the map that "
+                f"covers {self.min_frames})"
+            )
             return
         with self._lock:
             self.received[message.affordance] = document
@@ -247,6 +255,19 @@ class MapWatcher:
     @property
     def missing(self) -> list[str]:
         return sorted(self.wanted - set(self.received))
+
+    def waiting_for(self) -> str:
+        """What the watch still waits for, in words."""
+        what = f"maps of {', '.join(self.missing)}"
+        if self.min_frames:
+            what += f" covering {self.min_frames} scans (the newest map seen covers {self.newest_covered})"
+        return what
+
+
+def covered_scans(message) -> int:
+    """How many of the scans published a map covers: those the assembler received, fused or skipped (a
+    service older than that count says only how many it fused)."""
+    return max(message.frames, message.scans_received)
 
 
 def newest_cloud(session, keys: Keys, timeout: float = 5.0) -> tuple[int, str]:
@@ -275,6 +296,7 @@ def watch(session, keys: Keys, watcher: MapWatcher, timeout: float) -> bool:
     if refused and newest == watcher.since:
         watcher.refuse(refused)
         return True
+    watcher.echo(f"waiting for {watcher.waiting_for()}")
     subscriber = session.declare_subscriber(keys.key("**"), watcher.on_sample)
 
     def on_liveliness(sample) -> None:

@@ -59,6 +59,12 @@ class BoundedInbox:
         self._ready = threading.Condition()
         self.skipped = 0
         self.skipped_last: Inbound | None = None
+        self.offered = 0  # every input offered, taken or refused
+
+    def settled(self) -> int:
+        """How many inputs offered are no longer waiting: taken, passed over, or refused."""
+        with self._ready:
+            return self.offered - len(self._items)
 
     def _too_big(self, size: int) -> str | None:
         """Why a payload of `size` bytes can never be taken, if it cannot."""
@@ -118,9 +124,10 @@ class Inbox(BoundedInbox):
         """None when taken, else why not (the caller answers it on the error key: nothing is dropped
         silently)."""
         size = len(item.payload)
-        if refusal := self._too_big(size):
-            return refusal
         with self._ready:
+            self.offered += 1
+            if refusal := self._too_big(size):
+                return refusal
             if self.latest_only:  # the one waiting is superseded: passed over, and counted
                 if self._items:
                     self.skipped += len(self._items)

@@ -177,9 +177,10 @@ class KeyedInbox(BoundedInbox):
 
     def offer(self, item: Inbound) -> str | None:
         size = len(item.payload)
-        if refusal := self._too_big(size):
-            return refusal
         with self._ready:
+            self.offered += 1
+            if refusal := self._too_big(size):
+                return refusal
             old = self._items.get(item.key)
             if old is None and len(self._items) >= self.limit:
                 return f"inputs of {len(self._items)} keys are waiting (AFFORD_SERVICE__MAX_QUEUE)"

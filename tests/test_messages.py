@@ -578,15 +578,14 @@ def test_a_real_map_message_gives_the_document_afford_map_writes(real_map):
     scene, model_id, amap = real_map
     assert len(amap.skeletons) > 0 and len(amap.positives) > 0  # something to carry
     world_from_input = scene.alignment.world_from_input
-    cloud = messages.cloud_message(scene.cloud.points, world_from_input, "example room", frames=3, at=10.0)
+    cloud = messages.cloud_message(
+        scene.cloud.points, world_from_input, "example room", frames=3, at=10.0, scans_received=5
+    )
     fields = _wire(messages.fields_message(scene.fields, cloud, at=11.0))
     message = _wire(messages.map_message(amap, model_id, fields, at=12.0))
-    assert (message.affordance, message.model, message.frame_id, message.frames) == (
-        "sitting-relaxing",
-        model_id,
-        "world",
-        3,
-    )
+    assert (message.affordance, message.model, message.frame_id) == ("sitting-relaxing", model_id, "world")
+    # 3 scans fused of the 5 received: the map covers all 5 (afford watch --frames 5 takes it)
+    assert (fields.frames, fields.scans_received, message.frames, message.scans_received) == (3, 5, 3, 5)
     assert message.cloud_timestamp == cloud.timestamp and message.world_from_input == cloud.world_from_input
     assert messages.seconds(message.timestamp) == pytest.approx(12.0)
 
@@ -615,7 +614,7 @@ def _small_grid(nx: int = 20, ny: int = 10) -> PoseGrid:
 def _fields_message():
     cloud = messages.cloud_message(np.zeros((100, 3)), _rigid(9), "x", frames=1)
     message = messages.SceneFieldsMessage()
-    messages._carry_source(message, cloud.world_from_input, cloud.timestamp, cloud.frames, None)
+    messages._carry_source(message, cloud.world_from_input, cloud, None)
     return message
 
 

@@ -11,7 +11,7 @@ from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 DESCRIPTOR: _descriptor.FileDescriptor
 
 class Cloud(_message.Message):
-    __slots__ = ("timestamp", "frame_id", "fields", "point_stride", "data", "world_from_input", "frames", "source")
+    __slots__ = ("timestamp", "frame_id", "fields", "point_stride", "data", "world_from_input", "frames", "source", "scans_received")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
     FIELDS_FIELD_NUMBER: _ClassVar[int]
@@ -20,6 +20,7 @@ class Cloud(_message.Message):
     WORLD_FROM_INPUT_FIELD_NUMBER: _ClassVar[int]
     FRAMES_FIELD_NUMBER: _ClassVar[int]
     SOURCE_FIELD_NUMBER: _ClassVar[int]
+    SCANS_RECEIVED_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     frame_id: str
     fields: _containers.RepeatedCompositeFieldContainer[_geometry_pb2.PackedElementField]
@@ -28,7 +29,8 @@ class Cloud(_message.Message):
     world_from_input: _geometry_pb2.Pose
     frames: int
     source: str
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., fields: _Optional[_Iterable[_Union[_geometry_pb2.PackedElementField, _Mapping]]] = ..., point_stride: _Optional[int] = ..., data: _Optional[bytes] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., frames: _Optional[int] = ..., source: _Optional[str] = ...) -> None: ...
+    scans_received: int
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., fields: _Optional[_Iterable[_Union[_geometry_pb2.PackedElementField, _Mapping]]] = ..., point_stride: _Optional[int] = ..., data: _Optional[bytes] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., frames: _Optional[int] = ..., source: _Optional[str] = ..., scans_received: _Optional[int] = ...) -> None: ...
 
 class VoxelGrid(_message.Message):
     __slots__ = ("origin", "resolution", "nx", "ny", "nz")
@@ -45,7 +47,7 @@ class VoxelGrid(_message.Message):
     def __init__(self, origin: _Optional[_Union[_geometry_pb2.Vector3, _Mapping]] = ..., resolution: _Optional[float] = ..., nx: _Optional[int] = ..., ny: _Optional[int] = ..., nz: _Optional[int] = ...) -> None: ...
 
 class SceneFields(_message.Message):
-    __slots__ = ("timestamp", "frame_id", "grid", "occupancy", "distance", "normals", "x_min", "y_min", "x_max", "y_max", "world_from_input", "cloud_timestamp", "frames", "steep_facing")
+    __slots__ = ("timestamp", "frame_id", "grid", "occupancy", "distance", "normals", "x_min", "y_min", "x_max", "y_max", "world_from_input", "cloud_timestamp", "frames", "steep_facing", "scans_received")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
     GRID_FIELD_NUMBER: _ClassVar[int]
@@ -60,6 +62,7 @@ class SceneFields(_message.Message):
     CLOUD_TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAMES_FIELD_NUMBER: _ClassVar[int]
     STEEP_FACING_FIELD_NUMBER: _ClassVar[int]
+    SCANS_RECEIVED_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     frame_id: str
     grid: VoxelGrid
@@ -74,7 +77,8 @@ class SceneFields(_message.Message):
     cloud_timestamp: _timestamp_pb2.Timestamp
     frames: int
     steep_facing: str
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., grid: _Optional[_Union[VoxelGrid, _Mapping]] = ..., occupancy: _Optional[bytes] = ..., distance: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., x_min: _Optional[float] = ..., y_min: _Optional[float] = ..., x_max: _Optional[float] = ..., y_max: _Optional[float] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ..., steep_facing: _Optional[str] = ...) -> None: ...
+    scans_received: int
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., grid: _Optional[_Union[VoxelGrid, _Mapping]] = ..., occupancy: _Optional[bytes] = ..., distance: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., x_min: _Optional[float] = ..., y_min: _Optional[float] = ..., x_max: _Optional[float] = ..., y_max: _Optional[float] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ..., steep_facing: _Optional[str] = ..., scans_received: _Optional[int] = ...) -> None: ...
 
 class PoseGridSpec(_message.Message):
     __slots__ = ("x0", "y0", "step", "nx", "ny", "z", "theta_step", "n_theta")
@@ -115,7 +119,7 @@ class PlacedSkeleton(_message.Message):
     def __init__(self, x: _Optional[float] = ..., y: _Optional[float] = ..., z: _Optional[float] = ..., theta: _Optional[float] = ..., score: _Optional[float] = ..., joints: _Optional[_Iterable[float]] = ..., probability: _Optional[float] = ...) -> None: ...
 
 class AffordanceMap(_message.Message):
-    __slots__ = ("timestamp", "frame_id", "affordance", "model", "threshold", "grid", "skeletons", "positives", "confidence", "world_from_input", "cloud_timestamp", "frames", "place_threshold", "place_probability")
+    __slots__ = ("timestamp", "frame_id", "affordance", "model", "threshold", "grid", "skeletons", "positives", "confidence", "world_from_input", "cloud_timestamp", "frames", "place_threshold", "place_probability", "scans_received")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
     AFFORDANCE_FIELD_NUMBER: _ClassVar[int]
@@ -130,6 +134,7 @@ class AffordanceMap(_message.Message):
     FRAMES_FIELD_NUMBER: _ClassVar[int]
     PLACE_THRESHOLD_FIELD_NUMBER: _ClassVar[int]
     PLACE_PROBABILITY_FIELD_NUMBER: _ClassVar[int]
+    SCANS_RECEIVED_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     frame_id: str
     affordance: str
@@ -144,4 +149,5 @@ class AffordanceMap(_message.Message):
     frames: int
     place_threshold: float
     place_probability: float
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., affordance: _Optional[str] = ..., model: _Optional[str] = ..., threshold: _Optional[float] = ..., grid: _Optional[_Union[PoseGridSpec, _Mapping]] = ..., skeletons: _Optional[_Iterable[_Union[PlacedSkeleton, _Mapping]]] = ..., positives: _Optional[bytes] = ..., confidence: _Optional[bytes] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ..., place_threshold: _Optional[float] = ..., place_probability: _Optional[float] = ...) -> None: ...
+    scans_received: int
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., affordance: _Optional[str] = ..., model: _Optional[str] = ..., threshold: _Optional[float] = ..., grid: _Optional[_Union[PoseGridSpec, _Mapping]] = ..., skeletons: _Optional[_Iterable[_Union[PlacedSkeleton, _Mapping]]] = ..., positives: _Optional[bytes] = ..., confidence: _Optional[bytes] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ..., place_threshold: _Optional[float] = ..., place_probability: _Optional[float] = ..., scans_received: _Optional[int] = ...) -> None: ...

@@ -1,0 +1,84 @@
+"""afford watch never waits for what will not come: a busy assembler skips scans, and the map that covers the
+last scan published says so (Cloud.scans_received, carried to the fields and maps), so the watch finishes on
+it however many scans were fused."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from affordcore.geometry.grid import PoseGrid
+from affordcore.geometry.skeleton import get_skeleton
+from affordcore.mapping.maps import build_map
+from affordwire import messages
+from services.clients import MapWatcher
+from services.node import Inbound, Inbox
+from services.transport import Keys, encoding_of
+
+
+def _item(age: float = 0.0) -> Inbound:
+    return Inbound("scan/camera", "s", "e", b"x" * 10, time.time() - age)
+
+
+def test_an_inbox_counts_the_inputs_it_is_done_with_taken_skipped_or_refused():
+    inbox = Inbox(latest_only=False, limit=8, max_bytes=10**6, max_lag=0.5, max_gap=0.25)
+    late = [_item(age=5.0 - 0.1 * k) for k in range(9)] + [_item()]  # a 10 Hz stream, all but the last late
+    for item in late:
+        inbox.offer(item)
+    assert inbox.settled() == 2  # eight wait; the ninth and tenth were refused (MAX_QUEUE)
+    taken = 0
+    while inbox.take(0.05) is not None:
+        taken += 1
+        # every input offered is accounted for: waiting, or settled (taken, passed over, refused)
+        assert inbox.settled() + len(inbox) == 10
+    assert taken + inbox.skipped + 2 == inbox.settled() == 10
+    assert inbox.skipped > 0  # the stream was thinned, and still every scan counts as covered
+
+
+class _Sample:
+    """What a zenoh sample shows a subscriber: its key, encoding and payload."""
+
+    def __init__(self, key: str, message):
+        self.key_expr, self.encoding = key, encoding_of(type(message))
+        self.payload = _Payload(message.SerializeToString())
+
+
+class _Payload:
+    def __init__(self, data: bytes):
+        self.data = data
+
+    def to_bytes(self) -> bytes:
+        return self.data
+
+
+def _map(affordance: str, frames: int, scans_received: int, at: float) -> messages.AffordanceMapMessage:
+    """A small real map message of a cloud stamped `at`, of `frames` fused scans out of `scans_received`."""
+    grid = PoseGrid(np.arange(4) * 0.1, np.arange(3) * 0.1, np.array([0.5]), np.arange(4) * np.pi / 2)
+    amap = build_map(affordance, np.zeros(grid.shape), grid, get_skeleton(affordance), threshold=1.0)
+    cloud = messages.cloud_message(np.zeros((100, 3)), np.eye(4), "assembler", frames, at, scans_received)
+    fields = messages.SceneFieldsMessage()
+    messages._carry_source(fields, cloud.world_from_input, cloud, at)
+    return messages.map_message(amap, "m", fields, at)
+
+
+def test_the_watch_takes_the_map_that_covers_every_scan_published_however_many_were_fused():
+    keys, lines = Keys("r1"), []
+    watcher = MapWatcher(keys, ["sitting-working"], min_frames=100, out=None, echo=lines.append)
+    key = keys.affordance("sitting-working")
+    watcher.on_sample(_Sample(key, _map("sitting-working", frames=40, scans_received=60, at=10.0)))
+    assert not watcher.done.is_set()
+    assert "covering 100 scans (the newest map seen covers 60)" in watcher.waiting_for()
+    # the assembler skipped 80 of 100 scans to keep up: 20 fused, all 100 covered
+    watcher.on_sample(_Sample(key, _map("sitting-working", frames=20, scans_received=100, at=11.0)))
+    assert watcher.done.is_set() and watcher.received["sitting-working"]["affordance"] == "sitting-working"
+
+
+def test_a_map_of_a_service_that_does_not_count_received_scans_is_judged_by_the_scans_it_fused():
+    keys = Keys("r1")
+    watcher = MapWatcher(keys, ["standing-working"], min_frames=30, out=None, echo=lambda line: None)
+    key = keys.affordance("standing-working")
+    watcher.on_sample(_Sample(key, _map("standing-working", frames=29, scans_received=0, at=10.0)))
+    assert not watcher.done.is_set()
+    watcher.on_sample(_Sample(key, _map("standing-working", frames=30, scans_received=0, at=11.0)))
+    assert watcher.done.is_set()
