@@ -167,6 +167,24 @@ class AssemblerSettings(BaseModel):
         "(docs/services.md has the measurements behind it)",
     )
     max_points_per_voxel: int = Field(20, ge=1, description="points KISS-ICP's local map keeps per voxel")
+    registration_voxels: float = Field(
+        1.5,
+        gt=0,
+        description="a frame is registered on one point per cube of this many voxel_size (KISS-ICP's 1.5), "
+        "the whole frame joining the local map",
+    )
+    busy_registration_voxels: float = Field(
+        2.5,
+        gt=0,
+        description="... and of this many while scans wait for the assembler: half the time a frame on a "
+        "busy computer, so fewer frames are skipped (docs/services.md has the measurements)",
+    )
+    max_frame_points: int = Field(
+        100_000,
+        ge=100,
+        description="a frame with more points (a dense PointCloud2) is thinned to about this many, evenly, "
+        "before anything else: KISS-ICP keeps one point per half voxel of it anyway",
+    )
     convergence: float = Field(
         1.5e-4,
         gt=0,

@@ -110,6 +110,36 @@ def test_the_assembler_registers_as_bare_kiss_icp_does(room_frames, room_run):
         np.testing.assert_allclose(bare.last_pose, pose, atol=1e-9)
 
 
+def test_a_busy_assembler_registers_on_fewer_points_and_still_follows_the_path(room_frames):
+    """With scans waiting, a frame is registered on one point per 2.5 voxels instead of 1.5: a fraction of
+    the points (the cost of ICP follows them), still on the known path."""
+    frames, truth = room_frames
+    calm, busy = Assembler(), Assembler()
+    sizes = []
+    for k, points in enumerate(frames):
+        calm.register(points, k / 30)
+        busy.register(points, k / 30, busy=True)
+        sizes.append((len(calm.registered_points), len(busy.registered_points)))
+    calm_points, busy_points = np.median(sizes, axis=0)
+    assert busy_points < 0.5 * calm_points  # (1.5 / 2.5)^2 of a surface's points, about 0.36
+    errors = trajectory_errors(busy.trajectory.poses, truth)
+    assert errors["mean_m"] < 0.025 and errors["worst_m"] < 0.045, errors  # calm: 1.1 and 2.0 cm
+
+
+def test_a_dense_frame_is_thinned_evenly_to_the_point_budget_before_registration(room_frames):
+    """A frame above `max_frame_points` is registered as every n-th of its points would be: the same pose."""
+    frames, _ = room_frames
+    budget = 20_000
+    thinned, whole = Assembler(), Assembler(AssemblerSettings(max_frame_points=budget))
+    for k, points in enumerate(frames[:5]):
+        step = -(-len(points) // budget)
+        assert step > 1  # each frame is over the budget
+        whole.register(points, k / 30)
+        thinned.register(points[::step], k / 30)
+        np.testing.assert_allclose(whole.trajectory.poses[-1], thinned.trajectory.poses[-1], atol=1e-9)
+        np.testing.assert_array_equal(whole.registered_points, thinned.registered_points)
+
+
 def test_only_keyframes_touch_the_global_map_and_they_bring_it_their_points_thinned(room_frames):
     from kiss_icp.voxelization import voxel_down_sample
 

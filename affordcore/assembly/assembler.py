@@ -96,10 +96,11 @@ class Assembler:
     def frames(self) -> int:
         return len(self.trajectory.poses)
 
-    def add(self, frame: SensorFrame, stamp: float) -> FrameRecord:
+    def add(self, frame: SensorFrame, stamp: float, busy: bool = False) -> FrameRecord:
         """Register a sensor frame (depth images back-projected as block means) and add it to the map; returns
         what it changed. A frame refused by the limits (time going back, a jump beyond the speed limit, a pose
-        beyond the largest extent) raises ValueError and changes nothing."""
+        beyond the largest extent) raises ValueError and changes nothing. `busy`: other frames wait, so
+        register on fewer points (`busy_registration_voxels`)."""
         points = frame.points
         if frame.depth is not None:
             settings = self.settings
@@ -110,7 +111,7 @@ class Assembler:
                 settings.max_range,
                 settings.block_stride,
             )
-        return self.register(points, stamp, frame.pose_guess, frame.gravity)
+        return self.register(points, stamp, frame.pose_guess, frame.gravity, busy)
 
     def register(
         self,
@@ -118,6 +119,7 @@ class Assembler:
         stamp: float,
         pose_guess: np.ndarray | None = None,
         gravity: np.ndarray | None = None,
+        busy: bool = False,
     ) -> FrameRecord:
         """Register one frame (points in the sensor frame) and add it to the map; returns its record, whose
         `pose` is the sensor's, odom_from_sensor.
@@ -126,7 +128,13 @@ class Assembler:
         prediction by the guessed motion since the previous frame. `gravity` (its direction in the sensor
         frame, from an IMU) is averaged in the odometry frame and used by `aligned_map` instead of a floor
         search over candidate axes, which fails when a hand-held camera has seen little floor."""
-        proposal = self._propose(np.asarray(points, dtype=np.float64), stamp, pose_guess, gravity)
+        settings = self.settings
+        source_voxel = settings.voxel_size * (
+            settings.busy_registration_voxels if busy else settings.registration_voxels
+        )
+        proposal = self._propose(
+            np.asarray(points, dtype=np.float64), stamp, pose_guess, gravity, source_voxel
+        )
         odometry = self.odometry  # from here on nothing can fail: the frame is in
         odometry.adaptive_threshold.update_model_deviation(proposal.deviation)
         odometry.local_map.update(proposal.frame_downsample, proposal.record.pose)
@@ -136,9 +144,15 @@ class Assembler:
         return proposal.record
 
     def _propose(
-        self, points: np.ndarray, stamp: float, pose_guess: np.ndarray | None, gravity: np.ndarray | None
+        self,
+        points: np.ndarray,
+        stamp: float,
+        pose_guess: np.ndarray | None,
+        gravity: np.ndarray | None,
+        source_voxel: float,
     ) -> _Proposal:
-        """Everything KISS-ICP's register_frame does, without changing anything, and the limits' checks."""
+        """Everything KISS-ICP's register_frame does, without changing anything, and the limits' checks;
+        registration on one point per `source_voxel` of the frame."""
         from kiss_icp.voxelization import voxel_down_sample
 
         self._check_input(points, stamp, pose_guess, gravity)
@@ -148,14 +162,19 @@ class Assembler:
             delta = np.linalg.inv(self._last_guess) @ pose_guess
         # KISS-ICP's preprocessing with deskew off, without copying the frame into C++ and back: its range
         # filter (the same strict bounds on the same norms; tests/test_assembly.py checks the poses match)
-        squared, settings = np.einsum("ij,ij->i", points, points), self.settings
+        settings = self.settings
+        if len(points) > settings.max_frame_points:  # every n-th point: a dense cloud's order is scan order
+            points = points[:: -(-len(points) // settings.max_frame_points)]
+        squared = np.einsum("ij,ij->i", points, points)
         frame = points[(squared > settings.min_range**2) & (squared < settings.max_range**2)]
         if len(frame) < 100:
             raise ValueError(
                 f"the frame has {len(frame)} points within "
                 f"{settings.min_range}-{settings.max_range} m; at least 100 are needed"
             )
-        source, frame_downsample = odometry.voxelize(frame)
+        # KISS-ICP's voxelize, with the registration's voxel a setting of its own
+        frame_downsample = voxel_down_sample(frame, 0.5 * settings.voxel_size)
+        source = voxel_down_sample(frame_downsample, source_voxel)
         sigma = odometry.adaptive_threshold.get_threshold()
         initial_guess = odometry.last_pose @ delta
         pose = odometry.registration.align_points_to_map(
