@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-AFFORD = [sys.executable, "-m", "afford"]
+AFFORD = [sys.executable, "-m", "affordcli"]
 WINDOW = (1600, 1000)  # the viewer's window, in points (the screenshot has twice as many pixels each way)
 FIGURE_WIDTH = 1200  # px: the docs' copy, palette-quantised to stay small
 

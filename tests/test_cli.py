@@ -17,13 +17,13 @@ from affordcore.settings import Settings
 
 def afford(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "afford", *args], capture_output=True, text=True, timeout=300, env=env
+        [sys.executable, "-m", "affordcli", *args], capture_output=True, text=True, timeout=300, env=env
     )
 
 
 def test_importing_the_cli_loads_no_heavy_library():
     probe = (
-        "import sys, afford.app; print([m for m in "
+        "import sys, affordcli.app; print([m for m in "
         "('open3d', 'scipy', 'matplotlib', 'sklearn', 'zenoh', 'rerun') if m in sys.modules])"
     )
     result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)

@@ -6,6 +6,7 @@ of its own (the features service levels it), or the refusal of it."""
 from __future__ import annotations
 
 import ast
+import json
 import os
 import re
 import subprocess
@@ -74,7 +75,7 @@ def test_the_minimal_client_imports_only_zenoh_protobuf_numpy_and_generated_code
         "from affordwire import messages",
         "import affordcore.geometry.skeleton",
         "from services.transport import Keys",
-        "import afford.app",
+        "import affordcli.app",
         "from afford import v1",
         "from afford.v1 import not_generated_pb2",
         "from .proto import maps_pb2",
@@ -126,6 +127,58 @@ def generated(tmp_path_factory) -> Path:
 
 def _env(generated: Path, *extra: Path) -> dict[str, str]:
     return {**os.environ, "PYTHONPATH": os.pathsep.join(map(str, [generated, *extra]))}
+
+
+SIDE_BY_SIDE = """
+import json, sys
+from pathlib import Path
+import numpy as np
+from afford.v1 import maps_pb2 as client_maps  # the client's code, generated from schemas/
+import affordcli.app
+import affordwire
+from affordwire import messages
+from affordwire.proto import maps_pb2 as wire_maps
+
+points = np.random.default_rng(3).uniform(-3, 3, (150, 3)).astype(np.float32).astype(np.float64)
+ours = messages.cloud_message(points, np.eye(4), source="side-by-side", frames=3, at=12.5, scans_received=4)
+theirs = client_maps.Cloud.FromString(ours.SerializeToString())  # a map Cloud, as a client reads it
+theirs.source = "client"  # and one the client sends back
+back = messages.parse(messages.CloudMessage, theirs.SerializeToString())
+print(json.dumps({
+    "path0": sys.path[0],
+    "client": client_maps.__file__,
+    "cli": affordcli.app.__file__,
+    "wire": [affordwire.__file__, wire_maps.__file__],
+    "names": [client_maps.Cloud.DESCRIPTOR.full_name, messages.schema_name(ours)],
+    "same_bytes": theirs.SerializeToString() == back.SerializeToString(),
+    "read": [theirs.frames, theirs.scans_received, back.source],
+    "points": bool(np.array_equal(messages.cloud_points(back), points)),
+}))
+"""
+
+
+def test_a_python_client_imports_its_generated_code_beside_affordmap_from_the_project_root(generated):
+    """Issue 26: protoc generates the schemas as the Python package `afford.v1`, which the project leaves to
+    clients (its command line is `affordcli`). In the project's root, where the project's packages come first
+    on sys.path (`python -c`, `python -m`), one process imports the client's generated code, affordwire and
+    the command line, and a Cloud passes between the client's class and affordwire's with the same bytes."""
+    result = subprocess.run(
+        [sys.executable, "-c", SIDE_BY_SIDE],
+        cwd=ROOT,
+        env=_env(generated),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    found = json.loads(result.stdout)
+    assert found["path0"] == ""  # the project's root (the working directory) is searched first
+    assert Path(found["client"]).is_relative_to(generated)
+    assert Path(found["cli"]).is_relative_to(ROOT / "affordcli")
+    assert all(Path(file).is_relative_to(ROOT / "affordwire") for file in found["wire"])
+    assert found["names"] == ["afford.v1.Cloud", "afford.v1.Cloud"]
+    assert found["same_bytes"]
+    assert found["read"] == [3, 4, "client"] and found["points"]
 
 
 def test_the_client_reads_ply_and_xyz_files(generated, tmp_path):

@@ -23,7 +23,7 @@ import pytest
 import typer.main
 from typer.testing import CliRunner
 
-from afford import app as cli
+from affordcli import app as cli
 from services.registry import SERVICES as REGISTERED
 
 ROOT = Path(__file__).resolve().parents[1]

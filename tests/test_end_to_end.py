@@ -16,7 +16,7 @@ from conftest import SHARED_DATA, needs_shared, rrd_verify
 from affordcore.mapping.recording import recorded_entities
 from services.launch import Stack
 
-AFFORD = [sys.executable, "-m", "afford"]  # the command line of this interpreter, as a user runs it
+AFFORD = [sys.executable, "-m", "affordcli"]  # the command line of this interpreter, as a user runs it
 
 pytestmark = pytest.mark.slow
 AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")

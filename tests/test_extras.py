@@ -48,7 +48,12 @@ def core_only(tmp_path_factory) -> dict[str, str]:
 
 def run(env: dict, *args: str, cwd=None) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "afford", *args], capture_output=True, text=True, timeout=300, env=env, cwd=cwd
+        [sys.executable, "-m", "affordcli", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+        cwd=cwd,
     )
 
 

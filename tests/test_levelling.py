@@ -21,7 +21,7 @@ from services.launch import Stack
 from services.transport import Keys
 
 pytestmark = pytest.mark.slow
-AFFORD = [sys.executable, "-m", "afford"]
+AFFORD = [sys.executable, "-m", "affordcli"]
 AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")
 
 

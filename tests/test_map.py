@@ -22,7 +22,7 @@ AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")
 
 def afford(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "afford", *map(str, args)],
+        [sys.executable, "-m", "affordcli", *map(str, args)],
         capture_output=True,
         text=True,
         timeout=600,

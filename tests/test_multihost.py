@@ -109,7 +109,7 @@ def test_robot_selections_are_one_chunk_and_robot_names_stay_strict():
 
 def test_afford_serve_refuses_what_a_worker_cannot_be():
     def serve(*args: str) -> subprocess.CompletedProcess:
-        command = [sys.executable, "-m", "afford", "serve", *args, "--connect", "tcp/127.0.0.1:9"]
+        command = [sys.executable, "-m", "affordcli", "serve", *args, "--connect", "tcp/127.0.0.1:9"]
         return subprocess.run(command, capture_output=True, text=True, timeout=120)
 
     for args, says in [
@@ -355,7 +355,7 @@ def test_in_a_secured_site_only_the_inference_identity_joins_the_workers(tmp_pat
     room = tmp_path / "room.npy"
     save_cloud(room, Cloud(example_room(seed=3).points))
     stack = Stack(tmp_path / "run", robot="sr1", site=site, services=("features",)).start()
-    afford = [sys.executable, "-m", "afford"]
+    afford = [sys.executable, "-m", "affordcli"]
     worker = subprocess.Popen(
         [*afford, "serve", "inference", "--connect", stack.endpoint, "--robots", "*", "--worker", "s1"]
         + ["--zenoh-config", str(site / "inference.json5"), "--rrd", str(tmp_path / "s1.rrd")],
@@ -477,10 +477,10 @@ class _Processes:
         return process
 
     def afford(self, name: str, host: str, *args: str) -> subprocess.Popen:
-        return self.start(name, host, "-m", "afford", *args)
+        return self.start(name, host, "-m", "affordcli", *args)
 
     def run(self, host: str, *args: str, timeout: float) -> subprocess.CompletedProcess:
-        command = ["ip", "netns", "exec", host, sys.executable, "-m", "afford", *args]
+        command = ["ip", "netns", "exec", host, sys.executable, "-m", "affordcli", *args]
         return subprocess.run(
             command, capture_output=True, text=True, timeout=timeout, env=self.env, cwd=ROOT
         )

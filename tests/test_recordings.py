@@ -17,7 +17,7 @@ from test_ros import STORE, G, cdr, cloud_message, grid_points, imu_message, ros
 
 from affordwire import messages, ros  # noqa: E402
 
-AFFORD = [sys.executable, "-m", "afford"]
+AFFORD = [sys.executable, "-m", "affordcli"]
 STORAGES = ("sqlite3", "mcap")
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from afford.app import app
+from affordcli.app import app
 from affordcore.assembly.assembler import SensorFrame
 from affordcore.learn import learners as learner_registry
 from affordcore.learn.examples import RoomExamples

@@ -20,7 +20,7 @@ from services.launch import Stack
 from services.transport import Keys
 
 pytestmark = pytest.mark.slow
-AFFORD = [sys.executable, "-m", "afford"]
+AFFORD = [sys.executable, "-m", "affordcli"]
 AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")
 SERVICES = ("assembler", "features", "inference")
 # Frames published before the kill: the walk's map goes out every 0.5 s (~5 frames) once its floor is in

@@ -57,7 +57,7 @@ def test_bound_identities_write_only_their_robots_keys():
 def test_afford_certs_names_what_is_wrong_with_a_bound_identity(tmp_path, options, message):
     out = tmp_path / "site"
     bad = subprocess.run(
-        [sys.executable, "-m", "afford", "certs", str(out), *options],
+        [sys.executable, "-m", "affordcli", "certs", str(out), *options],
         capture_output=True,
         text=True,
         timeout=60,

@@ -253,7 +253,7 @@ def test_the_command_refuses_an_unknown_style_before_writing_anything(tmp_path):
     import sys
 
     out = tmp_path / "out"
-    command = [sys.executable, "-m", "afford", "synth", "--rooms", "1", "--out", str(out), "--quiet"]
+    command = [sys.executable, "-m", "affordcli", "synth", "--rooms", "1", "--out", str(out), "--quiet"]
     result = subprocess.run(
         command + ["--styles", "fused,sketch"], capture_output=True, text=True, timeout=120
     )

@@ -61,7 +61,7 @@ def _open(config: dict, stack: Stack, tmp_path, name: str):
 
 
 def test_afford_certs_keeps_the_site_ca_and_grants_a_new_sensor(tmp_path):
-    afford = [sys.executable, "-m", "afford", "certs", str(tmp_path)]
+    afford = [sys.executable, "-m", "affordcli", "certs", str(tmp_path)]
     first = subprocess.run(afford, capture_output=True, text=True, timeout=60)
     assert first.returncode == 0, first.stderr
     ca = (tmp_path / "ca.pem").read_bytes()
@@ -186,7 +186,7 @@ def test_a_mapper_publishes_a_room_and_a_viewer_gets_its_maps(stack, site, tmp_p
 
     room = tmp_path / "example.ply"
     save_cloud(room, example_room())
-    afford = [sys.executable, "-m", "afford"]
+    afford = [sys.executable, "-m", "affordcli"]
     endpoint = ["--connect", stack.endpoint, "--robot", ROBOT]
     watch = subprocess.Popen(
         [*afford, "watch", *endpoint, "--zenoh-config", str(site / "viewer.json5"), "--out", str(tmp_path)]

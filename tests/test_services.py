@@ -302,7 +302,7 @@ def test_a_recording_whose_viewer_is_absent_still_writes_the_whole_file(tmp_path
 
 def _afford(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "afford", *args], capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", "affordcli", *args], capture_output=True, text=True, timeout=120
     )
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from afford.app import app
+from affordcli.app import app
 from affordcore.geometry.skeleton import BUILTIN_DIR, JOINTS, rotation_z
 from affordcore.geometry.skeleton_models import (
     Frames,

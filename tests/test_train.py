@@ -303,7 +303,7 @@ def test_default_models_train_on_the_split_the_benchmark_uses_and_are_reproducib
     for key, value in SMALL.items():
         monkeypatch.setenv(key, value)
     data = tmp_path / "rooms"
-    command = [sys.executable, "-m", "afford", "synth", "--rooms", "5", "--seed", "2", "--out", str(data)]
+    command = [sys.executable, "-m", "affordcli", "synth", "--rooms", "5", "--seed", "2", "--out", str(data)]
     result = subprocess.run(command + ["--scanner", "uniform", "--quiet"], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     first = train_default_models(data, tmp_path / "a", "linear-tuned", validation=1, test=1)

@@ -21,7 +21,7 @@ START = 60.0  # seconds the stack may take to get ready on a loaded machine
 
 def afford(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "afford", *args], capture_output=True, text=True, timeout=timeout
+        [sys.executable, "-m", "affordcli", *args], capture_output=True, text=True, timeout=timeout
     )
 
 
@@ -37,7 +37,7 @@ def start_up(
     secured = ["--site", str(site)] if site else []
     viewer = ["--zenoh-config", str(site / "viewer.json5")] if site else []
     up = subprocess.Popen(
-        [sys.executable, "-m", "afford", "up", "--listen", endpoint, "--robot", robot, *secured],
+        [sys.executable, "-m", "affordcli", "up", "--listen", endpoint, "--robot", robot, *secured],
         cwd=tmp_path,  # the default --rrd-dir, ./recordings
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

@@ -1,6 +1,0 @@
-"""`python -m afford`: the `afford` command with this interpreter."""
-
-from .app import app
-
-if __name__ == "__main__":
-    app()
