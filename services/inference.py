@@ -20,6 +20,15 @@ from .shard import KeyedInbox, LatestOutputs, Membership, WorkerKeys, owner
 from .transport import Keys, encoding_of, robot_of, schema_of
 
 
+def ros_output(node: Node, models, robot: str | None = None):
+    """The maps' ROS 2 topics when AFFORD_ROS__MAPS asks for them (docs/ros.md), else None."""
+    if not node.settings.ros.maps:
+        return None
+    from .ros_maps import RosMapOutput
+
+    return RosMapOutput(node, [model.affordance for model in models], robot)
+
+
 class InferenceService:
     def __new__(cls, node: Node):
         if isinstance(node.keys, WorkerKeys):  # one class in the registry; a sharded node gets the worker
@@ -34,10 +43,14 @@ class InferenceService:
         node.subscribe(node.keys.fields, self.inbox)
         for model in self.models:
             node.answer_latest(node.keys.affordance(model.affordance))
+        self.ros = ros_output(node, self.models, node.keys.robot)
         node.fetch_latest(node.keys.fields, self.inbox)  # fields published before this service (re)started
 
     def run(self) -> None:
-        self.node.run(self.inbox, self.handle)
+        self.node.run(self.inbox, self.handle, on_stop=self._ros_summary)
+
+    def _ros_summary(self) -> str:
+        return self.ros.summary() if self.ros is not None else "no ROS 2 output (AFFORD_ROS__MAPS)"
 
     def _fields(self, message: messages.SceneFieldsMessage):
         """The fields of a message, at the resolution the models need (or refused)."""
@@ -63,9 +76,10 @@ class InferenceService:
         ids = {model.affordance: model.id for model in self.models}
 
         def publish(affordance: str, amap) -> None:
-            self.node.publish(
-                self.node.keys.affordance(affordance), messages.map_message(amap, ids[affordance], message)
-            )
+            out = messages.map_message(amap, ids[affordance], message)
+            self.node.publish(self.node.keys.affordance(affordance), out)
+            if self.ros is not None:
+                self.ros.publish(self.node.keys.robot, out)
             log_map(self.node.recording, amap)
 
         self.mapper.maps(fields, on_map=publish)
@@ -91,6 +105,7 @@ class ShardedInference(InferenceService):
         service = node.settings.service
         self.inbox = KeyedInbox(service.max_queue, service.max_queue_bytes)
         self.maps = LatestOutputs()
+        self.ros = ros_output(node, self.models)
         self.robots: set[str] = set()  # every robot whose fields or maps this worker has seen
         self.recordings: dict[str, object] = {}
         self.mappers: dict[str, RoomMapper] = {}  # each robot's room, updated as its fields come
@@ -255,6 +270,8 @@ class ShardedInference(InferenceService):
             encoding = encoding_of(messages.AffordanceMapMessage)
             self.maps.take(key, stamp, out.SerializeToString(), encoding)  # answered from here on
             self.node.publish(key, out, keep=False)
+            if self.ros is not None:
+                self.ros.publish(robot, out)
             log_map(recording, amap)
 
         if robot not in self.mappers:
@@ -286,7 +303,8 @@ class ShardedInference(InferenceService):
         for recording in self.recordings.values():
             close_recording(recording)
         return (
-            f"worker {self.keys.worker}: recordings of {len(self.recordings)} robots closed; "
+            (f"{self.ros.summary()}; " if self.ros is not None else "")
+            + f"worker {self.keys.worker}: recordings of {len(self.recordings)} robots closed; "
             f"{self.recovered} inputs fetched again after a worker left; "
             f"{len(self.maps.items())} maps held ({self.maps.nbytes() / 2**20:.1f} MB)"
         )

@@ -101,6 +101,22 @@ class RosSettings(BaseModel):
         gt=0,
         description="a scan gets the Imu reading nearest its header stamp only within this many seconds",
     )
+    maps: bool = Field(
+        False,
+        description="the inference service also publishes each affordance's map as ROS 2 topics (places as "
+        "geometry_msgs/PoseArray, markers as visualization_msgs/MarkerArray, the confidence as "
+        "nav_msgs/OccupancyGrid), latched, in the key formats of key_formats",
+    )
+    maps_namespace: str = Field(
+        "/{robot}/affordances",
+        description="the maps' topics are <maps_namespace>/<affordance>/places, .../markers and "
+        ".../confidence; {robot} is the robot's name (a character ROS names forbid, such as -, becomes _)",
+    )
+    maps_frame_id: str = Field(
+        "world",
+        description="the frame_id of the maps' headers: afford's world (gravity-aligned, z up, floor at "
+        "z = 0); a robot's tf needs a transform from its map frame to it",
+    )
 
     @field_validator("points", "imu")
     @classmethod
@@ -112,6 +128,24 @@ class RosSettings(BaseModel):
                 "/robot1/points)"
             )
         return topic
+
+    @field_validator("maps_namespace")
+    @classmethod
+    def _ros_namespace(cls, namespace: str) -> str:
+        """Checked with a robot's name in place of {robot}: the names the service will publish on."""
+        if not re.fullmatch(r"/?[A-Za-z0-9_]+(/[A-Za-z0-9_]+)*/?", namespace.replace("{robot}", "robot")):
+            raise ValueError(
+                f"maps_namespace {namespace!r} is not a ROS 2 namespace (letters, digits and _ between "
+                "slashes, and {robot}; e.g. /{robot}/affordances)"
+            )
+        return namespace
+
+    @field_validator("maps_frame_id")
+    @classmethod
+    def _frame_id(cls, frame_id: str) -> str:
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_/]*", frame_id):
+            raise ValueError(f"maps_frame_id {frame_id!r} is not a tf frame name (letters, digits, _ and /)")
+        return frame_id
 
     @field_validator("cloud_from_imu")
     @classmethod
