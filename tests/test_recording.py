@@ -17,10 +17,13 @@ from affordcore.geometry.skeleton import BONE_ENDS, JOINTS, get_skeleton
 from affordcore.mapping.maps import build_map
 from affordcore.mapping.recording import (
     CEILING_CUT,
+    LEGEND_STEPS,
     affordance_colors,
     close_recording,
+    confidence_colors,
     log_cloud,
     log_map,
+    log_trajectory,
     open_recording,
     recorded_entities,
     set_time,
@@ -180,6 +183,49 @@ def test_confidence_is_the_scalar_value_with_its_colormap_and_range(recorded):
     assert label == [f"sitting-relaxing: {low:.2f} (pale) to {high:.2f}"]
     rows = {_last(path, f"/plan/{name}/legend/range", "Points2D:positions")[0][1] for name in maps}
     assert len(rows) == 3
+
+
+def test_each_colour_bar_is_centred_under_the_plan_with_its_label_below_it_clear_of_the_next(recorded):
+    """A point's label is drawn centred under the point: each label's point is at its bar's middle, just
+    below the bar, with room before the next row; and no transform above the label (the bar's image
+    transform once scaled the labels into the bar's left end)."""
+    path, maps = recorded
+    rows = []
+    for name, amap in maps.items():  # in class order
+        (u0, v0, _), (su, sv, _) = (
+            _last(path, f"/plan/{name}/legend/bar", f"Transform3D:{field}")[0]
+            for field in ("translation", "scale")
+        )
+        bar = (u0, u0 + LEGEND_STEPS * su, v0, v0 + 2 * sv)  # 64 steps, two rows of pixels; v down the screen
+        ((u, v),) = _last(path, f"/plan/{name}/legend/range", "Points2D:positions")
+        for entity in ("/plan", f"/plan/{name}", f"/plan/{name}/legend", f"/plan/{name}/legend/range"):
+            assert not any(key.startswith("Transform3D:") for row in _rows(path, entity) for key in row), (
+                entity
+            )
+        grid = amap.grid
+        assert (bar[0] + bar[1]) / 2 == pytest.approx(
+            (grid.x[0] + grid.x[-1]) / 2, abs=1e-4
+        )  # under the plan
+        assert bar[2] > -grid.y[0]  # below the floor (the plan's v is -y)
+        assert u == pytest.approx((bar[0] + bar[1]) / 2, abs=1e-4)
+        assert v > bar[3]  # the label hangs below its point, so below the bar
+        rows.append((bar, v))
+    for (_, label_v), (next_bar, _) in zip(rows, rows[1:]):
+        assert next_bar[2] - label_v >= 0.3  # metres for the label's line before the next bar
+
+
+def test_the_trajectory_is_drawn_in_a_colour_no_affordance_uses(tmp_path):
+    path = tmp_path / "assembler.rrd"
+    recording = open_recording(path, ["sitting-relaxing"])
+    set_time(recording, 1.0)
+    log_trajectory(recording, np.array([[0.0, 0.0, 1.2], [0.5, 0.1, 1.2], [1.0, 0.3, 1.3]]), np.eye(4))
+    close_recording(recording)
+    (packed,) = _last(path, "/world/odom/trajectory", "LineStrips3D:colors")
+    rgb = tuple(int(packed >> shift) & 0xFF for shift in (24, 16, 8))
+    assert rgb[0] == rgb[1] == rgb[2] >= 200, rgb  # light and neutral: no hue to mistake for a map's
+    colours = affordance_colors([f"affordance-{i}" for i in range(10)])
+    bars = [confidence_colors(np.array([0.0, 0.5, 1.0]), 0.0, 1.0, colour) for colour in colours]
+    assert rgb not in {tuple(int(c) for c in colour) for colour in [*colours, *np.vstack(bars)]}
 
 
 def test_the_places_table_lists_every_place_with_its_probability_or_says_none_was_found(recorded, tmp_path):

@@ -21,8 +21,9 @@ on screen, metres):
   themselves and that range are on the same entity (``affordmap.Confidence:value`` / ``:value_range``),
   shown when a cell or the entity is selected; ``plan/<affordance>/confidence``: the same colours as an
   image over the plan;
-* ``plan/<affordance>/legend``: the colour bar of that map, below the plan, its ends labelled with the
-  range's ends;
+* ``plan/<affordance>/legend/bar``: the colour bar of that map, below the plan and centred under it (one row
+  per affordance, rows apart in proportion to the room); ``plan/<affordance>/legend/range``: its name and
+  range, hanging below the bar (a point label is drawn under its point), clear of the next row;
 * ``world/<affordance>/skeletons/<rank>``: each skeleton of the skeleton map (0 the best) as 15 keypoints with
   the affordance's class id: the viewer draws the bones in the affordance's colour and names the joints when
   a keypoint is hovered or selected. One entity per skeleton, as the viewer joins keypoints by (class id,
@@ -42,7 +43,7 @@ different processes line up; each entity is logged by one service only):
   sensor frame), updated at each map it publishes;
 * ``world/odom/sensor``: the sensor's pose per frame; ``world/odom/sensor/scan``: each frame once, as the
   points KISS-ICP registered (thinned), in the sensor frame;
-* ``world/odom/trajectory``: the sensor's path so far;
+* ``world/odom/trajectory``: the sensor's path so far, in white (no affordance's colour);
 * ``world/fields/occupied``: occupied voxel centres; ``world/fields/normals``: their surface normals.
 """
 
@@ -62,13 +63,18 @@ CONFIDENCE_ARCHETYPE = "affordmap.Confidence"  # the confidence cells' scalar va
 SKELETONS_ARCHETYPE = "affordmap.SkeletonMap"  # how many skeletons the map has, their scores
 CEILING_CUT = 2.0  # m above the floor: the view from above looks into the room under the points above this
 PLAN_CELL = 0.08  # m: the plan's room image
-LEGEND_OFFSET = 0.5  # m: each affordance's colour bar runs below the grid's low-y edge, this far apart
+LEGEND_OFFSET = (
+    0.5  # m: each affordance's colour bar runs below the grid's low-y edge, at least this far apart
+)
+LEGEND_ROW_SHARE = 0.15  # of the room's span: the rows' spacing in a larger room, so labels keep their room
 LEGEND_HEIGHT = 0.12  # m
+LEGEND_LABEL_GAP = 0.04  # m between a colour bar and its label below it
 LEGEND_STEPS = 64
+TRAJECTORY_COLOR = (255, 255, 255)  # white: tab10 has no white, and a pale tint of a colour bar is not white
 SKELETON_RADIUS = 0.03
 TAB10_NAMES = ("blue", "orange", "green", "red", "purple", "brown", "pink", "grey", "olive", "cyan")
 # the plan's layers, bottom to top
-DRAW_ORDER = {"room": 0.0, "confidence": 1.0, "legend": 1.0, "skeletons": 2.0, "places": 3.0}
+DRAW_ORDER = {"room": 0.0, "confidence": 1.0, "bar": 1.0, "skeletons": 2.0, "places": 3.0}
 
 
 _STATE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # recording -> _State
@@ -186,9 +192,15 @@ def _framing(low: np.ndarray, high: np.ndarray, bars: int):
     margin = 0.4
     bounds = rrb.VisualBounds2D(
         x_range=[low[0] - margin, high[0] + margin],
-        y_range=[-high[1] - margin, -low[1] + LEGEND_OFFSET * bars + margin],
+        y_range=[-high[1] - margin, -low[1] + legend_row(span) * (bars + 1)],  # and the last bar's label
     )
     return eye, bounds
+
+
+def legend_row(span: float) -> float:
+    """How far apart the colour bars' rows are below a floor `span` metres across: a label is drawn at a
+    fixed size on screen, so in a larger room (seen smaller) it covers more metres."""
+    return max(LEGEND_OFFSET, LEGEND_ROW_SHARE * span)
 
 
 def _frame_room(recording, grid) -> None:
@@ -344,19 +356,24 @@ def _log_confidence(recording, amap, color: np.ndarray) -> None:
     corner = np.array([grid.x[0], grid.y[0]]) - grid.step / 2
     _log_plan_image(recording, f"plan/{name}/confidence", rgba, corner, grid.step)
 
-    # the colour bar: below the grid, one row per affordance in class order, named with its range above it
+    # the colour bar: below the grid and centred under it, one row per affordance in class order, named with
+    # its range below it. The label is the bar's sibling, not its child: the bar's image transform (its
+    # scale, one pixel per step) would move and shrink anything below it.
     rank = _state(recording).affordances.index(name)
+    span = float(max(grid.x[-1] - grid.x[0], grid.y[-1] - grid.y[0]))
     width = max(float(grid.x[-1] - grid.x[0]) / 2, 1.0)
     bar = confidence_colors(np.linspace(low, high, LEGEND_STEPS), low, high, color)
-    start = np.array([grid.x[0], grid.y[0] - LEGEND_OFFSET * (rank + 1)])
+    start = np.array([(grid.x[0] + grid.x[-1] - width) / 2, grid.y[0] - legend_row(span) * (rank + 1)])
     rgba = np.concatenate([bar, np.full((LEGEND_STEPS, 1), 255, np.uint8)], axis=1)
     rgba = np.repeat(rgba[:, None], 2, axis=1)  # two rows: the SDK reads a one-row image as a column
-    _log_plan_image(recording, f"plan/{name}/legend", rgba, start, [width / LEGEND_STEPS, LEGEND_HEIGHT / 2])
+    _log_plan_image(
+        recording, f"plan/{name}/legend/bar", rgba, start, [width / LEGEND_STEPS, LEGEND_HEIGHT / 2]
+    )
     _log(
         recording,
         f"plan/{name}/legend/range",
         rr.Points2D(
-            _plan(start + [width / 2, LEGEND_HEIGHT + 0.12]),
+            _plan(start + [width / 2, -LEGEND_LABEL_GAP]),  # the label hangs below its point
             radii=0.001,
             colors=color,
             labels=f"{name}: {low:.2f} (pale) to {high:.2f}",
@@ -478,7 +495,7 @@ def log_trajectory(recording, positions: np.ndarray, world_from_odom: np.ndarray
     _log(
         recording,
         "world/odom/trajectory",
-        rr.LineStrips3D([np.asarray(positions, dtype=np.float32)], radii=0.01, colors=[240, 160, 30]),
+        rr.LineStrips3D([np.asarray(positions, dtype=np.float32)], radii=0.01, colors=TRAJECTORY_COLOR),
     )
 
 
