@@ -134,6 +134,54 @@ def offline(source: Source, settings: Settings, models: list) -> dict[str, tuple
     return {name: places(labels, name, amap.skeletons, np.eye(4)) for name, amap in maps.items()}
 
 
+# -- where the live path could lose places ----------------------------------------------------------------
+
+
+def where(source: Source, indices: list[int], settings: Settings, models: list) -> dict[str, dict]:
+    """The same frames made into a room four ways, in this process (every frame taken), each mapped and
+    scored: the live path's steps one at a time, from true poses and every pixel to the assembler's map."""
+    from kiss_icp.voxelization import voxel_down_sample
+
+    from affordcore.assembly.assembler import Assembler
+    from affordcore.assembly.depth import DepthImage, back_project
+    from affordcore.geometry.scene import Cloud
+
+    sequence, a = read_sequence(source.sequence), settings.assembler
+    images = [DepthImage(sequence.depth(i), sequence.intrinsics, 0.001, 65535) for i in indices]
+    every_pixel = [back_project(image, 1, a.min_range, a.max_range) for image in images]
+    blocks = [back_project(image, a.pixel_step, a.min_range, a.max_range) for image in images]
+    assembler = Assembler(a)
+    for index, points in zip(indices, blocks):
+        assembler.register(points, 1.0 + index / 30, gravity=sequence.gravity(index))
+    truth = [source.room_from_truth @ sequence.pose(i) for i in indices]
+    estimated = [truth[0] @ pose for pose in assembler.trajectory.poses]
+
+    def fused(clouds, poses):
+        return np.vstack([c @ pose[:3, :3].T + pose[:3, 3] for c, pose in zip(clouds, poses)])
+
+    labels = load_labels(source.room.with_suffix(".labels.json"))
+    room = load_cloud(source.room.with_suffix(".ply")).points
+
+    def scored(points: np.ndarray, room_from_input: np.ndarray, gravity) -> dict:
+        scene = prepare_scene(Cloud(points), settings, gravity)
+        guess = room_from_input @ np.linalg.inv(scene.alignment.world_from_input)
+        room_from_world, _ = icp(scene.cloud.points, room, guess)
+        maps = map_affordances(scene.fields, scene.layout, models, settings)
+        return {name: places(labels, name, m.skeletons, room_from_world) for name, m in maps.items()}
+
+    map_points, world_from_odom = assembler.aligned_map(settings)
+    return {
+        "true poses, every pixel": scored(fused(every_pixel, truth), np.eye(4), "auto"),
+        "true poses, block means, map voxel": scored(
+            voxel_down_sample(fused(blocks, truth), a.map_voxel), np.eye(4), "auto"
+        ),
+        "assembler's poses, every pixel": scored(fused(every_pixel, estimated), np.eye(4), "auto"),
+        "assembler's map, as published": scored(
+            map_points, truth[0] @ np.linalg.inv(world_from_odom), "none"
+        ),
+    }
+
+
 # -- the live run --------------------------------------------------------------------------------------------
 
 
@@ -237,6 +285,7 @@ def main() -> None:
     parser.add_argument(
         "--loads", default=f"0,{os.cpu_count()}", help="CPU hogs beside the services, per run"
     )
+    parser.add_argument("--no-where", action="store_true", help="skip the in-process steps of the live path")
     args = parser.parse_args()
     settings = Settings()
     models = [load_model(path) for path in shipped_models().values()]
@@ -246,10 +295,12 @@ def main() -> None:
         sources = ([kitchen_source()] if KITCHEN.is_dir() else []) + generated_sources(
             args.generated, args.seed, Path(tmp) / "generated"
         )
-        rows = []
+        rows, steps = [], []
         for source in sources:
             indices = list(range(0, len(read_sequence(source.sequence).frames), args.step))
             reference = offline(source, settings, models)
+            if not args.no_where:
+                steps.append((source, reference, where(source, indices, settings, models)))
             for hogs in loads:
                 run = live(source, indices, args.rate, hogs, Path(tmp) / f"run-{len(rows)}", models)
                 rows.append((source, len(indices), hogs, run, reference))
@@ -279,6 +330,13 @@ def main() -> None:
             + " | ".join(cells)
             + " |"
         )
+    if steps:
+        print("\nThe live path's steps in this process, every frame taken (found of labelled, + false):\n")
+        print("| source | made from | " + " | ".join(names) + " |\n|---|---|" + "---|" * len(names))
+        for source, reference, variants in steps:
+            for made, result in {"the fused room (afford map)": reference, **variants}.items():
+                cells = [f"{r[0]}/{r[1]} +{r[2]}" for r in (result.get(n, (0, 0, 0)) for n in names)]
+                print(f"| {source.name} | {made} | " + " | ".join(cells) + " |")
     live_total, offline_total = total["live"], total["offline"]
     print(
         f"\nIn all: live {live_total[0]} of {live_total[1]} places, {live_total[2]} false; offline "
