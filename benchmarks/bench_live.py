@@ -104,7 +104,7 @@ def generated_sources(count: int, seed: int, folder: Path) -> list[Source]:
     """`afford synth --sequences` rooms: the sequences' true poses are in the room's own frame."""
     if count == 0:
         return []
-    command = [sys.executable, "-m", "afford", "synth", "--rooms", str(count), "--seed", str(seed)]
+    command = [sys.executable, "-m", "affordcli", "synth", "--rooms", str(count), "--seed", str(seed)]
     command += ["--out", str(folder), "--sequences", "--styles", "fused", "--frames", "300", "--quiet"]
     subprocess.run(command, check=True, capture_output=True, cwd=ROOT)
     return [

@@ -41,6 +41,7 @@ class Inbound:
     arrived: float
     is_input: bool = True  # False: the service's own work (idle, stop), answered alike but not counted
     input_timestamp: object = None  # the message's own Timestamp once decoded: a refusal carries it back
+    taken: bool = False  # counted in Status.accepted while it is worked on; a refusal moves it to rejected
 
 
 def _own_work(what: str) -> Inbound:
@@ -345,8 +346,11 @@ class Node:
                 if messages.nanoseconds(item.input_timestamp) == self.newest_input:
                     self.newest_input_refused = reason
         if item.is_input:
-            with self._lock:
+            with self._lock:  # in one step: a status never counts an input both taken and refused
                 self.counts["rejected"] += 1
+                if item.taken:
+                    self.counts["accepted"] -= 1
+                    item.taken = False
         put_message(self.session, self.keys.error_of(self.service, item.key), error)
         print(
             f"[{self.service}] {'rejected' if item.is_input else 'failed'} {item.key}: {reason}", flush=True
@@ -455,13 +459,11 @@ class Node:
     def _handle(self, item: Inbound, handle: Callable[[Inbound], None]) -> None:
         with self._lock:  # counted before its outputs go out, so a status read after them includes it
             self.counts["accepted"] += 1
+            item.taken = True
             self.state, self.detail = messages.Status.BUSY, f"working on an input from {item.key}"
         started = time.perf_counter()
-        if self._guarded(item, handle):
+        if self._guarded(item, handle):  # a refusal moved it from accepted to rejected (`reject`)
             self.last_seconds = time.perf_counter() - started
-        else:
-            with self._lock:
-                self.counts["accepted"] -= 1
         with self._lock:  # a handler that said nothing more leaves the service ready
             if self.state == messages.Status.BUSY:
                 self.state, self.detail = messages.Status.READY, "waiting for input"

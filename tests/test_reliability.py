@@ -321,3 +321,36 @@ def test_a_failure_of_the_services_own_work_is_answered_but_not_counted_as_a_rej
     finally:
         client.close()
         router.close()
+
+
+def test_a_refused_input_is_never_counted_as_both_taken_and_refused(tmp_path):
+    """Status counts move an input from accepted to rejected in one step: the status a refusal publishes (and
+    any read meanwhile) counts each input once, so a client summing them never sees more than it sent."""
+    from services.launch import free_port
+    from services.node import Node
+    from services.transport import open_session
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_session([], mode="router", listen=[endpoint])
+    node = Node("probe", "countbot", [endpoint], rrd=tmp_path / "probe.rrd")
+    seen = []
+    publish_status = node.publish_status
+
+    def recording_status(state, detail):
+        seen.append(dict(node.counts))
+        publish_status(state, detail)
+
+    def refuse(item):
+        raise ValueError("not a scan")
+
+    node.publish_status = recording_status
+    try:
+        for sent in range(1, 4):
+            node._handle(_item(), refuse if sent != 2 else (lambda item: None))
+            assert node.counts["accepted"] + node.counts["rejected"] == sent
+        assert (node.counts["accepted"], node.counts["rejected"]) == (1, 2)
+        first_refusal = seen[0]  # the status the first refusal published, while its input was in hand
+        assert first_refusal["accepted"] + first_refusal["rejected"] == 1, first_refusal
+    finally:
+        node.close()
+        router.close()

@@ -362,7 +362,7 @@ def test_afford_serve_runs_a_service_until_sigterm(router, client, tmp_path):
     command = [
         sys.executable,
         "-m",
-        "afford",
+        "affordcli",
         "serve",
         "features",
         "--connect",

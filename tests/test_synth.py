@@ -376,7 +376,7 @@ def _synth(out, seed, *extra):
         [
             sys.executable,
             "-m",
-            "afford",
+            "affordcli",
             "synth",
             "--rooms",
             "2",

@@ -33,7 +33,7 @@ def data_set(tmp_path_factory):
         [
             sys.executable,
             "-m",
-            "afford",
+            "affordcli",
             "synth",
             "--rooms",
             "3",
@@ -104,7 +104,7 @@ def test_afford_train_writes_a_model(data_set, tmp_path):
         [
             sys.executable,
             "-m",
-            "afford",
+            "affordcli",
             "train",
             "--data",
             str(data_set),
@@ -193,7 +193,7 @@ def test_evaluate_rejects_bad_ratios_and_learners(data_set, tmp_path):
             [
                 sys.executable,
                 "-m",
-                "afford",
+                "affordcli",
                 "evaluate",
                 "--data",
                 str(data_set),
