@@ -211,7 +211,7 @@ def describe(settings: AssemblerSettings) -> str:
         f"{settings.pixel_step} x {settings.pixel_step} block means, every "
         f"{'' if settings.block_stride == 1 else f'{settings.block_stride}th '}block; voxel "
         f"{settings.voxel_size:g} m, {settings.max_points_per_voxel} points a voxel, ICP converged at "
-        f"{settings.convergence:g}"
+        f"{settings.convergence:g}, registered on one point per {settings.registration_voxels:g} voxels"
     )
 
 
