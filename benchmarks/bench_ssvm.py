@@ -137,7 +137,8 @@ def _svmperf(X, y, Xv, yv, settings: SSVMSettings, binary: str) -> dict:
 
     with tempfile.TemporaryDirectory(prefix="svmperf-") as folder:
         train, model = Path(folder) / "train.dat", Path(folder) / "model"
-        dump_svmlight_file(X, np.where(y > 0, 1, -1), train, zero_based=False)
+        # a file name, not a Path: scikit-learn's parameter check refuses a Path (InvalidParameterError)
+        dump_svmlight_file(X, np.where(y > 0, 1, -1), str(train), zero_based=False)
         command = [binary, "-c", f"{settings.c_svmperf:g}", "-l", "1", "-w", "3", "--b", f"{settings.bias:g}"]
         command += ["-e", f"{settings.epsilon:g}", str(train), str(model)]
         start = time.perf_counter()

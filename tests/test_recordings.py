@@ -312,4 +312,8 @@ def test_a_folder_of_ply_scans_streams_into_the_assembler_in_order(generated_seq
         assembler.register(load_cloud(folder / f"scan_{k}.ply").points, messages.seconds(pose.timestamp))
     want = np.array([pose[:3, 3] for pose in assembler.trajectory.poses])
     assert np.linalg.norm(want[-1]) > 0.5  # the walk goes somewhere
-    assert np.abs(got - want).max() < 0.01
+    # the same frames in the same order: the same poses, to rounding over the first ten; KISS-ICP's
+    # multithreaded sums differ in their last bits from run to run (1e-17 m at frame 1), and ICP along this
+    # drifting walk grew that to 1.0 cm by frame 40 in one CI run, so the later frames are held to 2 cm
+    assert np.abs(got[:10] - want[:10]).max() < 1e-3
+    assert np.abs(got - want).max() < 0.02
