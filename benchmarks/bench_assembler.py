@@ -43,7 +43,6 @@ import argparse
 import os
 import resource
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -59,6 +58,7 @@ from affordcore.assembly.sequence import INVALID_DEPTH, read_sequence  # noqa: E
 from affordcore.geometry.gravity import align_to_gravity  # noqa: E402
 from affordcore.mapping.recording import close_recording, log_scan, open_recording, set_time  # noqa: E402
 from affordcore.settings import AssemblerSettings, GravitySettings  # noqa: E402
+from services.launch import cpu_hogs  # noqa: E402
 
 SEQUENCE = (
     Path(__file__).resolve().parents[2]
@@ -225,12 +225,8 @@ def main() -> None:
     parser.add_argument("--hogs", type=int, default=0, help="CPU hogs beside it (one per core: a busy robot)")
     parser.add_argument("--step", type=int, default=1, help="every n-th frame (3: a 10 Hz stream)")
     args = parser.parse_args()
-    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.hogs)]
-    try:
+    with cpu_hogs(args.hogs):
         run(args)
-    finally:
-        for hog in hogs:
-            hog.kill()
 
 
 def run(args) -> None:

@@ -43,7 +43,7 @@ from affordcore.mapping.pipeline import map_affordances, prepare_scene  # noqa: 
 from affordcore.settings import Settings  # noqa: E402
 from affordwire import messages  # noqa: E402
 from services.clients import MapWatcher, publish_sequence, sequence_messages  # noqa: E402
-from services.launch import Stack  # noqa: E402
+from services.launch import Stack, cpu_hogs  # noqa: E402
 from services.transport import Keys, open_session, schema_of  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
@@ -230,30 +230,25 @@ def frames_of(poses: dict[float, np.ndarray], sent: dict[float, int]) -> list[tu
 
 def live(source: Source, indices: list[int], rate: float, hogs: int, workdir: Path, models: list) -> dict:
     sequence = read_sequence(source.sequence)
-    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(hogs)]
-    try:
-        with Stack(workdir) as stack:
-            keys = Keys(stack.robot)
-            listener = Listener(keys)
-            watcher = MapWatcher(keys, [m.affordance for m in models], len(indices), None, lambda line: None)
-            session = open_session([stack.endpoint])
-            subscribers = [
-                session.declare_subscriber(keys.key("**"), listener.on_sample),
-                session.declare_subscriber(keys.key("affordance", "*"), watcher.on_sample),
-            ]
-            sent: dict[float, int] = {}
-            try:
-                publish_sequence(session, keys, stamped(sequence, indices, sent), "camera", rate, wait=60)
-                last_scan = time.monotonic()
-                # None: no map covers every scan (the assembler found no floor in its drifting map)
-                lag = time.monotonic() - last_scan if watcher.done.wait(180) else None
-            finally:
-                for subscriber in subscribers:
-                    subscriber.undeclare()
-                session.close()
-    finally:
-        for hog in busy:
-            hog.kill()
+    with cpu_hogs(hogs), Stack(workdir) as stack:
+        keys = Keys(stack.robot)
+        listener = Listener(keys)
+        watcher = MapWatcher(keys, [m.affordance for m in models], len(indices), None, lambda line: None)
+        session = open_session([stack.endpoint])
+        subscribers = [
+            session.declare_subscriber(keys.key("**"), listener.on_sample),
+            session.declare_subscriber(keys.key("affordance", "*"), watcher.on_sample),
+        ]
+        sent: dict[float, int] = {}
+        try:
+            publish_sequence(session, keys, stamped(sequence, indices, sent), "camera", rate, wait=60)
+            last_scan = time.monotonic()
+            # None: no map covers every scan (the assembler found no floor in its drifting map)
+            lag = time.monotonic() - last_scan if watcher.done.wait(180) else None
+        finally:
+            for subscriber in subscribers:
+                subscriber.undeclare()
+            session.close()
     taken = frames_of(listener.poses, sent)
     truth = [source.room_from_truth @ sequence.pose(index) for index, _ in taken]
     errors = trajectory_errors([pose for _, pose in taken], truth)

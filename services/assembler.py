@@ -62,9 +62,8 @@ class AssemblerService:
         # map that covers the last scan published, whatever became of it
         self.pending = True
         # with scans waiting, a cheaper registration: more frames taken, fewer skipped to keep up
-        record = self.assembler.add(
-            frame, at, busy=len(self.inbox) > 0
-        )  # a refused frame raises, changes nothing
+        busy = len(self.inbox) > 0
+        record = self.assembler.add(frame, at, busy)  # a refused frame raises here and changes nothing
         if self.store:
             self.store.append(record)  # before anything goes out about it
         pose = record.pose

@@ -14,9 +14,23 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from contextlib import contextmanager
 from pathlib import Path
 
 from .registry import SERVICES
+
+
+@contextmanager
+def cpu_hogs(count: int):
+    """`count` processes that each keep a core busy for as long as the block runs: the other work a robot's
+    computer always has, for the tests and benchmarks that measure the services under load."""
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+    try:
+        yield hogs
+    finally:
+        for hog in hogs:
+            hog.kill()
+            hog.wait()
 
 
 def free_port() -> int:

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from conftest import SHARED_DATA, needs_shared
 
-from services.launch import free_port
+from services.launch import cpu_hogs, free_port
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 AFFORDANCES = ("sitting-relaxing", "sitting-working", "standing-working")
@@ -48,31 +48,24 @@ def as_test_script(block: str, port: int, timeout: int) -> str:
     return "set -euo pipefail\ntrap 'for job in $(jobs -p); do kill -INT $job; done; wait' EXIT\n" + block
 
 
-def cpu_hogs(count: int) -> list[subprocess.Popen]:
-    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
-
-
 @pytest.mark.slow
 @needs_shared
 def test_the_readme_walk_through_runs_as_written_with_every_core_busy(tmp_path):
     script = as_test_script(readme_block("Running the services"), free_port(), timeout=150)
-    hogs = cpu_hogs(os.cpu_count() or 2)
-    run = subprocess.Popen(
-        ["bash", "-c", script],
-        cwd=tmp_path,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,  # its own process group: a timeout stops the services too
-    )
-    try:
-        stdout, stderr = run.communicate(timeout=400)
-    except subprocess.TimeoutExpired:
-        os.killpg(run.pid, signal.SIGKILL)
-        stdout, stderr = run.communicate()
-    finally:
-        for hog in hogs:
-            hog.kill()
+    with cpu_hogs(os.cpu_count() or 2):
+        run = subprocess.Popen(
+            ["bash", "-c", script],
+            cwd=tmp_path,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,  # its own process group: a timeout stops the services too
+        )
+        try:
+            stdout, stderr = run.communicate(timeout=400)
+        except subprocess.TimeoutExpired:
+            os.killpg(run.pid, signal.SIGKILL)
+            stdout, stderr = run.communicate()
     assert run.returncode == 0, f"stdout:\n{stdout[-4000:]}\nstderr:\n{stderr[-4000:]}"
     published = re.search(r"published (\d+) depth frames", stdout)
     assert published and int(published.group(1)) == 100  # frames 0..297, every third
