@@ -135,15 +135,11 @@ def estimate_normals(points: np.ndarray, settings: NormalSettings) -> tuple[np.n
 
 
 def normals_at(points: np.ndarray, settings: NormalSettings) -> np.ndarray:
-    """Unit normals (unsigned) of a cloud at its points, by open3d: the principal axes of each point's nearest
-    `max_neighbours` within `radius`."""
-    import open3d as o3d
+    """Unit normals (unsigned) of a cloud at its points: the principal axes of each point's nearest
+    `max_neighbours` within `radius`, as open3d's `estimate_normals` computes them (`normals.pca_normals`)."""
+    from .normals import pca_normals
 
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    pcd.estimate_normals(
-        o3d.geometry.KDTreeSearchParamHybrid(radius=settings.radius, max_nn=settings.max_neighbours)
-    )
-    return np.asarray(pcd.normals)
+    return pca_normals(points, settings.radius, settings.max_neighbours)
 
 
 def voxel_down_sample(points: np.ndarray, voxel: float) -> np.ndarray:

@@ -322,11 +322,9 @@ def _area(points: np.ndarray, normal: np.ndarray) -> float:
 
 
 def _estimate_normals(points: np.ndarray, radius: float = 0.1) -> np.ndarray:
-    import open3d as o3d
+    from .normals import pca_normals
 
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=30))
-    return np.asarray(pcd.normals)
+    return pca_normals(points, radius, 30)
 
 
 def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
