@@ -47,11 +47,13 @@ def map_room(
     quiet: bool,
     timings: bool = False,
 ) -> list[Path]:
-    """load -> align -> fields -> score -> map -> write, each one call into the library (the maps and their
-    files in worker processes, `outputs.map_and_write`)."""
+    """load -> align -> fields -> score -> map -> write, each one call into the library (the maps in worker
+    processes and the files in a writer process started first, `outputs.map_and_write`)."""
+    from contextlib import nullcontext
+
     from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.model import choose_models
-    from affordcore.mapping.outputs import default_workers, map_and_write, summary_line
+    from affordcore.mapping.outputs import OutputWriter, default_workers, map_and_write, summary_line
     from affordcore.mapping.pipeline import parse_gravity, prepare_scene
     from affordcore.settings import Settings
 
@@ -60,20 +62,22 @@ def map_room(
     start = time.perf_counter()
     seconds: dict[str, float] = {}
     models = choose_models(model_files, affordances, FeatureLayout.from_settings(settings))
-    loading = time.perf_counter()
-    cloud = _loaded(cloud_path)
-    seconds["load the cloud"] = time.perf_counter() - loading
-    scene = prepare_scene(cloud, settings, parse_gravity(gravity), seconds)
-    _warn(scene.warnings)
-    typer.echo(f"{cloud_path}: {len(scene.cloud):,} points; {scene.alignment.describe()}")
-    mapping = time.perf_counter()
-    with progress(quiet) as bar:
-        task = bar.add_task("affordance maps", total=len(models))
-        workers = default_workers(len(models))
-        maps, written = map_and_write(
-            scene, models, settings, out, rrd, workers, lambda *_: bar.advance(task), seconds
-        )
-    seconds["maps and outputs (wall)"] = time.perf_counter() - mapping
+    workers = default_workers(len(models))
+    # the writer imports matplotlib and rerun on the other core while this process loads the room
+    with OutputWriter() if workers > 1 else nullcontext() as writer:
+        loading = time.perf_counter()
+        cloud = _loaded(cloud_path)
+        seconds["load the cloud"] = time.perf_counter() - loading
+        scene = prepare_scene(cloud, settings, parse_gravity(gravity), seconds)
+        _warn(scene.warnings)
+        typer.echo(f"{cloud_path}: {len(scene.cloud):,} points; {scene.alignment.describe()}")
+        mapping = time.perf_counter()
+        with progress(quiet) as bar:
+            task = bar.add_task("affordance maps", total=len(models))
+            maps, written = map_and_write(
+                scene, models, settings, out, rrd, workers, lambda *_: bar.advance(task), seconds, writer
+            )
+        seconds["maps and outputs (wall)"] = time.perf_counter() - mapping
     for amap in maps.values():
         typer.echo(summary_line(amap))
     if timings:
@@ -81,7 +85,9 @@ def map_room(
             typer.echo(f"timing: {stage}: {value:.3f} s", err=True)
     memory = f"peak memory {peak_rss_mb():.0f} MB"
     if workers > 1:  # each forked worker's peak counts the pages it shares with this process
-        memory += f" (worker processes: {workers} x at most {_children_peak_mb():.0f} MB)"
+        memory += (
+            f" (worker processes: {workers + 1} x at most {_children_peak_mb():.0f} MB)"  # and the writer
+        )
     typer.echo(f"{time.perf_counter() - start:.1f} s, {memory}")
     typer.echo("outputs: " + ", ".join(str(path) for path in written))
     return written

@@ -1,10 +1,13 @@
 """What `afford map` hands to people and robots: per affordance a JSON map and a plan-view PNG, and one Rerun
 recording of the room with every map.
 
-`map_and_write` is the command's last stage: each model's scores, map, JSON and PNG in a worker process of
-their own (forked once the fields exist, so nothing is copied to them), while this process writes the
-recording and logs each map as it comes back. On 2 cores that is what keeps three plans and a recording from
-costing more than the mapping (benchmarks/bench_map.py, docs/maps.md).
+`map_and_write` is the command's last stage. With workers (Linux, 2 cores or more) each model's scores and map
+come from a worker process of their own (forked once the fields exist, so nothing is copied to them), and an
+`OutputWriter`, a process forked when the command starts, writes the recording, the JSONs and the PNGs: it
+imports matplotlib and rerun (about 0.8 s of CPU) while this process loads, levels and voxelises the room,
+then logs the cloud while the workers score, and each map as it comes. On 2 cores that keeps the imports,
+three plans and a recording off the path from the cloud to the maps (benchmarks/bench_map.py,
+docs/maps.md).
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from pathlib import Path
 
 from ..learn.model import AffordanceModel
 
-_JOB: tuple | None = None  # (scene, models, settings, out, plan): what forked workers read, never pickled
+_JOB: tuple | None = None  # (scene, models, settings): what forked workers read, never pickled
 
 
 def write_map_outputs(
@@ -33,9 +36,11 @@ def write_map_outputs(
     plan = plan_heights(scene.cloud.points)
     written = []
     for affordance, amap in maps.items():
-        written += _json_and_png(scene, amap, ids[affordance], out, plan)
+        written += _json_and_png(
+            scene.cloud.points, scene.alignment.world_from_input, amap, ids[affordance], out, plan
+        )
     if rrd is not None:
-        recording = _open_with_cloud(rrd, list(maps), scene.cloud)
+        recording = _open_with_cloud(rrd, list(maps), scene.cloud.points, scene.cloud.source)
         _close_with_maps(recording, maps.values())
         written.append(rrd)
     return written
@@ -50,62 +55,76 @@ def map_and_write(
     workers: int | None = None,
     on_map: Callable[[str, object], None] | None = None,
     timings: dict[str, float] | None = None,
+    writer: OutputWriter | None = None,
 ) -> tuple[dict, list[Path]]:
     """Every model's map of a `PreparedScene` (`pipeline.map_affordances`, one model at a time) and the
     outputs of `write_map_outputs`; returns ({affordance: map} in the models' order, the paths written).
 
     With ``workers`` > 1 (default: one per model when the machine has two cores or more, on Linux) each
-    model is scored, mapped and written (JSON, PNG) in a forked worker process, and this process writes the
-    recording meanwhile; ``on_map(affordance, map)`` hears of each map as it comes back. ``timings`` gets
-    each stage's seconds: per affordance its scoring and map, and its JSON and PNG (in its worker), and the
-    recording."""
+    model is scored and mapped in a forked worker process, and the outputs are written by ``writer`` (an
+    `OutputWriter` started early; one is started here when not given) meanwhile; ``on_map(affordance,
+    map)`` hears of each map as it comes back. ``timings`` gets each stage's seconds: per affordance its
+    scoring and map (in its worker) and its JSON and PNG (in the writer), and the recording's."""
     global _JOB
-    from .plots import plan_heights
 
     out.mkdir(parents=True, exist_ok=True)
     timings = {} if timings is None else timings
     workers = default_workers(len(models)) if workers is None else max(1, min(workers, len(models)))
-    _JOB = (scene, models, settings, out, plan_heights(scene.cloud.points))
-    results: dict[int, tuple] = {}
+    if workers == 1:
+        return _map_and_write_here(scene, models, settings, out, rrd, on_map, timings)
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    def collected(index: int, result: tuple) -> None:
-        results[index] = result
-        amap, _, seconds = result
-        for stage, value in seconds.items():
-            timings[f"{stage} {amap.affordance}"] = value
-        if on_map:
-            on_map(amap.affordance, amap)
-
+    own_writer = writer is None
+    writer = writer or OutputWriter()
+    _JOB = (scene, models, settings)
+    maps: dict[int, object] = {}
     try:
-        if workers == 1:
-            for index in range(len(models)):
-                collected(index, _map_one(index))
-            recording = _open_with_cloud(rrd, [m.affordance for m in models], scene.cloud) if rrd else None
-        else:
-            import multiprocessing
-            from concurrent.futures import ProcessPoolExecutor, as_completed
-
-            from .plots import pyplot
-
-            pyplot()  # imported once here rather than once per worker: 0.4 s of CPU each on 2 cores
-            with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
-                futures = {pool.submit(_map_one, index): index for index in range(len(models))}
-                start = time.perf_counter()
-                recording = (
-                    _open_with_cloud(rrd, [m.affordance for m in models], scene.cloud) if rrd else None
-                )
-                timings["recording: the cloud"] = time.perf_counter() - start
-                for future in as_completed(futures):
-                    collected(futures[future], future.result())
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
+            futures = {pool.submit(_map_one, index): index for index in range(len(models))}
+            writer.start_scene(scene, [m.affordance for m in models], out, rrd)
+            for future in as_completed(futures):
+                index = futures[future]
+                amap, seconds = future.result()
+                maps[index] = amap
+                timings[f"score + map {amap.affordance}"] = seconds
+                writer.write_map(amap, models[index].id)
+                if on_map:
+                    on_map(amap.affordance, amap)
+        ordered = [maps[index] for index in range(len(models))]
+        written, seconds = writer.finish([amap.affordance for amap in ordered])
+        timings.update(seconds)
     finally:
         _JOB = None
-    ordered = [results[index] for index in range(len(models))]
-    maps = {amap.affordance: amap for amap, _, _ in ordered}
-    written = [path for _, paths, _ in ordered for path in paths]
-    if recording is not None:
+        if own_writer:
+            writer.close()
+    return {amap.affordance: amap for amap in ordered}, written
+
+
+def _map_and_write_here(scene, models, settings, out, rrd, on_map, timings) -> tuple[dict, list[Path]]:
+    """`map_and_write` in this process alone, model after model."""
+    from .pipeline import map_affordances
+    from .plots import plan_heights
+
+    plan = plan_heights(scene.cloud.points)
+    maps, written = {}, []
+    for model in models:
         start = time.perf_counter()
+        amap = map_affordances(scene.fields, scene.layout, [model], settings)[model.affordance]
+        mapped = time.perf_counter()
+        written += _json_and_png(
+            scene.cloud.points, scene.alignment.world_from_input, amap, model.id, out, plan
+        )
+        timings[f"score + map {model.affordance}"] = mapped - start
+        timings[f"JSON + PNG {model.affordance}"] = time.perf_counter() - mapped
+        maps[model.affordance] = amap
+        if on_map:
+            on_map(model.affordance, amap)
+    if rrd is not None:
+        start = time.perf_counter()
+        recording = _open_with_cloud(rrd, list(maps), scene.cloud.points, scene.cloud.source)
         _close_with_maps(recording, maps.values())
-        timings["recording: the maps"] = time.perf_counter() - start
+        timings["recording"] = time.perf_counter() - start
         written.append(rrd)
     return maps, written
 
@@ -119,34 +138,31 @@ def default_workers(n_models: int) -> int:
 
 
 def _map_one(index: int) -> tuple:
-    """In a worker (or in-process): model `index`'s map, its JSON and PNG; (map, paths, seconds)."""
+    """In a worker: model `index`'s map; (map, seconds)."""
     from .pipeline import map_affordances
 
-    scene, models, settings, out, plan = _JOB
+    scene, models, settings = _JOB
     model = models[index]
     start = time.perf_counter()
     amap = map_affordances(scene.fields, scene.layout, [model], settings)[model.affordance]
-    mapped = time.perf_counter()
-    paths = _json_and_png(scene, amap, model.id, out, plan)
-    seconds = {"score + map": mapped - start, "JSON + PNG": time.perf_counter() - mapped}
-    return amap, paths, seconds
+    return amap, time.perf_counter() - start
 
 
-def _json_and_png(scene, amap, model_id: str, out: Path, plan) -> list[Path]:
+def _json_and_png(points, world_from_input, amap, model_id: str, out: Path, plan) -> list[Path]:
     from .plots import plot_map
 
-    document = amap.to_json(model_id, scene.alignment.world_from_input)
+    document = amap.to_json(model_id, world_from_input)
     path = out / f"{amap.affordance}.json"
     path.write_text(json.dumps(document) + "\n")
-    return [path, plot_map(scene.cloud.points, amap, out / f"{amap.affordance}.png", plan=plan)]
+    return [path, plot_map(points, amap, out / f"{amap.affordance}.png", plan=plan)]
 
 
-def _open_with_cloud(rrd: Path, affordances: list[str], cloud):
+def _open_with_cloud(rrd: Path, affordances: list[str], points, source: str):
     """The recording, named after the cloud's file and the time, with the cloud in it."""
     from .recording import log_cloud, open_recording, recording_name
 
-    recording = open_recording(rrd, affordances, name=recording_name(f"{Path(cloud.source).stem} map"))
-    log_cloud(recording, cloud.points)
+    recording = open_recording(rrd, affordances, name=recording_name(f"{Path(source).stem} map"))
+    log_cloud(recording, points)
     return recording
 
 
@@ -165,3 +181,117 @@ def summary_line(amap) -> str:
         f"{amap.affordance:<18} {len(amap.skeletons):>3} places, "
         f"{len(amap.positives):>7,} poses above the threshold{best}"
     )
+
+
+class OutputWriter:
+    """A forked process that writes `map_and_write`'s outputs: started before the room is loaded, it imports
+    matplotlib and rerun meanwhile; then it gets the room (`start_scene`: it logs the cloud to the
+    recording), each map (`write_map`: its JSON and PNG) and the order of the maps (`finish`: they go into
+    the recording, which is closed; returns the paths written and each stage's seconds). An error in it is
+    raised here, at `finish`. A context manager; `close` ends it if it is still running."""
+
+    def __init__(self):
+        import multiprocessing
+
+        context = multiprocessing.get_context("fork")
+        self._connection, theirs = context.Pipe()
+        self._process = context.Process(target=_writer_main, args=(theirs,), daemon=True)
+        self._process.start()
+        theirs.close()
+
+    def __enter__(self) -> OutputWriter:
+        return self
+
+    def __exit__(self, *_) -> None:
+        self.close()
+
+    def start_scene(self, scene, affordances: list[str], out: Path, rrd: Path | None) -> None:
+        points, source = scene.cloud.points, scene.cloud.source
+        self._connection.send(
+            ("scene", points, source, scene.alignment.world_from_input, affordances, out, rrd)
+        )
+
+    def write_map(self, amap, model_id: str) -> None:
+        self._connection.send(("map", amap, model_id))
+
+    def finish(self, order: list[str]) -> tuple[list[Path], dict[str, float]]:
+        self._connection.send(("finish", order))
+        try:
+            outcome, value = self._connection.recv()
+        except EOFError:
+            raise RuntimeError("the process writing the map outputs ended without a word") from None
+        if outcome == "error":
+            raise value
+        return value
+
+    def close(self) -> None:
+        self._connection.close()  # the writer reads the end of its input and stops
+        self._process.join(timeout=5)
+        if self._process.is_alive():
+            self._process.kill()
+            self._process.join()
+
+
+def _writer_main(connection) -> None:
+    """The `OutputWriter` process: import what drawing and recording need, then serve the requests; after
+    an error, only `finish` is answered (with the error)."""
+    start = time.perf_counter()
+    from .plots import pyplot
+    from .recording import open_recording  # noqa: F401  (imports rerun now, while the room is loaded)
+
+    pyplot()
+    state = {"seconds": {"writer: importing matplotlib and rerun": time.perf_counter() - start}}
+    error = None
+    while True:
+        try:
+            request = connection.recv()
+        except EOFError:  # the command ended (or failed) before finishing: nothing more to write
+            return
+        if request[0] == "finish":
+            break
+        if error is None:
+            try:
+                _serve(state, request)
+            except Exception as caught:  # raised again in the command's process, at finish
+                error = caught
+    if error is None:
+        try:
+            connection.send(("done", _finished(state, request[1])))
+            return
+        except Exception as caught:
+            error = caught
+    try:
+        connection.send(("error", error))
+    except Exception:  # an error that cannot be pickled: its text
+        connection.send(("error", RuntimeError(f"writing the map outputs: {error!r}")))
+
+
+def _serve(state: dict, request: tuple) -> None:
+    """One `OutputWriter` request: the room (the recording opened, the cloud logged) or a map (JSON, PNG)."""
+    from .plots import plan_heights
+
+    start, seconds = time.perf_counter(), state["seconds"]
+    if request[0] == "scene":
+        _, points, source, world_from_input, affordances, out, rrd = request
+        state.update(points=points, world_from_input=world_from_input, out=out, rrd=rrd, maps={}, written={})
+        state["recording"] = _open_with_cloud(rrd, affordances, points, source) if rrd is not None else None
+        state["plan"] = plan_heights(points)
+        seconds["recording: the cloud"] = time.perf_counter() - start
+    else:
+        _, amap, model_id = request
+        state["written"][amap.affordance] = _json_and_png(
+            state["points"], state["world_from_input"], amap, model_id, state["out"], state["plan"]
+        )
+        state["maps"][amap.affordance] = amap
+        seconds[f"JSON + PNG {amap.affordance}"] = time.perf_counter() - start
+
+
+def _finished(state: dict, order: list[str]) -> tuple[list[Path], dict[str, float]]:
+    """The maps logged in `order` and the recording closed: (the paths written, each stage's seconds)."""
+    paths = [path for affordance in order for path in state["written"][affordance]]
+    if state["recording"] is not None:
+        start = time.perf_counter()
+        _close_with_maps(state["recording"], [state["maps"][affordance] for affordance in order])
+        state["seconds"]["recording: the maps"] = time.perf_counter() - start
+        paths.append(state["rrd"])
+    return paths, state["seconds"]
