@@ -2,9 +2,16 @@
 from all the scans, with the router and the three services as separate processes on this machine.
 
     .venv/bin/python benchmarks/bench_services.py [--frames 100] [--step 3] [--rate 30] [--repeats 3]
+    .venv/bin/python benchmarks/bench_services.py --as-map [--repeats 5]
 
 Streams the real 7-Scenes kitchen frames (../shared) when present, else a generated living room's. Each
 repeat starts a fresh stack. Prints per-stage latency medians and the assembler's own frame rate.
+
+With ``--as-map``: a finished room, the built-in 6 m x 5 m example room as `afford publish --as-map` sends it
+(levelled by the client), put on map/cloud of a fresh stack, timed from the put to the fields and to each
+affordance map (first maps: every map of that cloud). Then where the time goes: the services' steps one by
+one in this process (decoding, the levelling check, the fields, encoding; per affordance the scoring and
+map and its message; the recordings' logging), medians over the repeats.
 """
 
 from __future__ import annotations
@@ -108,6 +115,146 @@ def one_run(folder: Path, indices: list[int], rate: float, workdir: Path) -> dic
     return result
 
 
+def example_room_message():
+    """The built-in example room as `afford publish --as-map` sends it: levelled here, world frame."""
+    from affordcore.example import example_room
+    from affordcore.mapping.pipeline import to_world
+    from affordcore.settings import Settings
+
+    world = to_world(example_room(), Settings(), "auto")
+    return messages.cloud_message(
+        world.cloud.points.astype("float32"), world.alignment.world_from_input, source="example room"
+    )
+
+
+def as_map_run(workdir: Path) -> dict[str, float]:
+    """A fresh stack, one finished room put on map/cloud: seconds from the put to the fields and each map."""
+    from services.clients import _publisher
+
+    cloud = example_room_message()
+    stamp = messages.nanoseconds(cloud.timestamp)
+    arrived: dict[str, float] = {}
+    lock = threading.Lock()
+
+    def on_sample(sample) -> None:
+        now = time.monotonic()
+        key = str(sample.key_expr).split("/", 3)[3]
+        classes = {"fields": messages.SceneFieldsMessage}
+        cls = classes.get(key, messages.AffordanceMapMessage if key.startswith("affordance/") else None)
+        if cls is None or schema_of(sample) != messages.schema_name(cls):
+            return
+        if messages.nanoseconds(messages.parse(cls, sample.payload.to_bytes()).cloud_timestamp) == stamp:
+            with lock:
+                arrived.setdefault(key, now)
+
+    wanted = {"fields"} | {f"affordance/{name}" for name in shipped_models()}
+    with Stack(workdir) as stack:
+        keys = Keys(stack.robot)
+        session = open_session([stack.endpoint])
+        subscriber = session.declare_subscriber(keys.key("**"), on_sample)
+        try:
+            publisher = _publisher(session, keys.cloud, messages.CloudMessage, 30)  # the service listens
+            payload = cloud.SerializeToString()
+            start = time.monotonic()
+            publisher.put(payload)
+            deadline = start + 120
+            while time.monotonic() < deadline and not wanted <= set(arrived):
+                time.sleep(0.01)
+            if not wanted <= set(arrived):
+                raise RuntimeError(f"missing after 120 s: {sorted(wanted - set(arrived))}\n{stack.logs()}")
+            publisher.undeclare()
+        finally:
+            subscriber.undeclare()
+            session.close()
+    result = {f"{key} (s)": at - start for key, at in sorted(arrived.items(), key=lambda item: item[1])}
+    result["first maps: every map (s)"] = max(arrived.values()) - start
+    return result
+
+
+def as_map_steps(repeats: int) -> dict[str, list[float]]:
+    """The services' steps for that room, one by one in this process (as each service runs them), seconds."""
+    from affordcore.geometry.features import FeatureLayout
+    from affordcore.geometry.gravity import check_levelled
+    from affordcore.geometry.scene import Cloud
+    from affordcore.learn.model import load_model
+    from affordcore.mapping.pipeline import RoomMapper, prepare_scene
+    from affordcore.mapping.recording import close_recording, log_fields, log_map, open_recording
+    from affordcore.mapping.updates import NormalCache
+    from affordcore.settings import Settings
+
+    settings = Settings()
+    models = [load_model(path) for path in shipped_models().values()]
+    payload = example_room_message().SerializeToString()
+    steps: dict[str, list[float]] = {}
+
+    def timed(name: str, work, *args, **kwargs):
+        start = time.perf_counter()
+        value = work(*args, **kwargs)
+        steps.setdefault(name, []).append(time.perf_counter() - start)
+        return value
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for repeat in range(repeats):
+            recording = open_recording(Path(tmp) / f"r{repeat}.rrd", [m.affordance for m in models])
+            cloud = timed("features: parse the cloud", messages.parse, messages.CloudMessage, payload)
+            points = timed("features: unpack and check the points", messages.cloud_points, cloud)
+            timed("features: check the levelling", check_levelled, points, settings.gravity)
+            scene = timed(
+                "features: fields (occupancy, distance, normals)",
+                prepare_scene,
+                Cloud(points, source="bench"),
+                settings,
+                "none",
+                normals=NormalCache(),
+            )
+            fields_payload = timed(
+                "features: encode the fields",
+                lambda scene=scene, cloud=cloud: messages.fields_message(
+                    scene.fields, cloud
+                ).SerializeToString(),
+            )
+            timed(
+                "features: log the fields (recording, after publishing)", log_fields, recording, scene.fields
+            )
+            message = timed(
+                "inference: parse the fields", messages.parse, messages.SceneFieldsMessage, fields_payload
+            )
+            fields = timed("inference: check the fields", messages.scene_fields, message, settings.limits)
+            mapper = RoomMapper(models, FeatureLayout.from_settings(settings), settings)
+            for model in models:
+                amap = timed(f"inference: score + map {model.affordance}", mapper.maps, fields, None, [model])
+                amap = amap[model.affordance]
+                timed(
+                    f"inference: encode {model.affordance}",
+                    lambda amap=amap, model=model, message=message: messages.map_message(
+                        amap, model.id, message
+                    ).SerializeToString(),
+                )
+                timed(f"inference: log {model.affordance} (recording)", log_map, recording, amap)
+            close_recording(recording)
+    return steps
+
+
+def as_map_table(args) -> None:
+    load = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = [as_map_run(Path(tmp) / f"run{k}") for k in range(args.repeats)]
+    print(
+        f"\n`publish --as-map` of the 6 m x 5 m example room (levelled by the client), three shipped models: "
+        f"from the put on map/cloud to each output; {args.repeats} fresh stacks, {os.cpu_count()} cores, "
+        f"load average {load:.1f} before, {os.getloadavg()[0]:.1f} after\n"
+    )
+    print("| from the room put on map/cloud to ... | median (s) | runs (s) |\n|---|---:|---|")
+    for key in runs[0]:
+        values = [run[key] for run in runs]
+        print(f"| {key} | {statistics.median(values):.2f} | {', '.join(f'{v:.2f}' for v in values)} |")
+    steps = as_map_steps(args.repeats)
+    print(f"\nwhere the time goes: the services' steps in one process, medians of {args.repeats}\n")
+    print("| step | median (s) |\n|---|---:|")
+    for name, values in steps.items():
+        print(f"| {name} | {statistics.median(values):.3f} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -116,7 +263,11 @@ def main() -> None:
     parser.add_argument("--step", type=int, default=3)
     parser.add_argument("--rate", type=float, default=30.0)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--as-map", action="store_true", help="a finished room's first maps instead")
     args = parser.parse_args()
+    if args.as_map:
+        as_map_table(args)
+        return
     with tempfile.TemporaryDirectory() as tmp:
         folder = (
             KITCHEN if KITCHEN.is_dir() else generated_sequence(Path(tmp) / "seq", args.frames * args.step)
