@@ -12,17 +12,26 @@ beside it. Set-ups:
 * DESIGN.md's Gaussian: 200,000 training and 200,000 validation examples, 100 features, 1:1000, positives
   shifted by 0.35 (its optimum is next to w = 0, whose objective is within 1 % of it: the validation F1
   there is a property of the solver's path, not of the optimum).
+* The largest case: 1.3 million training and 1.3 million validation examples, 222 features (the rooms'
+  width), 1:12,000 (the rarest affordance's imbalance: about 108 positives), positives shifted by 0.35,
+  features at steps of 0.01 so that SVMperf's text file holds exactly the float32 values we train on.
 
 Solvers: `previous` is the solver this replaced (kept below, verbatim but for its name: a stable sort of
 every negative per argmax, OSQP set up afresh each iteration); `cutting-plane` is the new default
 (SVMperf's 1-slack algorithm); `bundle` adds OCAS's line search. With `--svmperf PATH`, SVMperf's
 `svm_perf_learn -c C -l 1 -w 3 --b 1 -e 0.1` runs on the same data (written in SVMlight's format; the file
 writing is not timed) and its model is read back and scored by our objective (w_project = 50 w_svmperf).
-SVMperf is licensed for non-commercial use: it is never vendored or downloaded here.
+SVMperf's time is its own report ("Runtime in cpu-seconds": training only, not reading its text file; CPU
+seconds of its one thread, which on a shared machine flatters it against our wall-clock seconds). SVMperf
+keeps its last iterate, so the comparison is to the same validation F1: the seconds our solver takes to
+first reach SVMperf's validation F1 (`to SVMperf's F1`), against SVMperf's seconds. Its training file is
+written once into `--cache` (a few GB for the largest case). SVMperf is licensed for non-commercial use:
+it is never vendored or downloaded here; build it from its public source (docs/benchmarks.md).
 
     .venv/bin/python benchmarks/bench_ssvm.py                   # about 15 minutes on 2 cores
     .venv/bin/python benchmarks/bench_ssvm.py --quick           # one room set-up, one repeat
     .venv/bin/python benchmarks/bench_ssvm.py --svmperf ~/svm_perf/svm_perf_learn
+    .venv/bin/python benchmarks/bench_ssvm.py --svmperf PATH --only 1.3M --solvers cutting-plane --repeats 2
     .venv/bin/python benchmarks/bench_ssvm.py --sweep-c 1e2,1e3,1e4,1e5,1e6   # the default C's choice
 """
 
@@ -85,12 +94,32 @@ def gaussian(rng: np.random.Generator, n: int, d: int = 100, ratio: int = 1000, 
     return X, y
 
 
+def gaussian_steps(rng: np.random.Generator, n: int, d: int, ratio: int, shift: float = 0.35):
+    """`gaussian`, drawn in float32 blocks (no float64 copy of a GB-sized X) and rounded to steps of 0.01:
+    float32(k) / 100 is the float32 nearest k / 100, which is what SVMperf stores when it reads "k/100"."""
+    y = np.where(rng.random(n) < 1 / (ratio + 1), 1, -1)
+    y[:5] = 1
+    X = np.empty((n, d), dtype=np.float32)
+    block = 1 << 16
+    for i in range(0, n, block):
+        part = rng.standard_normal((min(block, n - i), d), dtype=np.float32)
+        part[y[i : i + block] > 0] += shift
+        X[i : i + block] = np.round(part * 100) / np.float32(100)
+    return X, y
+
+
+BIG = "gaussian 1.3M x 222 1:12000"
+
+
 def load(setup: str, cache: Path, quick: bool):
     if setup.startswith("rooms "):
         data = np.load(cache / f"{setup.split()[1]}-{TRAIN_ROOMS}.npz")
         return data["X"], data["y"], data["Xv"], data["yv"]
-    n = 20_000 if quick else 200_000
     rng = np.random.default_rng(0)
+    if setup == BIG:
+        n = 130_000 if quick else 1_300_000
+        return *gaussian_steps(rng, n, 222, 12_000), *gaussian_steps(rng, n, 222, 12_000)
+    n = 20_000 if quick else 200_000
     X, y = gaussian(rng, n)
     Xv, yv = gaussian(rng, n)
     return X, y, Xv, yv
@@ -104,7 +133,7 @@ def run(setup: str, solver: str, c_svmperf: float, cache: Path, svmperf: str | N
     X, y, Xv, yv = load(setup, cache, quick)
     settings = SSVMSettings(c_svmperf=c_svmperf, max_iterations=300)
     if solver == "svmperf":
-        return _svmperf(X, y, Xv, yv, settings, svmperf)
+        return _svmperf(X, y, Xv, yv, settings, svmperf, _svmlight_file(setup, cache, quick, X, y))
     start = time.perf_counter()
     if solver == "previous":
         result = previous_train_ssvm(
@@ -125,26 +154,45 @@ def run(setup: str, solver: str, c_svmperf: float, cache: Path, svmperf: str | N
         # F(w) / (C n^2): the objective in loss units (100 = w = 0's), at the last iteration
         "objective": objective(X, y, last.weights, settings) / settings.slack_weight(len(y)),
         "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        # (seconds, validation F1) of every iteration: when it first reaches a given F1
+        "trace": [(it.seconds, it.validation_f1) for it in result.iterations],
     }
 
 
-def _svmperf(X, y, Xv, yv, settings: SSVMSettings, binary: str) -> dict:
+def _svmlight_file(setup: str, cache: Path, quick: bool, X: np.ndarray, y: np.ndarray) -> Path:
+    """The training set in SVMlight's text format, written once per set-up into the cache (not timed)."""
+    from sklearn.datasets import dump_svmlight_file
+
+    path = cache / f"{setup.replace(' ', '_').replace(':', '-')}{'-quick' if quick else ''}.svmlight"
+    if path.exists():
+        return path
+    cache.mkdir(parents=True, exist_ok=True)
+    partial = path.with_suffix(".partial")
+    labels = np.where(y > 0, 1, -1)
+    with open(partial, "wb") as out:  # in blocks: a float64 copy of one block at a time
+        for i in range(0, len(y), 1 << 16):
+            part = X[i : i + (1 << 16)].astype(np.float64)
+            if setup == BIG:  # k / 100 written as such ("1.23"), not as float32's long expansion
+                part = np.round(part * 100) / 100
+            dump_svmlight_file(part, labels[i : i + (1 << 16)], out, zero_based=False)
+    partial.rename(path)
+    return path
+
+
+def _svmperf(X, y, Xv, yv, settings: SSVMSettings, binary: str, train: Path) -> dict:
     """SVMperf on the same data: `svm_perf_learn -c C -l 1 -w 3 --b 1 -e eps train model` (-l 1: F1 loss,
     -w 3: the 1-slack dual algorithm, --b: the bias feature's value, -e: epsilon). Its model file is
     SVMlight's: a header ending in the line `<b> # threshold b`, then `<alpha*y> <index>:<value> ...` lines
     whose sum is w (one line for a linear model); its score is w . x - b."""
-    from sklearn.datasets import dump_svmlight_file
-
     with tempfile.TemporaryDirectory(prefix="svmperf-") as folder:
-        train, model = Path(folder) / "train.dat", Path(folder) / "model"
-        # a file name, not a Path: scikit-learn's parameter check refuses a Path (InvalidParameterError)
-        dump_svmlight_file(X, np.where(y > 0, 1, -1), str(train), zero_based=False)
+        model = Path(folder) / "model"
         command = [binary, "-c", f"{settings.c_svmperf:g}", "-l", "1", "-w", "3", "--b", f"{settings.bias:g}"]
         command += ["-e", f"{settings.epsilon:g}", str(train), str(model)]
         start = time.perf_counter()
-        subprocess.run(command, check=True, capture_output=True, text=True)
-        seconds = time.perf_counter() - start
+        report = subprocess.run(command, check=True, capture_output=True, text=True).stdout
+        wall = time.perf_counter() - start
         lines = model.read_text().splitlines()
+    seconds = _reported(report, "Runtime in cpu-seconds:", float)
     d = X.shape[1]
     at = next(i for i, line in enumerate(lines) if "threshold b" in line)
     threshold = float(lines[at].split()[0])
@@ -163,13 +211,22 @@ def _svmperf(X, y, Xv, yv, settings: SSVMSettings, binary: str) -> dict:
     return {
         "to_best": seconds,  # SVMperf keeps its last iterate: its model is the one at convergence
         "seconds": seconds,
+        "wall": wall,  # with reading the text file
         "best": "-",
-        "iterations": "-",
+        "iterations": _reported(report, "Number of iterations:", int),
         "converged": True,
         "val_f1": f1_at(scores_v, yv),
         "objective": objective(X, y, weights, settings) / settings.slack_weight(len(y)),
         "peak_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
     }
+
+
+def _reported(report: str, label: str, kind):
+    """A number SVMperf prints after `label`."""
+    line = next((line for line in report.splitlines() if line.startswith(label)), None)
+    if line is None:
+        raise RuntimeError(f"SVMperf's output has no {label!r} line:\n{report[-2000:]}")
+    return kind(line[len(label) :].split()[0])
 
 
 # --- the previous solver, kept to be measured against ------------------------------------------------------
@@ -320,6 +377,8 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=ROOT / "bench-data" / "ssvm")
     parser.add_argument("--c-svmperf", type=float, default=None, help="C in SVMperf's units (default: ours)")
     parser.add_argument("--sweep-c", help="comma-separated C (SVMperf's units): validation F1 per affordance")
+    parser.add_argument("--only", help="run the set-ups whose name contains this (e.g. 1.3M, rooms)")
+    parser.add_argument("--solvers", default="previous,cutting-plane,bundle", help="comma-separated")
     args = parser.parse_args()
     if args.sweep_c:
         sweep_c([float(c) for c in args.sweep_c.split(",")], args.rooms, args.cache)
@@ -327,8 +386,15 @@ def main() -> None:
     from affordcore.learn.ssvm import DEFAULT_C_SVMPERF
 
     c = args.c_svmperf or DEFAULT_C_SVMPERF
-    setups = [("rooms sitting-relaxing", c), ("rooms standing-working", c), ("gaussian 200k x 100", 1e4)]
-    if args.quick:
+    setups = [
+        ("rooms sitting-relaxing", c),
+        ("rooms standing-working", c),
+        ("gaussian 200k x 100", 1e4),
+        (BIG, c),
+    ]
+    if args.only:
+        setups = [(setup, c_setup) for setup, c_setup in setups if args.only in setup]
+    if args.quick:  # the first set-up (of those --only leaves), at a tenth of its size for the Gaussians
         setups, args.repeats = setups[:1], 1
     for setup, _ in setups:
         if setup.startswith("rooms "):
@@ -337,18 +403,20 @@ def main() -> None:
                     f"{args.rooms}: make it with `afford synth --rooms 150 --seed 1 --out {args.rooms}`"
                 )
             room_set(setup.split()[1], args.rooms, args.cache)
-    solvers = ["previous", "cutting-plane", "bundle"] + (["svmperf"] if args.svmperf else [])
+    solvers = args.solvers.split(",") + (["svmperf"] if args.svmperf else [])
     context = multiprocessing.get_context("forkserver")  # a fresh small process per run: honest peak memory
     print(
         f"{os.cpu_count()} cores, median of {args.repeats} (solvers alternated within each repeat); "
-        "to best = seconds to the iteration validation picks; objective = F(w) / (C n^2) at the end "
-        "(100: w = 0's)"
+        "to best = seconds to the iteration validation picks (SVMperf: its reported CPU seconds, reading "
+        "its file excluded); objective = F(w) / (C n^2) at the end (100: w = 0's); to SVMperf's F1 = "
+        "seconds to the first iteration whose validation F1 reaches SVMperf's"
     )
     print(
         "| set-up (C in SVMperf's units) | solver | to best s | total s | iterations (best / run) | "
-        "converged | validation F1 | objective | peak MB | previous / this, to best |"
+        "converged | validation F1 | objective | peak MB | previous / this, to best | "
+        "to SVMperf's F1 s | SVMperf / this |"
     )
-    print("|---|---|---:|---:|---:|---|---:|---:|---:|---:|")
+    print("|---|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|")
     for setup, c_setup in setups:
         runs: dict[str, list[dict]] = {s: [] for s in solvers}
         for _ in range(args.repeats):
@@ -357,19 +425,40 @@ def main() -> None:
                     runs[solver].append(
                         pool.apply(run, (setup, solver, c_setup, args.cache, args.svmperf, args.quick))
                     )
-        base = statistics.median(r["to_best"] for r in runs["previous"])
         for solver in solvers:
-            rs = runs[solver]
-            to_best = statistics.median(r["to_best"] for r in rs)
-            r = rs[len(rs) // 2]
-            print(
-                f"| {setup} (C={c_setup:g}) | {solver} | {to_best:.1f} | "
-                f"{statistics.median(x['seconds'] for x in rs):.1f} | {r['best']} / {r['iterations']} | "
-                f"{'yes' if r['converged'] else 'no'} | {statistics.median(x['val_f1'] for x in rs):.3f} | "
-                f"{statistics.median(x['objective'] for x in rs):.2f} | "
-                f"{max(x['peak_mb'] for x in rs):,.0f} | {base / to_best:.1f}x |",
-                flush=True,
-            )
+            print(f"| {setup} (C={c_setup:g}) | {solver} | " + _row(runs, solver), flush=True)
+
+
+def _row(runs: dict[str, list[dict]], solver: str) -> str:
+    """The table's columns after the set-up and the solver, medians over the repeats."""
+    rs = runs[solver]
+    to_best = statistics.median(r["to_best"] for r in rs)
+    r = rs[len(rs) // 2]
+    cells = [
+        f"{to_best:.1f}",
+        f"{statistics.median(x['seconds'] for x in rs):.1f}",
+        f"{r['best']} / {r['iterations']}",
+        "yes" if r["converged"] else "no",
+        f"{statistics.median(x['val_f1'] for x in rs):.3f}",
+        f"{statistics.median(x['objective'] for x in rs):.2f}",
+        f"{max(x['peak_mb'] for x in rs):,.0f}",
+    ]
+    previous = runs.get("previous")
+    cells.append(f"{statistics.median(x['to_best'] for x in previous) / to_best:.1f}x" if previous else "-")
+    if "svmperf" not in runs or solver == "svmperf":
+        cells += ["-", "-"] if solver != "svmperf" else [f"{to_best:.1f}", "1.0x"]
+    else:
+        target = statistics.median(x["val_f1"] for x in runs["svmperf"])
+        reached = [next((t for t, f in x["trace"] if f >= target), None) for x in rs]
+        if any(t is None for t in reached):
+            cells += [f"not reached in {sum(t is None for t in reached)} of {len(rs)}", "-"]
+        else:
+            seconds = statistics.median(reached)
+            cells += [
+                f"{seconds:.2f}",
+                f"{statistics.median(x['to_best'] for x in runs['svmperf']) / seconds:.0f}x",
+            ]
+    return " | ".join(cells) + " |"
 
 
 def sweep_c(values: list[float], rooms: Path, cache: Path) -> None:
