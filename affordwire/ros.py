@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from affordcore.assembly.assembler import thinning_step
 from affordcore.settings import LimitSettings
 
 from .messages import MessageError
@@ -104,19 +105,25 @@ class RosCloud:
     points: np.ndarray
     stamp: float  # header stamp, seconds since the epoch
     frame_id: str
-    nonfinite: int  # points with a NaN or infinite coordinate (organised clouds' missing returns), dropped
+    nonfinite: int  # points read with a NaN or infinite coordinate (an organised cloud's missing returns)
     total: int  # width x height
+    read: int = 0  # points read: total, or fewer when thinned (`keep`)
 
 
-def pointcloud2(payload: bytes, limits: LimitSettings | None = None) -> RosCloud:
-    """The points of a CDR sensor_msgs/msg/PointCloud2."""
-    return cloud_of(deserialize(payload, POINTCLOUD2), limits)
+def pointcloud2(payload: bytes, limits: LimitSettings | None = None, keep: int | None = None) -> RosCloud:
+    """The points of a CDR sensor_msgs/msg/PointCloud2 (`keep`: as `cloud_of`)."""
+    return cloud_of(deserialize(payload, POINTCLOUD2), limits, keep)
 
 
-def cloud_of(message, limits: LimitSettings | None = None) -> RosCloud:
+def cloud_of(message, limits: LimitSettings | None = None, keep: int | None = None) -> RosCloud:
     """The points of a PointCloud2 message object (from `deserialize`, or a bag reader's). The layout is
     checked first (sizes, fields, strides against the data's length); then x, y and z are read in place
-    through one strided structured view: no loop over points, no copy of the rest of each point."""
+    through one strided structured view: no loop over points, no copy of the rest of each point.
+
+    With `keep`, a cloud of more points is thinned to every n-th point in the message's order (n = the
+    ceiling of points / keep) before anything is converted: what the assembler would keep of it
+    (AFFORD_ASSEMBLER__MAX_FRAME_POINTS), at a third of a dense cloud's decoding cost. Non-finite points
+    among those are dropped as ever (`nonfinite` counts the ones among the points read)."""
     limits = limits or LimitSettings()
     stamp, frame_id = _header(message, limits, "PointCloud2")
     height, width = int(message.height), int(message.width)
@@ -129,7 +136,7 @@ def cloud_of(message, limits: LimitSettings | None = None) -> RosCloud:
         )
     data = message.data
     if total == 0:
-        return RosCloud(np.empty((0, 3)), stamp, frame_id, 0, 0)
+        return RosCloud(np.empty((0, 3)), stamp, frame_id, 0, 0, 0)
     if point_step == 0:
         raise MessageError("PointCloud2 point_step is 0")
     if row_step < width * point_step:
@@ -156,10 +163,14 @@ def cloud_of(message, limits: LimitSettings | None = None) -> RosCloud:
         buffer=np.frombuffer(data, dtype=np.uint8),
         strides=(row_step, point_step),
     )
+    if keep is not None and total > keep:
+        # every n-th point, rows one after the other: the assembler's thinning of the whole cloud
+        chosen = np.arange(0, total, thinning_step(total, keep))
+        view = view[chosen // width, chosen % width]
     points = np.stack([view[name].astype(np.float64).ravel() for name in "xyz"], axis=1)
     finite = np.isfinite(points).all(axis=1)
-    nonfinite = int(total - np.count_nonzero(finite))
-    return RosCloud(points[finite] if nonfinite else points, stamp, frame_id, nonfinite, total)
+    nonfinite = int(len(points) - np.count_nonzero(finite))
+    return RosCloud(points[finite] if nonfinite else points, stamp, frame_id, nonfinite, total, len(points))
 
 
 def _xyz_fields(point_fields, point_step: int, order: str) -> dict[str, tuple[str, int]]:

@@ -66,7 +66,8 @@ def imu_rotation(settings: RosSettings) -> np.ndarray | None:
 class Counts:
     clouds: int = 0
     points: int = 0
-    nonfinite: int = 0  # dropped for a NaN or infinite coordinate
+    read: int = 0  # points read: a cloud above AFFORD_ASSEMBLER__MAX_FRAME_POINTS is thinned as it is read
+    nonfinite: int = 0  # of those, dropped for a NaN or infinite coordinate
     imu: int = 0
     with_gravity: int = 0
 
@@ -119,16 +120,18 @@ class RosInput:
 
     def frame(self, item: Inbound) -> SensorFrame:
         """The SensorFrame of a PointCloud2 sample; MessageError when it is unusable."""
-        cloud = ros.pointcloud2(item.payload, self.limits)
+        # thinned as the assembler would (AFFORD_ASSEMBLER__MAX_FRAME_POINTS) before the points are converted
+        cloud = ros.pointcloud2(item.payload, self.limits, keep=self.node.settings.assembler.max_frame_points)
         gravity = self.gravity.at(cloud.stamp, self.settings.imu_max_age) if self.imu_keys else None
         self.counts.clouds += 1
         self.counts.points += cloud.total
+        self.counts.read += cloud.read
         self.counts.nonfinite += cloud.nonfinite
         self.counts.with_gravity += gravity is not None
         if cloud.nonfinite and not self._warned_nonfinite:
             self._warned_nonfinite = True
             print(
-                f"[{self.node.service}] {item.key}: dropped {cloud.nonfinite:,} of {cloud.total:,} points "
+                f"[{self.node.service}] {item.key}: dropped {cloud.nonfinite:,} of {cloud.read:,} points "
                 "with NaN or infinite coordinates (an organised cloud's missing returns); counted from here "
                 "on and reported at the stop",
                 flush=True,
@@ -153,8 +156,9 @@ class RosInput:
     def summary(self) -> str:
         c = self.counts
         return (
-            f"ROS 2: {c.clouds} clouds decoded ({c.points:,} points, {c.nonfinite:,} of them NaN or "
-            f"infinite and dropped), {c.with_gravity} with an Imu gravity; {c.imu} Imu readings taken"
+            f"ROS 2: {c.clouds} clouds decoded ({c.points:,} points, {c.read:,} of them read, "
+            f"{c.nonfinite:,} of those NaN or infinite and dropped), {c.with_gravity} with an Imu gravity; "
+            f"{c.imu} Imu readings taken"
         )
 
 

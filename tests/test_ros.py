@@ -139,6 +139,34 @@ def test_an_organised_cloud_drops_its_nan_returns_and_counts_them():
     np.testing.assert_allclose(cloud.points, points.reshape(-1, 3)[keep], rtol=1e-6)
 
 
+@pytest.mark.parametrize(("height", "width", "row_pad"), [(1, 1000, 0), (25, 40, 13), (7, 143, 0)])
+def test_a_dense_cloud_is_thinned_as_it_is_read_to_what_the_assembler_keeps(height, width, row_pad):
+    """`keep`: every n-th point in the message's order (rows one after the other, padding skipped), n the
+    ceiling of points / keep, exactly the points the assembler's own thinning (AFFORD_ASSEMBLER__
+    MAX_FRAME_POINTS) takes from the whole cloud, so the poses do not change; NaN among them still dropped."""
+    from affordcore.assembly.assembler import thinning_step
+
+    points = np.random.default_rng(3).uniform(-5, 5, (height, width, 3)).astype(np.float32)
+    points[1 % height, ::3, 2] = np.nan
+    message = cdr(cloud_message(points, PointField.FLOAT32, row_pad=row_pad))
+    whole = ros.pointcloud2(message)
+    for keep in (300, 999, height * width, 10**6):
+        thinned = ros.pointcloud2(message, keep=keep)
+        step = -(-height * width // keep)
+        every = points.reshape(-1, 3)[::step].astype(np.float64)
+        finite = np.isfinite(every).all(axis=1)
+        np.testing.assert_array_equal(thinned.points, every[finite])
+        counts = (thinned.total, thinned.read, thinned.nonfinite)
+        assert counts == (height * width, len(every), (~finite).sum())
+        assert len(thinned.points) <= keep
+        if keep >= height * width:
+            np.testing.assert_array_equal(thinned.points, whole.points)
+    dense = np.nan_to_num(points, nan=1.0)  # without NaN: the assembler's every n-th of the whole cloud
+    whole = ros.pointcloud2(cdr(cloud_message(dense, PointField.FLOAT32, row_pad=row_pad))).points
+    read = ros.pointcloud2(cdr(cloud_message(dense, PointField.FLOAT32, row_pad=row_pad)), keep=300).points
+    np.testing.assert_array_equal(read, whole[:: thinning_step(len(whole), 300)])
+
+
 def test_an_empty_cloud_is_no_points():
     cloud = ros.pointcloud2(cdr(cloud_message(np.zeros((0, 0, 3)))))
     assert cloud.points.shape == (0, 3) and cloud.total == 0

@@ -164,7 +164,7 @@ class Assembler:
         # filter (the same strict bounds on the same norms; tests/test_assembly.py checks the poses match)
         settings = self.settings
         if len(points) > settings.max_frame_points:  # every n-th point: a dense cloud's order is scan order
-            points = points[:: -(-len(points) // settings.max_frame_points)]
+            points = points[:: thinning_step(len(points), settings.max_frame_points)]
         squared = np.einsum("ij,ij->i", points, points)
         frame = points[(squared > settings.min_range**2) & (squared < settings.max_range**2)]
         if len(frame) < 100:
@@ -402,6 +402,12 @@ def scaled_motion(delta: np.ndarray, ratio: float) -> np.ndarray:
 def rotation_angle_deg(rotation: np.ndarray) -> float:
     """The angle of a 3 x 3 rotation, in degrees."""
     return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1, 1))))
+
+
+def thinning_step(points: int, most: int) -> int:
+    """n such that every n-th of `points` points leaves at most `most`: how a dense frame is thinned
+    (AFFORD_ASSEMBLER__MAX_FRAME_POINTS), here and where a PointCloud2 is read (affordwire.ros)."""
+    return max(1, -(-points // most))
 
 
 def trajectory_errors(estimated: list[np.ndarray], truth: list[np.ndarray]) -> dict[str, float]:
