@@ -16,9 +16,11 @@ beside it. Set-ups:
   width), 1:12,000 (the rarest affordance's imbalance: about 108 positives), positives shifted by 0.35,
   features at steps of 0.01 so that SVMperf's text file holds exactly the float32 values we train on.
 
-Solvers: `previous` is the solver this replaced (kept below, verbatim but for its name: a stable sort of
-every negative per argmax, OSQP set up afresh each iteration); `cutting-plane` is the new default
-(SVMperf's 1-slack algorithm); `bundle` adds OCAS's line search. With `--svmperf PATH`, SVMperf's
+Solvers (`--solvers`): `previous` is the solver this replaced (kept below, verbatim but for its name: a
+stable sort of every negative per argmax, OSQP set up afresh each iteration); `cutting-plane` is the
+default (SVMperf's 1-slack algorithm); `bundle` adds OCAS's line search; `METHOD/B` runs METHOD with B
+iterations' validation F1 computed in one pass (`validation_batch`; `cutting-plane/1`: one pass each, as
+before batching). With `--svmperf PATH`, SVMperf's
 `svm_perf_learn -c C -l 1 -w 3 --b 1 -e 0.1` runs on the same data (written in SVMlight's format; the file
 writing is not timed) and its model is read back and scored by our objective (w_project = 50 w_svmperf).
 SVMperf's time is its own report ("Runtime in cpu-seconds": training only, not reading its text file; CPU
@@ -139,8 +141,10 @@ def run(setup: str, solver: str, c_svmperf: float, cache: Path, svmperf: str | N
         result = previous_train_ssvm(
             X, y, PreviousSettings(C=c_from_svmperf(c_svmperf, len(y)), max_iterations=300), (Xv, yv)
         )
-    else:
-        settings = SSVMSettings(c_svmperf=c_svmperf, method=solver, max_iterations=300)
+    else:  # "METHOD" or "METHOD/B": B iterations' validation F1 computed together (1: one at a time)
+        method, _, batch = solver.partition("/")
+        batch = {"validation_batch": int(batch)} if batch else {}
+        settings = SSVMSettings(c_svmperf=c_svmperf, method=method, max_iterations=300, **batch)
         result = train_ssvm(X, y, settings, validation=(Xv, yv))
     seconds = time.perf_counter() - start
     best, last = result.best, result.iterations[-1]

@@ -40,6 +40,34 @@ def test_converges_to_epsilon_and_keeps_every_iteration():
     assert best.validation_f1 > 0.7  # Bayes-optimal F1 here is about 0.8
 
 
+@pytest.mark.parametrize("method", ["cutting-plane", "bundle"])
+@pytest.mark.parametrize("batch", [3, 7, 64])
+def test_validation_scored_in_batches_is_the_per_iteration_run(method, batch):
+    """Validation F1 computed a batch of iterations at a time: the same iterations, F1 and weights as one at
+    a time, and the run stops where patience ran out, not at the end of the batch that found it."""
+    X, y = imbalanced_gaussian(6000, 10, 60, 0.8, 3)
+    Xv, yv = imbalanced_gaussian(6000, 10, 60, 0.8, 4)
+    runs = {}
+    for size in (1, batch):
+        settings = SSVMSettings(C=0.5, method=method, patience=5, max_iterations=80, validation_batch=size)
+        seen = []
+        runs[size] = (train_ssvm(X, y, settings, (Xv, yv), on_iteration=seen.append), seen)
+    (one, one_seen), (many, many_seen) = runs[1], runs[batch]
+    assert not one.converged and len(one.iterations) < 80  # patience stopped it (not the iteration limit)
+    assert one.converged == many.converged
+    assert [it.number for it in many.iterations] == [it.number for it in one.iterations]
+    assert (
+        [it.number for it in many_seen]
+        == [it.number for it in one_seen]
+        == list(range(1, 81))[: len(one_seen)]
+    )
+    assert [it.validation_f1 for it in many.iterations] == pytest.approx(
+        [it.validation_f1 for it in one.iterations]
+    )
+    np.testing.assert_allclose(many.best.weights, one.best.weights)
+    assert many.iterations[-1].number - many.best.number == 5
+
+
 def test_without_positives_is_an_error():
     X = np.zeros((10, 3), np.float32)
     with pytest.raises(ValueError, match="no positive"):
