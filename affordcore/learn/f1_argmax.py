@@ -21,7 +21,7 @@ positive increments; and that second term grows with a (its derivative in a has 
 * every negative scoring above 0 has a positive increment for every a: it is a false positive of every
   b*(a), so only its sum is needed, never its rank;
 * b*(P) = B, the most false positives any a takes, is the first j at which fewer than j + 1 negatives score
-  above -P / ((2P + j)(2P + j + 1)): a bisection on j, each step one count over the candidates;
+  above -P / ((2P + j)(2P + j + 1)): found among the highest-scoring candidates alone (`np.partition`);
 * so only the negatives ranked between those two counts (scores in (-1 / (4P + 2), 0]) can flip with a:
   they are selected with `np.argpartition` and only they are sorted, and b*(a) for every a comes from a
   bisection vectorised over a (O(P log B)).
@@ -109,25 +109,36 @@ def _flippable(index: np.ndarray, values: np.ndarray, b0: int, n_pos: int) -> tu
     (at most) are: B - b0, where B = b*(P) is the first j >= b0 with at most j negatives scoring above
     -half_gain(j) (b0 of them score above 0). Each candidate passes that threshold for j below a rank limit
     r (the root of a quadratic in j; rounded up, so B can only come out too large, which the exact
-    bisection per a then corrects), and the counts over j are one histogram of r: two passes, no sort. The
-    B best all score above -half_gain(B - 1), which leaves about B - b0 candidates to sort."""
+    bisection per a then corrects). r grows with the score, so with the candidates' scores in descending
+    order B = b0 + the first m whose (m + 1)-th limit is at most b0 + m: only the few highest scores are
+    needed, selected with `np.partition` (no sort of the rest, no count over every j). The B best all score
+    above -half_gain(B - 1), which leaves about B - b0 candidates to sort."""
     if not len(values):
         return index, 0
-    with np.errstate(divide="ignore"):
-        ratio = n_pos / np.abs(
-            values
-        )  # (2P + j)(2P + j + 1) < ratio: the candidate counts at j (values <= 0)
-    limit = np.floor((np.sqrt(1.0 + 4.0 * ratio) - 1.0) / 2.0 - 2.0 * n_pos) + 2.0
-    top = b0 + len(values) + 1
-    hist = np.bincount(np.clip(limit, 0, top).astype(np.int64), minlength=top + 1)
-    j = np.arange(b0, top)
-    counted = len(values) - np.cumsum(hist)[j]  # candidates with a limit above j
-    big = int(j[np.argmax(b0 + counted <= j)])  # the last j always qualifies
+    big = b0 + _settled_rank(values, b0, n_pos)
     if big == b0:
         return index[:0], 0
     keep = values > -_half_gain(big - 1, n_pos)
     index = index[keep]
     return index, min(big - b0, len(index))
+
+
+def _settled_rank(values: np.ndarray, b0: int, n_pos: int, first: int = 4096) -> int:
+    """The smallest m >= 0 at which at most m candidates still count (their rank limit exceeds b0 + m):
+    with the limits in descending order L, the first m with L[m] <= b0 + m (L[m] - m falls strictly, so
+    the first is found among the highest scores), or all of them."""
+    count = min(len(values), first)
+    while True:
+        highest = np.sort(np.partition(values, len(values) - count)[len(values) - count :])[::-1]
+        with np.errstate(divide="ignore"):
+            ratio = n_pos / np.abs(highest)  # (2P + j)(2P + j + 1) < ratio: the candidate counts at j
+        limit = np.floor((np.sqrt(1.0 + 4.0 * ratio) - 1.0) / 2.0 - 2.0 * n_pos) + 2.0
+        settled = np.flatnonzero(limit <= b0 + np.arange(count))
+        if len(settled):
+            return int(settled[0])
+        if count == len(values):
+            return count
+        count = min(len(values), 8 * count)
 
 
 def _half_gain(j: int, n_pos: int) -> float:
