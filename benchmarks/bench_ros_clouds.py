@@ -104,10 +104,23 @@ def ros_frames(indices: list[int]) -> tuple[list[tuple[float, bytes, bytes]], li
     return frames, truth
 
 
-def through_services(frames, truth, rate: float, hogs: int, folder: Path) -> dict:
+def depth_messages(indices: list[int]) -> list:
+    """The same frames as afford.v1.DepthFrame messages (what `afford publish` sends of a depth sequence,
+    gravity included), stamped as `ros_frames` stamps them."""
+    from services.clients import sequence_messages
+
+    framed = []
+    for k, (_, message) in enumerate(sequence_messages(read_sequence(KITCHEN), indices)):
+        messages.stamp(message.timestamp, 1_700_000_000 + k * 3 / 30.0)
+        framed.append((k, message))
+    return framed
+
+
+def through_services(frames, truth, rate: float, hogs: int, folder: Path, depth=None) -> dict:
     """Clouds taken by the services at `rate` Hz with `hogs` CPU hogs: poses published, clouds decoded,
-    trajectory error (cm) of the poses taken."""
-    import zenoh
+    trajectory error (cm) of the poses taken. With `depth` (`depth_messages`), those are published instead,
+    as depth images on the scan key: the same frames, stamps and rate."""
+    from services.clients import publish_sequence
 
     env = {"AFFORD_ROS__POINTS": POINTS, "AFFORD_ROS__IMU": IMU}
     poses: dict[float, np.ndarray] = {}
@@ -124,20 +137,11 @@ def through_services(frames, truth, rate: float, hogs: int, folder: Path) -> dic
                     poses[stamp] = messages.pose_matrix(pose)
 
         subscriber = session.declare_subscriber(keys.pose, on_pose)
-        block = zenoh.CongestionControl.BLOCK
-        points = session.declare_publisher(rmw_zenoh_key(POINTS, ros.POINTCLOUD2), congestion_control=block)
-        imu = session.declare_publisher(rmw_zenoh_key(IMU, ros.IMU), congestion_control=block)
-        deadline = time.monotonic() + 30
-        while not (points.matching_status.matching and imu.matching_status.matching):
-            if time.monotonic() > deadline:
-                raise SystemExit(f"the assembler never subscribed to {POINTS}:\n{stack.logs()[-3000:]}")
-            time.sleep(0.05)
-        began = time.monotonic()
-        for k, (_, cloud, reading) in enumerate(frames):
-            imu.put(reading)
-            points.put(cloud)
-            time.sleep(max(0.0, began + (k + 1) / rate - time.monotonic()))
-        # the last cloud's pose, if it is taken, within a few seconds; then the count settles
+        if depth is not None:
+            publish_sequence(session, keys, depth, "camera", rate, wait=30)
+        else:
+            _publish_ros(session, frames, rate, stack)
+        # the last frame's pose, if it is taken, within a few seconds; then the count settles
         settle = time.monotonic() + 10
         while time.monotonic() < settle and round(frames[-1][0], 3) not in _stamps(poses, lock):
             time.sleep(0.1)
@@ -150,11 +154,30 @@ def through_services(frames, truth, rate: float, hogs: int, folder: Path) -> dic
     by_stamp = {round(stamp, 3): k for k, (stamp, _, _) in enumerate(frames)}
     order = [by_stamp[round(stamp, 3)] for stamp in taken if round(stamp, 3) in by_stamp]
     errors = trajectory_errors([poses[s] for s in taken], [truth[k] for k in order]) if order else None
-    return {
-        "taken": len(order),
-        "decoded": decoded.split("ROS 2: ")[-1].split(" clouds")[0],
-        "errors": errors,
-    }
+    decoded = "-" if depth is not None else decoded.split("ROS 2: ")[-1].split(" clouds")[0]
+    return {"taken": len(order), "decoded": decoded, "errors": errors}
+
+
+def _publish_ros(session, frames, rate: float, stack: Stack) -> None:
+    """The clouds and Imu readings as a ROS 2 driver on rmw_zenoh publishes them, at `rate` Hz (the
+    Imu just before its cloud; BLOCK, as zenoh's default DROP loses samples under load)."""
+    import zenoh
+
+    block = zenoh.CongestionControl.BLOCK
+    points = session.declare_publisher(rmw_zenoh_key(POINTS, ros.POINTCLOUD2), congestion_control=block)
+    imu = session.declare_publisher(rmw_zenoh_key(IMU, ros.IMU), congestion_control=block)
+    deadline = time.monotonic() + 30
+    while not (points.matching_status.matching and imu.matching_status.matching):
+        if time.monotonic() > deadline:
+            raise SystemExit(f"the assembler never subscribed to {POINTS}:\n{stack.logs()[-3000:]}")
+        time.sleep(0.05)
+    began = time.monotonic()
+    for k, (_, cloud, reading) in enumerate(frames):
+        imu.put(reading)
+        points.put(cloud)
+        time.sleep(max(0.0, began + (k + 1) / rate - time.monotonic()))
+    points.undeclare()
+    imu.undeclare()
 
 
 def _stamps(poses: dict, lock: threading.Lock) -> list[float]:
@@ -188,6 +211,14 @@ def in_process(frames, hogs: int) -> dict[str, list[float]]:
     return times
 
 
+def _taken_cells(runs: list[dict], sent: int) -> str:
+    taken = [r["taken"] for r in runs]
+    errors = sorted(runs, key=lambda r: r["taken"])[len(runs) // 2]["errors"]
+    error = "-" if errors is None else f"{errors['mean_m'] * 100:.1f} / {errors['worst_m'] * 100:.1f}"
+    decoded = ", ".join(r["decoded"] for r in runs)
+    return f"{statistics.median(taken):.0f} / {sent} ({', '.join(map(str, taken))}) | {decoded} | {error} |"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=40)
@@ -209,23 +240,21 @@ def main() -> None:
         "(AFFORD_ASSEMBLER__MAX_FRAME_POINTS)\n"
     )
     loads = [int(v) for v in args.loads.split(",")]
-    print("| CPU hogs | clouds taken (median; runs) | decoded | trajectory error mean / worst (cm) |")
-    print("|---:|---:|---|---:|", flush=True)
+    depth = depth_messages(indices)
+    print(
+        "| input | hogs | frames taken (median; runs) | clouds decoded | trajectory error cm, mean / worst |"
+    )
+    print("|---|---:|---:|---|---:|", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         for hogs in loads:
-            runs = [
-                through_services(frames, truth, args.rate, hogs, Path(tmp) / f"run-{hogs}-{r}")
-                for r in range(args.repeats)
-            ]
-            taken = [r["taken"] for r in runs]
-            middle = sorted(runs, key=lambda r: r["taken"])[len(runs) // 2]
-            errors = middle["errors"]
-            error = "-" if errors is None else f"{errors['mean_m'] * 100:.1f} / {errors['worst_m'] * 100:.1f}"
-            print(
-                f"| {hogs} | {statistics.median(taken):.0f} / {len(frames)} ({', '.join(map(str, taken))}) | "
-                f"{', '.join(r['decoded'] for r in runs)} | {error} |",
-                flush=True,
-            )
+            runs: dict[str, list[dict]] = {"PointCloud2": [], "depth image": []}
+            for r in range(args.repeats):  # the two inputs alternated, so a noisy machine slows both alike
+                for kind, runs_of in runs.items():
+                    folder = Path(tmp) / f"{kind[0]}-{hogs}-{r}"
+                    given = depth if kind == "depth image" else None
+                    runs_of.append(through_services(frames, truth, args.rate, hogs, folder, given))
+            for kind, runs_of in runs.items():
+                print(f"| {kind} | {hogs} | " + _taken_cells(runs_of, len(frames)), flush=True)
     print("\nIn this process, ms a frame, median / p90 (8 Hz leaves 125 ms):\n")
     print("| CPU hogs | decode whole | decode thinned | add, calm | add, busy | thinned + calm |")
     print("|---:|---:|---:|---:|---:|---:|")
