@@ -38,7 +38,8 @@ class InferenceService:
     def __init__(self, node: Node):
         self.node, self.models = node, node.models
         self.layout = FeatureLayout.from_settings(node.settings)
-        self.mapper = RoomMapper(self.models, self.layout, node.settings)  # the robot's room, updated
+        # the robot's room, updated; scored in worker processes when the registry forked them
+        self.mapper = getattr(node, "mapper", None) or RoomMapper(self.models, self.layout, node.settings)
         self.inbox = node.inbox(latest_only=True)
         node.subscribe(node.keys.fields, self.inbox)
         for model in self.models:

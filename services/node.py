@@ -215,6 +215,7 @@ class Node:
         self.service, self.keys = service, keys if keys is not None else Keys(robot)
         self.settings = settings or ServiceSettings()
         self.models = list(models or [])  # what a scoring service (inference) scores with
+        self.mapper = None  # a scoring service's `ForkedRoomMapper`, when it was given one (registry)
         self.stop_event = threading.Event()
         stop_on_signals(self.stop_event)  # from the start: a SIGTERM while starting up is a clean stop too
         self.counts = {"accepted": 0, "rejected": 0, "published": 0, "skipped": 0, "dropped": 0}

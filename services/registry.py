@@ -89,7 +89,15 @@ def run_service(
         group = group_of(name, selection, shard_by, [model.id for model in models])
         keys = WorkerKeys(selection, group, worker or default_worker_id(), shard_by)
         name, robot = f"{name}-{keys.worker}", keys.robot  # its Status.service and error key: one per worker
+    mapper = None
+    if spec.scores and not robots:  # forked before the node opens its session and starts threads
+        from affordcore.mapping.workers import ForkedRoomMapper, mapping_workers
+
+        workers = mapping_workers(len(models), settings.service.map_workers)
+        if workers > 1:
+            mapper = ForkedRoomMapper(models, FeatureLayout.from_settings(settings), settings, workers)
     node = Node(name, robot, endpoints, settings, rrd, viewer, affordances, listen, models, keys=keys)
+    node.mapper = mapper
     spec.service_class()(node).run()
 
 

@@ -67,6 +67,12 @@ class NodeSettings(BaseModel):
         description="features and inference run this much nicer than the assembler, "
         "so scan assembly keeps up with the sensor on a shared CPU",
     )
+    map_workers: int = Field(
+        0,
+        ge=0,
+        description="inference (one robot): processes that score the models side by side; 0: one per model "
+        "on Linux with 2 cores or more, 1: every model in the service's own process",
+    )
 
 
 class RosSettings(BaseModel):

@@ -1,0 +1,78 @@
+"""`ForkedRoomMapper` (the inference service's models scored in worker processes) gives the `RoomMapper`'s
+maps, in the models' order, each handed on as it comes; updates stay exact in the workers; errors come back
+and leave the workers ready for the next fields."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+
+import numpy as np
+import pytest
+
+from affordcore.example import example_room
+from affordcore.geometry.features import FeatureLayout
+from affordcore.learn.model import choose_models
+from affordcore.mapping.pipeline import RoomMapper, prepare_scene
+from affordcore.mapping.workers import ForkedRoomMapper, mapping_workers
+from affordcore.settings import Settings
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="workers are forked on Linux")
+
+
+@pytest.fixture(scope="module")
+def room():
+    settings = Settings()
+    scene = prepare_scene(example_room(), settings, "none")
+    models = choose_models([], [], FeatureLayout.from_settings(settings))
+    return scene, models, settings
+
+
+def assert_same_map(a, b) -> None:
+    for name in ("scores", "confidence", "positives", "skeletons", "probabilities"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_workers_map_as_one_process(room):
+    scene, models, settings = room
+    serial = RoomMapper(models, scene.layout, settings).maps(scene.fields)
+    mapper = ForkedRoomMapper(models, scene.layout, settings, workers=2)  # 3 models dealt to 2 workers
+    try:
+        heard = []
+        maps = mapper.maps(scene.fields, on_map=lambda affordance, _: heard.append(affordance))
+        assert list(maps) == list(serial) and sorted(heard) == sorted(serial)
+        for affordance in serial:
+            assert_same_map(maps[affordance], serial[affordance])
+        # the same fields again: an update in each worker, nothing rescored, the same maps
+        again = mapper.maps(scene.fields, models=models[1:])
+        assert list(again) == [m.affordance for m in models[1:]]
+        assert mapper.describe(list(again)) == "updated: 0 % of the poses rescored"
+        for affordance, amap in again.items():
+            assert_same_map(amap, serial[affordance])
+    finally:
+        mapper.close()
+
+
+def test_an_error_comes_back_and_the_next_call_starts_clean(room):
+    scene, models, settings = room
+    mapper = ForkedRoomMapper(models[:2], scene.layout, settings, workers=2)
+    try:
+
+        def failing(affordance, _):
+            raise OSError(f"cannot publish {affordance}")
+
+        with pytest.raises(OSError, match="cannot publish"):
+            mapper.maps(scene.fields, on_map=failing)
+        other = "floor" if scene.layout.steep_facing != "floor" else "centre"
+        with pytest.raises(ValueError, match="steep normals"):  # raised in the workers
+            mapper.maps(dataclasses.replace(scene.fields, steep_facing=other))
+        maps = mapper.maps(scene.fields)  # the pipes hold nothing left over from the failures
+        assert list(maps) == [m.affordance for m in models[:2]]
+    finally:
+        mapper.close()
+
+
+def test_worker_count():
+    assert mapping_workers(3, asked=1) == 1
+    assert mapping_workers(3, asked=5) == 3
+    assert 1 <= mapping_workers(3) <= 3
