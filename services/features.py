@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from affordcore.geometry.gravity import check_levelled
 from affordcore.geometry.scene import Cloud
-from affordcore.mapping.pipeline import prepare_scene
+from affordcore.mapping.pipeline import preload, prepare_scene
 from affordcore.mapping.recording import log_fields, set_time
 from affordcore.mapping.updates import NormalCache
 from affordwire import messages
@@ -21,6 +21,7 @@ class FeaturesService:
     def __init__(self, node: Node):
         self.node = node
         self.normals = NormalCache()  # the robot's map comes again and again: estimate only what changed
+        preload()  # now, not when the first map arrives
         self.inbox = node.inbox(latest_only=True)  # a newer map supersedes one not yet worked on
         node.subscribe(node.keys.cloud, self.inbox)
         node.answer_latest(node.keys.fields)

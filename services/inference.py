@@ -11,7 +11,7 @@ import threading
 import time
 
 from affordcore.geometry.features import FeatureLayout
-from affordcore.mapping.pipeline import RoomMapper
+from affordcore.mapping.pipeline import RoomMapper, preload
 from affordcore.mapping.recording import log_map, set_time
 from affordwire import messages
 
@@ -40,6 +40,7 @@ class InferenceService:
         self.layout = FeatureLayout.from_settings(node.settings)
         # the robot's room, updated; scored in worker processes when the registry forked them
         self.mapper = getattr(node, "mapper", None) or RoomMapper(self.models, self.layout, node.settings)
+        preload()  # now, not when the first fields arrive
         self.inbox = node.inbox(latest_only=True)
         node.subscribe(node.keys.fields, self.inbox)
         for model in self.models:
@@ -110,6 +111,7 @@ class ShardedInference(InferenceService):
         self.robots: set[str] = set()  # every robot whose fields or maps this worker has seen
         self.recordings: dict[str, object] = {}
         self.mappers: dict[str, RoomMapper] = {}  # each robot's room, updated as its fields come
+        preload()
         self.recovered = 0  # inputs fetched again because a worker left
         self._lock = threading.Lock()
         self.members = Membership(self.keys.worker, self._on_members)

@@ -121,6 +121,16 @@ def prepare_scene(
     )
 
 
+def preload() -> None:
+    """Import now what the fields and the maps import when first needed (scipy's ndimage and spatial, the
+    scoring modules: 0.3-1 s on a busy 2-core machine), so that a service's first answer does not wait for
+    it, and workers forked afterwards share it."""
+    import scipy.ndimage  # noqa: F401
+    import scipy.spatial  # noqa: F401
+
+    from . import inference, maps, places, updates  # noqa: F401
+
+
 def map_affordances(
     fields: SceneFields,
     layout: FeatureLayout,

@@ -19,7 +19,7 @@ from collections.abc import Callable
 from ..geometry.features import FeatureLayout
 from ..geometry.fields import SceneFields
 from ..settings import Settings
-from .pipeline import RoomMapper
+from .pipeline import RoomMapper, preload
 
 
 def mapping_workers(n_models: int, asked: int = 0) -> int:
@@ -42,6 +42,7 @@ class ForkedRoomMapper:
     ):
         import multiprocessing
 
+        preload()  # once here, not once per worker at its first map
         context = multiprocessing.get_context("fork")
         self.models, self.reports = list(models), {}
         workers = max(1, min(workers, len(self.models)))
