@@ -55,7 +55,7 @@ class FloorCandidate:
     tilt_deg: float = float("nan")
     area: float = 0.0
     below_fraction: float = float("nan")
-    score: float = 0.0
+    score: float = float("nan")  # horizontal-surface share; scored only when several floors are valid
 
 
 @dataclass
@@ -112,7 +112,7 @@ def align_to_gravity(
     up = -down / np.linalg.norm(down)
     # Trust the given direction; only the floor's height comes from the cloud.
     strict = settings.model_copy(update={"max_tilt_deg": min(settings.max_tilt_deg, 10.0)})
-    candidate = _find_floor(sample, up, "given", strict, normals=None, descend=True)
+    candidate = _find_floor(sample, up, "given", strict, descend=True)
     if not candidate.valid:
         raise NoFloorError(
             f"no floor found under the given gravity {down.round(4).tolist()}: {candidate.reason}"
@@ -173,28 +173,31 @@ def check_levelled(
 
 def _where_the_floor_is(sample: np.ndarray, settings: GravitySettings) -> str:
     """What a floor search under gravity -z makes of a cloud, for an error message."""
-    floor = _find_floor(sample, np.array([0.0, 0.0, 1.0]), "+z", settings, normals=None, descend=True)
+    floor = _find_floor(sample, np.array([0.0, 0.0, 1.0]), "+z", settings, descend=True)
     if not floor.valid:
         return f"no floor found under gravity -z ({floor.reason})"
     return f"its floor is at z = {floor.offset:+.2f} m, tilted {floor.tilt_deg:.1f} deg"
 
 
 def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
-    # The horizontal-surface score is a fraction of points: a coarser copy scores as well, and normal
-    # estimation, a large share of an auto alignment, costs far less on it.
-    coarse = voxel_thin(sample, 2 * settings.sample_voxel)[0]
-    normals = (coarse, _estimate_normals(coarse, radius=4 * settings.sample_voxel))
     candidates = []
     for axis in settings.up_candidates:
         if axis not in AXES:
             raise ValueError(f"unknown up candidate {axis!r}; use one of {', '.join(AXES)}")
-        candidates.append(_find_floor(sample, np.array(AXES[axis], float), axis, settings, normals))
+        candidates.append(_find_floor(sample, np.array(AXES[axis], float), axis, settings))
     valid = [c for c in candidates if c.valid]
     if not valid:
         reasons = "; ".join(f"{c.axis}: {c.reason}" for c in candidates)
         raise NoFloorError(
             f"no floor found ({reasons}). Give the gravity direction explicitly if the floor is not in view."
         )
+    if len(valid) > 1:  # the score only chooses between valid floors: normals (0.4 s of CPU) only then
+        # The horizontal-surface score is a fraction of points: a coarser copy scores as well, and normal
+        # estimation, a large share of an auto alignment, costs far less on it.
+        coarse = voxel_thin(sample, 2 * settings.sample_voxel)[0]
+        normals = _estimate_normals(coarse, radius=4 * settings.sample_voxel)
+        for candidate in valid:
+            candidate.score = _horizontal_score(candidate.normal, candidate.offset, coarse, normals)
     best = max(valid, key=lambda c: c.score)
     return Alignment(
         _world_from(best.normal, best.offset),
@@ -212,7 +215,6 @@ def _find_floor(
     up: np.ndarray,
     axis: str,
     settings: GravitySettings,
-    normals: tuple[np.ndarray, np.ndarray] | None,
     descend: bool = False,
 ) -> FloorCandidate:
     heights = sample @ up
@@ -253,12 +255,16 @@ def _find_floor(
             False,
             f"{below:.1%} of the points lie under the lowest plane (a wall?)",
         )
-    if normals is not None:
-        points, point_normals = normals
-        horizontal = np.abs(point_normals @ normal) > _HORIZONTAL_COS
-        level = points @ normal - offset
-        candidate.score = float(np.mean(horizontal & (level > -_BELOW_MARGIN) & (level < _FURNITURE_TOP)))
     return candidate
+
+
+def _horizontal_score(
+    normal: np.ndarray, offset: float, points: np.ndarray, point_normals: np.ndarray
+) -> float:
+    """The share of points on surfaces parallel to a floor plane, from the floor up to furniture height."""
+    horizontal = np.abs(point_normals @ normal) > _HORIZONTAL_COS
+    level = points @ normal - offset
+    return float(np.mean(horizontal & (level > -_BELOW_MARGIN) & (level < _FURNITURE_TOP)))
 
 
 def _ransac_plane(
