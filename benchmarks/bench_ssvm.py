@@ -381,7 +381,9 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=ROOT / "bench-data" / "ssvm")
     parser.add_argument("--c-svmperf", type=float, default=None, help="C in SVMperf's units (default: ours)")
     parser.add_argument("--sweep-c", help="comma-separated C (SVMperf's units): validation F1 per affordance")
-    parser.add_argument("--only", help="run the set-ups whose name contains this (e.g. 1.3M, rooms)")
+    parser.add_argument(
+        "--only", help="run the set-ups whose name contains one of these (comma-separated: 1.3M,rooms)"
+    )
     parser.add_argument("--solvers", default="previous,cutting-plane,bundle", help="comma-separated")
     args = parser.parse_args()
     if args.sweep_c:
@@ -397,7 +399,8 @@ def main() -> None:
         (BIG, c),
     ]
     if args.only:
-        setups = [(setup, c_setup) for setup, c_setup in setups if args.only in setup]
+        wanted = args.only.split(",")
+        setups = [(setup, c_setup) for setup, c_setup in setups if any(w in setup for w in wanted)]
     if args.quick:  # the first set-up (of those --only leaves), at a tenth of its size for the Gaussians
         setups, args.repeats = setups[:1], 1
     for setup, _ in setups:
