@@ -45,6 +45,7 @@ import os
 import resource
 import statistics
 import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -130,12 +131,14 @@ def load(setup: str, cache: Path, quick: bool):
 # --- the runs -------------------------------------------------------------------------------------------
 
 
-def run(setup: str, solver: str, c_svmperf: float, cache: Path, svmperf: str | None, quick: bool) -> dict:
+def run(
+    setup: str, solver: str, c_svmperf: float, cache: Path, svmperf: str | None, quick: bool, limit: float
+) -> dict:
     """One training run in this (fresh) process: time to the best validation F1 and to the end."""
     X, y, Xv, yv = load(setup, cache, quick)
     settings = SSVMSettings(c_svmperf=c_svmperf, max_iterations=300)
     if solver == "svmperf":
-        return _svmperf(X, y, Xv, yv, settings, svmperf, _svmlight_file(setup, cache, quick, X, y))
+        return _svmperf(X, y, Xv, yv, settings, svmperf, _svmlight_file(setup, cache, quick, X, y), limit)
     start = time.perf_counter()
     if solver == "previous":
         result = previous_train_ssvm(
@@ -183,17 +186,30 @@ def _svmlight_file(setup: str, cache: Path, quick: bool, X: np.ndarray, y: np.nd
     return path
 
 
-def _svmperf(X, y, Xv, yv, settings: SSVMSettings, binary: str, train: Path) -> dict:
+def _svmperf(X, y, Xv, yv, settings: SSVMSettings, binary: str, train: Path, limit: float) -> dict:
     """SVMperf on the same data: `svm_perf_learn -c C -l 1 -w 3 --b 1 -e eps train model` (-l 1: F1 loss,
     -w 3: the 1-slack dual algorithm, --b: the bias feature's value, -e: epsilon). Its model file is
     SVMlight's: a header ending in the line `<b> # threshold b`, then `<alpha*y> <index>:<value> ...` lines
-    whose sum is w (one line for a linear model); its score is w . x - b."""
+    whose sum is w (one line for a linear model); its score is w . x - b. Stopped after `limit` seconds
+    of wall time: then only the CPU seconds it had used (file reading included) are known."""
     with tempfile.TemporaryDirectory(prefix="svmperf-") as folder:
         model = Path(folder) / "model"
         command = [binary, "-c", f"{settings.c_svmperf:g}", "-l", "1", "-w", "3", "--b", f"{settings.bias:g}"]
         command += ["-e", f"{settings.epsilon:g}", str(train), str(model)]
         start = time.perf_counter()
-        report = subprocess.run(command, check=True, capture_output=True, text=True).stdout
+        try:
+            report = subprocess.run(command, check=True, capture_output=True, text=True, timeout=limit).stdout
+        except subprocess.TimeoutExpired:  # killed and waited for: its CPU time is this process's children's
+            used = resource.getrusage(resource.RUSAGE_CHILDREN)
+            return {
+                **dict.fromkeys(("best", "iterations"), "-"),
+                **dict.fromkeys(("val_f1", "objective"), float("nan")),
+                "to_best": used.ru_utime + used.ru_stime,
+                "seconds": used.ru_utime + used.ru_stime,
+                "converged": False,
+                "stopped": limit,
+                "peak_mb": used.ru_maxrss / 1024,
+            }
         wall = time.perf_counter() - start
         lines = model.read_text().splitlines()
     seconds = _reported(report, "Runtime in cpu-seconds:", float)
@@ -385,6 +401,9 @@ def main() -> None:
         "--only", help="run the set-ups whose name contains one of these (comma-separated: 1.3M,rooms)"
     )
     parser.add_argument("--solvers", default="previous,cutting-plane,bundle", help="comma-separated")
+    parser.add_argument(
+        "--svmperf-limit", type=float, default=1800.0, help="seconds (wall) after which SVMperf is stopped"
+    )
     args = parser.parse_args()
     if args.sweep_c:
         sweep_c([float(c) for c in args.sweep_c.split(",")], args.rooms, args.cache)
@@ -429,9 +448,14 @@ def main() -> None:
         for _ in range(args.repeats):
             for solver in solvers:
                 with context.Pool(1) as pool:
-                    runs[solver].append(
-                        pool.apply(run, (setup, solver, c_setup, args.cache, args.svmperf, args.quick))
-                    )
+                    given = (setup, solver, c_setup, args.cache, args.svmperf, args.quick, args.svmperf_limit)
+                    runs[solver].append(pool.apply(run, given))
+                r = runs[solver][-1]  # each run as it ends, on stderr: a long run's results survive a stop
+                print(
+                    f"{setup} {solver}: {r['to_best']:.1f} s, F1 {r['val_f1']:.3f}",
+                    file=sys.stderr,
+                    flush=True,
+                )
         for solver in solvers:
             print(f"| {setup} (C={c_setup:g}) | {solver} | " + _row(runs, solver), flush=True)
 
@@ -452,7 +476,15 @@ def _row(runs: dict[str, list[dict]], solver: str) -> str:
     ]
     previous = runs.get("previous")
     cells.append(f"{statistics.median(x['to_best'] for x in previous) / to_best:.1f}x" if previous else "-")
-    if "svmperf" not in runs or solver == "svmperf":
+    stopped = [x for x in runs.get("svmperf", []) if x.get("stopped")]
+    if stopped:  # SVMperf did not finish: no F1 of its own, only the CPU seconds it used before it stopped
+        svmperf_cpu = min(x["to_best"] for x in stopped)
+        cells += (
+            [f"stopped unfinished after {stopped[0]['stopped']:.0f} s wall, {svmperf_cpu:.0f} CPU s", "-"]
+            if solver == "svmperf"
+            else ["-", f"> {svmperf_cpu / to_best:.0f}x (to our best)"]
+        )
+    elif "svmperf" not in runs or solver == "svmperf":
         cells += ["-", "-"] if solver != "svmperf" else [f"{to_best:.1f}", "1.0x"]
     else:
         target = statistics.median(x["val_f1"] for x in runs["svmperf"])
