@@ -177,7 +177,7 @@ def command_table(args, files: dict[str, Path]) -> None:
         wall = statistics.median(r["wall"] for r in new)
         print(
             f"{kind}: the stages add up to {inside:.2f} s of the {wall:.2f} s: "
-            "the rest is starting Python and importing (numpy, scipy, open3d, pydantic, typer)"
+            "the rest is starting Python and importing (numpy, scipy, pydantic, typer)"
         )
 
 
