@@ -119,12 +119,13 @@ class GravitySettings(BaseModel):
 
 
 class MapSettings(BaseModel):
-    place_probability: float = Field(
-        0.5,
+    place_probability: float | None = Field(
+        None,
         ge=0,
         le=1,
         description="the skeleton map keeps the places a person can use with at least this probability "
-        "(models with a place model; docs/maps.md)",
+        "(models with a place model; docs/maps.md); none: each model's own cut, chosen on its validation "
+        "rooms (learn.place_false_budget)",
     )
     nms_radius: float = Field(
         0.45,
@@ -284,6 +285,13 @@ class LearnSettings(BaseModel):
     )
     workers: int = Field(
         0, ge=0, description="processes that prepare rooms for training in parallel (0: one per core)"
+    )
+    place_false_budget: float = Field(
+        0.4,
+        ge=0,
+        description="a model's place cut is the lowest probability from 0.5 down to 0.2 at which its "
+        "validation rooms, scored by place models fitted without them, keep at most this many false places "
+        "per room (docs/maps.md)",
     )
 
 

@@ -90,6 +90,7 @@ def main() -> None:
                     "learner": learner,
                     "rooms": group,
                     "train_seconds": seconds,
+                    "place_cut": model.places.cut if model.places is not None else None,
                     **summarise(model, results_of, names),
                 }
                 results["rows"].append(row)
@@ -203,7 +204,7 @@ def room_results(model, rooms: list, task, loose: bool = True) -> dict:
     from affordcore.mapping.pipeline import score_model
 
     results = {}
-    cut = task.settings.map.place_probability
+    cut = task.settings.map.place_probability  # None: each model's own cut
     absolute = model.validation.get("absolute_place_threshold", model.skeleton_threshold)
     for room in rooms:
         grid_and_scores = score_model(model, room.fields, task.layout, task.settings)
@@ -220,11 +221,24 @@ def room_results(model, rooms: list, task, loose: bool = True) -> dict:
             if model.places is not None:
                 candidates = r.candidates(model.threshold, model.places.candidate_spacing)
                 p = model.places.probability(candidates.evidence)
-                result["probability"] = candidates.places(p, cut, task.settings.map.nms_radius)
+                own = model.places.cut if cut is None else cut
+                result["probability"] = candidates.places(p, own, task.settings.map.nms_radius)
                 counted = ~candidates.ignored
                 result["reliability"] = (p[counted], candidates.used[counted])
             results[room.name][prefix] = result
     return results
+
+
+def place_cuts(results: dict) -> str:
+    """The probability the places had to reach: `map.place_probability` when set, else each model's cut."""
+    if results.get("place_probability") is not None:
+        return str(results["place_probability"])
+    cuts = {
+        f"{r['affordance']} ({r['learner']})": r.get("place_cut")
+        for r in results["rows"]
+        if r["rooms"] == "generated"
+    }
+    return "each model's own cut: " + ", ".join(f"{k} {v}" for k, v in cuts.items())
 
 
 def summarise(model, results: dict, names: list[str], loose: bool = True) -> dict:
@@ -333,7 +347,7 @@ def markdown(results: dict, args) -> str:
         f"{len(split['train'])} training, {len(split['validation'])} validation, {len(split['test'])} "
         f"generated test rooms; {results['seconds'] / 60:.0f} min, peak RSS {results['peak_rss_gb']:.1f} GB, "
         f"{results['cores']} cores. Places: the model's place model at probability >= "
-        f"{results['place_probability']}; beside them the score cut of the models before (relative to the "
+        f"{place_cuts(results)}; beside them the score cut of the models before (relative to the "
         "room's median, floored).",
         "",
         "| affordance | learner | rooms | pose P / R / F1 | AP | places found | false / room | "

@@ -14,6 +14,10 @@ one and testing on the other is the one to trust on a scan nobody generated. Var
 Reads the data set and the shipped models of `benchmarks/accuracy.py` (the last 80 rooms: 40 validation, 40
 test); prints places found at probability 0.5, false skeletons per room and the log-loss per candidate.
 
+Then the place cut (`learn.thresholds.place_cut`): the shipped place models refitted on every validation room
+(the same fit as training's), each cut chosen under a budget of false places per validation room, judged on
+the test rooms per scan style and on the real rooms (../shared/data/rooms, a test set: never fitted on).
+
     .venv/bin/python benchmarks/place_evidence.py        # about 6 minutes on 2 cores
 """
 
@@ -27,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+REAL_ROOMS = ROOT.parent / "shared" / "data" / "rooms"
 DENSE, SPARSE = {"fused", "mesh", "laser"}, {"frames", "walk"}
 SPLITS = {
     "dense -> sparse": (DENSE, SPARSE),
@@ -63,6 +68,38 @@ def main() -> None:
                 for columns in variants.values()
             ]
             print(f"| {affordance} | {split} | " + " | ".join(cells) + " |")
+    print_cuts(candidates)
+
+
+BUDGETS = (0.2, 0.4, 0.6, 1.0)  # false places per validation room
+STYLES = ("fused", "mesh", "laser", "frames", "walk")
+
+
+def print_cuts(candidates: list[dict]) -> None:
+    """Places found / labels and false skeletons per room, on the test rooms (all, each style) and the real
+    rooms, at a fixed 0.5 and at the cut each budget chooses on the validation rooms."""
+    from affordcore.learn.thresholds import _fit_on, place_cut
+
+    print("\nplace cuts: places found, false skeletons per room (cut chosen on the validation rooms)")
+    groups = {"test": ("test", None), **{s: ("test", s) for s in STYLES}, "real": ("real", None)}
+    print("| affordance | budget | cut | " + " | ".join(groups) + " |")
+    print("|---|---|---|" + "---|" * len(groups))
+    for affordance in sorted({c["affordance"] for c in candidates}):
+        mine = [c for c in candidates if c["affordance"] == affordance]
+        validation = [c["candidates"] for c in mine if c["part"] == "validation"]
+        model = _fit_on(validation)
+        for budget in (None, *BUDGETS):
+            cut = 0.5 if budget is None else place_cut(validation, budget, 0.45)
+            cells = []
+            for part, style in groups.values():
+                rooms = [c["candidates"] for c in mine if c["part"] == part and style in (None, c["style"])]
+                found, _, false = np.sum(
+                    [c.places(model.probability(c.evidence), cut, 0.45) for c in rooms], axis=0
+                )
+                labels = sum(c.matches.shape[0] for c in rooms)
+                cells.append(f"{found}/{labels}, {false / max(1, len(rooms)):.2f}")
+            label = "fixed" if budget is None else f"{budget}"
+            print(f"| {affordance} | {label} | {cut:.2f} | " + " | ".join(cells) + " |")
 
 
 def collect(args) -> list[dict]:
@@ -81,6 +118,11 @@ def collect(args) -> list[dict]:
     _, validation, test = split_by_index(list(files), args.validation, args.test)
     part = {**{n: "validation" for n in validation}, **{n: "test" for n in test}}
     rooms = load_rooms([files[n] for n in validation + test], settings)
+    if REAL_ROOMS.is_dir():  # a test set: scored and reported, never fitted or chosen on
+        real = load_rooms(data_set_rooms(REAL_ROOMS), settings)
+        part.update({r.name: "real" for r in real})
+        style.update({r.name: "real" for r in real})
+        rooms += real
     found = []
     for name, path in shipped_models().items():
         model = load_model(path, layout)

@@ -66,11 +66,14 @@ def test_map_writes_json_png_and_a_verified_recording(mapped):
         assert all(s > document["threshold"] - 1e-4 for s in scores) and scores == sorted(
             scores, reverse=True
         )
-        # the shipped models' places are those a person can use with at least the documented probability,
-        # the likeliest first
+        # the shipped models' places are those a person can use with at least the model's own cut (chosen on
+        # its validation rooms, written in its file), the likeliest first
         probabilities = [skeleton["probability"] for skeleton in document["skeletons"]]
-        assert document["place_probability"] == 0.5 and document["place_threshold"] is None
-        assert all(p >= 0.5 for p in probabilities) and probabilities == sorted(probabilities, reverse=True)
+        cut = load_model(shipped_models()[affordance]).places.cut
+        assert (
+            document["place_probability"] == cut and document["place_threshold"] is None and 0.2 <= cut <= 0.5
+        )
+        assert all(p >= cut for p in probabilities) and probabilities == sorted(probabilities, reverse=True)
         assert all(np.array(skeleton["joints"]).shape == (15, 3) for skeleton in document["skeletons"])
         assert (out / f"{affordance}.png").stat().st_size > 20_000
     verify = subprocess.run(

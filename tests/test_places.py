@@ -198,3 +198,71 @@ def test_candidates_are_denser_than_places_and_the_spacing_travels_with_the_mode
     assert len(dense.rows) > len(sparse.rows)
     model = fit_place_model(*_synthetic_places(500, 0))
     assert PlaceModel.from_dict(model.to_dict()).candidate_spacing == CANDIDATE_SPACING
+
+
+def _rooms_of_candidates(rooms: int, seed: int, overlap: float) -> list:
+    """Rooms of candidate places 1 m apart (no two suppress each other): two true places and twenty false
+    ones each, the true ones' peak score `overlap` sigmas above the false ones' (evidence column 0)."""
+    from affordcore.learn.thresholds import PlaceCandidates
+
+    rng = np.random.default_rng(seed)
+    found = []
+    for _ in range(rooms):
+        used = np.r_[np.ones(2, bool), np.zeros(20, bool)]
+        evidence = rng.normal(size=(len(used), len(EVIDENCE)))
+        evidence[:, 0] += overlap * used
+        matches = np.zeros((2, len(used)), bool)
+        matches[[0, 1], [0, 1]] = True
+        xy = np.column_stack([np.arange(len(used), dtype=float), np.zeros(len(used))])
+        found.append(PlaceCandidates(evidence, matches, np.zeros(len(used), bool), xy))
+    return found
+
+
+def test_the_place_cut_is_the_lowest_that_keeps_false_places_within_the_budget_on_unseen_rooms():
+    from affordcore.learn.thresholds import PLACE_CUTS, _fit_on, place_cut
+
+    rooms = _rooms_of_candidates(60, 0, overlap=2.0)
+    cuts = {budget: place_cut(rooms, budget, 0.45) for budget in (0.0, 0.3, 1.0, 3.0, 50.0)}
+    assert set(cuts.values()) <= {float(c) for c in PLACE_CUTS}
+    # a larger budget never raises the cut; none keeps the calibrated 0.5; a vast one walks to the floor
+    assert list(cuts.values()) == sorted(cuts.values(), reverse=True)
+    assert cuts[0.0] == 0.5 and cuts[50.0] == 0.2 and 0.2 < cuts[1.0] < 0.5
+    # the budget holds, within what 60 rooms can tell, on 300 rooms nobody fitted or judged on, and the walk
+    # stopped where the next lower cut would have broken it there as well
+    model, fresh = _fit_on(rooms), _rooms_of_candidates(300, 9, overlap=2.0)
+    false = {
+        cut: np.mean([c.places(model.probability(c.evidence), cut, 0.45)[2] for c in fresh])
+        for cut in (cuts[1.0], cuts[1.0] - 0.05)
+    }
+    assert false[cuts[1.0]] <= 1.3 and false[cuts[1.0] - 0.05] > 1.0, false
+    # places that stand apart keep nothing false at any cut, so the walk goes to the floor; in rooms of pure
+    # noise every probability sits near the base rate (2 in 22), so however low the cut walks, no phantom
+    assert place_cut(_rooms_of_candidates(20, 1, overlap=8.0), 1.0, 0.45) == 0.2
+    noise = _rooms_of_candidates(20, 2, overlap=0.0)
+    cut, model = place_cut(noise, 0.3, 0.45), _fit_on(noise)
+    assert sum(c.places(model.probability(c.evidence), cut, 0.45)[1] for c in noise) <= 0.3 * len(noise)
+
+
+def test_the_map_keeps_the_places_at_the_place_models_own_cut_unless_told_otherwise():
+    grid, skeleton = _grid(), get_skeleton("sitting-working")
+    scores = _scores(grid)
+    model = _place_model_on_score(4.0, -8.5)  # p(2.5) = 0.82, p(2.0) = 0.38
+    model.cut = 0.3
+    own = build_map("a", scores, grid, skeleton, 0.0, place_model=model)
+    assert len(own.skeletons) == 2 and own.to_json("m", np.eye(4))["place_probability"] == 0.3
+    told = build_map("a", scores, grid, skeleton, 0.0, place_model=model, place_probability=0.5)
+    assert len(told.skeletons) == 1 and told.place_probability == 0.5
+    # the cut travels with the place model; a model file from before the cut keeps places at 0.5
+    assert PlaceModel.from_dict(model.to_dict()).cut == 0.3
+    older = {k: v for k, v in model.to_dict().items() if k != "cut"}
+    assert PlaceModel.from_dict(older).cut == 0.5
+
+
+def test_place_probability_setting_overrides_or_defers(monkeypatch):
+    from affordcore.settings import Settings
+
+    assert Settings().map.place_probability is None
+    monkeypatch.setenv("AFFORD_MAP__PLACE_PROBABILITY", "0.7")
+    assert Settings().map.place_probability == 0.7
+    monkeypatch.setenv("AFFORD_MAP__PLACE_PROBABILITY", "none")
+    assert Settings().map.place_probability is None

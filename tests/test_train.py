@@ -267,7 +267,7 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
     # the score cut (counted from the room's median candidate score) stays on record ...
     cut = model.place_threshold + np.median(scores[live])
     assert model.place_reference == "room-median" and model.place_cut(scores) == pytest.approx(cut)
-    # ... but the places are the candidates whose probability reaches map.place_probability
+    # ... but the places are the candidates whose probability reaches the place model's own cut
     assert model.places is not None and model.place_model["trained_on"]["rooms"] == len(
         model.validation["rooms"]
     )
@@ -279,8 +279,8 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
         scanned_cells(room.fields, grid.x, grid.y),
     )
     p = model.places.probability(candidates.evidence)
-    kept = choose_places(candidates.rows[:, :2], p, settings.map.place_probability, settings.map.nms_radius)
-    assert 0 < len(kept) < len(p)  # a model that keeps some candidates and drops others
+    kept = choose_places(candidates.rows[:, :2], p, model.places.cut, settings.map.nms_radius)
+    assert 0 < len(kept) < len(p) and 0.2 <= model.places.cut <= 0.5  # keeps some candidates, drops others
     np.testing.assert_allclose(amap.probabilities, p[kept])
     np.testing.assert_allclose(amap.skeletons, candidates.rows[kept])
 

@@ -8,7 +8,8 @@ weights, bias and threshold, the training rooms with their class counts, and val
 tables (data, never pickled code); `place_threshold` is the score a skeleton-map place must beat, counted from
 the median of the room's candidate scores when `place_reference` is "room-median", and never below
 `place_floor` when the model has one; a model with a `place_model` (affordcore/mapping/places.py) gives every
-candidate place a calibrated probability instead, and the map keeps those above `map.place_probability`.
+candidate place a calibrated probability instead, and the map keeps those above the place model's cut
+(`map.place_probability` overrides it).
 Loading a model against a feature layout other than its own is a `ModelError`, not a silent wrong answer.
 """
 

@@ -94,16 +94,54 @@ class PlaceCandidates:
         return self.matches.any(axis=0)
 
 
-def fit_places(rooms: list[RoomScores], threshold: float) -> PlaceModel | None:
-    """The place model fitted on the rooms' candidates (None when they hold no place, or only places)."""
+def fit_places(
+    rooms: list[RoomScores], threshold: float, false_budget: float | None = None, nms_radius: float = 0.45
+) -> PlaceModel | None:
+    """The place model fitted on the rooms' candidates (None when they hold no place, or only places), with
+    its cut chosen under `false_budget` false places per room for maps of places `nms_radius` apart
+    (`place_cut`; None: 0.5)."""
     candidates = [room.candidates(threshold) for room in rooms]
+    model = _fit_on(candidates)
+    if model is not None:
+        model.trained_on["rooms"] = len(rooms)
+        if false_budget is not None:
+            model.cut = place_cut(candidates, false_budget, nms_radius)
+    return model
+
+
+def _fit_on(candidates: list[PlaceCandidates]) -> PlaceModel | None:
     evidence = np.concatenate([c.evidence[~c.ignored] for c in candidates])
     used = np.concatenate([c.used[~c.ignored] for c in candidates])
     if used.all() or not used.any():
         return None
-    model = fit_place_model(evidence, used)
-    model.trained_on["rooms"] = len(rooms)
-    return model
+    return fit_place_model(evidence, used)
+
+
+PLACE_CUTS = np.round(np.arange(0.5, 0.199, -0.05), 2)  # 0.5 down to 0.2: the cuts place_cut walks
+
+
+def place_cut(candidates: list[PlaceCandidates], false_budget: float, radius: float, folds: int = 5) -> float:
+    """The probability a place must reach: walking down from a calibrated 0.5, the lowest of `PLACE_CUTS`
+    before the rooms' false places per room exceed `false_budget`. Each room's probabilities come from a place
+    model fitted on the other folds of rooms (dealt in turn), so the cut is judged on rooms its model did not
+    see, as a map's rooms will be. Why lower than 0.5 at all: where a kind of place has weak evidence (a chair
+    pushed under a table scores low), the true places gather at 0.2-0.5 and a map at 0.5 misses most of them.
+    Why not below 0.2: a place shown to a robot should be one in five likely or better."""
+    held_out = [None] * len(candidates)
+    for fold in range(min(folds, len(candidates))):
+        inside = [c for k, c in enumerate(candidates) if k % folds != fold]
+        model = _fit_on(inside) if inside else None
+        if model is None:
+            return 0.5  # a fold without both kinds of candidate: nothing to judge a lower cut on
+        for k in range(fold, len(candidates), folds):
+            held_out[k] = model.probability(candidates[k].evidence)
+    chosen = 0.5
+    for cut in PLACE_CUTS:
+        false = sum(c.places(p, cut, radius)[2] for c, p in zip(candidates, held_out))
+        if false > false_budget * len(candidates):
+            break
+        chosen = float(cut)
+    return chosen
 
 
 def room_scores(

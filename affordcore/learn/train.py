@@ -60,8 +60,9 @@ def split_rooms(
 
 def place_model_report(scored: list, model: AffordanceModel, settings: Settings) -> dict:
     """Place recall and false skeletons per room of the place model on the rooms it was fitted on, at
-    `map.place_probability`."""
+    its own cut (or `map.place_probability` when set)."""
     cut = settings.map.place_probability
+    cut = model.places.cut if cut is None else cut
     counts = np.sum(
         [
             c.places(model.places.probability(c.evidence), cut, settings.map.nms_radius)
@@ -162,7 +163,9 @@ def train_on_rooms(
     # places has a low median, and the relative cut alone lets its best non-places through
     model.place_floor, places = place_floor(scored, model.place_threshold)
     # ... and the place model that replaces those cuts: each candidate place's probability from its evidence
-    place_model = fit_places(scored, model.threshold)
+    place_model = fit_places(
+        scored, model.threshold, task.settings.learn.place_false_budget, task.settings.map.nms_radius
+    )
     model.place_model = place_model.to_dict() if place_model else None
     if place_model:
         places.update(place_model_report(scored, model, task.settings))

@@ -118,13 +118,14 @@ def build_map(
     allowed: np.ndarray | None = None,
     place_threshold: float | None = None,
     place_model: PlaceModel | None = None,
-    place_probability: float = 0.5,
+    place_probability: float | None = None,
     scanned: np.ndarray | None = None,
 ) -> AffordanceMap:
     """The three outputs from the scores of every pose (shaped like the grid: z, theta, x, y); cells where
     `allowed` (nx, ny) is False hold no positive and no skeleton (their confidence is float32's lowest).
-    Places of the skeleton map must reach `place_probability` under `place_model` (with `scanned`, (nx, ny):
-    the cells the sensor saw), or without one score above `place_threshold` (default: `threshold`)."""
+    Places of the skeleton map must reach `place_probability` (default: the place model's own cut) under
+    `place_model` (with `scanned`, (nx, ny): the cells the sensor saw), or without one score above
+    `place_threshold` (default: `threshold`)."""
     if allowed is not None:
         scores = np.where(allowed[None, None], scores, RULED_OUT).astype(np.float32)
     confidence, best = best_slabs(scores, grid)
@@ -140,6 +141,7 @@ def build_map(
     if place_model is not None:
         candidates = place_candidates(scores, grid, threshold, place_model.candidate_spacing, scanned)
         probabilities = place_model.probability(candidates.evidence)
+        place_probability = place_model.cut if place_probability is None else place_probability
         kept = choose_places(candidates.rows[:, :2], probabilities, place_probability, nms_radius)
         skeletons, probabilities = candidates.rows[kept].reshape(-1, 5), probabilities[kept]
         place_threshold = float("nan")

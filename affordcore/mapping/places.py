@@ -16,8 +16,11 @@ orientations around it agree, and how much of its surroundings was scanned at al
   rooms (found a label or not); logistic regression is Platt's calibration with more inputs, so its output
   is a probability (benchmarks/accuracy.py draws its reliability diagram per scan style and on real rooms).
 
-The skeleton map keeps, likeliest first, the candidates whose probability reaches `map.place_probability`,
-each suppressing the others within `map.nms_radius` of it (`choose_places`).
+The skeleton map keeps, likeliest first, the candidates whose probability reaches the place model's `cut`
+(or `map.place_probability` when set), each suppressing the others within `map.nms_radius` of it
+(`choose_places`). The cut is chosen on the validation rooms (`learn.thresholds.place_cut`): a calibrated 0.5
+when that keeps few enough false places, lower where a lower one still does, so the map reaches more places
+of a kind whose evidence is weak without filling rooms with phantoms.
 """
 
 from __future__ import annotations
@@ -168,6 +171,7 @@ class PlaceModel:
     intercept: float
     trained_on: dict  # what it was fitted on: candidates, places, rooms
     candidate_spacing: float = CANDIDATE_SPACING  # the candidates it was fitted on were this far apart (m)
+    cut: float = 0.5  # the probability a place must reach to be kept (learn.thresholds.place_cut)
 
     def probability(self, evidence: np.ndarray) -> np.ndarray:
         if tuple(self.evidence) != EVIDENCE:
@@ -184,6 +188,7 @@ class PlaceModel:
             "intercept": round(float(self.intercept), 9),
             "trained_on": self.trained_on,
             "candidate_spacing": self.candidate_spacing,
+            "cut": self.cut,
         }
 
     @classmethod
@@ -197,6 +202,7 @@ class PlaceModel:
             float(document["intercept"]),
             document["trained_on"],
             float(document.get("candidate_spacing", CANDIDATE_SPACING)),
+            float(document.get("cut", 0.5)),  # models before the cut was chosen kept places at 0.5
         )
 
 
