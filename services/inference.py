@@ -13,6 +13,7 @@ import time
 from affordcore.geometry.features import FeatureLayout
 from affordcore.mapping.pipeline import RoomMapper, preload
 from affordcore.mapping.recording import log_map, set_time
+from affordcore.mapping.recording import preload as preload_recording
 from affordwire import messages
 
 from .node import Inbound, Node, unused_path
@@ -41,6 +42,7 @@ class InferenceService:
         # the robot's room, updated; scored in worker processes when the registry forked them
         self.mapper = getattr(node, "mapper", None) or RoomMapper(self.models, self.layout, node.settings)
         preload()  # now, not when the first fields arrive
+        preload_recording()  # the first map's logging imports matplotlib's colours
         self.inbox = node.inbox(latest_only=True)
         node.subscribe(node.keys.fields, self.inbox)
         for model in self.models:
@@ -112,6 +114,7 @@ class ShardedInference(InferenceService):
         self.recordings: dict[str, object] = {}
         self.mappers: dict[str, RoomMapper] = {}  # each robot's room, updated as its fields come
         preload()
+        preload_recording()
         self.recovered = 0  # inputs fetched again because a worker left
         self._lock = threading.Lock()
         self.members = Membership(self.keys.worker, self._on_members)

@@ -259,6 +259,12 @@ def _plan(xy: np.ndarray) -> np.ndarray:
     return np.asarray(xy)[..., :2] * np.array([1.0, -1.0])
 
 
+def preload() -> None:
+    """Import now what logging the first map imports (matplotlib's colour maps for the affordances' colours:
+    0.15-0.45 s), so that a service does not pay for it between its first map and the next."""
+    import matplotlib  # noqa: F401
+
+
 def affordance_colors(affordances: list[str]) -> np.ndarray:
     """(n, 3) uint8: one colour per affordance, matplotlib's qualitative tab10 in list order (repeating after
     ten), so any set of skeleton files gets distinct colours and the same list always the same ones."""
