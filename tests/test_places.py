@@ -252,6 +252,9 @@ def test_the_map_keeps_the_places_at_the_place_models_own_cut_unless_told_otherw
     assert len(own.skeletons) == 2 and own.to_json("m", np.eye(4))["place_probability"] == 0.3
     told = build_map("a", scores, grid, skeleton, 0.0, place_model=model, place_probability=0.5)
     assert len(told.skeletons) == 1 and told.place_probability == 0.5
+    # a candidate whose peak is no positive pose is never a place, however likely its evidence says it is
+    above = build_map("a", scores, grid, skeleton, 2.2, place_model=model)
+    assert len(above.skeletons) == 1 and above.skeletons[0, 4] == pytest.approx(2.5)
     # the cut travels with the place model; a model file from before the cut keeps places at 0.5
     assert PlaceModel.from_dict(model.to_dict()).cut == 0.3
     older = {k: v for k, v in model.to_dict().items() if k != "cut"}

@@ -16,7 +16,7 @@ from affordcore.learn.evaluate import deal_folds, evaluate, write_outputs
 from affordcore.learn.learners import LEARNERS
 from affordcore.learn.model import load_model
 from affordcore.learn.train import split_rooms, train
-from affordcore.mapping.places import choose_places, place_candidates
+from affordcore.mapping.places import above_threshold, choose_places, place_candidates
 from affordcore.settings import FeatureSettings, GridSettings, Settings
 
 SMALL = {
@@ -279,7 +279,8 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
         scanned_cells(room.fields, grid.x, grid.y),
     )
     p = model.places.probability(candidates.evidence)
-    kept = choose_places(candidates.rows[:, :2], p, model.places.cut, settings.map.nms_radius)
+    eligible = above_threshold(candidates.rows, model.threshold)
+    kept = choose_places(candidates.rows[:, :2], p, model.places.cut, settings.map.nms_radius, eligible)
     assert 0 < len(kept) < len(p) and 0.2 <= model.places.cut <= 0.5  # keeps some candidates, drops others
     np.testing.assert_allclose(amap.probabilities, p[kept])
     np.testing.assert_allclose(amap.skeletons, candidates.rows[kept])

@@ -28,6 +28,7 @@ from ..mapping.pipeline import score_model
 from ..mapping.places import (
     CANDIDATE_SPACING,
     PlaceModel,
+    above_threshold,
     choose_places,
     fit_place_model,
     place_candidates,
@@ -70,7 +71,9 @@ class RoomScores:
         matches, ignored = place_matches(
             self.label_set, self.affordance, found.rows[:, [0, 1, 3]], **self.tolerances
         )
-        return PlaceCandidates(found.evidence, matches, ignored, found.rows[:, :2])
+        return PlaceCandidates(
+            found.evidence, matches, ignored, found.rows[:, :2], above_threshold(found.rows, threshold)
+        )
 
 
 @dataclass
@@ -79,12 +82,13 @@ class PlaceCandidates:
     matches: np.ndarray  # (n_labels, k) bool: which candidate matches which label
     ignored: np.ndarray  # (k,) bool: in an unlabelled region (neither a place nor a false one)
     xy: np.ndarray  # (k, 2) where they stand
+    eligible: np.ndarray | None = None  # (k,) bool: can be a place (its peak is a positive pose); None: all
 
     def places(self, probabilities: np.ndarray, cut: float, radius: float) -> tuple[int, int, int]:
         """(labelled places found, skeletons kept, false skeletons) of the skeleton map that keeps the places
         of probability `cut`, one within `radius` (`places.choose_places`)."""
         kept = np.zeros(len(probabilities), bool)
-        kept[choose_places(self.xy, probabilities, cut, radius)] = True
+        kept[choose_places(self.xy, probabilities, cut, radius, self.eligible)] = True
         false = kept & ~self.matches.any(axis=0) & ~self.ignored
         return int(self.matches[:, kept].any(axis=1).sum()), int(kept.sum()), int(false.sum())
 

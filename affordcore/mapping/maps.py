@@ -19,7 +19,15 @@ import numpy as np
 
 from ..geometry.grid import PoseGrid
 from ..geometry.skeleton import Skeleton, place_joints
-from .places import RULED_OUT, PlaceModel, best_slabs, choose_places, peak_cells, place_candidates
+from .places import (
+    RULED_OUT,
+    PlaceModel,
+    above_threshold,
+    best_slabs,
+    choose_places,
+    peak_cells,
+    place_candidates,
+)
 
 FORMAT = "affordance-map/1"
 
@@ -142,7 +150,8 @@ def build_map(
         candidates = place_candidates(scores, grid, threshold, place_model.candidate_spacing, scanned)
         probabilities = place_model.probability(candidates.evidence)
         place_probability = place_model.cut if place_probability is None else place_probability
-        kept = choose_places(candidates.rows[:, :2], probabilities, place_probability, nms_radius)
+        eligible = above_threshold(candidates.rows, threshold)
+        kept = choose_places(candidates.rows[:, :2], probabilities, place_probability, nms_radius, eligible)
         skeletons, probabilities = candidates.rows[kept].reshape(-1, 5), probabilities[kept]
         place_threshold = float("nan")
     else:

@@ -152,12 +152,22 @@ def _window(values: np.ndarray, cells: np.ndarray, step: float, radius: float, f
     return np.where(inside, gathered, fill)
 
 
-def choose_places(xy: np.ndarray, probabilities: np.ndarray, cut: float, radius: float) -> np.ndarray:
+def choose_places(
+    xy: np.ndarray, probabilities: np.ndarray, cut: float, radius: float, eligible: np.ndarray | None = None
+) -> np.ndarray:
     """Indices of the places kept from candidates at `xy` (k, 2): those whose probability reaches `cut`,
-    likeliest first, each suppressing the candidates within `radius` of it (one place per person's width)."""
-    order = np.flatnonzero(probabilities >= cut)
+    likeliest first, each suppressing the candidates within `radius` of it (one place per person's width).
+    Only `eligible` candidates (None: all) can be places: a map keeps a place only where a pose scores above
+    the pose threshold (`above_threshold`), so the place model's evidence can rank places but never raise one
+    where the model sees no person (a sofa skeleton on a kitchen table at 0.23 did, before)."""
+    order = np.flatnonzero((probabilities >= cut) & (True if eligible is None else eligible))
     order = order[np.argsort(-probabilities[order], kind="stable")]
     return order[suppress(xy[order], radius)]
+
+
+def above_threshold(rows: np.ndarray, threshold: float) -> np.ndarray:
+    """(k,) bool: the candidates (rows of x, y, z, theta, peak score) whose peak is a positive pose."""
+    return rows[:, 4] > threshold
 
 
 @dataclass
