@@ -30,7 +30,7 @@ first reach SVMperf's validation F1 (`to SVMperf's F1`), against SVMperf's secon
 written once into `--cache` (a few GB for the largest case). SVMperf is licensed for non-commercial use:
 it is never vendored or downloaded here; build it from its public source (docs/benchmarks.md).
 
-    .venv/bin/python benchmarks/bench_ssvm.py                   # about 15 minutes on 2 cores
+    .venv/bin/python benchmarks/bench_ssvm.py                   # 15 minutes on 2 cores, + the 1.3M case
     .venv/bin/python benchmarks/bench_ssvm.py --quick           # one room set-up, one repeat
     .venv/bin/python benchmarks/bench_ssvm.py --svmperf ~/svm_perf/svm_perf_learn
     .venv/bin/python benchmarks/bench_ssvm.py --svmperf PATH --only 1.3M --solvers cutting-plane --repeats 2
