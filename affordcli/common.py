@@ -101,8 +101,9 @@ def fail(message: str, code: int = 2) -> None:
     raise typer.Exit(code)
 
 
-def progress(quiet: bool):
-    """A rich progress bar on stderr (none with --quiet); it disappears when done."""
+def progress(quiet: bool, speed_window: float = 30.0):
+    """A rich progress bar on stderr (none with --quiet) with the time left, from the pace over the last
+    `speed_window` seconds; it disappears when done."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -114,6 +115,7 @@ def progress(quiet: bool):
         console=Console(stderr=True),
         transient=True,
         disable=quiet,
+        speed_estimate_period=speed_window,
     )
 
 

@@ -50,13 +50,17 @@ def synth(
         max=1.0,
         help="share of rooms scanned from a few viewpoints, as real rooms are",
     ),
-    workers: int = typer.Option(1, "--workers", min=1, help="rooms generated in parallel processes"),
+    workers: int = typer.Option(
+        0, "--workers", min=0, help="rooms generated in parallel processes (0: one per core)"
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
 ) -> None:
     """Generate labelled rooms: procedural furniture, virtual sensors scanning them the ways real rooms
-    arrive, exact labels, class counts."""
+    arrive, exact labels, class counts. Resumable: run it again and it makes only the rooms not yet made
+    with these options."""
     with user_errors():
-        from affordcore.synth.dataset import SynthOptions, summary_table, synthesize
+        from affordcore.synth.batch import synthesize
+        from affordcore.synth.dataset import SynthOptions, summary_table
 
         options = SynthOptions(
             rooms,
@@ -97,6 +101,7 @@ def train(
 ) -> None:
     """Train one affordance's classifier on a data set (rooms split into training and validation by room)."""
     with user_errors():
+        from affordcore.learn.cache import RoomCache
         from affordcore.learn.examples import data_set_rooms
         from affordcore.learn.train import train as train_model
         from affordcore.settings import Settings
@@ -104,19 +109,21 @@ def train(
         require_extra("learn")
         output_file(out)
         rooms = data_set_rooms(data)
+        settings = Settings()
         with progress(quiet) as bar:
-            task = bar.add_task("rooms", total=len(rooms))
+            task = bar.add_task("rooms (fields, then examples)", total=2 * len(rooms))
             model = train_model(
                 data,
                 affordance,
                 learner,
-                Settings(),
+                settings,
                 {
                     **({} if C is None else {"C": C}),
                     **({} if c_svmperf is None else {"c_svmperf": c_svmperf}),
                 },
                 seed,
                 on_room=lambda name: bar.advance(task),
+                cache=RoomCache.from_settings(settings),
             )
         model.save(out)
         v = model.validation
@@ -149,8 +156,10 @@ def evaluate(
     """Compare learners by k-fold over rooms: the paper's table, its imbalance test, the SSVM's iterations."""
     with user_errors():
         from affordcore.geometry.skeleton import skeleton_files
+        from affordcore.learn.cache import RoomCache
         from affordcore.learn.evaluate import evaluate as run_evaluation
-        from affordcore.learn.evaluate import write_outputs
+        from affordcore.learn.evaluate import evaluation_steps, write_outputs
+        from affordcore.learn.examples import data_set_rooms
         from affordcore.settings import Settings
 
         require_extra("learn")
@@ -163,19 +172,19 @@ def evaluate(
             if ratios.strip() == "none"
             else tuple(None if r == "all" else _ratio(r) for r in names(ratios))
         )
-        # runs at a ratio other than "all" are per learner; "all" is fold 1 again, reused except by
-        # undersample
-        sweep_runs = sum(1 for r in sweep for name in chosen if r is not None or name == "undersample")
-        steps = len(kinds) * (folds * len(chosen) + sweep_runs)
-        with progress(quiet) as bar:
+        cache = RoomCache.from_settings(settings)
+        steps = evaluation_steps(len(data_set_rooms(data)), len(kinds), len(chosen), folds, len(sweep))
+        # the time left is the mean pace since the start: the steps differ (a room's fields, a training), so a
+        # short window would swing with whichever came last
+        with progress(quiet, speed_window=24 * 3600) as bar:
             task = bar.add_task("evaluate", total=steps)
 
             def step(message: str) -> None:
-                bar.update(task, description=message)
-                if ": features of " not in message:
-                    bar.advance(task)
+                bar.update(task, description=message, advance=1)
 
-            evaluation = run_evaluation(data, kinds, chosen, folds, settings, seed, sweep, on_step=step)
+            evaluation = run_evaluation(
+                data, kinds, chosen, folds, settings, seed, sweep, on_step=step, cache=cache
+            )
         paths = write_outputs(evaluation, out)
         typer.echo(paths[1].read_text().split("\n## Imbalance")[0])
         typer.echo("written: " + ", ".join(str(p) for p in paths))

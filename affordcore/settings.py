@@ -293,6 +293,12 @@ class LearnSettings(BaseModel):
         "validation rooms, scored by place models fitted without them, keep at most this many false places "
         "per room (docs/maps.md)",
     )
+    cache_dir: Path | None = Field(
+        None,
+        description="where training and evaluation keep each room's voxel fields and sampled feature rows, "
+        "written once and read back one room at a time (learn/cache.py; none: $XDG_CACHE_HOME/affordmap, "
+        "else ~/.cache/affordmap); safe to delete",
+    )
 
 
 class Settings(BaseSettings):

@@ -48,9 +48,15 @@ def main() -> None:
     parser.add_argument("--curve-learners", default="cascade")
     parser.add_argument("--affordances", default="sitting-relaxing,sitting-working,standing-working")
     parser.add_argument("--models", type=Path, help="also write the full run's cascade models here")
+    parser.add_argument(
+        "--cache",
+        type=Path,
+        help="the room cache (default: learn.cache_dir); rooms are read from it one at a time",
+    )
     args = parser.parse_args()
 
     from affordcore.geometry.features import FeatureLayout
+    from affordcore.learn.cache import RoomCache
     from affordcore.learn.defaults import data_record, split_by_index
     from affordcore.learn.examples import Task, data_set_rooms, load_rooms, split_examples
     from affordcore.learn.train import train_on_rooms
@@ -58,6 +64,7 @@ def main() -> None:
 
     started = time.perf_counter()
     settings = Settings()
+    cache = RoomCache(args.cache) if args.cache else RoomCache.from_settings(settings)
     layout = FeatureLayout.from_settings(settings)
     files = {f.name: f for f in generated_rooms(args)}
     train, validation, test = (
@@ -66,8 +73,9 @@ def main() -> None:
     print(
         f"{len(train)} training, {len(validation)} validation, {len(test)} test rooms; {os.cpu_count()} cores"
     )
-    rooms = {r.name: r for r in load_rooms(list(files.values()), settings, lambda name: None)}
-    real = load_rooms(data_set_rooms(REAL_ROOMS), settings) if REAL_ROOMS.is_dir() else []
+    # rooms hold their labels; fields and sampled rows are read from the cache one room at a time
+    rooms = {r.name: r for r in load_rooms(list(files.values()), settings, cache=cache)}
+    real = load_rooms(data_set_rooms(REAL_ROOMS), settings, cache=cache) if REAL_ROOMS.is_dir() else []
     train_names, validation_names = [f.name for f in train], [f.name for f in validation]
     results: dict = {
         "split": {"train": train_names, "validation": validation_names, "test": [f.name for f in test]}
@@ -76,7 +84,7 @@ def main() -> None:
     groups = test_groups(args.data, [f.name for f in test], [r.name for r in real])
     for affordance in args.affordances.split(","):
         task = Task(affordance, settings, layout)
-        examples = split_examples(rooms, train_names, validation_names, task)
+        examples = split_examples(rooms, train_names, validation_names, task, cache)
         for learner in args.learners.split(","):
             t0 = time.perf_counter()
             model = train_on_rooms(examples, train_names, validation_names, task, learner, seed=args.seed)
@@ -144,6 +152,8 @@ def main() -> None:
             model.save(args.models / f"{affordance}.model.json")
     results["seconds"] = time.perf_counter() - started
     results["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+    # the worker processes that compute fields and rows, one room each at a time (the largest of them)
+    results["peak_rss_worker_gb"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20
     results["cores"] = os.cpu_count()
     results["place_probability"] = settings.map.place_probability
     args.out.mkdir(parents=True, exist_ok=True)
@@ -159,7 +169,8 @@ def generated_rooms(args) -> list:
     wanted or the generator's code changed). Room i of a data set depends only on the seed and i, so a smaller
     run uses a prefix of a larger data set."""
     from affordcore.learn.examples import data_set_rooms
-    from affordcore.synth.dataset import SynthOptions, synthesize
+    from affordcore.synth.batch import synthesize
+    from affordcore.synth.dataset import SynthOptions
 
     stamp = args.data / "accuracy-options.json"
     have = json.loads(stamp.read_text()) if stamp.exists() else {}
@@ -190,12 +201,9 @@ def test_groups(data: Path, generated: list[str], real: list[str]) -> dict[str, 
 
 def generator_version() -> str:
     """A digest of the generator's source: rooms made by other code are made again."""
-    import hashlib
+    from affordcore.synth.batch import generator_digest
 
-    digest = hashlib.sha256()
-    for path in sorted((ROOT / "affordcore" / "synth").glob("*.py")):
-        digest.update(path.read_bytes())
-    return digest.hexdigest()[:16]
+    return generator_digest()
 
 
 def room_results(model, rooms: list, task, loose: bool = True) -> dict:
@@ -345,7 +353,8 @@ def markdown(results: dict, args) -> str:
         f"Command: `.venv/bin/python benchmarks/accuracy.py --rooms {args.rooms} --seed {args.seed} --test "
         f"{args.test} --validation {args.validation} --curve {args.curve} --learners {args.learners}`; "
         f"{len(split['train'])} training, {len(split['validation'])} validation, {len(split['test'])} "
-        f"generated test rooms; {results['seconds'] / 60:.0f} min, peak RSS {results['peak_rss_gb']:.1f} GB, "
+        f"generated test rooms; {results['seconds'] / 60:.0f} min, peak RSS {results['peak_rss_gb']:.1f} GB "
+        f"(worker processes {results['peak_rss_worker_gb']:.1f} GB), "
         f"{results['cores']} cores. Places: the model's place model at probability >= "
         f"{place_cuts(results)}; beside them the score cut of the models before (relative to the "
         "room's median, floored).",

@@ -9,7 +9,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +20,16 @@ SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 needs_shared = pytest.mark.skipif(
     not SHARED_DATA.is_dir(), reason=f"shared real data not available at {SHARED_DATA}"
 )
+
+
+@pytest.fixture(scope="session", autouse=True)
+def room_cache(tmp_path_factory) -> Iterator[Path]:
+    """Training and evaluation cache rooms on disk (`learn.cache_dir`): in tests, in a folder of the session,
+    never the user's cache; subprocesses inherit it."""
+    folder = tmp_path_factory.mktemp("room-cache")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("AFFORD_LEARN__CACHE_DIR", str(folder))
+        yield folder
 
 
 @pytest.fixture(scope="session")

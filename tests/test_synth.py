@@ -400,8 +400,8 @@ def test_same_seed_same_files_and_a_class_table(tmp_path):
     for folder, seed in ((first, 4), (second, 4), (other, 5)):
         result = _synth(folder, seed, "--scanner", "uniform")
         assert result.returncode == 0, result.stderr
-    names = sorted(p.name for p in first.iterdir())
-    assert names == sorted(p.name for p in second.iterdir())
+    names = sorted(p.name for p in first.iterdir() if p.is_file())
+    assert names == sorted(p.name for p in second.iterdir() if p.is_file())
     assert {
         "office-000.ply",
         "office-000.labels.json",
@@ -454,6 +454,36 @@ def test_depth_scanned_rooms_are_the_same_bytes_with_any_worker_count(tmp_path):
     assert reports[1] == reports[2]
     for path in sorted((tmp_path / "1").iterdir()):
         assert path.read_bytes() == (tmp_path / "2" / path.name).read_bytes(), path.name
+
+
+def test_synth_resumes_making_only_the_rooms_missing_and_the_same_bytes(tmp_path):
+    from affordcore.synth.batch import RESUME, synthesize
+    from affordcore.synth.dataset import SynthOptions
+
+    def made(options, folder):
+        rooms = []
+        summary = synthesize(options, folder, 1, on_room_done=lambda report: rooms.append(report["room"]))
+        return summary, rooms
+
+    options = SynthOptions(3, 6, ("office", "workshop"), scanner="uniform")
+    whole, _ = made(options, tmp_path / "whole")
+    part = tmp_path / "part"
+    made(SynthOptions(2, 6, ("office", "workshop"), scanner="uniform"), part)
+    first_room = (part / "office-000.ply").stat().st_mtime_ns
+    (part / RESUME / "workshop-001.json").unlink()  # as if stopped after the room's files, before its report
+    summary, _ = made(options, part)
+    assert summary == whole
+    assert (part / "office-000.ply").stat().st_mtime_ns == first_room  # made once, not again
+    for path in (p for p in (tmp_path / "whole").iterdir() if p.is_file()):
+        assert path.read_bytes() == (part / path.name).read_bytes(), path.name
+    # every room now has its report: nothing is made again, unless the options differ
+    _, again = made(options, part)
+    assert (part / "office-000.ply").stat().st_mtime_ns == first_room and len(again) == 3
+    (part / "office-002.ply").unlink()  # a room whose files are gone is made again
+    made(options, part)
+    assert (part / "office-002.ply").read_bytes() == (tmp_path / "whole" / "office-002.ply").read_bytes()
+    made(SynthOptions(3, 6, ("office", "workshop"), scanner="uniform", few_views=0.0), part)
+    assert (part / "office-000.ply").stat().st_mtime_ns != first_room
 
 
 def test_few_views_share_chooses_the_scan_regime_and_refuses_a_share_outside_0_to_1(tmp_path):

@@ -59,8 +59,9 @@ def second_stage_examples(
     )
     Xs, ys, ws = [], [], []
     for room in rooms:
-        grid, scores = score_model(first, room.fields, task.layout, task.settings)
-        _, truth = room.grid_and_truth(task.skeleton, task.settings)
+        fields = room.fields  # read once per room (rooms in a cache hold no fields) and let go after
+        grid, scores = score_model(first, fields, task.layout, task.settings)
+        _, truth = room.grid_and_truth(task.skeleton, task.settings, fields)
         flat = scores.ravel()
         # unlabelled poses are neither taught as positive nor as negative
         flat[truth.scored_mask().ravel() == 0] = RULED_OUT
@@ -74,7 +75,7 @@ def second_stage_examples(
         if rate < 1.0:
             negatives = rng.choice(negatives, max_negatives, replace=False)
         chosen = np.concatenate([np.flatnonzero(label), negatives])
-        Xs.append(features_at(room.fields, task.skeleton, grid, task.layout, best[chosen]))
+        Xs.append(features_at(fields, task.skeleton, grid, task.layout, best[chosen]))
         ys.append(np.where(label[chosen], 1, -1).astype(np.int8))
         ws.append(np.where(label[chosen], 1.0, 1.0 / rate).astype(np.float32))
     return RoomExamples("second-stage", np.concatenate(Xs), np.concatenate(ys), np.concatenate(ws))

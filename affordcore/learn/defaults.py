@@ -16,6 +16,7 @@ import numpy as np
 
 from ..geometry.skeleton import skeleton_files
 from ..settings import Settings
+from .cache import RoomCache
 
 ROOMS, SEED, VALIDATION, TEST, LEARNER = 200, 1, 40, 40, "cascade"
 
@@ -61,13 +62,17 @@ def rebuild_default_models(
     on_step: Callable[[str], None] | None = None,
 ) -> list[Path]:
     """`learners`: one learner for every affordance, or {affordance: learner} (say, from `winners`)."""
-    from ..synth.dataset import SynthOptions, synthesize
+    from ..synth.batch import synthesize
+    from ..synth.dataset import SynthOptions
 
     with tempfile.TemporaryDirectory(prefix="afford-defaults-") as data:
         synthesize(SynthOptions(rooms, seed), data, workers)
         if on_step:
             on_step(f"{rooms} rooms generated")
-        return train_default_models(Path(data), out, learners, seed, on_step)
+        # the rooms' cache goes with them: nobody trains on these files again
+        return train_default_models(
+            Path(data), out, learners, seed, on_step, cache=RoomCache(Path(data) / "cache")
+        )
 
 
 def train_default_models(
@@ -78,22 +83,25 @@ def train_default_models(
     on_step: Callable[[str], None] | None = None,
     validation: int = VALIDATION,
     test: int = TEST,
+    cache: RoomCache | None = None,
 ) -> list[Path]:
-    """Train every affordance on a generated data set split by `split_by_index`, write the model files."""
+    """Train every affordance on a generated data set split by `split_by_index`, write the model files;
+    rooms are read one at a time from `cache` (default `learn.cache_dir`)."""
     from ..geometry.features import FeatureLayout
     from .examples import Task, data_set_rooms, load_rooms, split_examples
     from .train import train_on_rooms
 
     settings = Settings()
+    cache = cache or RoomCache.from_settings(settings)
     layout = FeatureLayout.from_settings(settings)
-    rooms = {room.name: room for room in load_rooms(data_set_rooms(data), settings)}
+    rooms = {room.name: room for room in load_rooms(data_set_rooms(data), settings, cache=cache)}
     train_names, validation_names, test_names = split_by_index(list(rooms), validation, test)
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for affordance in sorted(skeleton_files(settings.skeleton_dirs)):
         learner = learners if isinstance(learners, str) else learners.get(affordance, LEARNER)
         task = Task(affordance, settings, layout)
-        examples = split_examples(rooms, train_names, validation_names, task)
+        examples = split_examples(rooms, train_names, validation_names, task, cache)
         model = train_on_rooms(examples, train_names, validation_names, task, learner, seed=seed)
         model.parameters["data"] = data_record(len(rooms), seed, test_names)
         written.append(model.save(out / f"{affordance}.model.json"))

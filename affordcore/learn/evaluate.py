@@ -27,8 +27,10 @@ import numpy as np
 from ..geometry.features import FeatureLayout
 from ..labels import load_labels
 from ..settings import Settings
-from .examples import RoomExamples, Task, data_set_rooms, load_rooms, room_examples
+from .cache import RoomCache
+from .examples import ExampleSet, Task, data_set_rooms, example_set, load_rooms
 from .learners import LEARNERS
+from .parallel import map_in_processes, workers_for
 from .thresholds import room_scores
 from .train import metrics, split_rooms, train_on_rooms
 
@@ -127,9 +129,11 @@ def evaluate(
     ratios: tuple[int | None, ...] = SWEEP_RATIOS,
     params: dict[str, dict] | None = None,
     on_step: Callable[[str], None] | None = None,
+    cache: RoomCache | None = None,
 ) -> Evaluation:
     """Runs len(affordances) x (k x len(learners) + len(ratios) x len(learners)) trainings; `on_step`
-    hears each room's fields and each training."""
+    hears each room's fields, each room's examples per affordance and each training. With `cache`, rooms'
+    fields and examples are kept there and read one room at a time."""
     unknown = [name for name in learners if name not in LEARNERS]
     if unknown:
         raise ValueError(f"unknown learner(s) {', '.join(unknown)}; choose from {', '.join(LEARNERS)}")
@@ -138,35 +142,46 @@ def evaluate(
     files = data_set_rooms(data)
     held = {f.name: ",".join(load_labels(f.labels).affordances) for f in files}
     folds = deal_folds([f.name for f in files], k, seed, held)
-    rooms = load_rooms(files, settings, lambda name: _tell(on_step, f"fields of {name}"))
+    rooms = load_rooms(files, settings, lambda name: _tell(on_step, f"fields of {name}"), cache)
     result = Evaluation(folds)
     for affordance in affordances:
         task = Task(affordance, settings, layout)
-        examples = {room.name: room_examples(room, task) for room in rooms}
-        positives = sum(e.positives for e in examples.values())
-        negatives = sum(float(e.weights[e.y < 0].sum()) for e in examples.values())
+        examples = example_set(
+            rooms,
+            task,
+            cache=cache,
+            on_room=lambda name, a=affordance: _tell(on_step, f"{a}: examples of {name}"),
+        )
+        positives = sum(examples.positives(n) for n in examples)
+        negatives = sum(float(w[y < 0].sum()) for y, w in map(examples.labels, examples))
         result.class_counts[affordance] = {
             "positives": positives,
             "negatives": int(round(negatives)),
             "ratio": negatives / max(1, positives),
         }
         splits = [_split(examples, test_rooms, affordance, f, seed) for f, test_rooms in enumerate(folds)]
-        for split in splits:
-            for learner in learners:
-                outcome = _run(examples, split, task, learner, None, (params or {}).get(learner, {}), seed)
-                result.outcomes.append(outcome)
-                _tell(on_step, f"{affordance}: {learner}, fold {split.fold + 1}/{k}: F1 {outcome.f1:.3f}")
-        for ratio in ratios if splits else ():
-            for learner in learners:
-                learner_params = (params or {}).get(learner, {})
-                outcome = _run(examples, splits[0], task, learner, ratio, learner_params, seed, sweep=True)
-                result.outcomes.append(outcome)
-                _tell(
-                    on_step,
-                    f"{affordance}: {learner} at {'all data' if ratio is None else f'1:{ratio}'}: F1 "
-                    f"{outcome.f1:.3f}",
-                )
+        # (split, learner, ratio, sweep): the table's runs, then the imbalance test's on the first fold
+        runs = [(split, learner, None, False) for split in splits for learner in learners]
+        runs += [(splits[0], name, ratio, True) for ratio in (ratios if splits else ()) for name in learners]
+        jobs = [
+            (examples, split, task, learner, ratio, (params or {}).get(learner, {}), seed, sweep)
+            for split, learner, ratio, sweep in runs
+        ]
+        # trainings in parallel processes when the rooms are in the cache (each process reads them from
+        # there; held rooms would be copied to every job)
+        workers = workers_for(len(jobs), settings) if cache is not None else 1
+        for (split, learner, ratio, sweep), outcome in zip(runs, map_in_processes(_run, jobs, workers)):
+            result.outcomes.append(outcome)
+            at = "all data" if ratio is None else f"1:{ratio}"
+            run = f"at {at}" if sweep else f"fold {split.fold + 1}/{k}"
+            _tell(on_step, f"{affordance}: {learner}, {run}: F1 {outcome.f1:.3f}")
     return result
+
+
+def evaluation_steps(rooms: int, affordances: int, learners: int, k: int, ratios: int) -> int:
+    """How many times `evaluate` calls its `on_step`: each room's fields, each room's examples per affordance,
+    each training."""
+    return rooms + rooms * affordances + affordances * learners * (k + ratios)
 
 
 def _tell(on_step, message: str) -> None:
@@ -184,14 +199,12 @@ class _Split:
     validation_rooms: list[str]
 
 
-def _split(
-    examples: dict[str, RoomExamples], test_rooms: list[str], affordance: str, fold: int, seed: int
-) -> _Split:
+def _split(examples: ExampleSet, test_rooms: list[str], affordance: str, fold: int, seed: int) -> _Split:
     train_names = [name for name in examples if name not in test_rooms]
     fit_names, validation_names = split_rooms(
-        train_names, seed + fold, positives={n: examples[n].positives for n in train_names}
+        train_names, seed + fold, positives={n: examples.positives(n) for n in train_names}
     )
-    if sum(examples[n].positives for n in fit_names) == 0:
+    if sum(examples.positives(n) for n in fit_names) == 0:
         raise ValueError(
             f"fold {fold + 1}: the training rooms {', '.join(fit_names)} hold no {affordance} label; use "
             "fewer folds or more rooms"
@@ -200,7 +213,7 @@ def _split(
 
 
 def _run(
-    examples: dict[str, RoomExamples],
+    examples: ExampleSet,
     split: _Split,
     task: Task,
     learner: str,
@@ -226,8 +239,9 @@ def _run(
         own_threshold=sweep,
     )
     seconds = time.perf_counter() - start
-    rooms = {room.name: room for e in examples.values() for room in e.rooms}
-    scored = [room_scores(model, rooms[name], task.layout, task.settings) for name in split.test_rooms]
+    scored = [
+        room_scores(model, examples.room(name), task.layout, task.settings) for name in split.test_rooms
+    ]
     at = metrics(
         np.concatenate([r.scores for r in scored]),
         np.concatenate([r.labels for r in scored]),

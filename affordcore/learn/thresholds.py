@@ -154,7 +154,8 @@ def room_scores(
     """The room scored by `model` as `afford map` scores it (or `grid_and_scores` when the caller has
     them); `tolerances` (xy_tolerance, theta_tolerance) loosen the ground truth and the place matching
     alike."""
-    grid, scores = grid_and_scores or score_model(model, room.fields, layout, settings)
+    fields = room.fields  # once: a cached room reads its fields each time
+    grid, scores = grid_and_scores or score_model(model, fields, layout, settings)
     truth = ground_truth(
         room.labels, model.affordance, grid, torso_height=model.as_skeleton().torso_height, **tolerances
     )
@@ -180,7 +181,7 @@ def room_scores(
         room_reference(scores),
         grid,
         scores,
-        scanned_cells(room.fields, grid.x, grid.y),
+        scanned_cells(fields, grid.x, grid.y),
         room.labels,
         model.affordance,
         tolerances,

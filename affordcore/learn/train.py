@@ -8,7 +8,7 @@ room (and says so).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 from pathlib import Path
 
@@ -17,7 +17,8 @@ import numpy as np
 from ..geometry.features import FeatureLayout
 from ..settings import Settings
 from .baselines import undersampled_indices
-from .examples import RoomExamples, Task, data_set_rooms, load_rooms, room_examples, stack
+from .cache import RoomCache
+from .examples import ExampleSet, RoomExamples, Task, data_set_rooms, example_set, load_rooms, stack
 from .f1_argmax import f1_loss
 from .fitted import Fitted
 from .learners import get_learner
@@ -90,23 +91,25 @@ def train(
     params: dict | None = None,
     seed: int = 0,
     on_room: Callable[[str], None] | None = None,
+    cache: RoomCache | None = None,
 ) -> AffordanceModel:
-    """A model of one affordance from a data set folder: rooms split into training and validation by room."""
+    """A model of one affordance from a data set folder: rooms split into training and validation by room.
+    `on_room` hears each room twice: its fields, then its examples; with `cache`, both are kept there."""
     get_learner(learner)  # an unknown learner fails before the rooms are read
     settings = settings or Settings()
     task = Task(affordance, settings, FeatureLayout.from_settings(settings))
-    rooms = load_rooms(data_set_rooms(data), settings, on_room)
-    examples = {room.name: room_examples(room, task) for room in rooms}
+    rooms = load_rooms(data_set_rooms(data), settings, on_room, cache)
+    examples = example_set(rooms, task, cache=cache, on_room=on_room)
     train_names, validation_names = split_rooms(
-        list(examples), seed, positives={n: e.positives for n, e in examples.items()}
+        list(examples), seed, positives={n: examples.positives(n) for n in examples}
     )
-    if sum(examples[n].positives for n in train_names) == 0:
+    if sum(examples.positives(n) for n in train_names) == 0:
         raise ValueError(f"{data}: the training rooms hold no {affordance} label")
     return train_on_rooms(examples, train_names, validation_names, task, learner, params, seed)
 
 
 def train_on_rooms(
-    examples: dict[str, RoomExamples],
+    examples: Mapping[str, RoomExamples],
     train_names: list[str],
     validation_names: list[str],
     task: Task,
@@ -120,6 +123,7 @@ def train_on_rooms(
     rooms scored as `afford map` scores them (`thresholds.py`). `negatives_per_positive` undersamples the
     training examples further, and `own_threshold` keeps the learner's own pose threshold: the paper's
     imbalance test, which is about how each learner's own decision rule bears the imbalance."""
+    examples = ExampleSet.of(examples)
     # at most learn.max_negatives: memory stops growing with the number of training rooms
     training = stack(
         examples, train_names, task.settings.learn.max_negatives, np.random.default_rng([seed, 2])
@@ -150,8 +154,9 @@ def train_on_rooms(
         },
         rescorer=fitted.rescorer,
     )
-    rooms = {room.name: room for e in examples.values() for room in e.rooms}
-    scored = [room_scores(model, rooms[name], task.layout, task.settings) for name in validation_names]
+    scored = [
+        room_scores(model, examples.room(name), task.layout, task.settings) for name in validation_names
+    ]
     if not own_threshold:
         model.threshold = pose_threshold(scored)
     # places count from each room's own median score, so the threshold survives scans unlike the training
