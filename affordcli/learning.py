@@ -144,10 +144,11 @@ def evaluate(
         None, "--affordances", help="comma-separated affordances (default: every built-in skeleton)"
     ),
     ratios: str = typer.Option(
-        "1,2,4,8,16,32,64,128,256,512,1024,2048,all",
+        "none",
         "--ratios",
-        help="imbalance test: negatives per positive to train at, 'all' for every negative; "
-        "'none' skips the test",
+        help="the imbalance test on fold 1: negatives per positive to train every learner at, 'all' for "
+        "every negative (the paper's: 1,2,4,8,16,32,64,128,256,512,1024,2048,all, about 4 times the "
+        "table's trainings); 'none' (the default) skips it",
     ),
     out: Path = typer.Option(..., "--out", help="folder for results.json, results.md and the plots"),
     seed: int = typer.Option(0, "--seed", help="seeds the folds, the validation split and resampling"),
