@@ -29,6 +29,7 @@ EXTRAS = {
     "services": ("zenoh", "google.protobuf", "kiss_icp", "cryptography"),
     "ros": ("rosbags",),
     "learn": ("sklearn", "osqp"),
+    "cluster": ("ray",),
 }
 
 

@@ -59,8 +59,11 @@ def synth(
     arrive, exact labels, class counts. Resumable: run it again and it makes only the rooms not yet made
     with these options."""
     with user_errors():
+        from affordcore.settings import Settings
         from affordcore.synth.batch import synthesize
         from affordcore.synth.dataset import SynthOptions, summary_table
+
+        from .cluster import cluster_jobs
 
         options = SynthOptions(
             rooms,
@@ -74,7 +77,7 @@ def synth(
             tuple(names(styles)),
         )
         output_folder(out)  # after the options are checked: a refused command leaves no folder behind
-        with progress(quiet) as bar:
+        with cluster_jobs(Settings()), progress(quiet) as bar:
             task = bar.add_task("rooms", total=rooms)
             summary = synthesize(options, out, workers, on_room_done=lambda report: bar.advance(task))
         typer.echo(summary_table(summary), nl=False)
@@ -106,11 +109,13 @@ def train(
         from affordcore.learn.train import train as train_model
         from affordcore.settings import Settings
 
+        from .cluster import cluster_jobs
+
         require_extra("learn")
         output_file(out)
         rooms = data_set_rooms(data)
         settings = Settings()
-        with progress(quiet) as bar:
+        with cluster_jobs(settings), progress(quiet) as bar:
             task = bar.add_task("rooms (fields, then examples)", total=2 * len(rooms))
             model = train_model(
                 data,
@@ -163,6 +168,8 @@ def evaluate(
         from affordcore.learn.examples import data_set_rooms
         from affordcore.settings import Settings
 
+        from .cluster import cluster_jobs
+
         require_extra("learn")
         output_folder(out)
         settings = Settings()
@@ -177,7 +184,7 @@ def evaluate(
         steps = evaluation_steps(len(data_set_rooms(data)), len(kinds), len(chosen), folds, len(sweep))
         # the time left is the mean pace since the start: the steps differ (a room's fields, a training), so a
         # short window would swing with whichever came last
-        with progress(quiet, speed_window=24 * 3600) as bar:
+        with cluster_jobs(settings), progress(quiet, speed_window=24 * 3600) as bar:
             task = bar.add_task("evaluate", total=steps)
 
             def step(message: str) -> None:
@@ -243,9 +250,15 @@ def models_rebuild(
     with user_errors():
         from affordcore.learn.defaults import rebuild_default_models, winners
         from affordcore.learn.model import MODELS_DIR
+        from affordcore.settings import Settings
+
+        from .cluster import cluster_jobs
 
         require_extra("learn")
         output_folder(out or MODELS_DIR, "--out" if out else "--out (default: the package's model folder)")
         chosen = winners(evaluation) if evaluation else learner
-        written = rebuild_default_models(out or MODELS_DIR, chosen, rooms, seed, workers, on_step=typer.echo)
+        with cluster_jobs(Settings()):
+            written = rebuild_default_models(
+                out or MODELS_DIR, chosen, rooms, seed, workers, on_step=typer.echo
+            )
         typer.echo("written: " + ", ".join(str(p) for p in written))

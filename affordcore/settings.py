@@ -301,6 +301,17 @@ class LearnSettings(BaseModel):
     )
 
 
+class ClusterSettings(BaseModel):
+    address: str | None = Field(
+        None,
+        description="a Ray cluster's address (HOST:PORT of its head, or 'auto'): rooms are generated, "
+        "scanned and featurised and the k-fold trainings run there (the [cluster] extra; docs/deploy.md); "
+        "none: local processes. The data set and learn.cache_dir must be on a file system every node mounts "
+        "at the same path",
+    )
+    cpus_per_job: float = Field(1.0, gt=0, description="CPUs Ray reserves for each job")
+
+
 class Settings(BaseSettings):
     """All tunables of affordmap. Defaults follow DESIGN.md (10 cm voxels and grid, 63 orientations)."""
 
@@ -317,6 +328,7 @@ class Settings(BaseSettings):
     assembler: AssemblerSettings = AssemblerSettings()
     limits: LimitSettings = LimitSettings()
     learn: LearnSettings = LearnSettings()
+    cluster: ClusterSettings = ClusterSettings()
     skeleton_dirs: list[Path] = Field(
         default_factory=list,
         description="extra folders of skeleton files (<affordance>.json); "

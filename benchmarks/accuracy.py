@@ -152,8 +152,6 @@ def main() -> None:
             model.save(args.models / f"{affordance}.model.json")
     results["seconds"] = time.perf_counter() - started
     results["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
-    # the worker processes that compute fields and rows, one room each at a time (the largest of them)
-    results["peak_rss_worker_gb"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20
     results["cores"] = os.cpu_count()
     results["place_probability"] = settings.map.place_probability
     args.out.mkdir(parents=True, exist_ok=True)
@@ -353,8 +351,7 @@ def markdown(results: dict, args) -> str:
         f"Command: `.venv/bin/python benchmarks/accuracy.py --rooms {args.rooms} --seed {args.seed} --test "
         f"{args.test} --validation {args.validation} --curve {args.curve} --learners {args.learners}`; "
         f"{len(split['train'])} training, {len(split['validation'])} validation, {len(split['test'])} "
-        f"generated test rooms; {results['seconds'] / 60:.0f} min, peak RSS {results['peak_rss_gb']:.1f} GB "
-        f"(worker processes {results['peak_rss_worker_gb']:.1f} GB), "
+        f"generated test rooms; {results['seconds'] / 60:.0f} min, peak RSS {results['peak_rss_gb']:.1f} GB, "
         f"{results['cores']} cores. Places: the model's place model at probability >= "
         f"{place_cuts(results)}; beside them the score cut of the models before (relative to the "
         "room's median, floored).",

@@ -5,8 +5,8 @@ Layout (under `learn.cache_dir`): ``fields/<room>-<key>.npz`` (a room's `SceneFi
 ``examples/<room>-<key>.npz`` (X, y, weight of `examples.room_examples`). Keys are digests of everything
 the contents depend on, so a changed input is a new file, never a stale one:
 
-* fields: the cloud's bytes, every setting but `learn`'s, and the source of the code that makes fields
-  and features (`affordcore/geometry`, `mapping/pipeline.py`, `labels.py`, this file);
+* fields: the cloud's bytes, every setting but `learn`'s and `cluster`'s, and the source of the code that
+  makes fields and features (`affordcore/geometry`, `mapping/pipeline.py`, `labels.py`, this file);
 * examples: the fields' key, the label file's bytes, the affordance's skeleton, the feature layout's
   fingerprint and description, and how many negatives were sampled (the sampling's seed is the room's name).
 
@@ -71,7 +71,7 @@ class RoomCache:
         return cls(settings.learn.cache_dir or default_cache_dir())
 
     def fields_key(self, cloud: Path, settings: Settings) -> str:
-        relevant = settings.model_dump(mode="json", exclude={"learn"})
+        relevant = settings.model_dump(mode="json", exclude={"learn", "cluster"})
         return digest_of(FORMAT, file_digest(cloud), relevant, code_digest())
 
     def fields_path(self, name: str, key: str) -> Path:

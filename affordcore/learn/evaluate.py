@@ -26,11 +26,11 @@ import numpy as np
 
 from ..geometry.features import FeatureLayout
 from ..labels import load_labels
+from ..parallel import map_in_processes, workers_for
 from ..settings import Settings
 from .cache import RoomCache
 from .examples import ExampleSet, Task, data_set_rooms, example_set, load_rooms
 from .learners import LEARNERS
-from .parallel import map_in_processes, workers_for
 from .thresholds import room_scores
 from .train import metrics, split_rooms, train_on_rooms
 
@@ -168,9 +168,12 @@ def evaluate(
             for split, learner, ratio, sweep in runs
         ]
         # trainings in parallel processes when the rooms are in the cache (each process reads them from
-        # there; held rooms would be copied to every job)
-        workers = workers_for(len(jobs), settings) if cache is not None else 1
-        for (split, learner, ratio, sweep), outcome in zip(runs, map_in_processes(_run, jobs, workers)):
+        # there); held rooms would be copied to every job, so those train here
+        if cache is not None:
+            outcomes = map_in_processes(_run, jobs, workers_for(len(jobs), settings))
+        else:
+            outcomes = (_run(*job) for job in jobs)
+        for (split, learner, ratio, sweep), outcome in zip(runs, outcomes):
             result.outcomes.append(outcome)
             at = "all data" if ratio is None else f"1:{ratio}"
             run = f"at {at}" if sweep else f"fold {split.fold + 1}/{k}"

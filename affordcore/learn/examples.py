@@ -29,6 +29,7 @@ from ..geometry.scene import load_cloud
 from ..geometry.skeleton import Skeleton, get_skeleton
 from ..labels import GroundTruth, LabelSet, ground_truth, load_labels
 from ..mapping.pipeline import pose_grid, prepare_scene
+from ..parallel import map_in_processes, workers_for
 from ..settings import Settings
 from .cache import (
     RoomCache,
@@ -40,7 +41,6 @@ from .cache import (
     save_examples,
     save_fields,
 )
-from .parallel import map_in_processes, workers_for
 
 
 class RoomFiles(NamedTuple):
@@ -143,9 +143,14 @@ def load_room(files: RoomFiles, settings: Settings, cache: RoomCache | None = No
     if cache is None:
         return Room(files.name, _compute_fields(files, settings), labels)
     room = _cached_room(files, labels, settings, cache)
+    _write_fields(files, room, settings)
+    return room
+
+
+def _write_fields(files: RoomFiles, room: Room, settings: Settings) -> None:
+    """The room's fields into the cache, at the path its caller keyed (unless they are there)."""
     if not room.fields_path.exists():
         save_fields(room.fields_path, _compute_fields(files, settings))
-    return room
 
 
 def _compute_fields(files: RoomFiles, settings: Settings) -> SceneFields:
@@ -178,8 +183,8 @@ def load_rooms(
     ready = [room.fields_path.exists() for room in cached]
     for room in (room for room, done in zip(cached, ready) if done):
         _tell(on_room, room.name)
-    missing = [(f, settings, cache) for f, done in zip(rooms, ready) if not done]
-    for _ in _map_rooms(load_room, missing, settings, on_room):
+    missing = [(f, room, settings) for f, room, done in zip(rooms, cached, ready) if not done]
+    for _ in _map_rooms(_write_fields, missing, settings, on_room):
         pass
     return cached
 

@@ -18,13 +18,12 @@ import hashlib
 import json
 import os
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
 
+from ..parallel import map_in_processes
 from .dataset import SynthOptions, _summary, make_room, summary_table
 
 RESUME = ".synth"
@@ -84,15 +83,9 @@ def _made_before(out: Path, name: str, made_with: dict) -> dict | None:
 
 
 def _make(options: SynthOptions, out: Path, jobs: list, workers: int) -> Iterator[tuple[int, dict]]:
-    if workers == 1:
-        for index, seed in jobs:
-            yield index, make_room(options, out, index, seed)
-        return
-    # spawn, not fork: open3d keeps threads that a forked child would inherit mid-flight
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-        futures = {pool.submit(make_room, options, out, index, seed): index for index, seed in jobs}
-        for future in as_completed(futures):
-            yield futures[future], future.result()
+    """(index, report) of each room made, in order, in parallel (`parallel.map_in_processes`)."""
+    reports = map_in_processes(make_room, [(options, out, index, seed) for index, seed in jobs], workers)
+    yield from zip((index for index, _ in jobs), reports)
 
 
 def _write_json(path: Path, document: dict) -> None:
