@@ -43,6 +43,7 @@ SPLITS = {
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=ROOT / "bench-data" / "accuracy")
+    parser.add_argument("--rooms", type=int, default=200, help="the data set's first rooms")
     parser.add_argument("--validation", type=int, default=40)
     parser.add_argument("--test", type=int, default=40)
     args = parser.parse_args()
@@ -114,7 +115,8 @@ def collect(args) -> list[dict]:
     settings = Settings()
     layout = FeatureLayout.from_settings(settings)
     style = {r["room"]: r["style"] for r in json.loads((args.data / "summary.json").read_text())["rooms"]}
-    files = {f.name: f for f in data_set_rooms(args.data)}
+    ordered = sorted(data_set_rooms(args.data), key=lambda files: int(files.name.rsplit("-", 1)[1]))
+    files = {f.name: f for f in ordered[: args.rooms]}
     _, validation, test = split_by_index(list(files), args.validation, args.test)
     part = {**{n: "validation" for n in validation}, **{n: "test" for n in test}}
     rooms = load_rooms([files[n] for n in validation + test], settings)
