@@ -50,8 +50,11 @@ class ForkedRoomMapper:
         self.connections, self.processes = [], []
         for share in self.shares:
             ours, theirs = context.Pipe()
+            # the child keeps no parent's end of a pipe (its own, its elder siblings'): if it did, a parent
+            # killed outright would leave the workers waiting for input that never ends, running for ever
+            elders = [*self.connections, ours]
             process = context.Process(
-                target=_worker, args=(theirs, share, layout, settings or Settings()), daemon=True
+                target=_worker, args=(theirs, share, layout, settings or Settings(), elders), daemon=True
             )
             process.start()
             theirs.close()
@@ -112,9 +115,12 @@ class ForkedRoomMapper:
                 process.join()
 
 
-def _worker(connection, models: list, layout: FeatureLayout, settings: Settings) -> None:
+def _worker(connection, models: list, layout: FeatureLayout, settings: Settings, elders: list) -> None:
     """A `ForkedRoomMapper` worker: (fields, affordances asked) in, ("map", affordance, map, report) out for
-    each, then ("done",); ("error", exception) instead when one fails."""
+    each, then ("done",); ("error", exception) instead when one fails. `elders`: the parent's ends of this
+    worker's pipe and of those forked before it, closed here so that only the parent holds them."""
+    for elder in elders:
+        elder.close()
     mapper = RoomMapper(models, layout, settings)
     by_name = {model.affordance: model for model in models}
     while True:
