@@ -73,11 +73,14 @@ if [ ! -x .venv/bin/python ]; then
   echo "bootstrap: creating .venv with $PY" >&2
   "$PY" -m venv .venv
 fi
-stamp=$(cat pyproject.toml | sha256sum | cut -d' ' -f1)
+# the tests also install Ray ([cluster]), so tests/test_cluster.py runs a head and a worker node in CI
+extras="all,test"
+[ "$job" = test ] && extras="all,cluster,test"
+stamp=$( (cat pyproject.toml; echo "$extras") | sha256sum | cut -d' ' -f1)
 if [ "$(cat .venv/.afford-stamp 2>/dev/null)" != "$stamp" ]; then
   echo "bootstrap: installing affordmap and its dependencies into .venv (a minute or two)" >&2
   .venv/bin/python -m pip install --quiet --upgrade pip
-  .venv/bin/python -m pip install --quiet -e ".[all,test]"
+  .venv/bin/python -m pip install --quiet -e ".[$extras]"
   echo "$stamp" > .venv/.afford-stamp
 fi
 
