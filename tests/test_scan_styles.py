@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from affordcore.synth.dataset import SynthOptions, synthesize
+from affordcore.synth.batch import synthesize
+from affordcore.synth.dataset import SynthOptions
 from affordcore.synth.rooms import generate_room, inside_polygon
 from affordcore.synth.scanner import (
     EDGE_JUMP,
@@ -229,7 +230,7 @@ def test_styles_are_dealt_by_index_so_every_kind_meets_every_style():
 def test_same_seed_same_bytes_with_origins_and_styles_in_the_report(tmp_path):
     options = SynthOptions(2, 11, ("office", "workshop"), styles=("laser", "frames"))
     summaries = [synthesize(options, tmp_path / name) for name in ("a", "b")]
-    names = sorted(path.name for path in (tmp_path / "a").iterdir())
+    names = sorted(path.name for path in (tmp_path / "a").iterdir() if path.is_file())
     assert {"office-000.origins.npy", "workshop-001.origins.npy"} <= set(names)
     for name in names:
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name

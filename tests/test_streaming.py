@@ -25,7 +25,8 @@ from affordcore.learn.examples import (
 )
 from affordcore.learn.train import train
 from affordcore.settings import FeatureSettings, GridSettings, LearnSettings, Settings
-from affordcore.synth.dataset import SynthOptions, synthesize
+from affordcore.synth.batch import synthesize
+from affordcore.synth.dataset import SynthOptions
 
 
 @pytest.fixture(scope="module")

@@ -14,11 +14,7 @@ files byte for byte, in any order and with any number of worker processes.
 from __future__ import annotations
 
 import json
-import os
-from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -72,41 +68,6 @@ class SynthOptions:
         count = len(self.styles)
         cycle = int(np.lcm(len(self.kinds), count))
         return self.styles[(index + index // cycle) % count]
-
-
-def synthesize(
-    options: SynthOptions,
-    out: Path,
-    workers: int | None = None,
-    on_room_done: Callable[[dict], None] | None = None,
-) -> dict:
-    """Generate every room (in parallel processes), then write the summary; returns it."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    workers = max(1, min(workers or os.cpu_count() or 1, options.rooms))
-    seeds = np.random.SeedSequence(options.seed).spawn(options.rooms)
-    reports = []
-    for report in _run(options, out, seeds, workers):
-        reports.append(report)
-        if on_room_done:
-            on_room_done(report)
-    reports.sort(key=lambda r: r["room"])
-    summary = _summary(options, reports)
-    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
-    (out / "summary.md").write_text(summary_table(summary))
-    return summary
-
-
-def _run(options: SynthOptions, out: Path, seeds, workers: int) -> Iterator[dict]:
-    jobs = [(options, out, index, seed) for index, seed in enumerate(seeds)]
-    if workers == 1:
-        yield from (make_room(*job) for job in jobs)
-        return
-    # spawn, not fork: open3d keeps threads that a forked child would inherit mid-flight
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-        futures = [pool.submit(make_room, *job) for job in jobs]
-        for future in as_completed(futures):
-            yield future.result()
 
 
 def make_room(options: SynthOptions, out: Path, index: int, seed: np.random.SeedSequence) -> dict:
