@@ -68,7 +68,9 @@ def map_room(
         loading = time.perf_counter()
         cloud = _loaded(cloud_path)
         seconds["load the cloud"] = time.perf_counter() - loading
-        scene = prepare_scene(cloud, settings, parse_gravity(gravity), seconds)
+        affordance_names = [model.affordance for model in models]
+        record = (lambda world: writer.start_scene(world, affordance_names, out, rrd)) if writer else None
+        scene = prepare_scene(cloud, settings, parse_gravity(gravity), seconds, on_world=record)
         _warn(scene.warnings)
         typer.echo(f"{cloud_path}: {len(scene.cloud):,} points; {scene.alignment.describe()}")
         mapping = time.perf_counter()

@@ -24,7 +24,7 @@ _AREA_CELL = 0.10  # floor area is counted in cells of this size
 _HORIZONTAL_COS = 0.9  # a surface whose normal is within ~25 deg of up counts as horizontal
 _FURNITURE_TOP = 1.3  # horizontal surfaces up to this height count for a floor's score (m)
 _REFITS = 10  # least-squares refits of the RANSAC plane, at most
-_JUDGES = 20_000  # points that rank RANSAC hypotheses
+_JUDGES = 20_000  # points that rank RANSAC hypotheses, and that the horizontal-surface score is taken over
 _DESCENTS = 3  # at most this many times a floor is looked for under a plane with points below it
 _LEVEL_SLAB = 0.25  # check_levelled looks for the floor among points this close to z = 0 (m)
 # check_levelled lets a floor be half as big and have twice as much under it as the search that levels a
@@ -191,13 +191,9 @@ def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
         raise NoFloorError(
             f"no floor found ({reasons}). Give the gravity direction explicitly if the floor is not in view."
         )
-    if len(valid) > 1:  # the score only chooses between valid floors: normals (0.4 s of CPU) only then
-        # The horizontal-surface score is a fraction of points: a coarser copy scores as well, and normal
-        # estimation, a large share of an auto alignment, costs far less on it.
-        coarse = voxel_thin(sample, 2 * settings.sample_voxel)[0]
-        normals = _estimate_normals(coarse, radius=4 * settings.sample_voxel)
-        for candidate in valid:
-            candidate.score = _horizontal_score(candidate.normal, candidate.offset, coarse, normals)
+    if len(valid) > 1:  # the score only chooses between valid floors: normals only then
+        for candidate, score in zip(valid, _horizontal_scores(sample, valid, settings)):
+            candidate.score = score
     best = max(valid, key=lambda c: c.score)
     return Alignment(
         _world_from(best.normal, best.offset),
@@ -258,6 +254,22 @@ def _find_floor(
     return candidate
 
 
+def _horizontal_scores(
+    sample: np.ndarray, candidates: list[FloorCandidate], settings: GravitySettings
+) -> list[float]:
+    """Each candidate floor's horizontal-surface score (`_horizontal_score`), taken over `_JUDGES` random
+    points of a coarser copy of the sample (normals from all of its points): a share of points, which that
+    many estimate to within +-0.011 (3 sigma), and normal estimation, most of an auto alignment when it
+    runs, costs a sixth of what it costs at every point (0.5 s of CPU on a 10 m room's 131,000 coarse
+    points)."""
+    coarse = voxel_thin(sample, 2 * settings.sample_voxel)[0]
+    rng = np.random.default_rng(settings.seed)
+    judges = np.sort(rng.choice(len(coarse), _JUDGES, replace=False)) if len(coarse) > _JUDGES else None
+    normals = _estimate_normals(coarse, radius=4 * settings.sample_voxel, at=judges)
+    points = coarse if judges is None else coarse[judges]
+    return [_horizontal_score(c.normal, c.offset, points, normals) for c in candidates]
+
+
 def _horizontal_score(
     normal: np.ndarray, offset: float, points: np.ndarray, point_normals: np.ndarray
 ) -> float:
@@ -290,9 +302,17 @@ def _ransac_plane(
     # planes as well as 200,000 and the count was most of an alignment's time.
     judges = points if len(points) <= _JUDGES else points[rng.choice(len(points), _JUDGES, replace=False)]
     best_count, best = -1, 0
-    for start in range(0, len(normals), 64):  # 64 planes x all points at a time bounds memory
-        distance = np.abs(judges @ normals[start : start + 64].T - offsets[start : start + 64])
-        counts = (distance < settings.ransac_threshold).sum(axis=0)
+    # 64 planes x all judges at a time bounds memory; the distances are worked out in place in one buffer
+    # (the arithmetic of a fresh array per step, without its allocation and page faults)
+    distance = np.empty((len(judges), 64))
+    inside = np.empty((len(judges), 64), dtype=bool)
+    for start in range(0, len(normals), 64):
+        n = min(64, len(normals) - start)
+        block, near = distance[:, :n], inside[:, :n]
+        np.matmul(judges, normals[start : start + n].T, out=block)
+        np.subtract(block, offsets[start : start + n], out=block)
+        np.less(np.abs(block, out=block), settings.ransac_threshold, out=near)
+        counts = np.count_nonzero(near, axis=0)
         if counts.max() > best_count:
             best_count, best = int(counts.max()), start + int(counts.argmax())
     normal, offset = normals[best], offsets[best]
@@ -327,10 +347,10 @@ def _area(points: np.ndarray, normal: np.ndarray) -> float:
     return len(np.unique(cells[:, 0] * (cells[:, 1].max() + 1) + cells[:, 1])) * _AREA_CELL**2
 
 
-def _estimate_normals(points: np.ndarray, radius: float = 0.1) -> np.ndarray:
+def _estimate_normals(points: np.ndarray, radius: float = 0.1, at: np.ndarray | None = None) -> np.ndarray:
     from .normals import pca_normals
 
-    return pca_normals(points, radius, 30)
+    return pca_normals(points, radius, 30, at)
 
 
 def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -82,7 +82,8 @@ def map_and_write(
     try:
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
             futures = {pool.submit(_map_one, index): index for index in range(len(models))}
-            writer.start_scene(scene, [m.affordance for m in models], out, rrd)
+            if not writer.has_scene:
+                writer.start_scene(scene, [m.affordance for m in models], out, rrd)
             for future in as_completed(futures):
                 index = futures[future]
                 amap, seconds = future.result()
@@ -198,6 +199,7 @@ class OutputWriter:
         self._process = context.Process(target=_writer_main, args=(theirs,), daemon=True)
         self._process.start()
         theirs.close()
+        self.has_scene = False
 
     def __enter__(self) -> OutputWriter:
         return self
@@ -205,11 +207,14 @@ class OutputWriter:
     def __exit__(self, *_) -> None:
         self.close()
 
-    def start_scene(self, scene, affordances: list[str], out: Path, rrd: Path | None) -> None:
-        points, source = scene.cloud.points, scene.cloud.source
+    def start_scene(self, world, affordances: list[str], out: Path, rrd: Path | None) -> None:
+        """The room (a `pipeline.WorldCloud` or `PreparedScene`): the writer records its cloud. As soon as the
+        world cloud exists (`prepare_scene`'s `on_world`), the recording is made while the fields are."""
+        points, source = world.cloud.points, world.cloud.source
         self._connection.send(
-            ("scene", points, source, scene.alignment.world_from_input, affordances, out, rrd)
+            ("scene", points, source, world.alignment.world_from_input, affordances, out, rrd)
         )
+        self.has_scene = True
 
     def write_map(self, amap, model_id: str) -> None:
         self._connection.send(("map", amap, model_id))
@@ -237,9 +242,10 @@ def _writer_main(connection) -> None:
     an error, only `finish` is answered (with the error)."""
     start = time.perf_counter()
     from .plots import pyplot
-    from .recording import open_recording  # noqa: F401  (imports rerun now, while the room is loaded)
+    from .recording import import_rerun
 
     pyplot()
+    import_rerun()  # now, while the command loads and levels the room, not once the maps are scored
     state = {"seconds": {"writer: importing matplotlib and rerun": time.perf_counter() - start}}
     error = None
     while True:

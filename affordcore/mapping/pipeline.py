@@ -100,13 +100,17 @@ def prepare_scene(
     gravity: str | np.ndarray = "auto",
     timings: dict[str, float] | None = None,
     normals=None,
+    on_world: Callable[[WorldCloud], None] | None = None,
 ) -> PreparedScene:
     """`to_world`, then the voxel fields every affordance is scored on; `timings` gets each one's seconds;
     `normals`: how the fields get the cloud's normals (`compute_fields`' estimator: an `updates.NormalCache`
-    for a room mapped again and again)."""
+    for a room mapped again and again); `on_world(world)` hears of the world cloud before the fields are
+    computed (afford map's writer records it meanwhile)."""
     settings = settings or Settings()
     start = time.perf_counter()
     world = to_world(cloud, settings, gravity)
+    if on_world is not None:
+        on_world(world)
     aligned = time.perf_counter()
     fields = compute_fields(world.cloud.points, settings.voxel, settings.normals, estimator=normals)
     if timings is not None:

@@ -259,6 +259,13 @@ def _plan(xy: np.ndarray) -> np.ndarray:
     return np.asarray(xy)[..., :2] * np.array([1.0, -1.0])
 
 
+def import_rerun() -> None:
+    """Import rerun now: 0.6-0.8 s of CPU (its blueprint and arrow modules), which `open_recording` would
+    otherwise pay for at the first recording."""
+    import rerun  # noqa: F401
+    import rerun.blueprint  # noqa: F401
+
+
 def preload() -> None:
     """Import now what logging the first map imports (matplotlib's colour maps for the affordances' colours:
     0.15-0.45 s), so that a service does not pay for it between its first map and the next."""
