@@ -4,10 +4,10 @@ recording of the room with every map.
 `map_and_write` is the command's last stage. With workers (Linux, 2 cores or more) each model's scores and map
 come from a worker process of their own (forked once the fields exist, so nothing is copied to them), and an
 `OutputWriter`, a process forked when the command starts, writes the recording, the JSONs and the PNGs: it
-imports matplotlib and rerun (about 0.8 s of CPU) while this process loads, levels and voxelises the room,
-then logs the cloud while the workers score, and each map as it comes. On 2 cores that keeps the imports,
-three plans and a recording off the path from the cloud to the maps (benchmarks/bench_map.py,
-docs/maps.md).
+imports matplotlib and rerun (1-1.3 s of CPU) while this process loads and levels the room, logs the cloud
+while the fields are computed, and has each map drawn as it comes, by a process forked from it (maps that
+come together are drawn side by side). On 2 cores that keeps the imports, three plans and a recording off
+the path from the cloud to the maps (benchmarks/bench_map.py, docs/maps.md).
 """
 
 from __future__ import annotations
@@ -187,9 +187,10 @@ def summary_line(amap) -> str:
 class OutputWriter:
     """A forked process that writes `map_and_write`'s outputs: started before the room is loaded, it imports
     matplotlib and rerun meanwhile; then it gets the room (`start_scene`: it logs the cloud to the
-    recording), each map (`write_map`: its JSON and PNG) and the order of the maps (`finish`: they go into
-    the recording, which is closed; returns the paths written and each stage's seconds). An error in it is
-    raised here, at `finish`. A context manager; `close` ends it if it is still running."""
+    recording), each map (`write_map`: its JSON and PNG, written by a `_Drawer`) and the order of the maps
+    (`finish`: they go into the recording, which is closed; returns the paths written and each stage's
+    seconds). An error in it is raised here, at `finish`. A context manager; `close` ends it if it is still
+    running."""
 
     def __init__(self):
         import multiprocessing
@@ -279,22 +280,66 @@ def _serve(state: dict, request: tuple) -> None:
     start, seconds = time.perf_counter(), state["seconds"]
     if request[0] == "scene":
         _, points, source, world_from_input, affordances, out, rrd = request
-        state.update(points=points, world_from_input=world_from_input, out=out, rrd=rrd, maps={}, written={})
+        state.update(points=points, world_from_input=world_from_input, out=out, rrd=rrd, maps={}, drawers={})
         state["recording"] = _open_with_cloud(rrd, affordances, points, source) if rrd is not None else None
         state["plan"] = plan_heights(points)
         seconds["recording: the cloud"] = time.perf_counter() - start
     else:
         _, amap, model_id = request
-        state["written"][amap.affordance] = _json_and_png(
-            state["points"], state["world_from_input"], amap, model_id, state["out"], state["plan"]
-        )
         state["maps"][amap.affordance] = amap
-        seconds[f"JSON + PNG {amap.affordance}"] = time.perf_counter() - start
+        state["drawers"][amap.affordance] = _Drawer(state, amap, model_id)
+
+
+class _Drawer:
+    """One map's JSON and PNG, written by a process forked from the writer (matplotlib is loaded there): maps
+    that come back together (the workers score side by side) are drawn side by side too, instead of one
+    after the other once the scoring is over. The child leaves by os._exit: nothing of the writer's (its
+    recording's sinks, its pipe to the command) is flushed or closed twice."""
+
+    def __init__(self, state: dict, amap, model_id: str):
+        import pickle
+
+        read, write = os.pipe()
+        self.pid = os.fork()
+        if self.pid == 0:  # the child
+            os.close(read)
+            start = time.perf_counter()
+            try:
+                paths = _json_and_png(
+                    state["points"], state["world_from_input"], amap, model_id, state["out"], state["plan"]
+                )
+                answer = ("done", (paths, time.perf_counter() - start))
+            except BaseException as error:  # raised in the command's process, at finish
+                answer = ("error", RuntimeError(f"writing the {amap.affordance} map: {error!r}"))
+            with os.fdopen(write, "wb") as pipe:
+                pickle.dump(answer, pipe)
+            os._exit(0)
+        os.close(write)
+        self.answer = os.fdopen(read, "rb")
+
+    def result(self) -> tuple[list[Path], float]:
+        """(the paths written, seconds), once the child is done; its error raised here."""
+        import pickle
+
+        try:
+            outcome, value = pickle.load(self.answer)
+        except EOFError:
+            raise RuntimeError("the process drawing a map ended without a word") from None
+        finally:
+            self.answer.close()
+            os.waitpid(self.pid, 0)
+        if outcome == "error":
+            raise value
+        return value
 
 
 def _finished(state: dict, order: list[str]) -> tuple[list[Path], dict[str, float]]:
     """The maps logged in `order` and the recording closed: (the paths written, each stage's seconds)."""
-    paths = [path for affordance in order for path in state["written"][affordance]]
+    paths = []
+    for affordance in order:
+        written, seconds = state["drawers"][affordance].result()
+        state["seconds"][f"JSON + PNG {affordance}"] = seconds
+        paths += written
     if state["recording"] is not None:
         start = time.perf_counter()
         _close_with_maps(state["recording"], [state["maps"][affordance] for affordance in order])
