@@ -48,7 +48,25 @@ def map_room(
     timings: bool = False,
 ) -> list[Path]:
     """load -> align -> fields -> score -> map -> write, each one call into the library (the maps in worker
-    processes and the files in a writer process started first, `outputs.map_and_write`)."""
+    processes and the files in a writer process started first, `outputs.map_and_write`), on one BLAS thread
+    per process: its matrices are thin (points x 3), and OpenBLAS's second thread spin-waits between calls,
+    which doubled the CPU of the floor search and took the core the writer and the workers share."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1, user_api="blas"):
+        return _map_room(cloud_path, out, model_files, affordances, gravity, rrd, quiet, timings)
+
+
+def _map_room(
+    cloud_path: Path,
+    out: Path,
+    model_files: list[Path],
+    affordances: list[str],
+    gravity: str,
+    rrd: Path,
+    quiet: bool,
+    timings: bool,
+) -> list[Path]:
     from contextlib import nullcontext
 
     from affordcore.geometry.features import FeatureLayout
