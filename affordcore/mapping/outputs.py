@@ -75,6 +75,9 @@ def map_and_write(
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
+    from .pipeline import preload
+
+    preload()  # the scoring modules imported once here, not once in every worker
     own_writer = writer is None
     writer = writer or OutputWriter()
     _JOB = (scene, models, settings)
