@@ -57,3 +57,19 @@ def test_one_process_and_no_recording(room, tmp_path):
     maps, written = map_and_write(scene, models[:1], settings, tmp_path, None, workers=1)
     assert list(maps) == [models[0].affordance]
     assert [p.name for p in written] == [f"{models[0].affordance}.json", f"{models[0].affordance}.png"]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="workers are forked on Linux only")
+def test_an_error_writing_a_map_is_raised_naming_the_map(room, tmp_path, monkeypatch):
+    """Each map is drawn by a process forked from the writer: what goes wrong there reaches the caller."""
+    from affordcore.mapping import outputs
+
+    scene, models, settings = room
+
+    def broken(points, world_from_input, amap, *rest):
+        raise OSError(f"no room left for {amap.affordance}")
+
+    monkeypatch.setattr(outputs, "_json_and_png", broken)  # before the writer is forked: it inherits it
+    first = models[0].affordance
+    with pytest.raises(RuntimeError, match=f"writing the {first} map: OSError.'no room left for {first}'"):
+        map_and_write(scene, models[:2], settings, tmp_path, tmp_path / "map.rrd", workers=2)
