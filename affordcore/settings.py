@@ -118,6 +118,27 @@ class GravitySettings(BaseModel):
     seed: int = 0
 
 
+class VisibilitySettings(BaseModel):
+    angular_step: float = Field(
+        1.0, gt=0, le=10, description="bin of the range images free space is carved from (degrees)"
+    )
+    max_origins: int = Field(
+        32, ge=1, description="at most this many sensor positions carve free space (spread out over all)"
+    )
+    seen_low: float = Field(0.2, description="a place's body space starts this high above the floor (m)")
+    seen_high: float = Field(1.4, description="and ends this high (m)")
+    seen_radius: float = Field(
+        0.3, ge=0, description="a place's body space: its voxel columns within this distance (m)"
+    )
+    min_seen: float = Field(
+        0.0,
+        ge=0,
+        le=1,
+        description="with sensor positions, a cell is mapped only when the sensors saw (free or surface) at "
+        "least this share of its body space: unknown is not empty; 0: no such rule",
+    )
+
+
 class MapSettings(BaseModel):
     place_probability: float | None = Field(
         None,
@@ -325,6 +346,7 @@ class Settings(BaseSettings):
     features: FeatureSettings = FeatureSettings()
     gravity: GravitySettings = GravitySettings()
     map: MapSettings = MapSettings()
+    visibility: VisibilitySettings = VisibilitySettings()
     assembler: AssemblerSettings = AssemblerSettings()
     limits: LimitSettings = LimitSettings()
     learn: LearnSettings = LearnSettings()

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from affordcore.geometry.features import FeatureLayout
+from affordcore.geometry.scene import origins_file
 from affordcore.learn import examples as examples_module
 from affordcore.learn.cache import RoomCache
 from affordcore.learn.evaluate import evaluate
@@ -106,7 +107,7 @@ def test_a_changed_setting_cloud_or_layout_is_a_new_cache_entry(data_set, tmp_pa
 
     changed = tmp_path / "changed"
     changed.mkdir()
-    for source in (files[0].cloud, files[0].labels):
+    for source in (files[0].cloud, files[0].labels, origins_file(files[0].cloud)):
         (changed / source.name).write_bytes(source.read_bytes())
     (moved,) = load_rooms(data_set_rooms(changed), base, cache=cache)
     assert moved.fields_path == room.fields_path  # the same bytes elsewhere: the same entry
@@ -114,6 +115,9 @@ def test_a_changed_setting_cloud_or_layout_is_a_new_cache_entry(data_set, tmp_pa
         f.write(b"\n")  # a different file: a new entry, never the old fields
     (edited,) = load_rooms(data_set_rooms(changed), base, cache=cache)
     assert edited.fields_path != room.fields_path
+    origins_file(changed / files[0].cloud.name).unlink()  # the sensor positions are part of the room
+    (unseen,) = load_rooms(data_set_rooms(changed), base, cache=cache)
+    assert unseen.fields_path != edited.fields_path
 
 
 def test_stack_reads_one_room_at_a_time_and_keeps_the_same_rows(data_set, tmp_path, monkeypatch):

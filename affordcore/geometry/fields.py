@@ -62,10 +62,14 @@ class SceneFields:
     normals: np.ndarray  # (nx, ny, nz, 3) float32, unit where a surface is, else 0
     footprint: tuple[float, float, float, float]  # the cloud's x_min, y_min, x_max, y_max
     steep_facing: str = "centre"  # which way steep normals face (`NormalSettings.steep_facing`)
+    # (nx, ny, nz) uint8 `visibility` states (unknown, free, occupied) when the sensor positions are known;
+    # None when the cloud came without them (a file): then unknown space cannot be told from free
+    visibility: np.ndarray | None = None
 
     @property
     def nbytes(self) -> int:
-        return self.occupancy.nbytes + self.distance.nbytes + self.normals.nbytes
+        extra = 0 if self.visibility is None else self.visibility.nbytes
+        return self.occupancy.nbytes + self.distance.nbytes + self.normals.nbytes + extra
 
 
 def lattice_around(points: np.ndarray, settings: VoxelSettings) -> VoxelLattice:
@@ -277,14 +281,14 @@ def observed_floor(fields: SceneFields, x: np.ndarray, y: np.ndarray, margin: fl
     if reach > 0:
         dy, dx = np.mgrid[-reach : reach + 1, -reach : reach + 1]
         seen = ndimage.binary_dilation(seen, dx**2 + dy**2 <= reach**2)
-    return _at_columns(seen, lattice, x, y)
+    return at_columns(seen, lattice, x, y)
 
 
 def scanned_cells(fields: SceneFields, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """(len(x), len(y)) bool: whether the sensor saw anything in each (x, y)'s voxel column: scanned floor,
     or a surface above it (a seat or a table top hides the floor under it, yet the place was seen). A column
     with neither was never looked at: unknown, not empty."""
-    return _at_columns(fields.occupancy.any(axis=2), fields.lattice, x, y)
+    return at_columns(fields.occupancy.any(axis=2), fields.lattice, x, y)
 
 
 def mapped_cells(
@@ -298,7 +302,7 @@ def mapped_cells(
     return mapped if scanned is None else mapped | scanned
 
 
-def _at_columns(plan: np.ndarray, lattice: VoxelLattice, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def at_columns(plan: np.ndarray, lattice: VoxelLattice, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """(len(x), len(y)): `plan` (one value per voxel column) at the column under each (x, y), the lattice's
     edge columns for positions beyond it."""
     ix = np.clip(np.rint((x - lattice.origin[0]) / lattice.resolution).astype(int), 0, lattice.shape[0] - 1)

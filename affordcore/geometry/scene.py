@@ -28,13 +28,16 @@ class CloudError(ValueError):
 
 @dataclass
 class Cloud:
-    """Points (N, 3) float64 in metres, optional colours (N, 3) float32 in [0, 1]."""
+    """Points (N, 3) float64 in metres, optional colours (N, 3) float32 in [0, 1], and optionally where the
+    sensor stood when it saw them (`origins`, (M, 3) in the points' frame: what tells space seen through
+    from space never seen, `geometry.visibility`)."""
 
     points: np.ndarray
     colors: np.ndarray | None = None
     source: str = "<memory>"
     dropped_nonfinite: int = 0
     notes: list[str] = field(default_factory=list)
+    origins: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.points = np.ascontiguousarray(self.points, dtype=np.float64)
@@ -44,14 +47,64 @@ class Cloud:
             self.colors = np.ascontiguousarray(self.colors, dtype=np.float32)
             if self.colors.shape != self.points.shape:
                 raise CloudError(f"{self.source}: {len(self.colors)} colours for {len(self.points)} points")
+        if self.origins is not None:
+            self.origins = checked_origins(self.origins, self.source)
 
     def __len__(self) -> int:
         return len(self.points)
 
     def transformed(self, transform: np.ndarray) -> Cloud:
         """The same cloud with a 4 x 4 rigid transform applied to its points."""
-        points = self.points @ transform[:3, :3].T + transform[:3, 3]
-        return Cloud(points, self.colors, self.source, self.dropped_nonfinite, list(self.notes))
+
+        def moved(xyz: np.ndarray) -> np.ndarray:
+            return xyz @ transform[:3, :3].T + transform[:3, 3]
+
+        origins = None if self.origins is None else moved(self.origins)
+        return Cloud(
+            moved(self.points), self.colors, self.source, self.dropped_nonfinite, list(self.notes), origins
+        )
+
+    def with_points(self, points: np.ndarray, colors: np.ndarray | None) -> Cloud:
+        """The same cloud (source, notes, sensor positions) with other points, e.g. thinned."""
+        return Cloud(points, colors, self.source, self.dropped_nonfinite, list(self.notes), self.origins)
+
+
+def origins_file(cloud: str | os.PathLike) -> Path:
+    """Where a cloud file's sensor positions are looked for: ``<stem>.origins.npy`` beside it (what
+    `afford synth` writes)."""
+    path = Path(cloud)
+    return path.with_name(path.stem + ".origins.npy")
+
+
+def load_origins(path: str | os.PathLike) -> np.ndarray | None:
+    """Sensor positions (M, 3) from a .npy array or a text table (x y z per row), None for an empty (0, 3)
+    array (a cloud sampled from every surface had no sensor); `CloudError` naming the file and the
+    problem."""
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".npy":
+            array = np.load(path, allow_pickle=False)
+        else:
+            array = np.loadtxt(
+                path, dtype=np.float64, ndmin=2, delimiter="," if "," in path.read_text() else None
+            )
+    except (OSError, ValueError) as error:
+        raise CloudError(f"{path}: cannot read sensor positions: {error}") from error
+    if np.shape(array) == (0, 3):
+        return None
+    return checked_origins(array, str(path))
+
+
+def checked_origins(origins, source: str) -> np.ndarray:
+    """(M, 3) float64 finite sensor positions, M >= 1, or a `CloudError` that says what is wrong."""
+    array = np.asarray(origins, dtype=np.float64)
+    if array.ndim != 2 or array.shape[1] != 3 or not len(array):
+        raise CloudError(
+            f"{source}: sensor positions must be an (M, 3) array with M >= 1, got shape {array.shape}"
+        )
+    if not np.isfinite(array).all():
+        raise CloudError(f"{source}: sensor positions must be finite")
+    return np.ascontiguousarray(array)
 
 
 def load_cloud(path: str | os.PathLike, bin_columns: int | None = None) -> Cloud:
@@ -89,7 +142,11 @@ def load_cloud(path: str | os.PathLike, bin_columns: int | None = None) -> Cloud
         raise
     except Exception as error:  # a parser's own message, with the file named
         raise CloudError(f"{path}: cannot read as {suffix[1:].upper()}: {error}") from error
-    return _finish(path, points, colors)
+    cloud = _finish(path, points, colors)
+    beside = origins_file(path)
+    if beside.exists():  # written with the cloud (afford synth): it says which space was seen through
+        cloud.origins = load_origins(beside)
+    return cloud
 
 
 def _finish(path: Path, points: np.ndarray, colors: np.ndarray | None) -> Cloud:
@@ -396,4 +453,4 @@ def thin_huge_cloud(cloud: Cloud, max_points: int, first_voxel: float) -> tuple[
         f"{cloud.source}: {len(cloud):,} points is over the {max_points:,} limit; thinned to {len(points):,} "
         f"at {voxel * 100:.0f} mm voxels (AFFORD_MAP__MAX_POINTS raises the limit)"
     )
-    return Cloud(points, colors, cloud.source, cloud.dropped_nonfinite, list(cloud.notes)), warning
+    return cloud.with_points(points, colors), warning

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.fields import SceneFields, VoxelLattice
+from ..geometry.scene import origins_file
 from ..settings import Settings
 
 FORMAT = 1
@@ -72,7 +73,9 @@ class RoomCache:
 
     def fields_key(self, cloud: Path, settings: Settings) -> str:
         relevant = settings.model_dump(mode="json", exclude={"learn", "cluster"})
-        return digest_of(FORMAT, file_digest(cloud), relevant, code_digest())
+        origins = origins_file(cloud)
+        seen_from = file_digest(origins) if origins.exists() else "no sensor positions"
+        return digest_of(FORMAT, file_digest(cloud), seen_from, relevant, code_digest())
 
     def fields_path(self, name: str, key: str) -> Path:
         return self.folder / "fields" / f"{name}-{key}.npz"
@@ -93,6 +96,7 @@ def save_fields(path: Path, fields: SceneFields) -> None:
         normals=fields.normals,
         footprint=np.asarray(fields.footprint, dtype=np.float64),
         steep_facing=np.str_(fields.steep_facing),
+        **({} if fields.visibility is None else {"visibility": fields.visibility}),
     )
 
 
@@ -108,6 +112,7 @@ def load_fields(path: Path) -> SceneFields:
             data["normals"],
             tuple(float(v) for v in data["footprint"]),
             str(data["steep_facing"]),
+            data["visibility"] if "visibility" in data else None,
         )
 
 

@@ -113,9 +113,18 @@ def prepare_scene(
         on_world(world)
     aligned = time.perf_counter()
     fields = compute_fields(world.cloud.points, settings.voxel, settings.normals, estimator=normals)
+    computed = time.perf_counter()
+    if world.cloud.origins is not None:
+        from ..geometry.visibility import voxel_states
+
+        fields.visibility = voxel_states(
+            fields.occupancy, fields.lattice, world.cloud.origins, settings.visibility
+        )
     if timings is not None:
         timings["gravity alignment"] = aligned - start
-        timings["voxel fields"] = time.perf_counter() - aligned
+        timings["voxel fields"] = computed - aligned
+        if fields.visibility is not None:
+            timings["visibility (free and unknown space)"] = time.perf_counter() - computed
     return PreparedScene(
         world.cloud,
         world.alignment,
@@ -221,6 +230,9 @@ class RoomMapper:
             if settings.map.floor_margin >= 0
             else None
         )
+        unseen = unseen_cells(fields, grid, settings)
+        if unseen is not None:
+            allowed = ~unseen if allowed is None else allowed & ~unseen
         previous = self.states.get(model.affordance)
         linear, stale, report = updated_scores(
             previous, fields, grid, skeleton, self.layout, model.weights, model.bias
@@ -231,6 +243,17 @@ class RoomMapper:
         self.scanned[model.affordance] = scanned
         self.reports[model.affordance] = report
         return grid, scores
+
+
+def unseen_cells(fields: SceneFields, grid: PoseGrid, settings: Settings) -> np.ndarray | None:
+    """(nx, ny) bool: the cells whose body space the sensors saw too little of to hold a place
+    (`visibility.body_seen` under `visibility.min_seen`); None when there is no such rule here (it is off,
+    or the cloud came without sensor positions)."""
+    if settings.visibility.min_seen <= 0 or fields.visibility is None:
+        return None
+    from ..geometry.visibility import body_seen
+
+    return body_seen(fields, grid.x, grid.y, settings.visibility) < settings.visibility.min_seen
 
 
 def score_model(

@@ -1,0 +1,162 @@
+"""What the sensors saw: each voxel of the fields' lattice is unknown (never seen), free (seen through) or
+occupied (holds points).
+
+A cloud says where surfaces are, not where space is empty: a voxel without points may be air the sensor
+looked through, or the space behind a sofa that nothing ever saw. Scored as it stands, the second looks
+as open as the first, and a skeleton can stand in it. With the positions the sensor stood at (the
+assembler's frames, a generated scan's stations, a depth frame's camera) the two part: space between a
+sensor and the first surface along a line of sight was seen, and is free; the rest is unknown.
+
+How: one range image per sensor position (the nearest surface in each direction, over bins of
+`VisibilitySettings.angular_step` in azimuth and elevation), made from the occupied voxels' centres and
+corners and shrunk by one bin (so a near surface's splats leave no gap a far one shows through); a voxel is
+free when it lies at least one voxel nearer than that image's surface in its direction. Each position is
+taken to have looked all round: a camera's field of view is not known here, so space in a line of sight
+counts as seen. That errs towards free only where a surface was seen from elsewhere and the space in
+front of it lies in the open view of another position, which a moving sensor mostly did look through.
+A direction with no surface at all (an open door, a missing return) frees nothing.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..settings import VisibilitySettings
+from .fields import SceneFields, VoxelLattice, at_columns
+
+UNKNOWN, FREE, OCCUPIED = 0, 1, 2
+
+_SPLAT_HALF_WIDTH = 0.6  # voxels: a square this wide either side covers most of a voxel's outline
+_MAX_SPLAT = 8  # samples per side at most (a voxel an arm's length from the sensor spans ~6 one-degree bins)
+
+
+def voxel_states(
+    occupancy: np.ndarray,
+    lattice: VoxelLattice,
+    origins: np.ndarray,
+    settings: VisibilitySettings | None = None,
+) -> np.ndarray:
+    """(nx, ny, nz) uint8 UNKNOWN / FREE / OCCUPIED of `occupancy` (the fields' lattice), seen from the
+    sensor positions `origins` (M, 3, world frame; at most `settings.max_origins` of them are used, spread
+    out by `spread_origins`)."""
+    settings = settings or VisibilitySettings()
+    occupied = np.asarray(occupancy) > 0
+    state = np.where(occupied, OCCUPIED, UNKNOWN).astype(np.uint8)
+    origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    if not len(origins) or not occupied.any():
+        return state
+    surface = lattice.centres(np.argwhere(occupied))
+    empty = np.flatnonzero(~occupied.ravel())
+    centres = lattice.centres(np.column_stack(np.unravel_index(empty, occupied.shape)))
+    free = np.zeros(len(empty), bool)
+    for origin in spread_origins(origins, settings.max_origins):  # a few dozen at most
+        image = _range_image(surface - origin, lattice.resolution, settings.angular_step)
+        free |= _in_front(centres - origin, image, settings.angular_step, lattice.resolution)
+    state.ravel()[empty[free]] = FREE
+    return state
+
+
+def spread_origins(origins: np.ndarray, count: int) -> np.ndarray:
+    """At most `count` of the positions, spread out (farthest-point order from the first): a walk's
+    thousand frames see the room from a few dozen distinct places."""
+    if len(origins) <= count:
+        return origins
+    chosen = [0]
+    nearest = np.linalg.norm(origins - origins[0], axis=1)
+    for _ in range(count - 1):  # `count` rounds, each vectorised over every position
+        chosen.append(int(nearest.argmax()))
+        nearest = np.minimum(nearest, np.linalg.norm(origins - origins[chosen[-1]], axis=1))
+    return origins[chosen]
+
+
+def _bins(step: float) -> tuple[int, int]:
+    """Rows (elevation) and columns (azimuth) of a range image of `step` degrees."""
+    return int(round(180 / step)), int(round(360 / step))
+
+
+def _directions(offsets: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Range, elevation bin and azimuth bin of each offset from a sensor position (`step` in degrees)."""
+    n_el, n_az = _bins(step)
+    radians = np.radians(step)
+    distance = np.linalg.norm(offsets, axis=1)
+    elevation = np.arcsin(np.clip(offsets[:, 2] / np.maximum(distance, 1e-9), -1.0, 1.0))
+    azimuth = np.arctan2(offsets[:, 1], offsets[:, 0])
+    row = np.clip(((elevation + np.pi / 2) / radians).astype(np.int64), 0, n_el - 1)
+    column = ((azimuth + np.pi) / radians).astype(np.int64) % n_az
+    return distance, row, column
+
+
+def _range_image(offsets: np.ndarray, resolution: float, step: float) -> np.ndarray:
+    """(n_el, n_az): the range of the nearest surface voxel in each direction; 0 where none was seen
+    (nothing is free that way). A single empty bin among surface bins (a gap between two splats) takes its
+    nearest neighbour's range."""
+    from scipy import ndimage
+
+    samples, distance = _splats(offsets, resolution, step)
+    _, row, column = _directions(samples, step)
+    image = np.full(_bins(step), np.inf)
+    np.minimum.at(image, (row, column), distance)
+    gaps = np.isinf(image)
+    near = ndimage.minimum_filter(image, size=3, mode=("nearest", "wrap"))
+    image[gaps] = near[gaps]
+    image[np.isinf(image)] = 0.0
+    return image
+
+
+def _splats(offsets: np.ndarray, resolution: float, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points covering each surface voxel's outline as the sensor sees it (a square across the line of
+    sight, with more samples the nearer the voxel, so no bin it covers is missed), and the range of the
+    voxel centre each stands for."""
+    distance = np.linalg.norm(offsets, axis=1)
+    # samples per side: a bin's width at the voxel's range, at least 2
+    across = resolution / np.maximum(distance, resolution) / np.radians(step)
+    per_side = np.clip(np.ceil(2 * _SPLAT_HALF_WIDTH * across).astype(int) + 1, 2, _MAX_SPLAT)
+    sight = offsets / np.maximum(distance, 1e-9)[:, None]
+    side = np.cross(sight, [0.0, 0.0, 1.0])
+    flat = np.linalg.norm(side, axis=1) < 1e-6  # straight up or down: any horizontal side will do
+    side[flat] = [1.0, 0.0, 0.0]
+    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    up = np.cross(side, sight)
+    samples, ranges = [], []
+    for n in np.unique(per_side):  # at most _MAX_SPLAT - 1 groups
+        pick = per_side == n
+        a, b = np.meshgrid(*(np.linspace(-_SPLAT_HALF_WIDTH, _SPLAT_HALF_WIDTH, n) * resolution,) * 2)
+        shift = a.ravel()[:, None, None] * side[pick] + b.ravel()[:, None, None] * up[pick]
+        samples.append((offsets[pick] + shift).reshape(-1, 3))
+        ranges.append(np.broadcast_to(distance[pick], shift.shape[:2]).ravel())
+    return np.concatenate(samples), np.concatenate(ranges)
+
+
+def _in_front(offsets: np.ndarray, image: np.ndarray, step: float, resolution: float) -> np.ndarray:
+    """Whether each voxel centre (offset from the sensor) lies a voxel or more in front of the surface the
+    range image holds in its direction."""
+    distance, row, column = _directions(offsets, step)
+    return distance + resolution <= image[row, column]
+
+
+def seen_share(state: np.ndarray, lattice: VoxelLattice, low: float, high: float) -> np.ndarray:
+    """(nx, ny) float: the share of each voxel column's voxels between heights `low` and `high` (m above
+    the floor) that the sensors saw (free or occupied)."""
+    heights = lattice.origin[2] + np.arange(lattice.shape[2]) * lattice.resolution
+    band = (heights >= low - 1e-9) & (heights <= high + 1e-9)
+    if not band.any():
+        raise ValueError(f"no voxel layer between {low} and {high} m")
+    return (state[:, :, band] != UNKNOWN).mean(axis=2)
+
+
+def body_seen(fields: SceneFields, x: np.ndarray, y: np.ndarray, settings: VisibilitySettings) -> np.ndarray:
+    """(len(x), len(y)) float: how much of the body space of a place at each (x, y) the sensors saw: the
+    `seen_share` of the voxel columns within `settings.seen_radius`, between `seen_low` and `seen_high`.
+    Raises ValueError when the fields carry no visibility (a cloud without sensor positions)."""
+    from scipy import ndimage
+
+    if fields.visibility is None:
+        raise ValueError("these fields carry no visibility: the cloud came without sensor positions")
+    lattice = fields.lattice
+    share = seen_share(fields.visibility, lattice, settings.seen_low, settings.seen_high)
+    reach = int(round(settings.seen_radius / lattice.resolution))
+    dy, dx = np.mgrid[-reach : reach + 1, -reach : reach + 1]
+    disc = (dx**2 + dy**2 <= reach**2).astype(float)
+    # beyond the lattice nothing was seen: the disc's mean counts it as unseen
+    share = ndimage.convolve(share, disc / disc.sum(), mode="constant", cval=0.0)
+    return at_columns(share, lattice, x, y)

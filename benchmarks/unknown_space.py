@@ -1,0 +1,145 @@
+"""Unknown is not empty (issue 24, item 4): the shipped models' places on generated rooms with the sensor
+positions each room was scanned from, with the rule that a place's body space must have been seen
+(`visibility.min_seen`) at several shares, against no such rule.
+
+Reads the data set and the shipped models' split of `benchmarks/accuracy.py` (the first `--rooms` rooms:
+40 validation, 40 test), each room's ``<room>.origins.npy`` beside its cloud. The share is chosen on the
+validation rooms (the most places with no more false skeletons than without the rule); the test rooms report
+it, per scan style. Also: how much of each room the sensors saw (free, unknown), and what carving costs.
+
+    .venv/bin/python benchmarks/unknown_space.py        # about 15 minutes on 2 cores
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+STYLES = ("fused", "mesh", "laser", "frames", "walk")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=ROOT / "bench-data" / "accuracy")
+    parser.add_argument("--rooms", type=int, default=200, help="the data set's first rooms")
+    parser.add_argument("--validation", type=int, default=40)
+    parser.add_argument("--test", type=int, default=40)
+    parser.add_argument("--shares", type=float, nargs="+", default=[0.0, 0.1, 0.2, 0.3, 0.5])
+    args = parser.parse_args()
+
+    rooms, part, style, costs = load(args)
+    print(f"{os.cpu_count()} cores; {len(rooms)} rooms with their sensor positions")
+    print_seen(rooms, style, costs)
+    results = score(rooms, args.shares)
+    print_places(results, part, style, args.shares)
+
+
+def load(args):
+    from affordcore.geometry.scene import load_origins, origins_file
+    from affordcore.geometry.visibility import FREE, UNKNOWN, voxel_states
+    from affordcore.learn.defaults import split_by_index
+    from affordcore.learn.examples import data_set_rooms, load_room
+    from affordcore.settings import Settings
+
+    settings = Settings()
+    style = {r["room"]: r["style"] for r in json.loads((args.data / "summary.json").read_text())["rooms"]}
+    ordered = sorted(data_set_rooms(args.data), key=lambda files: int(files.name.rsplit("-", 1)[1]))
+    files = {f.name: f for f in ordered[: args.rooms]}
+    _, validation, test = split_by_index(list(files), args.validation, args.test)
+    part = {**{n: "validation" for n in validation}, **{n: "test" for n in test}}
+    rooms, costs = [], {}
+    for name in validation + test:
+        room = load_room(files[name], settings)
+        fields = room.fields
+        if fields.visibility is None:
+            raise SystemExit(f"{name}: no sensor positions beside the cloud ({name}.origins.npy)")
+        origins = load_origins(origins_file(files[name].cloud))
+        start = time.perf_counter()  # the carving again, alone, to time it
+        voxel_states(fields.occupancy, fields.lattice, origins, settings.visibility)
+        costs[name] = {
+            "seconds": time.perf_counter() - start,
+            "origins": len(origins),
+            "voxels": fields.occupancy.size,
+            "free": float((fields.visibility == FREE).mean()),
+            "unknown": float((fields.visibility == UNKNOWN).mean()),
+        }
+        rooms.append(room)
+    return rooms, part, style, costs
+
+
+def print_seen(rooms, style, costs) -> None:
+    """Per scan style: the lattice's share free and unknown, and what carving it costs."""
+    print(
+        "\n| style | rooms | sensor positions (median) | voxels (median) | free | unknown "
+        "| carving s (median / max) |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for s in STYLES:
+        mine = [costs[r.name] for r in rooms if style[r.name] == s]
+        if not mine:
+            continue
+        seconds = [c["seconds"] for c in mine]
+        print(
+            f"| {s} | {len(mine)} | {np.median([c['origins'] for c in mine]):.0f} | "
+            f"{np.median([c['voxels'] for c in mine]):,.0f} | {np.mean([c['free'] for c in mine]):.2f} | "
+            f"{np.mean([c['unknown'] for c in mine]):.2f} | "
+            f"{np.median(seconds):.2f} / {np.max(seconds):.2f} |"
+        )
+
+
+def score(rooms, shares):
+    """{(affordance, share, room): (found, labels, false)} under the shipped models and their own cuts."""
+    from affordcore.geometry.features import FeatureLayout
+    from affordcore.learn.model import load_model, shipped_models
+    from affordcore.learn.thresholds import room_scores
+    from affordcore.settings import Settings
+
+    results = {}
+    for share in shares:
+        settings = Settings()
+        settings.visibility.min_seen = share
+        layout = FeatureLayout.from_settings(settings)
+        for name, path in shipped_models().items():
+            model = load_model(path, layout)
+            for room in rooms:
+                c = room_scores(model, room, layout, settings).candidates(
+                    model.threshold, model.places.candidate_spacing
+                )
+                found, _, false = c.places(
+                    model.places.probability(c.evidence), model.places.cut, settings.map.nms_radius
+                )
+                results[name, share, room.name] = (found, c.matches.shape[0], false)
+    return results
+
+
+def print_places(results, part, style, shares) -> None:
+    print("\nplaces found / labelled, false skeletons per room (shipped models, each its own place cut)")
+    groups = {"validation": ("validation", None), "test": ("test", None)}
+    groups.update({f"test {s}": ("test", s) for s in STYLES})
+    print("| affordance | min_seen | " + " | ".join(groups) + " |")
+    print("|---|---:|" + "---|" * len(groups))
+    for affordance in sorted({key[0] for key in results}):
+        for share in shares:
+            cells = []
+            for wanted, wanted_style in groups.values():
+                rows = [
+                    value
+                    for (a, s, room), value in results.items()
+                    if a == affordance
+                    and s == share
+                    and part[room] == wanted
+                    and wanted_style in (None, style[room])
+                ]
+                found, labels, false = np.sum(rows, axis=0) if rows else (0, 0, 0)
+                cells.append(f"{found}/{labels}, {false / max(1, len(rows)):.2f}")
+            print(f"| {affordance} | {share:.1f} | " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    main()
