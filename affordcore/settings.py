@@ -271,6 +271,9 @@ class LimitSettings(BaseModel):
         "registration: a larger jump is refused rather than carried into the map",
     )
     max_turn_rate_deg: float = Field(720.0, gt=0, description="... and turns at most this fast (degrees/s)")
+    max_sensor_origins: int = Field(
+        10_000, ge=0, description="sensor positions one map cloud may carry (Cloud.sensor_origins)"
+    )
     latest_timestamp: float = Field(
         4_102_444_800.0,
         gt=0,

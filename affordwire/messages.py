@@ -297,11 +297,15 @@ def cloud_message(
     frames: int = 0,
     at: float | None = None,
     scans_received: int = 0,
+    origins: np.ndarray | None = None,
 ) -> CloudMessage:
     """A map Cloud of `points`; `frames` scans fused into it out of the `scans_received` the assembler had
-    received (the rest skipped to keep up or refused)."""
+    received (the rest skipped to keep up or refused); `origins`: where the sensor stood, in the points'
+    frame (None: not known)."""
     message = CloudMessage(frame_id=WORLD, frames=frames, source=source, scans_received=scans_received)
     pack_points(message, points)
+    for origin in [] if origins is None else origins:
+        set_vector(message.sensor_origins.add(), origin)
     set_pose(message.world_from_input, world_from_input, WORLD, "input", at)
     stamp(message.timestamp, at)
     return message
@@ -325,6 +329,24 @@ def cloud_points(message: CloudMessage, limits: LimitSettings | None = None) -> 
     return points
 
 
+def cloud_origins(message: CloudMessage, limits: LimitSettings | None = None) -> np.ndarray | None:
+    """The sensor positions a map Cloud carries ((M, 3) in its frame; None when it carries none), checked:
+    at most `limits.max_sensor_origins`, finite, within `limits.max_extent` of the frame's origin."""
+    limits = limits or LimitSettings()
+    count = len(message.sensor_origins)
+    if count == 0:
+        return None
+    if count > limits.max_sensor_origins:
+        raise MessageError(
+            f"the map carries {count:,} sensor positions; at most {limits.max_sensor_origins:,} are taken "
+            "(AFFORD_LIMITS__MAX_SENSOR_ORIGINS)"
+        )
+    origins = np.array([(v.x, v.y, v.z) for v in message.sensor_origins], dtype=np.float64)
+    if not np.isfinite(origins).all() or (np.abs(origins) > limits.max_extent).any():
+        raise MessageError("sensor positions are not finite or beyond AFFORD_LIMITS__MAX_EXTENT")
+    return origins
+
+
 def is_levelled(message: CloudMessage) -> bool:
     """A Cloud in the world frame is levelled (z up, floor at 0) by its sender; any other is levelled by the
     features service."""
@@ -344,6 +366,8 @@ def fields_message(
         normals=np.ascontiguousarray(fields.normals, dtype="<f4").tobytes(),
         steep_facing=fields.steep_facing,
     )
+    if fields.visibility is not None:
+        message.visibility = np.ascontiguousarray(fields.visibility, dtype=np.uint8).tobytes()
     message.grid.origin.x, message.grid.origin.y, message.grid.origin.z = (float(v) for v in lattice.origin)
     message.grid.resolution = lattice.resolution
     message.grid.nx, message.grid.ny, message.grid.nz = lattice.shape
@@ -411,8 +435,29 @@ def scene_fields(
     facing = message.steep_facing or "centre"
     if facing not in STEEP_FACINGS:
         raise MessageError(f"steep_facing {message.steep_facing[:40]!r} is not one of {list(STEEP_FACINGS)}")
+    visibility = _visibility(message, occupancy)
     occupancy = occupancy.astype(np.float32)
-    return SceneFields(lattice, occupancy, distance, normals, footprint, facing)
+    return SceneFields(lattice, occupancy, distance, normals, footprint, facing, visibility)
+
+
+def _visibility(message: SceneFieldsMessage, occupancy: np.ndarray) -> np.ndarray | None:
+    """The voxel states a SceneFields carries (None when it carries none), checked: one per voxel, each
+    unknown, free or occupied, and occupied exactly where the occupancy is."""
+    from affordcore.geometry.visibility import OCCUPIED
+
+    if not message.visibility:
+        return None
+    if len(message.visibility) != occupancy.size:
+        raise MessageError(
+            f"visibility holds {len(message.visibility)} bytes; a {occupancy.shape} grid needs "
+            f"{occupancy.size}"
+        )
+    states = np.frombuffer(message.visibility, dtype=np.uint8).reshape(occupancy.shape)
+    if states.max() > OCCUPIED:
+        raise MessageError("visibility holds values other than 0 (unknown), 1 (free) and 2 (occupied)")
+    if not np.array_equal(states == OCCUPIED, occupancy == 1):
+        raise MessageError("visibility says occupied where the occupancy does not (or the other way)")
+    return states
 
 
 def map_message(

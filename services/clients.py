@@ -324,7 +324,9 @@ def load_as_map(path: Path, gravity: str, settings) -> tuple[messages.CloudMessa
     cloud = load_cloud(path)
     world = to_world(cloud, settings, parse_gravity(gravity))
     points = world.cloud.points.astype(np.float32)
-    message = messages.cloud_message(points, world.alignment.world_from_input, source=path.name)
+    message = messages.cloud_message(
+        points, world.alignment.world_from_input, source=path.name, origins=world.cloud.origins
+    )
     return message, cloud.notes + world.warnings  # points not finite, dropped; thinning
 
 

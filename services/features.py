@@ -34,6 +34,7 @@ class FeaturesService:
         cloud = self.node.decode(item, messages.CloudMessage)
         settings = self.node.settings
         points = messages.cloud_points(cloud, settings.limits)
+        origins = messages.cloud_origins(cloud, settings.limits)
         levelled = messages.is_levelled(cloud)
         what = (
             "computing the fields"
@@ -44,7 +45,7 @@ class FeaturesService:
         if levelled:
             check_levelled(points, settings.gravity)  # NoFloorError: refused, with what is wrong
         scene = prepare_scene(
-            Cloud(points, source=item.key),
+            Cloud(points, source=item.key, origins=origins),
             settings,
             gravity="none" if levelled else "auto",
             normals=self.normals,

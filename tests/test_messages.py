@@ -435,6 +435,7 @@ def test_fields_carry_the_world_from_input_they_are_given_else_the_clouds():
         normals=np.zeros((2, 2, 2, 3)),
         footprint=(0.0, 0.0, 0.1, 0.1),
         steep_facing="centre",
+        visibility=None,
     )
     levelling = _rigid(9)
     given = _wire(messages.fields_message(fields, cloud, levelling))
@@ -442,6 +443,24 @@ def test_fields_carry_the_world_from_input_they_are_given_else_the_clouds():
     assert given.cloud_timestamp == cloud.timestamp  # what ties the answer to the cloud
     kept = _wire(messages.fields_message(fields, cloud))
     np.testing.assert_allclose(messages.pose_matrix(kept.world_from_input), _rigid(8), atol=1e-9)
+
+
+def test_a_cloud_carries_where_the_sensor_stood_checked():
+    from affordcore.settings import LimitSettings
+
+    points = np.random.default_rng(3).uniform(0, 4, (200, 3))
+    assert messages.cloud_origins(_wire(messages.cloud_message(points, np.eye(4), "x"))) is None
+    origins = np.array([[1.0, 2.0, 1.5], [2.5, 2.0, 1.4]])
+    cloud = _wire(messages.cloud_message(points, np.eye(4), "x", origins=origins))
+    np.testing.assert_allclose(messages.cloud_origins(cloud), origins)
+    with pytest.raises(MessageError, match=r"carries 2 sensor positions; at most 1 .*MAX_SENSOR_ORIGINS"):
+        messages.cloud_origins(cloud, LimitSettings(max_sensor_origins=1))
+    cloud.sensor_origins[1].y = float("nan")
+    with pytest.raises(MessageError, match="sensor positions are not finite"):
+        messages.cloud_origins(cloud)
+    cloud.sensor_origins[1].y = 1e6
+    with pytest.raises(MessageError, match="beyond AFFORD_LIMITS__MAX_EXTENT"):
+        messages.cloud_origins(cloud)
 
 
 def test_a_cloud_needs_a_hundred_finite_points():
@@ -500,6 +519,47 @@ def test_scene_fields_round_trip_with_what_the_cloud_carried(small_fields):
     assert message.occupancy[(i * ny + j) * nz + k] == 1
     distance = np.frombuffer(message.distance, dtype="<f4")
     assert distance[(i * ny + j) * nz + k] == small_fields.distance[i, j, k]
+    assert back.visibility is None and not message.visibility  # no sensor positions, no states
+
+
+def _seen(fields):
+    """The fields with their voxel states, seen from one position in front of the wall."""
+    from affordcore.geometry.visibility import voxel_states
+
+    states = voxel_states(fields.occupancy, fields.lattice, np.array([[1.0, 0.5, 1.0]]))
+    return SimpleNamespace(**{**vars(fields), "visibility": states})
+
+
+def test_scene_fields_carry_the_voxel_states(small_fields):
+    seen = _seen(small_fields)
+    cloud = messages.cloud_message(np.zeros((100, 3)), np.eye(4), "x")
+    back = messages.scene_fields(_wire(messages.fields_message(seen, cloud)))
+    np.testing.assert_array_equal(back.visibility, seen.visibility)
+    assert {0, 1, 2} == set(np.unique(back.visibility))
+
+
+@pytest.mark.parametrize(
+    ("spoil", "reason"),
+    [
+        (
+            lambda m: setattr(m, "visibility", m.visibility[:-1]),
+            r"visibility holds \d+ bytes; a .* grid needs",
+        ),
+        (lambda m: setattr(m, "visibility", b"\x03" + m.visibility[1:]), r"values other than 0 \(unknown\)"),
+        (
+            lambda m: setattr(m, "visibility", bytes(len(m.visibility))),  # all unknown: occupied voxels too
+            r"visibility says occupied where the occupancy does not",
+        ),
+    ],
+    ids=["short", "a fourth state", "occupied unknown"],
+)
+def test_unusable_voxel_states_are_refused(small_fields, spoil, reason):
+    message = messages.fields_message(
+        _seen(small_fields), messages.cloud_message(np.zeros((100, 3)), np.eye(4), "x")
+    )
+    spoil(message)
+    with pytest.raises(MessageError, match=reason):
+        messages.scene_fields(_wire(message))
 
 
 @pytest.mark.parametrize(

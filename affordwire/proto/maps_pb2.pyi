@@ -11,7 +11,7 @@ from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 DESCRIPTOR: _descriptor.FileDescriptor
 
 class Cloud(_message.Message):
-    __slots__ = ("timestamp", "frame_id", "fields", "point_stride", "data", "world_from_input", "frames", "source", "scans_received")
+    __slots__ = ("timestamp", "frame_id", "fields", "point_stride", "data", "world_from_input", "frames", "source", "scans_received", "sensor_origins")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
     FIELDS_FIELD_NUMBER: _ClassVar[int]
@@ -21,6 +21,7 @@ class Cloud(_message.Message):
     FRAMES_FIELD_NUMBER: _ClassVar[int]
     SOURCE_FIELD_NUMBER: _ClassVar[int]
     SCANS_RECEIVED_FIELD_NUMBER: _ClassVar[int]
+    SENSOR_ORIGINS_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     frame_id: str
     fields: _containers.RepeatedCompositeFieldContainer[_geometry_pb2.PackedElementField]
@@ -30,7 +31,8 @@ class Cloud(_message.Message):
     frames: int
     source: str
     scans_received: int
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., fields: _Optional[_Iterable[_Union[_geometry_pb2.PackedElementField, _Mapping]]] = ..., point_stride: _Optional[int] = ..., data: _Optional[bytes] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., frames: _Optional[int] = ..., source: _Optional[str] = ..., scans_received: _Optional[int] = ...) -> None: ...
+    sensor_origins: _containers.RepeatedCompositeFieldContainer[_geometry_pb2.Vector3]
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., fields: _Optional[_Iterable[_Union[_geometry_pb2.PackedElementField, _Mapping]]] = ..., point_stride: _Optional[int] = ..., data: _Optional[bytes] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., frames: _Optional[int] = ..., source: _Optional[str] = ..., scans_received: _Optional[int] = ..., sensor_origins: _Optional[_Iterable[_Union[_geometry_pb2.Vector3, _Mapping]]] = ...) -> None: ...
 
 class VoxelGrid(_message.Message):
     __slots__ = ("origin", "resolution", "nx", "ny", "nz")
@@ -47,7 +49,7 @@ class VoxelGrid(_message.Message):
     def __init__(self, origin: _Optional[_Union[_geometry_pb2.Vector3, _Mapping]] = ..., resolution: _Optional[float] = ..., nx: _Optional[int] = ..., ny: _Optional[int] = ..., nz: _Optional[int] = ...) -> None: ...
 
 class SceneFields(_message.Message):
-    __slots__ = ("timestamp", "frame_id", "grid", "occupancy", "distance", "normals", "x_min", "y_min", "x_max", "y_max", "world_from_input", "cloud_timestamp", "frames", "steep_facing", "scans_received")
+    __slots__ = ("timestamp", "frame_id", "grid", "occupancy", "distance", "normals", "x_min", "y_min", "x_max", "y_max", "world_from_input", "cloud_timestamp", "frames", "steep_facing", "scans_received", "visibility")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
     GRID_FIELD_NUMBER: _ClassVar[int]
@@ -63,6 +65,7 @@ class SceneFields(_message.Message):
     FRAMES_FIELD_NUMBER: _ClassVar[int]
     STEEP_FACING_FIELD_NUMBER: _ClassVar[int]
     SCANS_RECEIVED_FIELD_NUMBER: _ClassVar[int]
+    VISIBILITY_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     frame_id: str
     grid: VoxelGrid
@@ -78,7 +81,8 @@ class SceneFields(_message.Message):
     frames: int
     steep_facing: str
     scans_received: int
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., grid: _Optional[_Union[VoxelGrid, _Mapping]] = ..., occupancy: _Optional[bytes] = ..., distance: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., x_min: _Optional[float] = ..., y_min: _Optional[float] = ..., x_max: _Optional[float] = ..., y_max: _Optional[float] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ..., steep_facing: _Optional[str] = ..., scans_received: _Optional[int] = ...) -> None: ...
+    visibility: bytes
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., grid: _Optional[_Union[VoxelGrid, _Mapping]] = ..., occupancy: _Optional[bytes] = ..., distance: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., x_min: _Optional[float] = ..., y_min: _Optional[float] = ..., x_max: _Optional[float] = ..., y_max: _Optional[float] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ..., steep_facing: _Optional[str] = ..., scans_received: _Optional[int] = ..., visibility: _Optional[bytes] = ...) -> None: ...
 
 class PoseGridSpec(_message.Message):
     __slots__ = ("x0", "y0", "step", "nx", "ny", "z", "theta_step", "n_theta")
