@@ -31,10 +31,26 @@ def map_command(
     rrd: Path | None = typer.Option(None, "--rrd", help="the Rerun recording (default: OUT/map.rrd)"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
     timings: bool = typer.Option(False, "--timings", help="say on stderr how long each stage took"),
+    origins: Path | None = typer.Option(
+        None,
+        "--origins",
+        help="where the sensor stood, x y z per row in the cloud's frame (.npy or text); default: "
+        "<cloud stem>.origins.npy beside the cloud when there is one. Tells free space from unknown",
+    ),
 ) -> None:
     """Map where people can sit, relax, work and stand in a room: skeleton map, confidence map, positives."""
     with user_errors():
-        map_room(cloud, out, model or [], affordance or [], gravity, rrd or out / "map.rrd", quiet, timings)
+        map_room(
+            cloud,
+            out,
+            model or [],
+            affordance or [],
+            gravity,
+            rrd or out / "map.rrd",
+            quiet,
+            timings,
+            origins,
+        )
 
 
 def map_room(
@@ -46,6 +62,7 @@ def map_room(
     rrd: Path,
     quiet: bool,
     timings: bool = False,
+    origins: Path | None = None,
 ) -> list[Path]:
     """load -> align -> fields -> score -> map -> write, each one call into the library (the maps in worker
     processes and the files in a writer process started first, `outputs.map_and_write`), on one BLAS thread
@@ -84,13 +101,15 @@ def _map_room(
     # the writer imports matplotlib and rerun on the other core while this process loads the room
     with OutputWriter() if workers > 1 else nullcontext() as writer:
         loading = time.perf_counter()
-        cloud = _loaded(cloud_path)
+        cloud = _loaded(cloud_path, origins)
         seconds["load the cloud"] = time.perf_counter() - loading
         affordance_names = [model.affordance for model in models]
         record = (lambda world: writer.start_scene(world, affordance_names, out, rrd)) if writer else None
         scene = prepare_scene(cloud, settings, parse_gravity(gravity), seconds, on_world=record)
         _warn(scene.warnings)
-        typer.echo(f"{cloud_path}: {len(scene.cloud):,} points; {scene.alignment.describe()}")
+        typer.echo(
+            f"{cloud_path}: {len(scene.cloud):,} points; {scene.alignment.describe()}; {_seen_from(cloud)}"
+        )
         mapping = time.perf_counter()
         with progress(quiet) as bar:
             task = bar.add_task("affordance maps", total=len(models))
@@ -119,13 +138,23 @@ def _children_peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
 
 
-def _loaded(path: Path):
-    """The cloud at `path`; what loading did to it (points that are not finite, dropped) goes to stderr."""
-    from affordcore.geometry.scene import load_cloud
+def _loaded(path: Path, origins: Path | None = None):
+    """The cloud at `path` (with the sensor positions in `origins`, when given); what loading did to it
+    (points that are not finite, dropped) goes to stderr."""
+    from affordcore.geometry.scene import load_cloud, load_origins
 
     cloud = load_cloud(path)
+    if origins is not None:
+        cloud.origins = load_origins(origins)
     _warn(cloud.notes)
     return cloud
+
+
+def _seen_from(cloud) -> str:
+    """What the map knows of the space the sensor saw through, in words."""
+    if cloud.origins is None:
+        return "no sensor positions (--origins): unknown space is not told from free"
+    return f"sensor positions: {len(cloud.origins)}, free space told from unknown"
 
 
 def _warn(warnings: list[str]) -> None:

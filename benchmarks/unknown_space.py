@@ -138,7 +138,7 @@ def print_places(results, part, style, shares) -> None:
                 ]
                 found, labels, false = np.sum(rows, axis=0) if rows else (0, 0, 0)
                 cells.append(f"{found}/{labels}, {false / max(1, len(rows)):.2f}")
-            print(f"| {affordance} | {share:.1f} | " + " | ".join(cells) + " |")
+            print(f"| {affordance} | {share:.2f} | " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":

@@ -53,7 +53,8 @@ def test_every_affordance_has_a_model_for_the_running_layout():
 
 
 def test_map_writes_json_png_and_a_verified_recording(mapped):
-    out, _ = mapped
+    out, result = mapped
+    assert "no sensor positions (--origins): unknown space is not told from free" in result.stdout
     for affordance in AFFORDANCES:
         document = json.loads((out / f"{affordance}.json").read_text())
         assert document["affordance"] == affordance and document["model"].startswith(affordance + "/")
@@ -104,8 +105,13 @@ def test_world_from_input_maps_the_input_cloud_to_the_world(example, tmp_path):
     rotation = np.array([[1, 0, 0], [0, np.cos(angle), -np.sin(angle)], [0, np.sin(angle), np.cos(angle)]])
     path = tmp_path / "y-up.ply"
     save_cloud(path, Cloud(tilted.points @ rotation.T + [0.3, 1.0, -0.2]))
-    result = afford("map", path, "--out", tmp_path / "out", "-a", "sitting-relaxing", "--quiet")
+    origins = tmp_path / "stations.txt"  # where the sensor stood, in the file's frame
+    np.savetxt(origins, np.array([[2.0, 1.5, 1.5]]) @ rotation.T + [0.3, 1.0, -0.2])
+    result = afford(
+        "map", path, "--out", tmp_path / "out", "-a", "sitting-relaxing", "--quiet", "--origins", origins
+    )
     assert result.returncode == 0, result.stderr
+    assert "sensor positions: 1, free space told from unknown" in result.stdout
     document = json.loads((tmp_path / "out" / "sitting-relaxing.json").read_text())
     world_from_input = np.array(document["world_from_input"])
     points = load_cloud(path).points @ world_from_input[:3, :3].T + world_from_input[:3, 3]
@@ -120,6 +126,7 @@ def test_world_from_input_maps_the_input_cloud_to_the_world(example, tmp_path):
         ("no-floor", "floor"),
         ("other-layout", "feature layout"),
         ("unknown-affordance", "no shipped model for sitting-upside-down"),
+        ("bad-origins", "stations.txt: sensor positions must be an (M, 3) array"),
     ],
 )
 def test_bad_input_is_a_clear_error(case, message, example, tmp_path):
@@ -135,6 +142,9 @@ def test_bad_input_is_a_clear_error(case, message, example, tmp_path):
         args = [tmp_path / "ball.ply"]
     elif case == "other-layout":
         env = {"AFFORD_FEATURES__CELL_SIZE": "0.5"}
+    elif case == "bad-origins":
+        (tmp_path / "stations.txt").write_text("1.0 2.0\n")
+        args += ["--origins", tmp_path / "stations.txt"]
     else:
         args += ["-a", "sitting-upside-down"]
     result = afford("map", *args, "--out", tmp_path / "out", "--quiet", env=env)

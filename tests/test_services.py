@@ -190,7 +190,10 @@ def test_features_level_a_cloud_in_its_own_frame_refuse_a_world_one_without_a_fl
         camera_from_world[:3, :3] = Rotation.from_euler("x", -90, degrees=True).as_matrix()  # z up -> y up
         camera_from_world[:3, 3] = [0.3, -1.2, 0.5]
         in_camera = room @ camera_from_world[:3, :3].T + camera_from_world[:3, 3]
-        cloud = messages.cloud_message(in_camera, np.eye(4), "file", frames=7, at=1_700_000_002.5)
+        sensor = np.array([[3.0, 2.0, 1.5]]) @ camera_from_world[:3, :3].T + camera_from_world[:3, 3]
+        cloud = messages.cloud_message(
+            in_camera, np.eye(4), "file", frames=7, at=1_700_000_002.5, origins=sensor
+        )
         cloud.frame_id = "camera"
         _send(client, KEYS.cloud, cloud.SerializeToString(), messages.CloudMessage)
         fields_message = _fields_of(client, cloud)
@@ -203,6 +206,13 @@ def test_features_level_a_cloud_in_its_own_frame_refuse_a_world_one_without_a_fl
         np.testing.assert_allclose(world[:, 2], room[:, 2], atol=0.02)
         seat = fields.lattice.voxel_of(world[[-1]])[0]
         assert fields.occupancy[tuple(seat)] == 1 and fields.distance[tuple(seat)] == 0
+        # the sensor position came along, levelled with the points: the air above the seat was seen
+        from affordcore.geometry.visibility import FREE, UNKNOWN
+
+        assert fields.visibility is not None
+        above_seat, under_floor = fields.lattice.voxel_of(np.array([[1.5, 1.3, 1.0], [1.5, 1.3, -0.5]]))
+        assert fields.visibility[tuple(above_seat)] == FREE
+        assert fields.visibility[tuple(under_floor)] == UNKNOWN
         status = _status(client, "features")
         assert status.newest_input == cloud.timestamp and status.newest_input_refused == ""
         assert "gravity alignment (auto): up = input +y" in status.detail
@@ -312,6 +322,7 @@ def test_publish_as_map_sends_the_room_in_the_world_frame(router, client, tmp_pa
     points = _box_room_scan(np.random.default_rng(5))
     y_up = points[:, [0, 2, 1]] * [1, 1, -1] + [0, 0.8, 0]  # y up, floor at y = +0.8
     save_cloud(tmp_path / "room.ply", Cloud(y_up))
+    np.save(tmp_path / "room.origins.npy", np.array([[3.0, 1.5, -2.0]]))  # 1.5 m up, y-up like the room
     clouds = _listen(client, KEYS.cloud)
     result = _afford("publish", str(tmp_path / "room.ply"), "--as-map", "--connect", router, "--robot", ROBOT)
     assert result.returncode == 0, result.stderr
@@ -324,6 +335,7 @@ def test_publish_as_map_sends_the_room_in_the_world_frame(router, client, tmp_pa
     assert world[:, 2].max() == pytest.approx(2.5, abs=0.05)  # the walls stand up along z
     transform = messages.pose_matrix(cloud.world_from_input)
     np.testing.assert_allclose(y_up @ transform[:3, :3].T + transform[:3, 3], world, atol=1e-4)
+    np.testing.assert_allclose(messages.cloud_origins(cloud)[0, 2], 1.5 - 0.8, atol=1e-3)  # over the floor
 
 
 def test_publish_sends_a_cloud_file_as_one_scan(router, client, tmp_path):

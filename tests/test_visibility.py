@@ -107,9 +107,9 @@ def test_a_place_nobody_saw_is_not_mapped():
     seen = body_seen(fields, grid.x, grid.y, VisibilitySettings())
     assert np.all(seen[:3] > 0.5) and np.all(seen[3:] < 0.05)
     settings = Settings()
-    assert unseen_cells(fields, grid, settings) is None  # the rule is off by default
-    settings.visibility.min_seen = 0.3
     np.testing.assert_array_equal(unseen_cells(fields, grid, settings)[:, 0], [False] * 3 + [True] * 2)
+    settings.visibility.min_seen = 0.0  # the rule off
+    assert unseen_cells(fields, grid, settings) is None
     fields.visibility = None  # a file without sensor positions: no rule, whatever the setting
     assert unseen_cells(fields, grid, settings) is None
 
