@@ -30,7 +30,7 @@ def main() -> None:
     parser.add_argument("--rooms", type=int, default=200, help="the data set's first rooms")
     parser.add_argument("--validation", type=int, default=40)
     parser.add_argument("--test", type=int, default=40)
-    parser.add_argument("--shares", type=float, nargs="+", default=[0.0, 0.1, 0.2, 0.3, 0.5])
+    parser.add_argument("--shares", type=float, nargs="+", default=[0.0, 0.05, 0.1, 0.2, 0.4])
     args = parser.parse_args()
 
     rooms, part, style, costs = load(args)

@@ -47,11 +47,14 @@ def voxel_states(
         return state
     surface = lattice.centres(np.argwhere(occupied))
     empty = np.flatnonzero(~occupied.ravel())
-    centres = lattice.centres(np.column_stack(np.unravel_index(empty, occupied.shape)))
+    # one contiguous float32 column per axis: the per-position arithmetic over every voxel is what costs
+    centres = lattice.centres(np.column_stack(np.unravel_index(empty, occupied.shape))).astype(np.float32)
+    columns = [np.ascontiguousarray(c) for c in centres.T]
     free = np.zeros(len(empty), bool)
     for origin in spread_origins(origins, settings.max_origins):  # a few dozen at most
         image = _range_image(surface - origin, lattice.resolution, settings.angular_step)
-        free |= _in_front(centres - origin, image, settings.angular_step, lattice.resolution)
+        offsets = [c - np.float32(o) for c, o in zip(columns, origin)]
+        free |= _in_front(offsets, image, settings.angular_step, lattice.resolution)
     state.ravel()[empty[free]] = FREE
     return state
 
@@ -74,16 +77,16 @@ def _bins(step: float) -> tuple[int, int]:
     return int(round(180 / step)), int(round(360 / step))
 
 
-def _directions(offsets: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Range, elevation bin and azimuth bin of each offset from a sensor position (`step` in degrees)."""
+def _directions(x: np.ndarray, y: np.ndarray, z: np.ndarray, step: float):
+    """Range, elevation bin and azimuth bin of offsets (x, y, z columns) from a sensor position (`step` in
+    degrees)."""
     n_el, n_az = _bins(step)
-    radians = np.radians(step)
-    distance = np.linalg.norm(offsets, axis=1)
-    elevation = np.arcsin(np.clip(offsets[:, 2] / np.maximum(distance, 1e-9), -1.0, 1.0))
-    azimuth = np.arctan2(offsets[:, 1], offsets[:, 0])
-    row = np.clip(((elevation + np.pi / 2) / radians).astype(np.int64), 0, n_el - 1)
-    column = ((azimuth + np.pi) / radians).astype(np.int64) % n_az
-    return distance, row, column
+    per_radian = 1.0 / np.radians(step)
+    across = np.sqrt(x * x + y * y)
+    distance = np.sqrt(across * across + z * z)
+    row = ((np.arctan2(z, across) + np.pi / 2) * per_radian).astype(np.int32)
+    column = ((np.arctan2(y, x) + np.pi) * per_radian).astype(np.int32)
+    return distance, np.minimum(row, n_el - 1), column % n_az
 
 
 def _range_image(offsets: np.ndarray, resolution: float, step: float) -> np.ndarray:
@@ -93,7 +96,7 @@ def _range_image(offsets: np.ndarray, resolution: float, step: float) -> np.ndar
     from scipy import ndimage
 
     samples, distance = _splats(offsets, resolution, step)
-    _, row, column = _directions(samples, step)
+    _, row, column = _directions(*samples.T, step)
     image = np.full(_bins(step), np.inf)
     np.minimum.at(image, (row, column), distance)
     gaps = np.isinf(image)
@@ -127,10 +130,10 @@ def _splats(offsets: np.ndarray, resolution: float, step: float) -> tuple[np.nda
     return np.concatenate(samples), np.concatenate(ranges)
 
 
-def _in_front(offsets: np.ndarray, image: np.ndarray, step: float, resolution: float) -> np.ndarray:
-    """Whether each voxel centre (offset from the sensor) lies a voxel or more in front of the surface the
-    range image holds in its direction."""
-    distance, row, column = _directions(offsets, step)
+def _in_front(offsets: list[np.ndarray], image: np.ndarray, step: float, resolution: float) -> np.ndarray:
+    """Whether each voxel centre (x, y, z offset columns from the sensor) lies a voxel or more in front of
+    the surface the range image holds in its direction."""
+    distance, row, column = _directions(*offsets, step)
     return distance + resolution <= image[row, column]
 
 
