@@ -242,6 +242,13 @@ class AssemblerSettings(BaseModel):
         ge=0,
         description="the map cloud is published at most this often (s), and once more after the last scan",
     )
+    busy_publish_period: float = Field(
+        6.0,
+        ge=0,
+        description="... and at most this often while scans wait for the assembler: each map costs the "
+        "features and inference services the cores the assembler is short of, and the one they are still "
+        "working on when the scans stop delays the last map (docs/services.md has the measurements)",
+    )
     checkpoint_period: float = Field(
         10.0,
         gt=0,

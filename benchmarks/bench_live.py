@@ -208,6 +208,86 @@ class Listener:
                 self.cloud = messages.parse(messages.CloudMessage, sample.payload.to_bytes())
 
 
+class Timeline:
+    """When each output arrived (monotonic s) with the cloud it was built from: `events` rows of (time, stage,
+    cloud stamp ns, scans the cloud covers), stage map/pose, map/cloud, fields or an affordance."""
+
+    STAGES = {"map/cloud": "CloudMessage", "fields": "SceneFieldsMessage"}
+
+    def __init__(self, keys: Keys):
+        self.keys, self.events = keys, []
+        self.lock = threading.Lock()
+
+    def on_sample(self, sample) -> None:
+        now = time.monotonic()
+        stage = str(sample.key_expr).split("/", 3)[3]
+        if stage == "map/pose":
+            row = (now, stage, 0, 0)
+        else:
+            name = self.STAGES.get(stage, "AffordanceMapMessage" if stage.startswith("affordance/") else None)
+            cls = getattr(messages, name) if name else None
+            if cls is None or schema_of(sample) != messages.schema_name(cls):
+                return
+            message = messages.parse(cls, sample.payload.to_bytes())
+            stamp = message.timestamp if cls is messages.CloudMessage else message.cloud_timestamp
+            stage = stage.removeprefix("affordance/")
+            row = (now, stage, messages.nanoseconds(stamp), message.scans_received)
+        with self.lock:
+            self.events.append(row)
+
+    def breakdown(self, last_scan: float, affordances: list[str]) -> dict[str, float | int | None]:
+        """Seconds from the last scan to the last pose, to the last map cloud, and from that cloud to its
+        fields and to each of its maps; and how many clouds, fields and maps came after the last scan (each
+        one the services worked on while the final one waited)."""
+        with self.lock:
+            events = list(self.events)
+        after = [e for e in events if e[0] >= last_scan]
+        poses = [e[0] for e in events if e[1] == "map/pose"]
+        clouds = [e for e in events if e[1] == "map/cloud"]
+        result: dict[str, float | int | None] = {
+            "last pose": (poses[-1] - last_scan) if poses else None,
+            "clouds after": sum(e[1] == "map/cloud" for e in after),
+            "fields after": sum(e[1] == "fields" for e in after),
+            "maps after": sum(e[1] in affordances for e in after),
+        }
+        if not clouds:
+            return result
+        final_at, _, final, _ = clouds[-1]
+        result["last map cloud"] = final_at - last_scan
+        for stage in ["fields", *affordances]:
+            arrivals = [e[0] for e in events if e[1] == stage and e[2] == final]
+            result[f"cloud to {stage}"] = (arrivals[0] - final_at) if arrivals else None
+        return result
+
+
+class CpuMeter:
+    """CPU seconds each process (with its children: inference's mapping workers) used between laps, as
+    shares of one core over the lap's wall time."""
+
+    def __init__(self, pids: dict[str, int]):
+        import psutil
+
+        self.processes = {name: psutil.Process(pid) for name, pid in pids.items()}
+        self.last, self.at = self._cpu(), time.monotonic()
+
+    def _cpu(self) -> dict[str, float]:
+        totals = {}
+        for name, process in self.processes.items():
+            try:
+                family = [process, *process.children(recursive=True)]
+                totals[name] = sum(sum(p.cpu_times()[:2]) for p in family)
+            except Exception:  # noqa: BLE001 - a process that ended counts as nothing more
+                totals[name] = getattr(self, "last", {}).get(name, 0.0)
+        return totals
+
+    def lap(self) -> dict[str, float]:
+        """{process: cores' worth of CPU it used since the last lap}."""
+        now, at = self._cpu(), time.monotonic()
+        shares = {name: (now[name] - self.last[name]) / (at - self.at) for name in now}
+        self.last, self.at = now, at
+        return shares
+
+
 def stamped(sequence, indices: list[int], sent: dict[float, int]):
     """The sequence's messages, each stamped as it is sent, remembering which frame has which stamp."""
     for index, message in sequence_messages(sequence, indices):
@@ -228,23 +308,44 @@ def frames_of(poses: dict[float, np.ndarray], sent: dict[float, int]) -> list[tu
     return taken
 
 
-def live(source: Source, indices: list[int], rate: float, hogs: int, workdir: Path, models: list) -> dict:
+def live(
+    source: Source,
+    indices: list[int],
+    rate: float,
+    hogs: int,
+    workdir: Path,
+    models: list,
+    env: dict[str, str] | None = None,
+) -> dict:
     sequence = read_sequence(source.sequence)
-    with cpu_hogs(hogs), Stack(workdir) as stack:
+    with cpu_hogs(hogs) as hog_processes, Stack(workdir, env=env) as stack:
         keys = Keys(stack.robot)
         listener = Listener(keys)
         watcher = MapWatcher(keys, [m.affordance for m in models], len(indices), None, lambda line: None)
+        pids = {name: p.pid for name, p in stack.processes.items()}
+        pids |= {f"hog {k}": hog.pid for k, hog in enumerate(hog_processes)}
+        timeline, meter = Timeline(keys), CpuMeter(pids)
         session = open_session([stack.endpoint])
         subscribers = [
             session.declare_subscriber(keys.key("**"), listener.on_sample),
+            session.declare_subscriber(keys.key("**"), timeline.on_sample),
             session.declare_subscriber(keys.key("affordance", "*"), watcher.on_sample),
         ]
         sent: dict[float, int] = {}
+        last_sent = [0.0]
+
+        def on_frame(_: int) -> None:
+            last_sent[0] = time.monotonic()
+
         try:
-            publish_sequence(session, keys, stamped(sequence, indices, sent), "camera", rate, wait=60)
-            last_scan = time.monotonic()
+            meter.lap()
+            frames = stamped(sequence, indices, sent)
+            publish_sequence(session, keys, frames, "camera", rate, wait=60, on_frame=on_frame)
+            last_scan = last_sent[0]
+            cpu_stream = meter.lap()
             # None: no map covers every scan (the assembler found no floor in its drifting map)
             lag = time.monotonic() - last_scan if watcher.done.wait(180) else None
+            cpu_tail = meter.lap()  # from the last scan to the last map: what the services got of the CPU
         finally:
             for subscriber in subscribers:
                 subscriber.undeclare()
@@ -252,9 +353,14 @@ def live(source: Source, indices: list[int], rate: float, hogs: int, workdir: Pa
     taken = frames_of(listener.poses, sent)
     truth = [source.room_from_truth @ sequence.pose(index) for index, _ in taken]
     errors = trajectory_errors([pose for _, pose in taken], truth)
+    timing = {
+        **timeline.breakdown(last_scan, [m.affordance for m in models]),
+        "cpu stream": cpu_stream,
+        "cpu tail": cpu_tail,
+    }
     cloud = listener.cloud
     if lag is None or cloud is None:
-        return {"taken": len(taken), "errors": errors, "lag": None, "places": None, "icp": "no map"}
+        return {"taken": len(taken), "errors": errors, "lag": None, "places": None, "icp": "no map", **timing}
     world_from_odom = messages.pose_matrix(cloud.world_from_input)
     # the odometry frame is the first frame's sensor frame; ICP takes out what drift and levelling moved
     guess = truth[0] @ np.linalg.inv(world_from_odom)
@@ -272,6 +378,7 @@ def live(source: Source, indices: list[int], rate: float, hogs: int, workdir: Pa
         "lag": lag,
         "places": scores,
         "icp": f"ICP moved the map {moved * 100:.1f} cm, {rmse * 100:.1f} cm RMSE",
+        **timing,
     }
 
 
@@ -287,7 +394,16 @@ def main() -> None:
         "--loads", default=f"0,{os.cpu_count()}", help="CPU hogs beside the services, per run"
     )
     parser.add_argument("--no-where", action="store_true", help="skip the in-process steps of the live path")
+    parser.add_argument("--repeats", type=int, default=1, help="live runs per source and load")
+    parser.add_argument(
+        "--against",
+        default="",
+        help="settings to compare with, side by side: KEY=VALUE,... (e.g. "
+        "AFFORD_SERVICE__DOWNSTREAM_NICE=10); each live run is made with the defaults and with these in turn",
+    )
     args = parser.parse_args()
+    against = dict(pair.split("=", 1) for pair in args.against.split(",") if pair)
+    settings_runs = [("defaults", None)] + ([(args.against, against)] if against else [])
     settings = Settings()
     models = [load_model(path) for path in shipped_models().values()]
     names = [m.affordance for m in models]
@@ -301,7 +417,7 @@ def main() -> None:
         "| last scan to every map (s) | " + " | ".join(names) + " |"
     )
     print("|---|---:|---:|---:|---:|" + "---|" * len(names), flush=True)
-    steps = []
+    steps, timings = [], []
     with tempfile.TemporaryDirectory() as tmp:
         sources = ([kitchen_source()] if KITCHEN.is_dir() else []) + generated_sources(
             args.generated, args.seed, Path(tmp) / "generated"
@@ -320,9 +436,14 @@ def main() -> None:
                     )
                 )
             for hogs in loads:
-                run = live(source, indices, args.rate, hogs, Path(tmp) / f"run-{number}-{hogs}", models)
-                print(live_row(source, len(indices), hogs, run, reference, names), flush=True)
-                print(f"{source.name}, {hogs} hogs: {run['icp']}", file=sys.stderr, flush=True)
+                for repeat in range(args.repeats):
+                    for label, env in settings_runs:
+                        workdir = Path(tmp) / f"run-{number}-{hogs}-{repeat}-{len(timings)}"
+                        run = live(source, indices, args.rate, hogs, workdir, models, env)
+                        print(live_row(source, len(indices), hogs, run, reference, names), flush=True)
+                        timings.append(timing_row(source, hogs, run, names, label))
+                        print(f"{source.name}, {hogs} hogs: {run['icp']}", file=sys.stderr, flush=True)
+    print_timings(timings, names)
     if steps:
         print("\nThe live path's steps in this process, every frame taken (found of labelled, + false):\n")
         print("| source | made from | " + " | ".join(names) + " |\n|---|---|" + "---|" * len(names))
@@ -336,6 +457,47 @@ def cells_of(result: dict | str | None, names: list[str]) -> list[str]:
     if not isinstance(result, dict):
         return [result or "no map"] * len(names)
     return [f"{r[0]}/{r[1]} +{r[2]}" for r in (result.get(n, (0, 0, 0)) for n in names)]
+
+
+def timing_row(source: Source, hogs: int, run: dict, names: list[str], label: str) -> str:
+    def seconds(key: str) -> str:
+        value = run.get(key)
+        return "-" if value is None else f"{value:.1f}"
+
+    def cores(shares: dict[str, float], *names: str) -> str:
+        return f"{sum(v for k, v in shares.items() if k.startswith(names)):.2f}"
+
+    stream, tail = run["cpu stream"], run["cpu tail"]
+    return (
+        f"| {source.name} | {label} | {hogs} | {run['taken']} | {seconds('last pose')} | "
+        f"{seconds('last map cloud')} | "
+        f"{seconds('cloud to fields')} | "
+        + " / ".join(seconds(f"cloud to {name}") for name in names)
+        + f" | {run['clouds after']} / {run['fields after']} / {run['maps after']} | "
+        + " / ".join(cores(shares, "assembler") for shares in (stream, tail))
+        + " | "
+        + " / ".join(cores(shares, "features", "inference") for shares in (stream, tail))
+        + " | "
+        + " / ".join(cores(shares, "hog") for shares in (stream, tail))
+        + " |"
+    )
+
+
+def print_timings(rows: list[str], names: list[str]) -> None:
+    print(
+        "\nWhere the time goes: from the last scan sent to the assembler's last pose and last map cloud; from"
+        " that cloud to its fields and to each map (" + " / ".join(names) + "); outputs after the last scan"
+        " (clouds / fields / maps: each one worked on while the last waited); CPU in cores, while streaming"
+        " / from the last scan to the last map\n"
+    )
+    print(
+        "| source | settings | CPU hogs | frames taken | last pose (s) | last map cloud (s) "
+        "| cloud to fields (s) | cloud to maps (s) | after the last scan | assembler cores "
+        "| features + inference cores | hogs' cores |"
+    )
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for row in rows:
+        print(row)
 
 
 def live_row(source: Source, published: int, hogs: int, run: dict, reference: dict, names: list[str]) -> str:

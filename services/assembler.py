@@ -35,6 +35,7 @@ class AssemblerService:
         self.last_published = -np.inf
         self.last_scan = 0.0
         self.pending = restored > 0  # frames registered since the last published map
+        self.behind = False  # a scan found others waiting since the last published map
         self.last_stamp = self.assembler.trajectory.stamps[-1] if restored else 0.0
         if self.store:
             print(f"[assembler] restored {restored} frames from {self.store.folder}", flush=True)
@@ -74,8 +75,14 @@ class AssemblerService:
         self.node.publish(self.node.keys.pose, pose_message)
         set_time(self.node.recording, at)
         log_scan(self.node.recording, self.assembler.registered_points, pose)
-        if time.monotonic() - self.last_published >= self.settings.publish_period:
+        self.behind = self.behind or busy
+        if time.monotonic() - self.last_published >= self.publish_period():
             self.publish_map()
+
+    def publish_period(self) -> float:
+        """Behind the sensor, the maps go out less often: features and inference then leave the cores to
+        the assembler, and have less stale work in hand when the scans stop and the last map comes."""
+        return self.settings.busy_publish_period if self.behind else self.settings.publish_period
 
     def idle(self) -> None:
         if self.pending and time.monotonic() - self.last_scan >= QUIET_BEFORE_PUBLISHING:
@@ -123,7 +130,7 @@ class AssemblerService:
             origins=self.sensor_origins(world_from_odom),
         )
         self.node.publish(self.node.keys.cloud, cloud)
-        self.last_published, self.pending = time.monotonic(), False
+        self.last_published, self.pending, self.behind = time.monotonic(), False, False
         set_time(self.node.recording, self.last_stamp)
         log_trajectory(self.node.recording, self.assembler.trajectory.positions, world_from_odom)
         log_cloud(self.node.recording, points)

@@ -61,11 +61,13 @@ class NodeSettings(BaseModel):
         "since), reloaded on start; none: the map lives in memory only",
     )
     downstream_nice: int = Field(
-        10,
+        0,
         ge=0,
         le=19,
-        description="features and inference run this much nicer than the assembler, "
-        "so scan assembly keeps up with the sensor on a shared CPU",
+        description="features and inference run this much nicer than the assembler. 0: a niced process "
+        "cannot be un-niced, and against a robot's other work at the default priority it kept about a tenth "
+        "of a core, so the last maps came 10-40 s after the scans stopped (docs/services.md, Latency); the "
+        "assembler keeps up by passing over late scans and by publishing fewer maps while behind",
     )
     map_workers: int = Field(
         0,

@@ -147,6 +147,50 @@ def test_the_assembler_rejects_bad_scans_with_a_reason_and_keeps_registering(rou
         running.stop()
 
 
+def test_the_assembler_publishes_fewer_maps_while_scans_wait(router, client, tmp_path):
+    """Behind the sensor, a map at most every busy_publish_period (features and inference leave the cores to
+    the assembler); keeping up, every publish_period; the last map once the scans stop, either way."""
+    from services.assembler import AssemblerService
+
+    settings = ServiceSettings()
+    settings.assembler.publish_period, settings.assembler.busy_publish_period = 0.0, 600.0
+    settings.service.max_lag = 60.0  # every scan of the burst is taken, none passed over
+    clouds, poses = _listen(client, KEYS.cloud), _listen(client, KEYS.pose)
+    running = Running(AssemblerService, "assembler", router, tmp_path / "assembler.rrd", settings)
+    room = _box_room_scan(np.random.default_rng(0)) - [2.0, 1.5, 1.2]
+
+    def scan(k: int) -> bytes:
+        message = messages.Scan(frame_id="lidar")
+        messages.pack_points(message, room + [0.01 * k, 0, 0])
+        messages.stamp(message.timestamp, 1_700_000_000.0 + 0.1 * k)
+        return message.SerializeToString()
+
+    def maps_of(scans: range, burst: bool) -> list[int]:
+        """Frames of each map cloud published while `scans` go in (all at once, or each once the last is
+        registered), and the one after they stop."""
+        publisher = _publisher(client, KEYS.scan("cam"), messages.Scan, wait=10)
+        for k in scans:
+            publisher.put(scan(k))
+            if not burst:
+                _next(poses, messages.Pose)
+        for _ in scans if burst else ():
+            _next(poses, messages.Pose)
+        publisher.undeclare()
+        last = scans[-1] + 1
+        frames = []
+        while not frames or frames[-1] < last:
+            frames.append(_next(clouds, messages.CloudMessage).frames)
+        return frames
+
+    try:
+        in_step = maps_of(range(4), burst=False)
+        assert in_step == [1, 2, 3, 4], "keeping up: a map after every scan (publish_period 0)"
+        burst = maps_of(range(4, 12), burst=True)
+        assert len(burst) <= 2 and burst[-1] == 12, f"behind: the maps of {burst} frames"
+    finally:
+        running.stop()
+
+
 def _status(client, service: str) -> messages.Status:
     replies = [r.ok for r in client.get(KEYS.status(service), timeout=5) if r.ok is not None]
     return messages.parse(messages.Status, replies[0].payload.to_bytes())
