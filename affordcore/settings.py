@@ -240,7 +240,8 @@ class AssemblerSettings(BaseModel):
     publish_period: float = Field(
         2.0,
         ge=0,
-        description="the map cloud is published at most this often (s), and once more after the last scan",
+        description="the map cloud is published at most this often (s), counted from the first scan, and "
+        "once more after the last scan",
     )
     busy_publish_period: float = Field(
         6.0,

@@ -32,7 +32,9 @@ class AssemblerService:
         self.store = None if state is None else AssemblerStore(state)
         restored = self.store.restore(self.assembler) if self.store else 0
         self.last_checkpoint = time.monotonic()
-        self.last_published = -np.inf
+        self.last_published = -np.inf  # the last map that went out
+        self.last_attempt = -np.inf  # ... or that did not, for want of a floor
+        self.first_scan: float | None = None  # when this run's first scan was taken
         self.last_scan = 0.0
         self.pending = restored > 0  # frames registered since the last published map
         self.behind = False  # a scan found others waiting since the last published map
@@ -69,6 +71,7 @@ class AssemblerService:
             self.store.append(record)  # before anything goes out about it
         pose = record.pose
         self.last_scan, self.pending, self.last_stamp = time.monotonic(), True, at
+        self.first_scan = self.first_scan or self.last_scan
 
         pose_message = messages.Pose()
         messages.set_pose(pose_message, pose, "odom", frame.frame_id, at)
@@ -76,13 +79,19 @@ class AssemblerService:
         set_time(self.node.recording, at)
         log_scan(self.node.recording, self.assembler.registered_points, pose)
         self.behind = self.behind or busy
-        if time.monotonic() - self.last_published >= self.publish_period():
+        if self.map_due():
             self.publish_map()
 
-    def publish_period(self) -> float:
-        """Behind the sensor, the maps go out less often: features and inference then leave the cores to
-        the assembler, and have less stale work in hand when the scans stop and the last map comes."""
-        return self.settings.busy_publish_period if self.behind else self.settings.publish_period
+    def map_due(self) -> bool:
+        """Every publish_period; behind the sensor, every busy_publish_period: features and inference then
+        leave the cores to the assembler, and have less stale work in hand when the scans stop and the last
+        map comes. Both count from the first scan too (a map of a frame or two is worth nobody's work). A map
+        not sent for want of a floor cost them nothing: the next try is not held back."""
+        now, settings = time.monotonic(), self.settings
+        if now - max(self.last_attempt, self.first_scan) < settings.publish_period:
+            return False
+        since = max(self.last_published, self.first_scan)
+        return not self.behind or now - since >= settings.busy_publish_period
 
     def idle(self) -> None:
         if self.pending and time.monotonic() - self.last_scan >= QUIET_BEFORE_PUBLISHING:
@@ -117,7 +126,7 @@ class AssemblerService:
             self.node.publish_status(
                 messages.Status.READY, f"{self.assembler.frames} frames, no map yet: {error}"
             )
-            self.last_published = time.monotonic()
+            self.last_attempt = time.monotonic()
             self.pending = False
             return
         cloud = messages.cloud_message(
@@ -130,7 +139,8 @@ class AssemblerService:
             origins=self.sensor_origins(world_from_odom),
         )
         self.node.publish(self.node.keys.cloud, cloud)
-        self.last_published, self.pending, self.behind = time.monotonic(), False, False
+        self.last_published = self.last_attempt = time.monotonic()
+        self.pending, self.behind = False, False
         set_time(self.node.recording, self.last_stamp)
         log_trajectory(self.node.recording, self.assembler.trajectory.positions, world_from_odom)
         log_cloud(self.node.recording, points)

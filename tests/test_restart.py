@@ -77,6 +77,7 @@ def test_killed_services_restart_and_lose_no_accepted_frame(generated_sequence, 
         "AFFORD_SERVICE__MAX_LAG": "600",  # every frame taken: the count below is the proof
         "AFFORD_ASSEMBLER__CHECKPOINT_PERIOD": "1",
         "AFFORD_ASSEMBLER__PUBLISH_PERIOD": "0.5",  # a map soon after the floor is in view
+        "AFFORD_ASSEMBLER__BUSY_PUBLISH_PERIOD": "0.5",  # ... even with scans waiting
     }
     stack = Stack(tmp_path / "run", env=env).start()
     try:
