@@ -77,6 +77,7 @@ def run_service(
     settings.service.zenoh_config = zenoh_config or settings.service.zenoh_config
     if spec.downstream:
         os.nice(settings.service.downstream_nice)
+    limit_blas(settings)  # for the process's life, its mapping workers (forked below) too
     models = []
     if spec.scores:  # only a scoring service loads models, and refuses those of another feature layout
         models = choose_models(model_files or [], [], FeatureLayout.from_settings(settings))
@@ -99,6 +100,15 @@ def run_service(
     node = Node(name, robot, endpoints, settings, rrd, viewer, affordances, listen, models, keys=keys)
     node.mapper = mapper
     spec.service_class()(node).run()
+
+
+def limit_blas(settings):
+    """BLAS threads at AFFORD_SERVICE__BLAS_THREADS (0: left alone); the limits, to restore them, or None."""
+    if not settings.service.blas_threads:
+        return None
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(settings.service.blas_threads, user_api="blas")
 
 
 def _sharding() -> list[str]:

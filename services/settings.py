@@ -69,6 +69,13 @@ class NodeSettings(BaseModel):
         "of a core, so the last maps came 10-40 s after the scans stopped (docs/services.md, Latency); the "
         "assembler keeps up by passing over late scans and by publishing fewer maps while behind",
     )
+    blas_threads: int = Field(
+        1,
+        ge=0,
+        description="BLAS threads per service process (0: the library's default, one per core): the "
+        "services' matrices are thin (points x 3), and a second OpenBLAS thread spin-waits between calls on "
+        "the cores the processes share (as `afford map`, affordcli/room.py)",
+    )
     map_workers: int = Field(
         0,
         ge=0,

@@ -320,6 +320,23 @@ def test_inference_updates_the_maps_of_a_changed_room_as_a_mapping_from_scratch_
         running.stop()
 
 
+def test_a_service_process_runs_on_one_blas_thread_unless_told_otherwise(monkeypatch):
+    from threadpoolctl import threadpool_info
+
+    from services.registry import limit_blas
+
+    def blas_threads() -> set[int]:
+        return {pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"}
+
+    limits = limit_blas(ServiceSettings())
+    try:
+        assert blas_threads() == {1}
+    finally:
+        limits.restore_original_limits()
+    monkeypatch.setenv("AFFORD_SERVICE__BLAS_THREADS", "0")
+    assert limit_blas(ServiceSettings()) is None
+
+
 def test_a_robot_name_must_be_one_key_chunk():
     for bad in ("", "a/b", "r*", "@x", "two words"):
         with pytest.raises(ValueError, match="one non-empty key chunk"):
