@@ -2,7 +2,7 @@
 from all the scans, with the router and the three services as separate processes on this machine.
 
     .venv/bin/python benchmarks/bench_services.py [--frames 100] [--step 3] [--rate 30] [--repeats 3]
-    .venv/bin/python benchmarks/bench_services.py --as-map [--repeats 5]
+    .venv/bin/python benchmarks/bench_services.py --as-map [--repeats 5] [--hogs 2]
 
 Streams the real 7-Scenes kitchen frames (../shared) when present, else a generated living room's. Each
 repeat starts a fresh stack. Prints per-stage latency medians and the assembler's own frame rate.
@@ -32,7 +32,7 @@ from affordcore.assembly.sequence import read_sequence  # noqa: E402
 from affordcore.learn.model import shipped_models  # noqa: E402
 from affordwire import messages  # noqa: E402
 from services.clients import publish_sequence, sequence_messages  # noqa: E402
-from services.launch import Stack, query_status  # noqa: E402
+from services.launch import Stack, cpu_hogs, query_status  # noqa: E402
 from services.transport import Keys, open_session, schema_of  # noqa: E402
 
 KITCHEN = ROOT.parent / "shared" / "data" / "sequences" / "7scenes_redkitchen_frames_000000-000299"
@@ -250,12 +250,12 @@ def as_map_steps(repeats: int) -> dict[str, list[float]]:
 
 def as_map_table(args) -> None:
     load = os.getloadavg()[0]
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, cpu_hogs(args.hogs):
         runs = [as_map_run(Path(tmp) / f"run{k}") for k in range(args.repeats)]
     print(
         f"\n`publish --as-map` of the 6 m x 5 m example room (levelled by the client), three shipped models: "
         f"from the put on map/cloud to each output; {args.repeats} fresh stacks, {os.cpu_count()} cores, "
-        f"load average {load:.1f} before, {os.getloadavg()[0]:.1f} after\n"
+        f"{args.hogs} CPU hogs, load average {load:.1f} before, {os.getloadavg()[0]:.1f} after\n"
     )
     print("| from the room put on map/cloud to ... | median (s) | runs (s) |\n|---|---:|---|")
     for key in runs[0]:
@@ -277,6 +277,7 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=30.0)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--as-map", action="store_true", help="a finished room's first maps instead")
+    parser.add_argument("--hogs", type=int, default=0, help="--as-map: CPU hogs beside the stack")
     args = parser.parse_args()
     if args.as_map:
         as_map_table(args)
