@@ -304,19 +304,13 @@ class _Drawer:
 
         read, write = os.pipe()
         self.pid = os.fork()
-        if self.pid == 0:  # the child
-            os.close(read)
-            start = time.perf_counter()
+        if self.pid == 0:  # the child: whatever happens, it never returns into the writer's loop
             try:
-                paths = _json_and_png(
-                    state["points"], state["world_from_input"], amap, model_id, state["out"], state["plan"]
-                )
-                answer = ("done", (paths, time.perf_counter() - start))
-            except BaseException as error:  # raised in the command's process, at finish
-                answer = ("error", RuntimeError(f"writing the {amap.affordance} map: {error!r}"))
-            with os.fdopen(write, "wb") as pipe:
-                pickle.dump(answer, pipe)
-            os._exit(0)
+                os.close(read)
+                with os.fdopen(write, "wb") as pipe:
+                    pickle.dump(_draw(state, amap, model_id), pipe)
+            finally:
+                os._exit(0)
         os.close(write)
         self.answer = os.fdopen(read, "rb")
 
@@ -334,6 +328,18 @@ class _Drawer:
         if outcome == "error":
             raise value
         return value
+
+
+def _draw(state: dict, amap, model_id: str) -> tuple[str, object]:
+    """In a `_Drawer`'s child: ("done", (the paths written, seconds)) or ("error", what went wrong)."""
+    start = time.perf_counter()
+    try:
+        paths = _json_and_png(
+            state["points"], state["world_from_input"], amap, model_id, state["out"], state["plan"]
+        )
+        return "done", (paths, time.perf_counter() - start)
+    except BaseException as error:  # raised in the command's process, at finish
+        return "error", RuntimeError(f"writing the {amap.affordance} map: {error!r}")
 
 
 def _finished(state: dict, order: list[str]) -> tuple[list[Path], dict[str, float]]:
