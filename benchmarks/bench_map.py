@@ -220,7 +220,7 @@ def one_run(cloud: Cloud, settings, models) -> tuple[dict[str, np.ndarray], obje
     clock = [_clock()]
 
     def lap(affordance: str, _map) -> None:  # map_affordances reports each affordance as it is done
-        seconds[f"score + map {affordance} (1.89 M poses)"] = _clock() - clock[0]
+        seconds[f"score + map {affordance} ({_map.grid.size / 1e6:.2f} M poses)"] = _clock() - clock[0]
         clock[0] = _clock()
 
     maps = map_affordances(scene.fields, scene.layout, models, settings, on_map=lap)
