@@ -71,7 +71,7 @@ def map_room(
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(1, user_api="blas"):
-        return _map_room(cloud_path, out, model_files, affordances, gravity, rrd, quiet, timings)
+        return _map_room(cloud_path, out, model_files, affordances, gravity, rrd, quiet, timings, origins)
 
 
 def _map_room(
@@ -83,6 +83,7 @@ def _map_room(
     rrd: Path,
     quiet: bool,
     timings: bool,
+    origins: Path | None,
 ) -> list[Path]:
     from contextlib import nullcontext
 
