@@ -13,8 +13,16 @@ the last scan, as `afford watch --frames N` waits for them) are scored against t
   tolerances), the live map brought into the labels' frame by the true pose of the first frame and the
   map's own levelling, refined by ICP of the live map cloud onto the fused room (the refinement is printed).
 
+A second table says where the time goes, from a client that hears every output: the last scan sent to the
+assembler's last pose and last map cloud, that cloud to its fields and to each map, the outputs that came
+after the last scan (each one the services worked on while the last one waited), and the cores each process
+used while the scans streamed and after. `--against KEY=VALUE,...` runs every live run a second time with
+those settings, side by side.
+
     .venv/bin/python benchmarks/bench_live.py                        # kitchen + 3 generated rooms, ~15 min
     .venv/bin/python benchmarks/bench_live.py --generated 0 --loads 2  # the kitchen, busy only
+    .venv/bin/python benchmarks/bench_live.py --generated 0 --no-where --repeats 3 \
+        --against AFFORD_SERVICE__DOWNSTREAM_NICE=10   # the kitchen: defaults against niced services
 """
 
 from __future__ import annotations
