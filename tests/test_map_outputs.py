@@ -73,3 +73,29 @@ def test_an_error_writing_a_map_is_raised_naming_the_map(room, tmp_path, monkeyp
     first = models[0].affordance
     with pytest.raises(RuntimeError, match=f"writing the {first} map: OSError.'no room left for {first}'"):
         map_and_write(scene, models[:2], settings, tmp_path, tmp_path / "map.rrd", workers=2)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the writer is forked on Linux only")
+def test_the_room_is_handed_to_the_writer_without_waiting_for_it(room, tmp_path, monkeypatch):
+    """The writer reads the room only once its imports are done; the command computes the fields
+    meanwhile, so handing the room over (megabytes through a 64 KB pipe) must not wait for the writer.
+    Closed early (an error before the maps), the writer is ended and nothing hangs."""
+    import threading
+    import time
+
+    from affordcore.mapping import outputs
+
+    monkeypatch.setattr(outputs, "_writer_main", lambda connection: time.sleep(600))  # never reads
+    scene = room[0]
+    assert scene.cloud.points.nbytes > 1 << 20
+    writer = outputs.OutputWriter()
+    handed = threading.Event()
+
+    def hand_over():
+        writer.start_scene(scene, ["sitting-working"], tmp_path, None)
+        handed.set()
+
+    threading.Thread(target=hand_over, daemon=True).start()
+    assert handed.wait(60), "start_scene waited for the writer to read the room"
+    writer.close()
+    assert not writer._process.is_alive()

@@ -203,7 +203,7 @@ class OutputWriter:
         self._process = context.Process(target=_writer_main, args=(theirs,), daemon=True)
         self._process.start()
         theirs.close()
-        self.has_scene = False
+        self.has_scene, self._sending, self._send_error = False, None, None
 
     def __enter__(self) -> OutputWriter:
         return self
@@ -213,17 +213,39 @@ class OutputWriter:
 
     def start_scene(self, world, affordances: list[str], out: Path, rrd: Path | None) -> None:
         """The room (a `pipeline.WorldCloud` or `PreparedScene`): the writer records its cloud. As soon as the
-        world cloud exists (`prepare_scene`'s `on_world`), the recording is made while the fields are."""
+        world cloud exists (`prepare_scene`'s `on_world`), the recording is made while the fields are.
+
+        Sent by a thread: the pipe holds 64 KB of the cloud's 11 MB and the writer reads only once its
+        imports are done, so a plain send would hold this process, and the fields it computes next, until
+        then (on a busy machine, seconds)."""
+        import threading
+
         points, source = world.cloud.points, world.cloud.source
-        self._connection.send(
-            ("scene", points, source, world.alignment.world_from_input, affordances, out, rrd)
-        )
+        message = ("scene", points, source, world.alignment.world_from_input, affordances, out, rrd)
+        self._sending = threading.Thread(target=self._send, args=(message,), daemon=True)
+        self._sending.start()
         self.has_scene = True
 
+    def _send(self, message) -> None:
+        try:
+            self._connection.send(message)
+        except Exception as error:  # raised by _sent, in the caller's thread
+            self._send_error = error
+
+    def _sent(self) -> None:
+        """Wait for the scene to be sent (messages keep their order); raise what went wrong sending it."""
+        if self._sending is not None:
+            self._sending.join()
+            self._sending = None
+        if self._send_error is not None:
+            raise self._send_error
+
     def write_map(self, amap, model_id: str) -> None:
+        self._sent()
         self._connection.send(("map", amap, model_id))
 
     def finish(self, order: list[str]) -> tuple[list[Path], dict[str, float]]:
+        self._sent()
         self._connection.send(("finish", order))
         try:
             outcome, value = self._connection.recv()
@@ -234,6 +256,9 @@ class OutputWriter:
         return value
 
     def close(self) -> None:
+        if self._sending is not None and self._sending.is_alive():  # closed before finish (an error)
+            self._process.kill()  # nobody will read the rest of the scene: its send fails and ends
+            self._sending.join()
         self._connection.close()  # the writer reads the end of its input and stops
         self._process.join(timeout=5)
         if self._process.is_alive():
