@@ -269,3 +269,31 @@ def test_place_probability_setting_overrides_or_defers(monkeypatch):
     assert Settings().map.place_probability == 0.7
     monkeypatch.setenv("AFFORD_MAP__PLACE_PROBABILITY", "none")
     assert Settings().map.place_probability is None
+
+
+def test_a_place_stands_at_the_centre_of_its_strong_poses_not_at_the_rim_of_their_plateau():
+    """A plateau of strong poses centred at (1.45, 0.95) facing theta = 0, whose single best pose sits on its
+    rim (1.55, 0.95): the place moves most of the way to the plateau's centre, and its theta is
+    the circular mean of the plateau's orientations (7 pi / 4 and pi / 4 average to 0, not to pi)."""
+    from affordcore.mapping.places import CENTRE_MARGIN, centred
+
+    grid = _grid()
+    scores = np.full(grid.shape, -5.0, np.float32)
+    xx, yy = np.meshgrid(grid.x, grid.y, indexing="ij")
+    plateau = np.hypot(xx - 1.45, yy - 0.95) <= 0.15
+    for it in (7, 0, 1):  # -pi/4, 0, +pi/4
+        scores[:, it][:, plateau] = 2.0
+    scores[0, 0, 15, 9] = 2.4  # the argmax: on the rim, 0.1 m off
+    candidates = place_candidates(scores, grid, threshold=0.0, nms_radius=0.45)
+    x, y, z, theta, peak = candidates.rows[0]
+    assert peak == pytest.approx(2.4) and z == grid.z[0]  # the peak's own score and height stay
+    # most of the way in: the centre of what lies within CENTRE_RADIUS of the peak, not the whole plateau's
+    assert 1.45 <= x < 1.49 and abs(y - 0.95) < 0.01
+    assert min(theta, 2 * np.pi - theta) < 0.05
+    # a pose below the pose threshold, or more than CENTRE_MARGIN under the peak, does not pull
+    lone = np.full(grid.shape, -5.0, np.float32)
+    lone[1, 2, 10, 10] = 1.0
+    lone[1, 2, 11, 10] = 1.0 - CENTRE_MARGIN - 0.1
+    rows = np.array([[grid.x[10], grid.y[10], grid.z[1], grid.theta[2], 1.0]])
+    np.testing.assert_allclose(centred(lone, grid, np.array([[10, 10]]), rows, 0.0), rows)
+    np.testing.assert_allclose(centred(lone, grid, np.array([[10, 10]]), rows, 2.0), rows)  # none above it

@@ -38,6 +38,8 @@ PLACE_CANDIDATES = 80  # per room: far more than any room's places, few enough t
 CANDIDATE_SPACING = 0.25
 SUPPORT_RADIUS = 0.3  # m: poses this near a peak count as its support (DESIGN's loose place tolerance)
 SURROUNDINGS_RADIUS = 1.0  # m: a person's reach around the place, for how much of it was scanned
+CENTRE_RADIUS = 0.2  # m: a place stands at the weighted centre of its strong poses this near its peak ...
+CENTRE_MARGIN = 2.0  # ... those above the pose threshold and within this of the peak's score (`centred`)
 EVIDENCE = (
     "score",  # the peak's own score
     "over_median",  # above the median score of the room's candidate poses
@@ -115,7 +117,37 @@ def place_candidates(
     rows = np.column_stack(
         [grid.x[i], grid.y[j], grid.z[best[i, j] // nt], grid.theta[best[i, j] % nt], confidence[i, j]]
     )
-    return Candidates(cells, rows, _evidence(scores, confidence, cells, grid, threshold, scanned))
+    evidence = _evidence(scores, confidence, cells, grid, threshold, scanned)
+    return Candidates(cells, centred(scores, grid, cells, rows, threshold), evidence)
+
+
+def centred(
+    scores: np.ndarray, grid: PoseGrid, cells: np.ndarray, rows: np.ndarray, threshold: float
+) -> np.ndarray:
+    """The candidates' rows (x, y, z, theta, score) with x, y and theta moved to the score-weighted centre of
+    the poses within `CENTRE_RADIUS` of each peak that score above the pose threshold and within
+    `CENTRE_MARGIN` of the peak (theta by a weighted circular mean; z and the score stay the peak's). Why:
+    a place's strong poses form a plateau whose argmax lands anywhere on it, often at its rim, 0.15-0.25 m or
+    0.4-0.6 rad from where the person is; the plateau's centre is nearer (docs/maps.md: on the validation
+    rooms 4 more sitting-working places and 8 fewer false skeletons). A peak with no such pose keeps its
+    cell."""
+    if not len(cells):
+        return rows
+    di, dj = _disc(grid.step, CENTRE_RADIUS)
+    near = _window(scores, cells, grid.step, CENTRE_RADIUS).astype(np.float64)  # (z, theta, k, disc)
+    floor = np.maximum(threshold, rows[:, 4] - CENTRE_MARGIN)
+    weight = np.clip(near - floor[None, None, :, None], 0.0, None)
+    over_cells, over_turns = weight.sum(axis=(0, 1)), weight.sum(axis=(0, 3))  # (k, disc), (theta, k)
+    total = over_cells.sum(axis=1)
+    moved = total > 0
+    out = rows.copy()
+    shift = (
+        np.column_stack([over_cells @ di, over_cells @ dj]) * grid.step / np.maximum(total, 1e-300)[:, None]
+    )
+    out[moved, :2] += shift[moved]
+    sine, cosine = np.sin(grid.theta) @ over_turns, np.cos(grid.theta) @ over_turns
+    out[moved, 3] = np.mod(np.arctan2(sine, cosine), 2 * np.pi)[moved]
+    return out
 
 
 def _evidence(scores, confidence, cells, grid: PoseGrid, threshold: float, scanned) -> np.ndarray:
@@ -139,13 +171,19 @@ def _evidence(scores, confidence, cells, grid: PoseGrid, threshold: float, scann
     ).reshape(-1, len(EVIDENCE))
 
 
+def _disc(step: float, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """The cell offsets (di, dj) of a disc of `radius` on a grid of `step`."""
+    reach = int(np.floor(radius / step + 1e-9))
+    di, dj = np.mgrid[-reach : reach + 1, -reach : reach + 1].reshape(2, -1)
+    inside = np.hypot(di, dj) * step <= radius + 1e-9
+    return di[inside], dj[inside]
+
+
 def _window(values: np.ndarray, cells: np.ndarray, step: float, radius: float, fill=RULED_OUT) -> np.ndarray:
     """values[..., i, j] over the disc of `radius` around each cell (k, 2), shaped (..., k, disc);
     cells off the grid hold `fill`. Every candidate's disc at once, by one fancy index."""
-    reach = int(np.floor(radius / step + 1e-9))
-    di, dj = np.mgrid[-reach : reach + 1, -reach : reach + 1].reshape(2, -1)
-    disc = np.hypot(di, dj) * step <= radius + 1e-9
-    ii, jj = cells[:, :1] + di[disc], cells[:, 1:] + dj[disc]
+    di, dj = _disc(step, radius)
+    ii, jj = cells[:, :1] + di, cells[:, 1:] + dj
     nx, ny = values.shape[-2:]
     inside = (ii >= 0) & (ii < nx) & (jj >= 0) & (jj < ny)
     gathered = values[..., np.clip(ii, 0, nx - 1), np.clip(jj, 0, ny - 1)]
