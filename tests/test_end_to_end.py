@@ -141,7 +141,8 @@ def _assert_same_as_afford_map(cloud, documents: dict) -> None:
     from affordwire import messages
 
     settings = Settings()
-    scene = prepare_scene(Cloud(messages.cloud_points(cloud)), settings, gravity="none")
+    seen_from = messages.cloud_origins(cloud)  # the assembler sends where the camera stood: the same carving
+    scene = prepare_scene(Cloud(messages.cloud_points(cloud), origins=seen_from), settings, gravity="none")
     maps = map_affordances(scene.fields, scene.layout, choose_models([], [], scene.layout), settings)
     for name in AFFORDANCES:
         expected = maps[name].to_json("", np.eye(4))
