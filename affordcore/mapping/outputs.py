@@ -241,8 +241,11 @@ class OutputWriter:
             raise self._send_error
 
     def write_map(self, amap, model_id: str) -> None:
+        from dataclasses import replace
+
         self._sent()
-        self._connection.send(("map", amap, model_id))
+        # without its every pose's scores (8-13 MB through the pipe), which no output reads
+        self._connection.send(("map", replace(amap, scores=None), model_id))
 
     def finish(self, order: list[str]) -> tuple[list[Path], dict[str, float]]:
         self._sent()
