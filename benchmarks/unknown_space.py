@@ -31,13 +31,50 @@ def main() -> None:
     parser.add_argument("--validation", type=int, default=40)
     parser.add_argument("--test", type=int, default=40)
     parser.add_argument("--shares", type=float, nargs="+", default=[0.0, 0.05, 0.1, 0.2, 0.4])
+    parser.add_argument("--carving-only", action="store_true", help="only the carving's cost on the kitchen")
     args = parser.parse_args()
+
+    print_carving_cost()
+    if args.carving_only:
+        return
 
     rooms, part, style, costs = load(args)
     print(f"{os.cpu_count()} cores; {len(rooms)} rooms with their sensor positions")
     print_seen(rooms, style, costs)
     results = score(rooms, args.shares)
     print_places(results, part, style, args.shares)
+
+
+def print_carving_cost(repeats: int = 3) -> None:
+    """What the features service pays per live map: carving the real kitchen's lattice (../shared, when
+    present) from a straight walk of 100 positions at 1.5 m, at several `visibility.max_origins`."""
+    from affordcore.geometry.scene import load_cloud
+    from affordcore.geometry.visibility import voxel_states
+    from affordcore.mapping.pipeline import prepare_scene
+    from affordcore.settings import Settings
+
+    kitchen = ROOT.parent / "shared" / "data" / "rooms" / "7scenes_redkitchen_fused_zup_DERIVED.ply"
+    if not kitchen.exists():
+        print("(no ../shared: the kitchen's carving cost is not measured)")
+        return
+    settings = Settings()
+    fields = prepare_scene(load_cloud(kitchen), settings, "none").fields
+    low, high = np.array(fields.footprint[:2]), np.array(fields.footprint[2:])
+    along = np.linspace(0.3, 0.7, 100)[:, None]
+    walk = np.column_stack([low + (high - low) * along, np.full(100, 1.5)])
+    print(
+        f"carving the kitchen's {fields.lattice.shape} lattice from a 100-position walk, median of {repeats}:"
+    )
+    print("| max_origins | seconds |")
+    print("|---:|---:|")
+    for most in (8, 16, 32):
+        chosen = settings.visibility.model_copy(update={"max_origins": most})
+        seconds = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            voxel_states(fields.occupancy, fields.lattice, walk, chosen)
+            seconds.append(time.perf_counter() - start)
+        print(f"| {most} | {np.median(seconds):.2f} |")
 
 
 def load(args):
