@@ -131,7 +131,7 @@ class VisibilitySettings(BaseModel):
         0.3, ge=0, description="a place's body space: its voxel columns within this distance (m)"
     )
     min_seen: float = Field(
-        0.2,
+        0.05,
         ge=0,
         le=1,
         description="with sensor positions, a cell is mapped only when the sensors saw (free or surface) at "
