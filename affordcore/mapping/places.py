@@ -128,9 +128,8 @@ def centred(
     the poses within `CENTRE_RADIUS` of each peak that score above the pose threshold and within
     `CENTRE_MARGIN` of the peak (theta by a weighted circular mean; z and the score stay the peak's). Why:
     a place's strong poses form a plateau whose argmax lands anywhere on it, often at its rim, 0.15-0.25 m or
-    0.4-0.6 rad from where the person is; the plateau's centre is nearer (docs/maps.md: on the validation
-    rooms 4 more sitting-working places and 8 fewer false skeletons). A peak with no such pose keeps its
-    cell."""
+    0.4-0.6 rad from where the person is, beyond a place's tolerance; the plateau's centre is nearer
+    (measured in docs/maps.md). A peak with no such pose keeps its cell."""
     if not len(cells):
         return rows
     di, dj = _disc(grid.step, CENTRE_RADIUS)
