@@ -68,24 +68,9 @@ def map_room(
     processes and the files in a writer process started first, `outputs.map_and_write`), on one BLAS thread
     per process: its matrices are thin (points x 3), and OpenBLAS's second thread spin-waits between calls,
     which doubled the CPU of the floor search and took the core the writer and the workers share."""
-    from threadpoolctl import threadpool_limits
-
-    with threadpool_limits(1, user_api="blas"):
-        return _map_room(cloud_path, out, model_files, affordances, gravity, rrd, quiet, timings, origins)
-
-
-def _map_room(
-    cloud_path: Path,
-    out: Path,
-    model_files: list[Path],
-    affordances: list[str],
-    gravity: str,
-    rrd: Path,
-    quiet: bool,
-    timings: bool,
-    origins: Path | None,
-) -> list[Path]:
     from contextlib import nullcontext
+
+    from threadpoolctl import threadpool_limits
 
     from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.model import choose_models
@@ -99,8 +84,12 @@ def _map_room(
     seconds: dict[str, float] = {}
     models = choose_models(model_files, affordances, FeatureLayout.from_settings(settings))
     workers = default_workers(len(models))
-    # the writer imports matplotlib and rerun on the other core while this process loads the room
-    with OutputWriter() if workers > 1 else nullcontext() as writer:
+    # the writer imports matplotlib and rerun on the other core while this process loads the room; it and
+    # the workers are forked inside the BLAS limit, and keep it
+    with (
+        threadpool_limits(1, user_api="blas"),
+        OutputWriter() if workers > 1 else nullcontext() as writer,
+    ):
         loading = time.perf_counter()
         cloud = _loaded(cloud_path, origins)
         seconds["load the cloud"] = time.perf_counter() - loading
