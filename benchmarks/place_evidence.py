@@ -42,10 +42,7 @@ SPLITS = {
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, default=ROOT / "bench-data" / "accuracy")
-    parser.add_argument("--rooms", type=int, default=200, help="the data set's first rooms")
-    parser.add_argument("--validation", type=int, default=40)
-    parser.add_argument("--test", type=int, default=40)
+    add_split_arguments(parser)
     args = parser.parse_args()
     from affordcore.mapping.places import EVIDENCE
 
@@ -103,10 +100,31 @@ def print_cuts(candidates: list[dict]) -> None:
             print(f"| {affordance} | {label} | {cut:.2f} | " + " | ".join(cells) + " |")
 
 
+def add_split_arguments(parser: argparse.ArgumentParser) -> None:
+    """The data set of `benchmarks/accuracy.py` and the shipped models' split of its first rooms."""
+    parser.add_argument("--data", type=Path, default=ROOT / "bench-data" / "accuracy")
+    parser.add_argument("--rooms", type=int, default=200, help="the data set's first rooms")
+    parser.add_argument("--validation", type=int, default=40)
+    parser.add_argument("--test", type=int, default=40)
+
+
+def shipped_split(args) -> tuple[dict, dict[str, str], dict[str, str]]:
+    """(the room files by name, "validation" or "test" by name, validation rooms first, the scan style by
+    name) of the shipped models' split of the data set (`add_split_arguments`)."""
+    from affordcore.learn.defaults import split_by_index
+    from affordcore.learn.examples import data_set_rooms
+
+    style = {r["room"]: r["style"] for r in json.loads((args.data / "summary.json").read_text())["rooms"]}
+    ordered = sorted(data_set_rooms(args.data), key=lambda files: int(files.name.rsplit("-", 1)[1]))
+    files = {f.name: f for f in ordered[: args.rooms]}
+    _, validation, test = split_by_index(list(files), args.validation, args.test)
+    part = {**{n: "validation" for n in validation}, **{n: "test" for n in test}}
+    return files, part, style
+
+
 def collect(args) -> list[dict]:
     """Every candidate place of the validation and test rooms under the shipped models, with its evidence."""
     from affordcore.geometry.features import FeatureLayout
-    from affordcore.learn.defaults import split_by_index
     from affordcore.learn.examples import data_set_rooms, load_rooms
     from affordcore.learn.model import load_model, shipped_models
     from affordcore.learn.thresholds import room_scores
@@ -114,12 +132,8 @@ def collect(args) -> list[dict]:
 
     settings = Settings()
     layout = FeatureLayout.from_settings(settings)
-    style = {r["room"]: r["style"] for r in json.loads((args.data / "summary.json").read_text())["rooms"]}
-    ordered = sorted(data_set_rooms(args.data), key=lambda files: int(files.name.rsplit("-", 1)[1]))
-    files = {f.name: f for f in ordered[: args.rooms]}
-    _, validation, test = split_by_index(list(files), args.validation, args.test)
-    part = {**{n: "validation" for n in validation}, **{n: "test" for n in test}}
-    rooms = load_rooms([files[n] for n in validation + test], settings)
+    files, part, style = shipped_split(args)
+    rooms = load_rooms([files[n] for n in part], settings)
     if REAL_ROOMS.is_dir():  # a test set: scored and reported, never fitted or chosen on
         real = load_rooms(data_set_rooms(REAL_ROOMS), settings)
         part.update({r.name: "real" for r in real})

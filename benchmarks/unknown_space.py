@@ -13,23 +13,22 @@ it, per scan style. Also: how much of each room the sensors saw (free, unknown),
 from __future__ import annotations
 
 import argparse
-import json
 import os
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).parent))
+from place_evidence import STYLES, add_split_arguments, shipped_split  # noqa: E402  (the shipped models' split)
+
 ROOT = Path(__file__).resolve().parents[1]
-STYLES = ("fused", "mesh", "laser", "frames", "walk")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, default=ROOT / "bench-data" / "accuracy")
-    parser.add_argument("--rooms", type=int, default=200, help="the data set's first rooms")
-    parser.add_argument("--validation", type=int, default=40)
-    parser.add_argument("--test", type=int, default=40)
+    add_split_arguments(parser)
     parser.add_argument("--shares", type=float, nargs="+", default=[0.0, 0.05, 0.1, 0.2, 0.4])
     parser.add_argument("--carving-only", action="store_true", help="only the carving's cost on the kitchen")
     args = parser.parse_args()
@@ -80,18 +79,13 @@ def print_carving_cost(repeats: int = 3) -> None:
 def load(args):
     from affordcore.geometry.scene import load_origins, origins_file
     from affordcore.geometry.visibility import FREE, UNKNOWN, voxel_states
-    from affordcore.learn.defaults import split_by_index
-    from affordcore.learn.examples import data_set_rooms, load_room
+    from affordcore.learn.examples import load_room
     from affordcore.settings import Settings
 
     settings = Settings()
-    style = {r["room"]: r["style"] for r in json.loads((args.data / "summary.json").read_text())["rooms"]}
-    ordered = sorted(data_set_rooms(args.data), key=lambda files: int(files.name.rsplit("-", 1)[1]))
-    files = {f.name: f for f in ordered[: args.rooms]}
-    _, validation, test = split_by_index(list(files), args.validation, args.test)
-    part = {**{n: "validation" for n in validation}, **{n: "test" for n in test}}
+    files, part, style = shipped_split(args)
     rooms, costs = [], {}
-    for name in validation + test:
+    for name in part:
         room = load_room(files[name], settings)
         fields = room.fields
         if fields.visibility is None:
