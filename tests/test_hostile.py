@@ -15,6 +15,7 @@ import pytest
 from conftest import eventually
 
 from affordcore.geometry.fields import compute_fields
+from affordcore.geometry.visibility import voxel_states
 from affordwire import messages
 from services.launch import Stack
 from services.transport import Keys, encoding_of, open_session
@@ -50,8 +51,11 @@ def _valid_inputs(rng: np.random.Generator) -> dict[str, tuple[object, type]]:
     depth = messages.depth_frame_message(
         np.full((48, 64), 2000, np.uint16), np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
     )
-    cloud = messages.cloud_message(room, np.eye(4), "fuzz", frames=1)
-    fields = messages.fields_message(compute_fields(room), cloud)
+    sensor = np.array([[1.5, 1.25, 1.2]])
+    cloud = messages.cloud_message(room, np.eye(4), "fuzz", frames=1, origins=sensor)
+    room_fields = compute_fields(room)
+    room_fields.visibility = voxel_states(room_fields.occupancy, room_fields.lattice, sensor)
+    fields = messages.fields_message(room_fields, cloud)
     return {
         "scan": (scan, messages.Scan),
         "depth": (depth, messages.DepthFrame),
@@ -111,6 +115,8 @@ def _message_mutations(message, rng: np.random.Generator) -> list[Callable[[obje
             + pose("world_from_input")
             + [
                 lambda m: setattr(m, "frame_id", str(rng.choice(["odom", "", "map"]))),
+                lambda m: setattr(m.sensor_origins[0], "z", float(rng.choice([np.nan, np.inf, 1e9]))),
+                lambda m: m.sensor_origins.extend([m.sensor_origins[0]] * 10_001),
                 lambda m: setattr(m, "data", (np.frombuffer(m.data, "<f4") * 1e4).astype("<f4").tobytes()),
             ]
         )
@@ -124,6 +130,8 @@ def _message_mutations(message, rng: np.random.Generator) -> list[Callable[[obje
         lambda m: setattr(m, "occupancy", bytes(rng.integers(0, 256, len(m.occupancy), dtype=np.uint8))),
         lambda m: setattr(m, "x_max", float(rng.choice([np.nan, -1e9]))),
         lambda m: setattr(m.cloud_timestamp, "seconds", 10**11),
+        lambda m: setattr(m, "visibility", bytes(rng.integers(0, 256, len(m.visibility), dtype=np.uint8))),
+        lambda m: setattr(m, "visibility", m.visibility[: int(rng.integers(1, len(m.visibility)))]),
     ]
     return stamps + pose("world_from_input") + grid
 
