@@ -84,10 +84,10 @@ def load_origins(path: str | os.PathLike) -> np.ndarray | None:
     try:
         if path.suffix.lower() == ".npy":
             array = np.load(path, allow_pickle=False)
-        else:
-            array = np.loadtxt(
-                path, dtype=np.float64, ndmin=2, delimiter="," if "," in path.read_text() else None
-            )
+        else:  # read once: the delimiter is a comma when the table has any
+            text = path.read_text(errors="replace")
+            delimiter = "," if "," in text else None
+            array = np.loadtxt(text.splitlines(), dtype=np.float64, ndmin=2, delimiter=delimiter)
     except (OSError, ValueError) as error:
         raise CloudError(f"{path}: cannot read sensor positions: {error}") from error
     if np.shape(array) == (0, 3):
