@@ -72,6 +72,13 @@ class SceneFields:
         return self.occupancy.nbytes + self.distance.nbytes + self.normals.nbytes + extra
 
 
+def disc(reach: int) -> np.ndarray:
+    """(2 reach + 1, 2 reach + 1) bool: the cells within `reach` cells of the centre, a round footprint
+    for dilations and means over a plan."""
+    di, dj = np.mgrid[-reach : reach + 1, -reach : reach + 1]
+    return di**2 + dj**2 <= reach**2
+
+
 def lattice_around(points: np.ndarray, settings: VoxelSettings) -> VoxelLattice:
     """A lattice covering the cloud, the floor and the space up to ``min_height``, with a margin all round."""
     res = settings.resolution
@@ -226,10 +233,12 @@ def floor_density(occupancy: np.ndarray, lattice: VoxelLattice) -> np.ndarray:
     from scipy import ndimage
 
     reach = max(1, int(round(_FLOOR_DISC / lattice.resolution)))
-    dx, dy = np.mgrid[-reach : reach + 1, -reach : reach + 1]
-    disc = (dx**2 + dy**2 <= reach**2).astype(np.float32)
+    footprint = disc(reach).astype(np.float32)
     floor = ndimage.correlate(
-        floor_seen(occupancy, lattice).astype(np.float32), disc / disc.sum(), mode="constant", cval=0.0
+        floor_seen(occupancy, lattice).astype(np.float32),
+        footprint / footprint.sum(),
+        mode="constant",
+        cval=0.0,
     )
     columns = (occupancy.max(axis=2) > 0).astype(np.float32)
     box = 2 * int(round(_CROWD_BOX / 2 / lattice.resolution)) + 1
@@ -279,8 +288,7 @@ def observed_floor(fields: SceneFields, x: np.ndarray, y: np.ndarray, margin: fl
     seen = floor_seen(fields.occupancy, lattice)
     reach = int(round(margin / lattice.resolution))
     if reach > 0:
-        dy, dx = np.mgrid[-reach : reach + 1, -reach : reach + 1]
-        seen = ndimage.binary_dilation(seen, dx**2 + dy**2 <= reach**2)
+        seen = ndimage.binary_dilation(seen, disc(reach))
     return at_columns(seen, lattice, x, y)
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..settings import VisibilitySettings
-from .fields import SceneFields, VoxelLattice, at_columns
+from .fields import SceneFields, VoxelLattice, at_columns, disc
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 
@@ -158,8 +158,7 @@ def body_seen(fields: SceneFields, x: np.ndarray, y: np.ndarray, settings: Visib
     lattice = fields.lattice
     share = seen_share(fields.visibility, lattice, settings.seen_low, settings.seen_high)
     reach = int(round(settings.seen_radius / lattice.resolution))
-    dy, dx = np.mgrid[-reach : reach + 1, -reach : reach + 1]
-    disc = (dx**2 + dy**2 <= reach**2).astype(float)
+    footprint = disc(reach).astype(float)
     # beyond the lattice nothing was seen: the disc's mean counts it as unseen
-    share = ndimage.convolve(share, disc / disc.sum(), mode="constant", cval=0.0)
+    share = ndimage.convolve(share, footprint / footprint.sum(), mode="constant", cval=0.0)
     return at_columns(share, lattice, x, y)

@@ -35,6 +35,7 @@ from ..geometry.fields import (
     VoxelLattice,
     cell_keys,
     cells_of_keys,
+    disc,
     estimate_normals,
     normals_at,
     thin_cells,
@@ -171,8 +172,7 @@ def _stale_cells(changed: np.ndarray, lattice: VoxelLattice, grid: PoseGrid, rea
     """(nx, ny) of the grid: the pose cells with a changed column within `reach` voxels (a disc)."""
     from scipy.ndimage import binary_dilation
 
-    dx, dy = np.mgrid[-reach : reach + 1, -reach : reach + 1]
-    near = binary_dilation(changed, dx**2 + dy**2 <= reach**2, border_value=1)
+    near = binary_dilation(changed, disc(reach), border_value=1)
     u = np.rint((grid.x - lattice.origin[0]) / lattice.resolution).astype(int)
     v = np.rint((grid.y - lattice.origin[1]) / lattice.resolution).astype(int)
     inside_u = (u >= 0) & (u < lattice.shape[0])
