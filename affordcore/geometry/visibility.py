@@ -7,10 +7,11 @@ as open as the first, and a skeleton can stand in it. With the positions the sen
 assembler's frames, a generated scan's stations, a depth frame's camera) the two part: space between a
 sensor and the first surface along a line of sight was seen, and is free; the rest is unknown.
 
-How: one range image per sensor position (the nearest surface in each direction, over bins of
-`VisibilitySettings.angular_step` in azimuth and elevation), made from the occupied voxels' centres and
-corners and shrunk by one bin (so a near surface's splats leave no gap a far one shows through); a voxel is
-free when it lies at least one voxel nearer than that image's surface in its direction. Each position is
+How: one range image per sensor position (the range of the nearest occupied voxel in each direction, over
+bins of `VisibilitySettings.angular_step` in azimuth and elevation). Each occupied voxel is splatted as a
+square across the line of sight, with more samples the nearer it is, so it covers every bin it spans; a
+single empty bin between splats takes its nearest neighbour's range. A voxel is free when it lies at least
+one voxel nearer than that image's surface in its direction. Each position is
 taken to have looked all round: a camera's field of view is not known here, so space in a line of sight
 counts as seen. That errs towards free only where a surface was seen from elsewhere and the space in
 front of it lies in the open view of another position, which a moving sensor mostly did look through.
