@@ -227,6 +227,7 @@ class Stack:
         from zenoh import ZError
 
         deadline = time.monotonic() + timeout
+        alive: set[str] = set()
         while True:
             if cancel is not None and cancel.is_set():
                 return False
@@ -239,10 +240,11 @@ class Stack:
                 if set(self.services) <= alive:
                     return True
                 dead = self.exited()
-            if dead or time.monotonic() > deadline:
-                raise RuntimeError(
-                    f"services not ready (alive: {sorted(alive)}, exited: {dead}); logs: {self.logs()}"
-                )
+            if dead:  # named as the supervisor names a death after the start, so either reads the same
+                deaths = "; ".join(f"{name} exited with code {code}" for name, code in dead.items())
+                raise RuntimeError(f"{deaths} while starting (ready: {sorted(alive)}); logs: {self.logs()}")
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"services not ready (ready: {sorted(alive)}); logs: {self.logs()}")
             time.sleep(0.3)
 
     def stop(self, timeout: float = 30.0) -> dict[str, int]:

@@ -170,3 +170,14 @@ def test_up_on_a_port_already_taken_is_one_line(tmp_path):
     assert result.returncode == 2, result.stdout + result.stderr
     assert result.stderr.startswith(f"error: --listen tcp/127.0.0.1:{port}: cannot listen there")
     assert result.stdout == "" and not (tmp_path / "rec").exists()  # nothing was started
+
+
+def test_a_service_that_dies_while_starting_is_named_with_its_exit_code(tmp_path):
+    """What `afford up` prints whether a service dies before or after the stack is ready: name and code."""
+    from services.launch import Stack
+
+    stack = Stack(tmp_path, services=("inference",))
+    stack.processes["inference"] = subprocess.Popen([sys.executable, "-c", "raise SystemExit(3)"])
+    stack.processes["inference"].wait()
+    with pytest.raises(RuntimeError, match=r"^inference exited with code 3 while starting \(ready: \[\]\)"):
+        stack.wait_ready(timeout=5)
