@@ -147,3 +147,42 @@ def test_a_place_floor_stops_phantoms_in_a_room_whose_scores_all_run_low():
     assert after["place_f1"] == 1.0 and after["false_per_room"] == 0 and 0.9 <= floor < 1.8
     # where the relative cut alone is best, there is no floor
     assert place_floor(rooms[:1], place_threshold(rooms[:1], relative=True)[0])[0] is None
+
+
+def _weighted_rows(seed: int, rows: int = 6000):
+    """Rows like the second stage's: continuous columns, ties, a few distinct values, NaN, zero weights,
+    negatives weighted up."""
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(rows, 5))
+    X[:, 1] = np.round(X[:, 1], 1)  # ties
+    X[:, 2] = rng.integers(0, 7, rows)  # fewer distinct values than bins: midpoints
+    X[rng.random(rows) < 0.1, 3] = np.nan
+    y = (X[:, 0] + 0.5 * rng.normal(size=rows) > 1.2).astype(int)
+    weight = np.where(y > 0, 1.0, rng.choice([1.0, 7.5, 30.0], rows))
+    weight[rng.random(rows) < 0.02] = 0.0
+    return X, y, weight
+
+
+def test_fast_weighted_binning_gives_scikit_learns_thresholds_and_trees():
+    pytest.importorskip("sklearn")
+    from sklearn.ensemble._hist_gradient_boosting import binning
+
+    from affordcore.learn.binning import _binning_module, fast_weighted_binning
+    from affordcore.learn.cascade import TreeSettings, tree_classifier
+
+    if _binning_module() is None:
+        pytest.skip("this scikit-learn's binner is not the one fast_weighted_binning replaces")
+    X, y, weight = _weighted_rows(1)
+    original = binning._find_binning_thresholds
+    with fast_weighted_binning():
+        assert binning._find_binning_thresholds is not original
+        fast = [binning._find_binning_thresholds(X[:, f], 255, sample_weight=weight) for f in range(5)]
+    assert binning._find_binning_thresholds is original  # put back after the block
+    for f in range(5):
+        np.testing.assert_array_equal(fast[f], original(X[:, f], 255, sample_weight=weight))
+    settings = TreeSettings(max_iter=15)
+    plain = tree_classifier(settings, 3).fit(X, y, sample_weight=weight)
+    with fast_weighted_binning():
+        patched = tree_classifier(settings, 3).fit(X, y, sample_weight=weight)
+    plain, patched = TreeEnsemble.from_sklearn(plain).to_dict(), TreeEnsemble.from_sklearn(patched).to_dict()
+    assert patched == plain
