@@ -37,6 +37,12 @@ def map_command(
         help="where the sensor stood, x y z per row in the cloud's frame (.npy or text); default: "
         "<cloud stem>.origins.npy beside the cloud when there is one. Tells free space from unknown",
     ),
+    labels: Path | None = typer.Option(
+        None,
+        "--labels",
+        help="the room's labelled places (affordance-labels/1, in the cloud's frame): drawn on the PNGs, "
+        "and each map says how many it found and how many skeletons match none",
+    ),
 ) -> None:
     """Map where people can sit, relax, work and stand in a room: skeleton map, confidence map, positives."""
     with user_errors():
@@ -50,6 +56,7 @@ def map_command(
             quiet,
             timings,
             origins,
+            labels,
         )
 
 
@@ -63,6 +70,7 @@ def map_room(
     quiet: bool,
     timings: bool = False,
     origins: Path | None = None,
+    labels_file: Path | None = None,
 ) -> list[Path]:
     """load -> align -> fields -> score -> map -> write, each one call into the library (the maps in worker
     processes and the files in a writer process started first, `outputs.map_and_write`), on one BLAS thread
@@ -73,6 +81,7 @@ def map_room(
     from threadpoolctl import threadpool_limits
 
     from affordcore.geometry.features import FeatureLayout
+    from affordcore.labels import load_labels
     from affordcore.learn.model import choose_models
     from affordcore.mapping.outputs import OutputWriter, default_workers, map_and_write, summary_line
     from affordcore.mapping.pipeline import parse_gravity, prepare_scene
@@ -83,6 +92,7 @@ def map_room(
     start = time.perf_counter()
     seconds: dict[str, float] = {}
     models = choose_models(model_files, affordances, FeatureLayout.from_settings(settings))
+    labels = load_labels(labels_file) if labels_file else None  # a bad file fails before the cloud is read
     workers = default_workers(len(models))
     # the writer imports matplotlib and rerun on the other core while this process loads the room; it and
     # the workers are forked inside the BLAS limit, and keep it
@@ -97,6 +107,7 @@ def map_room(
         record = (lambda world: writer.start_scene(world, affordance_names, out, rrd)) if writer else None
         scene = prepare_scene(cloud, settings, parse_gravity(gravity), seconds, on_world=record)
         _warn(scene.warnings)
+        labels = labels.moved(scene.alignment.world_from_input) if labels else None
         typer.echo(
             f"{cloud_path}: {len(scene.cloud):,} points; {scene.alignment.describe()}; {_seen_from(cloud)}"
         )
@@ -104,11 +115,20 @@ def map_room(
         with progress(quiet) as bar:
             task = bar.add_task("affordance maps", total=len(models))
             maps, written = map_and_write(
-                scene, models, settings, out, rrd, workers, lambda *_: bar.advance(task), seconds, writer
+                scene,
+                models,
+                settings,
+                out,
+                rrd,
+                workers,
+                lambda *_: bar.advance(task),
+                seconds,
+                writer,
+                labels,
             )
         seconds["maps and outputs (wall)"] = time.perf_counter() - mapping
     for amap in maps.values():
-        typer.echo(summary_line(amap))
+        typer.echo(summary_line(amap) + (_against(labels, amap) if labels else ""))
     if timings:
         for stage, value in seconds.items():
             typer.echo(f"timing: {stage}: {value:.3f} s", err=True)
@@ -120,6 +140,14 @@ def map_room(
     typer.echo(f"{time.perf_counter() - start:.1f} s, {memory}")
     typer.echo("outputs: " + ", ".join(str(path) for path in written))
     return written
+
+
+def _against(labels, amap) -> str:
+    """How the map's skeletons meet the room's labels of its affordance (DESIGN.md's place tolerances)."""
+    from affordcore.labels import match_places
+
+    match = match_places(labels, amap.affordance, amap.skeletons[:, [0, 1, 3]])
+    return f"; labels: {int(match.found.sum())} of {len(match.found)} found, {int(match.false.sum())} false"
 
 
 def _children_peak_mb() -> float:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -32,6 +32,7 @@ XY_TOLERANCE = 0.15  # m, DESIGN.md
 THETA_TOLERANCE = 0.4  # rad, DESIGN.md
 Z_TOLERANCE = 0.1  # m: the torso levels one voxel either side of the label's height count
 _SLACK = 1e-9
+MOVED_TILT_LIMIT = 10.0  # deg: labels move with a cloud levelled by at most this much (LabelSet.moved)
 
 Point = tuple[float, float]
 
@@ -122,6 +123,40 @@ class LabelSet:
         for region in self.unlabelled_regions:
             inside |= region.contains(xy)
         return inside
+
+    def moved(self, world_from_input: np.ndarray) -> LabelSet:
+        """The labels of a cloud given in its own frame, moved with it into the world frame
+        (`world_from_input`, 4 x 4, what gravity alignment did to the cloud). Labels are places on a floor
+        plan, so the cloud's own frame must already be about z-up (levelling a slight tilt, moving the floor
+        to z = 0); a cloud turned further than `MOVED_TILT_LIMIT` has no plan its labels could be on, and is
+        refused."""
+        rotation, shift = np.asarray(world_from_input, np.float64)[:3, :3], world_from_input[:3, 3]
+        tilt = math.degrees(math.acos(float(np.clip(rotation[2, 2], -1.0, 1.0))))
+        if tilt > MOVED_TILT_LIMIT:
+            raise LabelError(
+                f"{self.scene}: labels are places on the plan of a z-up cloud, and gravity alignment "
+                f"turned this cloud {tilt:.0f} deg; level it first (afford align CLOUD --out LEVEL.ply) "
+                "and label that"
+            )
+
+        def plan(point) -> tuple[float, float]:
+            return tuple((rotation @ (*point, 0.0) + shift)[:2])
+
+        def facing(theta: float) -> float:
+            x, y, _ = rotation @ (math.cos(theta), math.sin(theta), 0.0)
+            return math.atan2(y, x) % (2 * math.pi)
+
+        ends = ("at", "start", "end")
+        labels = [
+            replace(
+                label,
+                facing=facing(label.facing),
+                **{k: plan(getattr(label, k)) for k in ends if getattr(label, k) is not None},
+            )
+            for label in self.labels
+        ]
+        regions = [replace(r, polygon=tuple(plan(p) for p in r.polygon)) for r in self.unlabelled_regions]
+        return replace(self, labels=tuple(labels), unlabelled_regions=tuple(regions))
 
 
 # ---------------------------------------------------------------------------------------------- file I/O

@@ -299,6 +299,36 @@ def test_match_places_found_false_and_ignored():
     assert empty.found.tolist() == [False] * 3 and empty.false.shape == (0,)
 
 
+def test_labels_move_with_a_levelled_cloud_and_refuse_a_turned_one():
+    """Labels in a cloud's own frame go where gravity alignment takes the cloud: a turn about z and a shift
+    move their points, facings and unlabelled regions alike; a cloud turned onto another up has no plan."""
+    region = UnlabelledRegion(((0, 0), (1, 0), (1, 1), (0, 1)))
+    labels = room(
+        Label("perch", 0.0, at=(1.0, 0.0), z=0.7),
+        Label("perch", math.pi, start=(0.0, 2.0), end=(1.0, 2.0)),
+        regions=(region,),
+    )
+    turn = np.eye(4)
+    turn[:2, :2] = [[0.0, -1.0], [1.0, 0.0]]  # 90 degrees about z
+    turn[:3, 3] = [0.5, -1.0, -0.07]  # and the floor moved to z = 0
+    moved = labels.moved(turn)
+    point, segment = moved.labels
+    assert point.at == pytest.approx((0.5, 0.0)) and point.facing == pytest.approx(math.pi / 2)
+    assert point.z == 0.7  # a torso height above the floor stays one
+    assert segment.start == pytest.approx((-1.5, -1.0)) and segment.end == pytest.approx((-1.5, 0.0))
+    assert segment.facing == pytest.approx(3 * math.pi / 2)
+    assert moved.unlabelled(np.array([[0.0, -0.5]])).tolist() == [True]  # the square's centre, moved
+    assert moved.unlabelled(np.array([[0.5, 0.5]])).tolist() == [False]
+    tilt = math.radians(2.0)  # a slight tilt levelled: points move by at most their height's share
+    level = np.eye(4)
+    level[1:3, 1:3] = [[math.cos(tilt), -math.sin(tilt)], [math.sin(tilt), math.cos(tilt)]]
+    assert labels.moved(level).labels[0].at == pytest.approx((1.0, 0.0))
+    up = np.eye(4)
+    up[1:3, 1:3] = [[0.0, -1.0], [1.0, 0.0]]  # a y-up cloud turned z-up: its labels cannot be on its plan
+    with pytest.raises(LabelError, match="turned this cloud 90 deg; level it first"):
+        labels.moved(up)
+
+
 # -------------------------------------------------------------------------------------------- plot
 
 

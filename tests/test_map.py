@@ -13,6 +13,7 @@ import pytest
 from affordcore.example import example_room
 from affordcore.geometry.features import FeatureLayout
 from affordcore.geometry.scene import Cloud, load_cloud, save_cloud, thin_huge_cloud
+from affordcore.labels import Label, LabelSet, match_places, save_labels
 from affordcore.learn.model import load_model, shipped_models
 from affordcore.mapping.recording import recorded_entities
 from affordcore.settings import MapSettings, Settings
@@ -99,6 +100,33 @@ def test_the_example_sofa_is_found(mapped):
     assert len(on_sofa) >= 2
 
 
+def test_labels_are_scored_and_drawn(example, mapped, tmp_path):
+    """`--labels`: each map's line says how many labelled places its skeletons found and how many skeletons
+    match none (as `match_places` counts them in the world frame), and the PNG shows the labels."""
+    labels = LabelSet(
+        "example",
+        "example.ply",
+        "z-up, metres, floor at z = 0",
+        (
+            Label("sitting-relaxing", 0.0, start=(0.5, 1.6), end=(0.5, 3.0)),  # the sofa's seat line
+            Label("sitting-relaxing", 0.0, at=(4.0, 4.0)),  # where nobody sits: never found
+        ),
+    )
+    path = save_labels(tmp_path / "example.labels.json", labels)
+    out = tmp_path / "out"
+    result = afford("map", example, "--out", out, "-a", "sitting-relaxing", "--quiet", "--labels", path)
+    assert result.returncode == 0, result.stderr
+    document = json.loads((out / "sitting-relaxing.json").read_text())
+    skeletons = np.array([[s["x"], s["y"], s["theta"]] for s in document["skeletons"]]).reshape(-1, 3)
+    match = match_places(labels.moved(np.array(document["world_from_input"])), "sitting-relaxing", skeletons)
+    assert match.found.tolist() == [True, False]  # the sofa, not the phantom
+    line = next(line for line in result.stdout.splitlines() if line.startswith("sitting-relaxing"))
+    assert line.endswith(f"; labels: 1 of 2 found, {int(match.false.sum())} false"), line
+    unlabelled, _ = mapped  # the same map without labels: the same JSON, another picture
+    assert (out / "sitting-relaxing.json").read_bytes() == (unlabelled / "sitting-relaxing.json").read_bytes()
+    assert (out / "sitting-relaxing.png").read_bytes() != (unlabelled / "sitting-relaxing.png").read_bytes()
+
+
 def test_world_from_input_maps_the_input_cloud_to_the_world(example, tmp_path):
     tilted = load_cloud(example)
     angle = np.deg2rad(90)  # the room stored y-up, as many scanners write it
@@ -127,6 +155,7 @@ def test_world_from_input_maps_the_input_cloud_to_the_world(example, tmp_path):
         ("other-layout", "feature layout"),
         ("unknown-affordance", "no shipped model for sitting-upside-down"),
         ("bad-origins", "stations.txt: sensor positions must be an (M, 3) array"),
+        ("bad-labels", "room.labels.json"),
     ],
 )
 def test_bad_input_is_a_clear_error(case, message, example, tmp_path):
@@ -145,6 +174,9 @@ def test_bad_input_is_a_clear_error(case, message, example, tmp_path):
     elif case == "bad-origins":
         (tmp_path / "stations.txt").write_text("1.0 2.0\n")
         args += ["--origins", tmp_path / "stations.txt"]
+    elif case == "bad-labels":
+        (tmp_path / "room.labels.json").write_text('{"format": "affordance-labels/1"}')
+        args += ["--labels", tmp_path / "room.labels.json"]
     else:
         args += ["-a", "sitting-upside-down"]
     result = afford("map", *args, "--out", tmp_path / "out", "--quiet", env=env)

@@ -25,10 +25,10 @@ _JOB: tuple | None = None  # (scene, models, settings): what forked workers read
 
 
 def write_map_outputs(
-    scene, maps: dict, models: list[AffordanceModel], out: Path, rrd: Path | None
+    scene, maps: dict, models: list[AffordanceModel], out: Path, rrd: Path | None, labels=None
 ) -> list[Path]:
     """DIR/<affordance>.json and .png for every map of a `PreparedScene`, and the recording; returns the
-    paths."""
+    paths. `labels` (a `LabelSet` in the world frame): drawn on the PNGs."""
     from .plots import plan_heights
 
     out.mkdir(parents=True, exist_ok=True)
@@ -37,7 +37,7 @@ def write_map_outputs(
     written = []
     for affordance, amap in maps.items():
         written += _json_and_png(
-            scene.cloud.points, scene.alignment.world_from_input, amap, ids[affordance], out, plan
+            scene.cloud.points, scene.alignment.world_from_input, amap, ids[affordance], out, plan, labels
         )
     if rrd is not None:
         recording = _open_with_cloud(rrd, list(maps), scene.cloud.points, scene.cloud.source)
@@ -56,6 +56,7 @@ def map_and_write(
     on_map: Callable[[str, object], None] | None = None,
     timings: dict[str, float] | None = None,
     writer: OutputWriter | None = None,
+    labels=None,
 ) -> tuple[dict, list[Path]]:
     """Every model's map of a `PreparedScene` (`pipeline.map_affordances`, one model at a time) and the
     outputs of `write_map_outputs`; returns ({affordance: map} in the models' order, the paths written).
@@ -64,14 +65,15 @@ def map_and_write(
     model is scored and mapped in a forked worker process, and the outputs are written by ``writer`` (an
     `OutputWriter` started early; one is started here when not given) meanwhile; ``on_map(affordance,
     map)`` hears of each map as it comes back. ``timings`` gets each stage's seconds: per affordance its
-    scoring and map (in its worker) and its JSON and PNG (in the writer), and the recording's."""
+    scoring and map (in its worker) and its JSON and PNG (in the writer), and the recording's. `labels` (a
+    `LabelSet` in the world frame) are drawn on the PNGs."""
     global _JOB
 
     out.mkdir(parents=True, exist_ok=True)
     timings = {} if timings is None else timings
     workers = default_workers(len(models)) if workers is None else max(1, min(workers, len(models)))
     if workers == 1:
-        return _map_and_write_here(scene, models, settings, out, rrd, on_map, timings)
+        return _map_and_write_here(scene, models, settings, out, rrd, on_map, timings, labels)
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
@@ -87,6 +89,8 @@ def map_and_write(
             futures = {pool.submit(_map_one, index): index for index in range(len(models))}
             if not writer.has_scene:
                 writer.start_scene(scene, [m.affordance for m in models], out, rrd)
+            if labels is not None:
+                writer.set_labels(labels)
             for future in as_completed(futures):
                 index = futures[future]
                 amap, seconds = future.result()
@@ -105,7 +109,9 @@ def map_and_write(
     return {amap.affordance: amap for amap in ordered}, written
 
 
-def _map_and_write_here(scene, models, settings, out, rrd, on_map, timings) -> tuple[dict, list[Path]]:
+def _map_and_write_here(
+    scene, models, settings, out, rrd, on_map, timings, labels=None
+) -> tuple[dict, list[Path]]:
     """`map_and_write` in this process alone, model after model."""
     from .pipeline import map_affordances
     from .plots import plan_heights
@@ -117,7 +123,7 @@ def _map_and_write_here(scene, models, settings, out, rrd, on_map, timings) -> t
         amap = map_affordances(scene.fields, scene.layout, [model], settings)[model.affordance]
         mapped = time.perf_counter()
         written += _json_and_png(
-            scene.cloud.points, scene.alignment.world_from_input, amap, model.id, out, plan
+            scene.cloud.points, scene.alignment.world_from_input, amap, model.id, out, plan, labels
         )
         timings[f"score + map {model.affordance}"] = mapped - start
         timings[f"JSON + PNG {model.affordance}"] = time.perf_counter() - mapped
@@ -152,13 +158,13 @@ def _map_one(index: int) -> tuple:
     return amap, time.perf_counter() - start
 
 
-def _json_and_png(points, world_from_input, amap, model_id: str, out: Path, plan) -> list[Path]:
+def _json_and_png(points, world_from_input, amap, model_id: str, out: Path, plan, labels=None) -> list[Path]:
     from .plots import plot_map
 
     document = amap.to_json(model_id, world_from_input)
     path = out / f"{amap.affordance}.json"
     path.write_text(json.dumps(document) + "\n")
-    return [path, plot_map(points, amap, out / f"{amap.affordance}.png", plan=plan)]
+    return [path, plot_map(points, amap, out / f"{amap.affordance}.png", labels=labels, plan=plan)]
 
 
 def _open_with_cloud(rrd: Path, affordances: list[str], points, source: str):
@@ -240,6 +246,11 @@ class OutputWriter:
         if self._send_error is not None:
             raise self._send_error
 
+    def set_labels(self, labels) -> None:
+        """Labels (a `LabelSet` in the world frame) to draw on the PNGs of the maps sent after them."""
+        self._sent()
+        self._connection.send(("labels", labels))
+
     def write_map(self, amap, model_id: str) -> None:
         from dataclasses import replace
 
@@ -315,6 +326,8 @@ def _serve(state: dict, request: tuple) -> None:
         state["recording"] = _open_with_cloud(rrd, affordances, points, source) if rrd is not None else None
         state["plan"] = plan_heights(points)
         seconds["recording: the cloud"] = time.perf_counter() - start
+    elif request[0] == "labels":
+        state["labels"] = request[1]
     else:
         _, amap, model_id = request
         state["maps"][amap.affordance] = amap
@@ -363,7 +376,13 @@ def _draw(state: dict, amap, model_id: str) -> tuple[str, object]:
     start = time.perf_counter()
     try:
         paths = _json_and_png(
-            state["points"], state["world_from_input"], amap, model_id, state["out"], state["plan"]
+            state["points"],
+            state["world_from_input"],
+            amap,
+            model_id,
+            state["out"],
+            state["plan"],
+            state.get("labels"),
         )
         return "done", (paths, time.perf_counter() - start)
     except BaseException as error:  # raised in the command's process, at finish

@@ -140,6 +140,9 @@ def plot_map(
     )
     if len(amap.skeletons):
         ax.plot([], [], "o", color="crimson", label="place (p: probability a person can use it)")
+    if labels is not None and labels.of(amap.affordance):
+        ax.plot([], [], "-o", color="darkorange", lw=3, ms=4, label="labelled place (the room's labels)")
+    if ax.get_legend_handles_labels()[0]:
         ax.legend(loc="upper right", fontsize=7)
     figure.savefig(path, dpi=110)
     plt.close(figure)
