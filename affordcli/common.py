@@ -120,6 +120,38 @@ def progress(quiet: bool, speed_window: float = 30.0):
     )
 
 
+def work_progress(quiet: bool, seconds_per_unit: float, start_weight: float = 0.1):
+    """A rich progress bar like `progress`'s over weighted work (the task's total and advances are units of
+    work, shown as a percentage) whose time left shows from the start: the work left at a pace that starts
+    at `seconds_per_unit` (the caller's guess) and moves to the mean pace since the start as work is done
+    (the guess counts as if `start_weight` of the total had been done at it)."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, ProgressColumn, TaskProgressColumn, TextColumn
+    from rich.text import Text
+
+    class TimeLeft(ProgressColumn):
+        max_refresh = 0.5  # as rich's own: no jitter
+
+        def render(self, task) -> Text:
+            if task.total is None or task.finished:
+                return Text("", style="progress.remaining")
+            prior = start_weight * task.total
+            pace = ((task.elapsed or 0.0) + seconds_per_unit * prior) / (task.completed + prior)
+            minutes, seconds = divmod(int(pace * (task.total - task.completed)), 60)
+            hours, minutes = divmod(minutes, 60)
+            return Text(f"{hours:d}:{minutes:02d}:{seconds:02d} left", style="progress.remaining")
+
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TaskProgressColumn(),
+        TimeLeft(),
+        console=Console(stderr=True),
+        transient=True,
+        disable=quiet,
+    )
+
+
 def output_folder(path: Path, option: str = "--out") -> Path:
     """`path` as a folder outputs can be written to, made if missing; checked before any work starts, so a
     bad --out costs a message, not the minutes of work before it."""

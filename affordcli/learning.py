@@ -9,7 +9,16 @@ import typer
 
 from affordcore.learn.learners import LEARNERS
 
-from .common import UserError, names, output_file, output_folder, progress, require_extra, user_errors
+from .common import (
+    UserError,
+    names,
+    output_file,
+    output_folder,
+    progress,
+    require_extra,
+    user_errors,
+    work_progress,
+)
 
 app = typer.Typer()
 models_app = typer.Typer(help="The shipped default models, one per affordance type.", no_args_is_help=True)
@@ -164,8 +173,8 @@ def evaluate(
         from affordcore.geometry.skeleton import skeleton_files
         from affordcore.learn.cache import RoomCache
         from affordcore.learn.evaluate import evaluate as run_evaluation
-        from affordcore.learn.evaluate import evaluation_steps, write_outputs
-        from affordcore.learn.examples import data_set_rooms
+        from affordcore.learn.evaluate import evaluation_work, write_outputs
+        from affordcore.parallel import workers_for
         from affordcore.settings import Settings
 
         from .cluster import cluster_jobs
@@ -181,14 +190,15 @@ def evaluate(
             else tuple(None if r == "all" else _ratio(r) for r in names(ratios))
         )
         cache = RoomCache.from_settings(settings)
-        steps = evaluation_steps(len(data_set_rooms(data)), len(kinds), len(chosen), folds, len(sweep))
-        # the time left is the mean pace since the start: the steps differ (a room's fields, a training), so a
-        # short window would swing with whichever came last
-        with cluster_jobs(settings), progress(quiet, speed_window=24 * 3600) as bar:
-            task = bar.add_task("evaluate", total=steps)
+        work = evaluation_work(chosen, len(kinds), folds, len(sweep))
+        # the bar counts the trainings at their weight (seconds on one thread here, `Learner.cost`): from the
+        # start, the time left is the work over the processes that share it, then the pace measured
+        pace = 1.0 / workers_for(10**6, settings)
+        with cluster_jobs(settings), work_progress(quiet, pace) as bar:
+            task = bar.add_task("evaluate", total=work)
 
-            def step(message: str) -> None:
-                bar.update(task, description=message, advance=1)
+            def step(message: str, weight: float) -> None:
+                bar.update(task, description=message, advance=weight)
 
             evaluation = run_evaluation(
                 data, kinds, chosen, folds, settings, seed, sweep, on_step=step, cache=cache

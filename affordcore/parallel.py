@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from multiprocessing import get_context
 
@@ -43,12 +43,31 @@ def map_in_processes(function: Callable, jobs: list[tuple], workers: int) -> Ite
     if workers <= 1:
         yield from (function(*job) for job in jobs)
         return
-    # spawn, not fork: open3d and BLAS threads do not survive a fork
-    threads = max(1, cores() // workers)
-    with _threads_each(threads), ProcessPoolExecutor(workers, get_context("spawn")) as pool:
+    with _pool(workers) as pool:
         futures = [pool.submit(function, *job) for job in jobs]
         for future in futures:
             yield future.result()
+
+
+def map_as_done(function: Callable, jobs: list[tuple], workers: int) -> Iterator[tuple[int, object]]:
+    """(k, `function(*jobs[k])`) for every job as each finishes, the jobs started in the order given (list
+    the longest first, so that none is left to run alone at the end); in order where `map_in_processes`
+    would run them in this process or on a runner."""
+    if (_runner is not None and jobs) or workers <= 1:
+        yield from enumerate(map_in_processes(function, jobs, workers))
+        return
+    with _pool(workers) as pool:
+        futures = {pool.submit(function, *job): k for k, job in enumerate(jobs)}
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+
+
+@contextmanager
+def _pool(workers: int) -> Iterator[ProcessPoolExecutor]:
+    # spawn, not fork: open3d and BLAS threads do not survive a fork
+    threads = max(1, cores() // workers)
+    with _threads_each(threads), ProcessPoolExecutor(workers, get_context("spawn")) as pool:
+        yield pool
 
 
 def where() -> tuple[str, int]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -320,3 +321,40 @@ def test_default_models_train_on_the_split_the_benchmark_uses_and_are_reproducib
         assert model.validation["rooms"] == ["living-003"]
         assert "office-004" not in model.training["rooms"] and "living-003" not in model.training["rooms"]
         assert model.place_reference == "room-median"
+
+
+def test_learners_sharing_a_linear_svc_fit_it_once_and_train_as_they_do_alone(
+    data_set, tmp_path, monkeypatch
+):
+    """The evaluation trains linear-tuned, focused and the cascade of one split in one process
+    (`baselines.reused_fits`): their common LinearSVC is fitted once, and each model file is the one it
+    trains alone."""
+    from affordcore.geometry.features import FeatureLayout
+    from affordcore.learn import baselines
+    from affordcore.learn.examples import Task, data_set_rooms, example_set, load_rooms
+    from affordcore.learn.learners import SHARED_FIT
+    from affordcore.learn.train import train_on_rooms
+
+    settings = _settings()
+    task = Task(_affordance(data_set), settings, FeatureLayout.from_settings(settings))
+    examples = example_set(load_rooms(data_set_rooms(data_set), settings), task)
+    fit_rooms, validation_rooms = list(examples)[:2], list(examples)[2:]
+    fits = []
+    original = baselines._fit_svc
+
+    def counted(X, *args, **kwargs):
+        fits.append(len(X))
+        return original(X, *args, **kwargs)
+
+    monkeypatch.setattr(baselines, "_fit_svc", counted)
+    files = {}
+    for together in (False, True):
+        fits.clear()
+        with baselines.reused_fits() if together else contextlib.nullcontext():
+            for name in SHARED_FIT:
+                model = train_on_rooms(examples, fit_rooms, validation_rooms, task, name, {}, 0)
+                files[name, together] = model.save(tmp_path / f"{name}-{together}.json").read_bytes()
+        # alone: linear-tuned 1, focused 2 (all, then its resample), the cascade's first stage 1
+        assert len(fits) == (2 if together else 4)
+    for name in SHARED_FIT:
+        assert files[name, True] == files[name, False], name

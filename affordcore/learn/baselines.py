@@ -13,6 +13,9 @@
 
 from __future__ import annotations
 
+import hashlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,7 +50,46 @@ def tune_threshold(scores: np.ndarray, labels: np.ndarray) -> tuple[float, float
     return float((ranked[k] + below) / 2), float(f1[k])
 
 
+# unweighted `_svc` fits by their data's digest while `reused_fits` is open; None: fit every time
+_fits: dict[str, LinearModel] | None = None
+
+
+@contextmanager
+def reused_fits() -> Iterator[None]:
+    """Within the block, an unweighted LinearSVC fit on data it has fitted before is not made again.
+    `linear_tuned`, `focused_resampling`'s first fit and the cascade's default first stage fit the same
+    LinearSVC on the same training set, the evaluation's costliest fit (docs/learning.md "How long"). The
+    primal solver draws no random numbers, so the reused fit is the one a new fit would give."""
+    global _fits
+    previous, _fits = _fits, {}
+    try:
+        yield
+    finally:
+        _fits = previous
+
+
+def _data_digest(X: np.ndarray, y: np.ndarray, C: float) -> str:
+    digest = hashlib.blake2b(digest_size=20)
+    for array in (X, y):
+        array = np.ascontiguousarray(array)
+        digest.update(f"{array.dtype}{array.shape}".encode())
+        digest.update(memoryview(array).cast("B"))
+    digest.update(repr(float(C)).encode())
+    return digest.hexdigest()
+
+
 def _svc(X: np.ndarray, y: np.ndarray, C: float, class_weight=None) -> LinearModel:
+    """`_fit_svc`, or its earlier fit on the same data inside `reused_fits` (unweighted fits only: the
+    weighted ones' dual solver shuffles at random)."""
+    if _fits is None or class_weight is not None:
+        return _fit_svc(X, y, C, class_weight)
+    key = _data_digest(X, y, C)
+    if key not in _fits:
+        _fits[key] = _fit_svc(X, y, C)
+    return _fits[key]
+
+
+def _fit_svc(X: np.ndarray, y: np.ndarray, C: float, class_weight=None) -> LinearModel:
     """LinearSVC on standardised features, returned as a model of the raw features. Unstandardised room
     features (metres, fractions, normal components) left liblinear's solvers unconverged after 10 minutes
     with a 1:1,300 class weight. Even standardised, the primal (trust-region Newton) solver with such a weight

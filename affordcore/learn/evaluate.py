@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -26,11 +26,12 @@ import numpy as np
 
 from ..geometry.features import FeatureLayout
 from ..labels import load_labels
-from ..parallel import map_in_processes, workers_for
+from ..parallel import map_as_done, workers_for
 from ..settings import Settings
+from .baselines import reused_fits
 from .cache import RoomCache
 from .examples import ExampleSet, Task, data_set_rooms, example_set, load_rooms
-from .learners import LEARNERS
+from .learners import LEARNERS, SHARED_FIT, get_learner
 from .thresholds import room_scores
 from .train import metrics, split_rooms, train_on_rooms
 
@@ -128,12 +129,14 @@ def evaluate(
     seed: int = 0,
     ratios: tuple[int | None, ...] = SWEEP_RATIOS,
     params: dict[str, dict] | None = None,
-    on_step: Callable[[str], None] | None = None,
+    on_step: Callable[[str, float], None] | None = None,
     cache: RoomCache | None = None,
 ) -> Evaluation:
     """Runs len(affordances) x (k x len(learners) + len(ratios) x len(learners)) trainings; `on_step`
-    hears each room's fields, each room's examples per affordance and each training. With `cache`, rooms'
-    fields and examples are kept there and read one room at a time."""
+    hears each room's fields, each room's examples per affordance and each training, with the work it was
+    (`evaluation_work`: a training's `Learner.cost`; the rooms' preparation, read from the cache when made
+    before, is not counted). With `cache`, rooms' fields and examples are kept there and read one room at a
+    time, and the trainings of every affordance run in parallel processes, the longest first."""
     unknown = [name for name in learners if name not in LEARNERS]
     if unknown:
         raise ValueError(f"unknown learner(s) {', '.join(unknown)}; choose from {', '.join(LEARNERS)}")
@@ -142,54 +145,54 @@ def evaluate(
     files = data_set_rooms(data)
     held = {f.name: ",".join(load_labels(f.labels).affordances) for f in files}
     folds = deal_folds([f.name for f in files], k, seed, held)
-    rooms = load_rooms(files, settings, lambda name: _tell(on_step, f"fields of {name}"), cache)
+    rooms = load_rooms(files, settings, lambda name: _tell(on_step, f"fields of {name}", 0.0), cache)
     result = Evaluation(folds)
+    runs: list[_Run] = []
     for affordance in affordances:
         task = Task(affordance, settings, layout)
         examples = example_set(
             rooms,
             task,
             cache=cache,
-            on_room=lambda name, a=affordance: _tell(on_step, f"{a}: examples of {name}"),
+            on_room=lambda name, a=affordance: _tell(on_step, f"{a}: examples of {name}", 0.0),
         )
-        positives = sum(examples.positives(n) for n in examples)
-        negatives = sum(float(w[y < 0].sum()) for y, w in map(examples.labels, examples))
-        result.class_counts[affordance] = {
-            "positives": positives,
-            "negatives": int(round(negatives)),
-            "ratio": negatives / max(1, positives),
-        }
+        result.class_counts[affordance] = _class_counts(examples)
         splits = [_split(examples, test_rooms, affordance, f, seed) for f, test_rooms in enumerate(folds)]
-        # (split, learner, ratio, sweep): the table's runs, then the imbalance test's on the first fold
-        runs = [(split, learner, None, False) for split in splits for learner in learners]
-        runs += [(splits[0], name, ratio, True) for ratio in (ratios if splits else ()) for name in learners]
-        jobs = [
-            (examples, split, task, learner, ratio, (params or {}).get(learner, {}), seed, sweep)
-            for split, learner, ratio, sweep in runs
+        # the table's runs, then the imbalance test's on the first fold
+        runs += [_Run(examples, split, task, name, None, False) for split in splits for name in learners]
+        runs += [
+            _Run(examples, splits[0], task, name, ratio, True)
+            for ratio in (ratios if splits else ())
+            for name in learners
         ]
-        # trainings in parallel processes when the rooms are in the cache (each process reads them from
-        # there); held rooms would be copied to every job, so those train here
-        if cache is not None:
-            outcomes = map_in_processes(_run, jobs, workers_for(len(jobs), settings))
-        else:
-            outcomes = (_run(*job) for job in jobs)
-        for (split, learner, ratio, sweep), outcome in zip(runs, outcomes):
-            result.outcomes.append(outcome)
-            at = "all data" if ratio is None else f"1:{ratio}"
-            run = f"at {at}" if sweep else f"fold {split.fold + 1}/{k}"
-            _tell(on_step, f"{affordance}: {learner}, {run}: F1 {outcome.f1:.3f}")
+    # trainings in parallel processes when the rooms are in the cache (each process reads them from there);
+    # held rooms would be copied to every job, so those train here
+    outcomes: list = [None] * len(runs)
+    for i, outcome in _train_runs(runs, params or {}, seed, settings, parallel=cache is not None):
+        outcomes[i], run = outcome, runs[i]
+        at = "all data" if run.ratio is None else f"1:{run.ratio}"
+        step = f"at {at}" if run.sweep else f"fold {run.split.fold + 1}/{k}"
+        message = f"{run.task.affordance}: {run.learner}, {step}: F1 {outcome.f1:.3f}"
+        _tell(on_step, message, LEARNERS[run.learner].cost)
+    result.outcomes = outcomes  # in the order of the runs, whatever order they finished in
     return result
 
 
-def evaluation_steps(rooms: int, affordances: int, learners: int, k: int, ratios: int) -> int:
-    """How many times `evaluate` calls its `on_step`: each room's fields, each room's examples per affordance,
-    each training."""
-    return rooms + rooms * affordances + affordances * learners * (k + ratios)
+def evaluation_work(learners: list[str], affordances: int, k: int, ratios: int) -> float:
+    """The work `evaluate` tells `on_step` of in all: every training's `Learner.cost`."""
+    return sum(get_learner(name).cost for name in learners) * affordances * (k + ratios)
 
 
-def _tell(on_step, message: str) -> None:
+def _class_counts(examples: ExampleSet) -> dict:
+    positives = sum(examples.positives(n) for n in examples)
+    negatives = sum(float(w[y < 0].sum()) for y, w in map(examples.labels, examples))
+    ratio = negatives / max(1, positives)
+    return {"positives": positives, "negatives": int(round(negatives)), "ratio": ratio}
+
+
+def _tell(on_step, message: str, work: float) -> None:
     if on_step:
-        on_step(message)
+        on_step(message, work)
 
 
 @dataclass
@@ -213,6 +216,65 @@ def _split(examples: ExampleSet, test_rooms: list[str], affordance: str, fold: i
             "fewer folds or more rooms"
         )
     return _Split(fold, test_rooms, fit_names, validation_names)
+
+
+@dataclass(frozen=True)
+class _Run:
+    """One training of the evaluation: a learner on a split of one affordance's examples."""
+
+    examples: ExampleSet
+    split: _Split
+    task: Task
+    learner: str
+    ratio: int | None
+    sweep: bool
+
+    @property
+    def shares_with(self) -> tuple:
+        """Runs with the same value here train in one job: the learners of `SHARED_FIT` on one training set
+        (which fit their common LinearSVC once); every other run alone."""
+        if self.learner not in SHARED_FIT:
+            return (id(self),)
+        return (self.task.affordance, self.split.fold, self.ratio, self.sweep)
+
+
+def _train_runs(runs: list[_Run], params: dict, seed: int, settings: Settings, parallel: bool) -> Iterator:
+    """(index of the run, its `Outcome`) for every run, as they finish: runs grouped into jobs
+    (`_Run.shares_with`), the jobs started longest first (`Learner.cost`), in `learn.workers` processes when
+    `parallel`, else here."""
+    groups: dict[tuple, list[int]] = {}
+    for i, run in enumerate(runs):
+        groups.setdefault(run.shares_with, []).append(i)
+    order = sorted(groups.values(), key=lambda g: -sum(LEARNERS[runs[i].learner].cost for i in g))
+    jobs = []
+    for group in order:
+        first = runs[group[0]]
+        learners = [runs[i].learner for i in group]
+        jobs.append(
+            (first.examples, first.split, first.task, learners, first.ratio, params, seed, first.sweep)
+        )
+    done = map_as_done(_run_group, jobs, workers_for(len(jobs), settings) if parallel else 1)
+    for j, outcomes in done:
+        yield from zip(order[j], outcomes)
+
+
+def _run_group(
+    examples: ExampleSet,
+    split: _Split,
+    task: Task,
+    learners: list[str],
+    ratio: int | None,
+    params: dict[str, dict],
+    seed: int,
+    sweep: bool,
+) -> list[Outcome]:
+    """`_run` of each learner in turn on the same split, a LinearSVC they share fitted once
+    (`baselines.reused_fits`: the outcomes are those of separate runs)."""
+    with reused_fits():
+        return [
+            _run(examples, split, task, learner, ratio, params.get(learner, {}), seed, sweep)
+            for learner in learners
+        ]
 
 
 def _run(

@@ -22,6 +22,10 @@ class Learner:
     summary: str  # one line for --help and the docs
     # train, validation, params, rng
     fit: Callable[[RoomExamples, RoomExamples, dict, np.random.Generator], Fitted]
+    # rough seconds of one training of `afford evaluate` at its defaults on 12 generated rooms (one thread,
+    # scoring included; after `SHARED_FIT`'s fit, what it adds): the evaluation starts the longest jobs first
+    # and weighs its progress bar's time left by these (docs/learning.md "How long" measures them)
+    cost: float = 10.0
 
 
 def _ssvm(train: RoomExamples, validation: RoomExamples, params: dict, rng) -> Fitted:
@@ -99,25 +103,37 @@ def _cascade(train, validation, params, rng) -> Fitted:
     return fit_cascade(train, validation, params, rng, get_learner(first).fit)
 
 
+# the learners whose fit starts with the same LinearSVC on every training example (linear-tuned; focused's
+# first fit; the cascade's default first stage): the evaluation trains them in one process, which fits it once
+# (`baselines.reused_fits`)
+SHARED_FIT = ("linear-tuned", "focused", "cascade")
+
 LEARNERS: dict[str, Learner] = {
     learner.name: learner
     for learner in (
-        Learner("ssvm", "structured SVM optimising F1 with cutting planes (Joachims 2005)", _ssvm),
-        Learner("undersample", "linear SVM on randomly undersampled negatives", _baseline(_undersample)),
+        Learner("ssvm", "structured SVM optimising F1 with cutting planes (Joachims 2005)", _ssvm, 6),
+        Learner("undersample", "linear SVM on randomly undersampled negatives", _baseline(_undersample), 3),
         Learner(
-            "focused", "focused resampling near the boundary (Batuwita & Palade 2010)", _baseline(_focused)
+            "focused",
+            "focused resampling near the boundary (Batuwita & Palade 2010)",
+            _baseline(_focused),
+            3,
         ),
-        Learner("zsvm", "zSVM: positive support vectors weighted by z (Imam et al. 2006)", _baseline(_zsvm)),
-        Learner("dcm", "different cost model: C+ and C- by the class ratio", _baseline(_different_costs)),
+        Learner(
+            "zsvm", "zSVM: positive support vectors weighted by z (Imam et al. 2006)", _baseline(_zsvm), 11
+        ),
+        Learner("dcm", "different cost model: C+ and C- by the class ratio", _baseline(_different_costs), 27),
         Learner(
             "linear-tuned",
             "linear SVM on all data, threshold tuned for F1 (the baseline to beat)",
             _baseline(_linear_tuned),
+            22,
         ),
         Learner(
             "cascade",
             "a linear first stage over every pose, its best few percent rescored by boosted trees",
             _cascade,
+            14,
         ),
     )
 }
