@@ -125,6 +125,13 @@ def test_labels_are_scored_and_drawn(example, mapped, tmp_path):
     unlabelled, _ = mapped  # the same map without labels: the same JSON, another picture
     assert (out / "sitting-relaxing.json").read_bytes() == (unlabelled / "sitting-relaxing.json").read_bytes()
     assert (out / "sitting-relaxing.png").read_bytes() != (unlabelled / "sitting-relaxing.png").read_bytes()
+    drawn = {
+        f"/{view}/sitting-relaxing/labels/{part}"
+        for view in ("world", "plan")
+        for part in ("places", "facing")
+    }
+    assert drawn <= recorded_entities(out / "map.rrd")
+    assert not drawn & recorded_entities(unlabelled / "map.rrd")
 
 
 def test_world_from_input_maps_the_input_cloud_to_the_world(example, tmp_path):

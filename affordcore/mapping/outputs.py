@@ -40,7 +40,7 @@ def write_map_outputs(
             scene.cloud.points, scene.alignment.world_from_input, amap, ids[affordance], out, plan, labels
         )
     if rrd is not None:
-        recording = _open_with_cloud(rrd, list(maps), scene.cloud.points, scene.cloud.source)
+        recording = _open_with_cloud(rrd, list(maps), scene.cloud.points, scene.cloud.source, labels)
         _close_with_maps(recording, maps.values())
         written.append(rrd)
     return written
@@ -132,7 +132,7 @@ def _map_and_write_here(
             on_map(model.affordance, amap)
     if rrd is not None:
         start = time.perf_counter()
-        recording = _open_with_cloud(rrd, list(maps), scene.cloud.points, scene.cloud.source)
+        recording = _open_with_cloud(rrd, list(maps), scene.cloud.points, scene.cloud.source, labels)
         _close_with_maps(recording, maps.values())
         timings["recording"] = time.perf_counter() - start
         written.append(rrd)
@@ -167,12 +167,14 @@ def _json_and_png(points, world_from_input, amap, model_id: str, out: Path, plan
     return [path, plot_map(points, amap, out / f"{amap.affordance}.png", labels=labels, plan=plan)]
 
 
-def _open_with_cloud(rrd: Path, affordances: list[str], points, source: str):
-    """The recording, named after the cloud's file and the time, with the cloud in it."""
-    from .recording import log_cloud, open_recording, recording_name
+def _open_with_cloud(rrd: Path, affordances: list[str], points, source: str, labels=None):
+    """The recording, named after the cloud's file and the time, with the cloud (and `labels`) in it."""
+    from .recording import log_cloud, log_labels, open_recording, recording_name
 
     recording = open_recording(rrd, affordances, name=recording_name(f"{Path(source).stem} map"))
     log_cloud(recording, points)
+    if labels is not None:
+        log_labels(recording, labels, affordances)
     return recording
 
 
@@ -322,12 +324,24 @@ def _serve(state: dict, request: tuple) -> None:
     start, seconds = time.perf_counter(), state["seconds"]
     if request[0] == "scene":
         _, points, source, world_from_input, affordances, out, rrd = request
-        state.update(points=points, world_from_input=world_from_input, out=out, rrd=rrd, maps={}, drawers={})
+        state.update(
+            points=points,
+            world_from_input=world_from_input,
+            out=out,
+            rrd=rrd,
+            affordances=affordances,
+            maps={},
+            drawers={},
+        )
         state["recording"] = _open_with_cloud(rrd, affordances, points, source) if rrd is not None else None
         state["plan"] = plan_heights(points)
         seconds["recording: the cloud"] = time.perf_counter() - start
     elif request[0] == "labels":
+        from .recording import log_labels
+
         state["labels"] = request[1]
+        if state["recording"] is not None:
+            log_labels(state["recording"], state["labels"], state["affordances"])
     else:
         _, amap, model_id = request
         state["maps"][amap.affordance] = amap

@@ -34,7 +34,11 @@ on screen, metres):
 * ``world/<affordance>/places`` and ``plan/<affordance>/places``: each skeleton's torso, in the affordance's
   colour, labelled with its rank and probability (or score);
 * ``places``: a markdown table of every affordance's places, their probabilities, positions and facings, or
-  "no place found".
+  "no place found";
+* ``world/<affordance>/labels/places`` and ``.../labels/facing``, and the same under ``plan/``
+  (``afford map --labels``): the room's labelled places of that affordance, each its segment (or point) on
+  the floor in near-white, with an arrow along its facing, so a skeleton can be checked against the place it
+  should stand on.
 
 The services add (all on the ``stamp`` timeline, the time of the message logged, so the recordings of
 different processes line up; each entity is logged by one service only):
@@ -73,8 +77,10 @@ LEGEND_STEPS = 64
 TRAJECTORY_COLOR = (255, 255, 255)  # white: tab10 has no white, and a pale tint of a colour bar is not white
 SKELETON_RADIUS = 0.03
 TAB10_NAMES = ("blue", "orange", "green", "red", "purple", "brown", "pink", "grey", "olive", "cyan")
+LABEL_COLOR = (245, 245, 245)  # the labels in near-white: not an affordance's colour, readable on the cloud
+LABEL_ARROW = 0.3  # m: a label's facing arrow
 # the plan's layers, bottom to top
-DRAW_ORDER = {"room": 0.0, "confidence": 1.0, "bar": 1.0, "skeletons": 2.0, "places": 3.0}
+DRAW_ORDER = {"room": 0.0, "confidence": 1.0, "bar": 1.0, "labels": 1.5, "skeletons": 2.0, "places": 3.0}
 
 
 _STATE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # recording -> _State
@@ -340,6 +346,52 @@ def log_map(recording, amap) -> None:
     _log_skeletons(recording, amap, class_id, color)
     _log_places_document(recording, amap, class_id)
     _frame_room(recording, amap.grid)
+
+
+def log_labels(recording, labels, affordances: list[str]) -> None:
+    """A `LabelSet`'s places of each of `affordances` (in the world frame): segments on the floor and arrows
+    along their facing, in 3D and on the plan."""
+    import rerun as rr
+
+    floor, order = 0.03, DRAW_ORDER["labels"]  # just above the confidence cells
+    for name in affordances:
+        chosen = labels.of(name)
+        if not chosen:
+            continue
+        ends = [np.array([x.at, x.at] if x.at is not None else [x.start, x.end]) for x in chosen]
+        middles = np.array([e.mean(axis=0) for e in ends])
+        facing = np.array([[np.cos(x.facing), np.sin(x.facing)] for x in chosen]) * LABEL_ARROW
+        lifted = [np.column_stack([e, np.full(2, floor)]) for e in ends]
+        _log(
+            recording, f"world/{name}/labels/places", rr.LineStrips3D(lifted, radii=0.02, colors=LABEL_COLOR)
+        )
+        _log(
+            recording,
+            f"world/{name}/labels/facing",
+            rr.Arrows3D(
+                origins=np.column_stack([middles, np.full(len(middles), floor)]),
+                vectors=np.column_stack([facing, np.zeros(len(facing))]),
+                radii=0.015,
+                colors=LABEL_COLOR,
+            ),
+        )
+        flat = [_plan(e) for e in ends]
+        _log(
+            recording,
+            f"plan/{name}/labels/places",
+            rr.LineStrips2D(flat, radii=0.03, colors=LABEL_COLOR, draw_order=order),
+        )
+        _log(
+            recording,
+            f"plan/{name}/labels/facing",
+            rr.Arrows2D(
+                origins=_plan(middles),
+                vectors=_plan(facing),
+                radii=0.02,
+                colors=LABEL_COLOR,
+                draw_order=order,
+            ),
+        )
 
 
 def _log_confidence(recording, amap, color: np.ndarray) -> None:
