@@ -188,9 +188,10 @@ def _close_with_maps(recording, maps) -> None:
 
 def summary_line(amap) -> str:
     """One line per map for people: places, poses above the threshold, the best score."""
-    best = f", best {amap.place_labels()[0]}" if len(amap.skeletons) else ""
+    count = len(amap.skeletons)
+    best = f", best {amap.place_labels()[0]}" if count else ""
     return (
-        f"{amap.affordance:<18} {len(amap.skeletons):>3} places, "
+        f"{amap.affordance:<18} {count:>3} {'place, ' if count == 1 else 'places,'} "
         f"{len(amap.positives):>7,} poses above the threshold{best}"
     )
 
