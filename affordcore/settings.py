@@ -222,7 +222,15 @@ class AssemblerSettings(BaseModel):
     map_voxel: float = Field(
         0.02,
         gt=0,
-        description="voxel of the global map the assembler keeps (m): one point per voxel, nothing forgotten",
+        description="voxel of the global map the assembler keeps (m): per voxel the mean of every point seen "
+        "in it, nothing forgotten",
+    )
+    map_edge_spread: float = Field(
+        0.05,
+        ge=0,
+        description="a depth image's block whose depths spread over more than this fraction of its mean "
+        "depth (it straddles a depth edge: its mean is a point in mid-air) is registered but left out of the "
+        "map; 0 keeps every block (docs/services.md has the measurements behind it)",
     )
     keyframe_distance: float = Field(
         0.05,

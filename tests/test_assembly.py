@@ -141,7 +141,7 @@ def test_a_dense_frame_is_thinned_evenly_to_the_point_budget_before_registration
 
 
 def test_only_keyframes_touch_the_global_map_and_they_bring_it_their_points_thinned(room_frames):
-    from kiss_icp.voxelization import voxel_down_sample
+    from affordcore.geometry.fields import voxel_down_sample
 
     frames, _ = room_frames
     settings = AssemblerSettings()
@@ -155,16 +155,19 @@ def test_only_keyframes_touch_the_global_map_and_they_bring_it_their_points_thin
             continue
         ranges = np.linalg.norm(points, axis=1)
         within = points[(ranges > settings.min_range) & (ranges < settings.max_range)]
-        thinned = voxel_down_sample(within, settings.map_voxel) @ record.pose[:3, :3].T + record.pose[:3, 3]
-        # one point per map voxel, in the sensor frame, moved to the odometry frame (in whatever order)
-        np.testing.assert_allclose(*(p[np.lexsort(p.T)] for p in (record.map_points, thinned)), atol=1e-12)
+        moved = within @ record.pose[:3, :3].T + record.pose[:3, 3]
+        # moved to the odometry frame, then one mean per map voxel, each weighing the points it averages
+        thinned = voxel_down_sample(moved, settings.map_voxel)
+        np.testing.assert_allclose(*(p[np.lexsort(p.T)] for p in (record.map_points, thinned)), atol=1e-9)
+        assert record.map_weights.sum() == len(within)
         assert before < after <= before + len(record.map_points)
     assert 1 < assembler.keyframes < 12
 
 
 def test_a_depth_frame_is_its_back_projection_registered():
     """`Assembler.add` of a depth image is `back_project` with the settings (block means, every n-th block,
-    the range) and then `register`: the same pose and record as the points given directly."""
+    the range) and then `register`: the same pose and record as the points given directly; the map takes
+    every block but those across depth edges."""
     raycaster = Raycaster(ROOM)
     rng = np.random.default_rng(5)
     eye = np.array([-1.0, -0.8, 1.4])
@@ -175,7 +178,9 @@ def test_a_depth_frame_is_its_back_projection_registered():
     by_image, by_points = Assembler(settings), Assembler(settings)
     record = by_image.add(SensorFrame("camera", 0.0, depth=image), 0.0)
     points = back_project(image, settings.pixel_step, settings.min_range, settings.max_range, 2)
-    direct = by_points.register(points, 0.0)
+    low, high, spread = settings.min_range, settings.max_range, settings.map_edge_spread
+    blocks = back_project(image, settings.pixel_step, low, high, max_spread=spread)
+    direct = by_points.register(points, 0.0, map_frame=lambda: blocks)
     np.testing.assert_allclose(record.pose, direct.pose)
     np.testing.assert_allclose(record.map_points, direct.map_points)
     np.testing.assert_allclose(by_image.registered_points, by_points.registered_points)

@@ -1,10 +1,12 @@
 """Scan assembly: KISS-ICP registers each frame, and a global map keeps what it saw.
 
 KISS-ICP's own local map forgets everything beyond ``max_range`` of the sensor (it is built for odometry), so
-the assembler keeps a second voxel map, one point per ``map_voxel``, that never forgets. Frames join it as
-keyframes (the sensor moved or turned enough since the last one), which keeps the cost of a frame close to
-bare KISS-ICP's. The odometry frame is the first sensor frame; `aligned_map` brings the map to the world
-frame (gravity-aligned, z up, floor at 0) with the same alignment `afford map` uses.
+the assembler keeps a second voxel map that never forgets: per ``map_voxel``, the mean of every point seen in
+it (`voxelmap.VoxelMeans`), from depth images without the blocks that straddle a depth edge
+(``map_edge_spread``). Frames join it as keyframes (the sensor moved or turned enough since the last one),
+which keeps the cost of a frame close to bare KISS-ICP's. The odometry frame is the first sensor frame;
+`aligned_map` brings the map to the world frame (gravity-aligned, z up, floor at 0) with the same alignment
+`afford map` uses.
 
 Frames arrive as `SensorFrame`s, whatever message brought them (affordwire.sensors decodes them); depth images
 are back-projected by `affordcore.assembly.depth.back_project`.
@@ -12,12 +14,14 @@ are back-projected by `affordcore.assembly.depth.back_project`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..settings import AssemblerSettings, LimitSettings, Settings
 from .depth import DepthImage, back_project
+from .voxelmap import VoxelMeans, cell_sums
 
 
 @dataclass
@@ -53,7 +57,8 @@ class FrameRecord:
     pose: np.ndarray  # odom_from_sensor, 4 x 4
     guess: np.ndarray | None  # the pose guess it carried (world_from_sensor), if any
     gravity: np.ndarray  # its gravity direction in the odometry frame; zeros without an IMU
-    map_points: np.ndarray | None  # (N, 3) odometry-frame points it added to the global map (keyframes)
+    map_points: np.ndarray | None  # (N, 3) odometry-frame cell means it added to the global map (keyframes)
+    map_weights: np.ndarray | None = None  # (N,) the points each of them averages (None: one each)
 
 
 @dataclass
@@ -69,12 +74,10 @@ class _Proposal:
 
 class Assembler:
     def __init__(self, settings: AssemblerSettings | None = None, limits: LimitSettings | None = None):
-        from kiss_icp.mapping import VoxelHashMap
-
         self.settings = settings or AssemblerSettings()
         self.limits = limits or LimitSettings()
         self.odometry = self._kiss_icp()
-        self.global_map = VoxelHashMap(self.settings.map_voxel, max_distance=np.inf, max_points_per_voxel=1)
+        self.global_map = VoxelMeans(self.settings.map_voxel)
         self.trajectory = Trajectory()
         self._last_keyframe: np.ndarray | None = None
         self._last_guess: np.ndarray | None = None
@@ -100,18 +103,26 @@ class Assembler:
         """Register a sensor frame (depth images back-projected as block means) and add it to the map; returns
         what it changed. A frame refused by the limits (time going back, a jump beyond the speed limit, a pose
         beyond the largest extent) raises ValueError and changes nothing. `busy`: other frames wait, so
-        register on fewer points (`busy_registration_voxels`)."""
-        points = frame.points
+        register on fewer points (`busy_registration_voxels`). A depth image joins the map (keyframes) as
+        every block, less the blocks across depth edges (`map_edge_spread`)."""
+        points, map_frame, settings = frame.points, None, self.settings
         if frame.depth is not None:
-            settings = self.settings
+            depth = frame.depth
             points = back_project(
-                frame.depth,
-                settings.pixel_step,
-                settings.min_range,
-                settings.max_range,
-                settings.block_stride,
+                depth, settings.pixel_step, settings.min_range, settings.max_range, settings.block_stride
             )
-        return self.register(points, stamp, frame.pose_guess, frame.gravity, busy)
+            if settings.map_edge_spread > 0:
+
+                def map_frame() -> np.ndarray:
+                    return back_project(
+                        depth,
+                        settings.pixel_step,
+                        settings.min_range,
+                        settings.max_range,
+                        max_spread=settings.map_edge_spread,
+                    )
+
+        return self.register(points, stamp, frame.pose_guess, frame.gravity, busy, map_frame)
 
     def register(
         self,
@@ -120,6 +131,7 @@ class Assembler:
         pose_guess: np.ndarray | None = None,
         gravity: np.ndarray | None = None,
         busy: bool = False,
+        map_frame: Callable[[], np.ndarray] | None = None,
     ) -> FrameRecord:
         """Register one frame (points in the sensor frame) and add it to the map; returns its record, whose
         `pose` is the sensor's, odom_from_sensor.
@@ -127,13 +139,14 @@ class Assembler:
         `pose_guess` (world_from_sensor from the robot's own odometry) replaces KISS-ICP's constant-velocity
         prediction by the guessed motion since the previous frame. `gravity` (its direction in the sensor
         frame, from an IMU) is averaged in the odometry frame and used by `aligned_map` instead of a floor
-        search over candidate axes, which fails when a hand-held camera has seen little floor."""
+        search over candidate axes, which fails when a hand-held camera has seen little floor. `map_frame()`
+        gives the points (sensor frame) a keyframe adds to the map instead of `points`, only when needed."""
         settings = self.settings
         source_voxel = settings.voxel_size * (
             settings.busy_registration_voxels if busy else settings.registration_voxels
         )
         proposal = self._propose(
-            np.asarray(points, dtype=np.float64), stamp, pose_guess, gravity, source_voxel
+            np.asarray(points, dtype=np.float64), stamp, pose_guess, gravity, source_voxel, map_frame
         )
         odometry = self.odometry  # from here on nothing can fail: the frame is in
         odometry.adaptive_threshold.update_model_deviation(proposal.deviation)
@@ -150,6 +163,7 @@ class Assembler:
         pose_guess: np.ndarray | None,
         gravity: np.ndarray | None,
         source_voxel: float,
+        map_frame: Callable[[], np.ndarray] | None = None,
     ) -> _Proposal:
         """Everything KISS-ICP's register_frame does, without changing anything, and the limits' checks;
         registration on one point per `source_voxel` of the frame."""
@@ -192,11 +206,12 @@ class Assembler:
             )
         up = np.zeros(3) if gravity is None else pose[:3, :3] @ (gravity / np.linalg.norm(gravity))
         keyframe = self._is_keyframe(pose)
-        map_points = None
-        if keyframe:  # thinned to the map's voxel (what the map would keep of them anyway), then moved
-            thinned = voxel_down_sample(frame, settings.map_voxel)
-            map_points = thinned @ pose[:3, :3].T + pose[:3, 3]
-        record = FrameRecord(self.frames, stamp, pose, pose_guess, up, map_points)
+        map_points = weights = None
+        if keyframe:  # moved, then reduced to the map's cells: their sums are all the map keeps of them
+            mapped = frame if map_frame is None else map_frame()
+            _, sums, weights = cell_sums(mapped @ pose[:3, :3].T + pose[:3, 3], settings.map_voxel)
+            map_points = sums / weights[:, None]
+        record = FrameRecord(self.frames, stamp, pose, pose_guess, up, map_points, weights)
         return _Proposal(
             record,
             frame_downsample,
@@ -270,7 +285,7 @@ class Assembler:
         if record.guess is not None:
             self._last_guess, self._last_guess_stamp = record.guess, record.stamp
         if record.map_points is not None:
-            self.global_map.add_points(record.map_points)
+            self.global_map.add_points(record.map_points, record.map_weights)
             self._last_keyframe = record.pose
             self.keyframes += 1
 
@@ -281,6 +296,7 @@ class Assembler:
         trajectory = self.trajectory
         return {
             "map_points": self.map_points(),
+            "map_weights": self.global_map.counts() if self.frames else np.empty(0, np.int64),
             "stamps": np.array(trajectory.stamps, dtype=np.float64),
             "poses": np.array(trajectory.poses, dtype=np.float64).reshape(-1, 4, 4),
             "gravity_sum": self._gravity_sum,
@@ -293,7 +309,8 @@ class Assembler:
 
     def load_state(self, data) -> None:
         """Take the state `state_arrays` gave, on a fresh assembler."""
-        self.global_map.add_points(data["map_points"])
+        # snapshots before the running means (issue 25) kept one point per voxel: one observation each
+        self.global_map.add_points(data["map_points"], data["map_weights"] if "map_weights" in data else None)
         self.trajectory.stamps = [float(t) for t in data["stamps"]]
         self.trajectory.poses = list(data["poses"])
         self._gravity_sum = data["gravity_sum"].copy()

@@ -38,6 +38,7 @@ def _encode(record: FrameRecord) -> bytes:
         guess=np.empty((0, 4)) if record.guess is None else record.guess,
         gravity=record.gravity,
         map_points=np.empty((0, 3)) if record.map_points is None else record.map_points,
+        map_weights=np.empty(0) if record.map_weights is None else record.map_weights,
         keyframe=record.map_points is not None,
     )
     return _LENGTH.pack(len(body)) + body
@@ -52,6 +53,8 @@ def _decode(body: bytes) -> FrameRecord:
             guess=data["guess"] if data["guess"].size else None,
             gravity=data["gravity"],
             map_points=data["map_points"] if bool(data["keyframe"]) else None,
+            # journals before the running means (issue 25): one observation a point
+            map_weights=data["map_weights"] if "map_weights" in data and data["map_weights"].size else None,
         )
 
 
