@@ -96,6 +96,7 @@ class Pipelines:
         self.seconds = {name: [] for name in ("bare", "ours", "back_project", "journal", "recording")}
         self.bare_poses: list[np.ndarray] = []
         self.poses: list[np.ndarray] = []
+        self.records: list = []
 
     def back_project(self, image: DepthImage) -> np.ndarray:
         settings = self.settings
@@ -106,9 +107,9 @@ class Pipelines:
     def run_ours(self, image: DepthImage, gravity, stamp: float) -> None:
         seconds = self.seconds
         start = time.perf_counter()
-        points = self.back_project(image)
+        points, map_frame = self.assembler.depth_points(image)  # as Assembler.add does
         projected = time.perf_counter()
-        record = self.assembler.register(points, stamp, gravity=gravity)
+        record = self.assembler.register(points, stamp, gravity=gravity, map_frame=map_frame)
         registered = time.perf_counter()
         self.store.append(record)
         journaled = time.perf_counter()
@@ -121,6 +122,7 @@ class Pipelines:
         seconds["recording"].append(end - journaled)
         self.points.append(len(points))
         self.poses.append(record.pose)
+        self.records.append(record)
 
     def run_bare(self, image: DepthImage) -> None:
         points = self.back_project(image)  # the same points as the assembler's, not timed
@@ -347,8 +349,67 @@ def run(args) -> None:
         for name in SETTINGS:
             print(f"| bare KISS-ICP, {name} | {split_cells(first[name].bare_poses, truth)} |")
             print(f"| assembler, {name} | {split_cells(first[name].poses, truth)} |")
+    map_step(images, first["defaults"])
     if args.grid_noise:
         grid_errors(images, gravity, truth)
+
+
+def map_step(images: list[DepthImage], defaults: Pipelines) -> None:
+    """What a keyframe costs the global map, the map before issue 25 and today's side by side on the same
+    keyframes at the same poses (the defaults' first repeat), taking turns: before, the registration's block
+    means thinned to one point per map voxel (KISS-ICP's voxel_down_sample: the first point) into a
+    VoxelHashMap of one point per voxel; today, the blocks back-projected again without those across depth
+    edges, moved, reduced to sums per cell and merged into the running means (`VoxelMeans`)."""
+    from kiss_icp.mapping import VoxelHashMap
+
+    from affordcore.assembly.voxelmap import VoxelMeans
+
+    settings = AssemblerSettings()
+    maps = {
+        "before": VoxelHashMap(settings.map_voxel, max_distance=np.inf, max_points_per_voxel=1),
+        "today": VoxelMeans(settings.map_voxel),
+    }
+    keyframes = [
+        (image, record.pose)
+        for image, record in zip(images, defaults.records)
+        if record.map_points is not None
+    ]
+    seconds = {name: [] for name in maps}
+    for index, (image, pose) in enumerate(keyframes):
+        for name in sorted(maps, reverse=index % 2 == 1):  # taking turns at going first
+            step = _map_before if name == "before" else _map_today
+            seconds[name].append(step(maps[name], image, pose, settings))
+    print(
+        f"\nThe global map per keyframe ({len(keyframes)} keyframes of {len(images)} frames, the defaults' "
+        "poses):\n| map | ms median | p90 | total ms | map points |\n|---|---:|---:|---:|---:|"
+    )
+    for name, times in seconds.items():
+        size = len(maps[name].point_cloud())
+        print(f"| {name} | {ms(times):.1f} | {ms(times, 0.9):.1f} | {1000 * sum(times):.0f} | {size:,} |")
+
+
+def _map_before(voxel_map, image: DepthImage, pose: np.ndarray, settings: AssemblerSettings) -> float:
+    """Seconds the map before issue 25 took for a keyframe."""
+    from kiss_icp.voxelization import voxel_down_sample
+
+    # the registration's block means, already made for registration: not the map's cost
+    blocks = back_project(image, settings.pixel_step, settings.min_range, settings.max_range)
+    start = time.perf_counter()
+    thinned = voxel_down_sample(blocks, settings.map_voxel)
+    voxel_map.add_points(thinned @ pose[:3, :3].T + pose[:3, 3])
+    return time.perf_counter() - start
+
+
+def _map_today(voxel_map, image: DepthImage, pose: np.ndarray, settings: AssemblerSettings) -> float:
+    """Seconds today's map takes for a keyframe (`Assembler.register`'s keyframe step, and `apply`'s)."""
+    from affordcore.assembly.voxelmap import cell_sums
+
+    start = time.perf_counter()
+    low, high, spread = settings.min_range, settings.max_range, settings.map_edge_spread
+    points = back_project(image, settings.pixel_step, low, high, max_spread=spread)
+    _, sums, counts = cell_sums(points @ pose[:3, :3].T + pose[:3, 3], settings.map_voxel)
+    voxel_map.add_points(sums / counts[:, None], counts)
+    return time.perf_counter() - start
 
 
 if __name__ == "__main__":

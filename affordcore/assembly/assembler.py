@@ -105,24 +105,22 @@ class Assembler:
         beyond the largest extent) raises ValueError and changes nothing. `busy`: other frames wait, so
         register on fewer points (`busy_registration_voxels`). A depth image joins the map (keyframes) as
         every block, less the blocks across depth edges (`map_edge_spread`)."""
-        points, map_frame, settings = frame.points, None, self.settings
+        points, map_frame = frame.points, None
         if frame.depth is not None:
-            depth = frame.depth
-            points = back_project(
-                depth, settings.pixel_step, settings.min_range, settings.max_range, settings.block_stride
-            )
-            if settings.map_edge_spread > 0:
-
-                def map_frame() -> np.ndarray:
-                    return back_project(
-                        depth,
-                        settings.pixel_step,
-                        settings.min_range,
-                        settings.max_range,
-                        max_spread=settings.map_edge_spread,
-                    )
-
+            points, map_frame = self.depth_points(frame.depth)
         return self.register(points, stamp, frame.pose_guess, frame.gravity, busy, map_frame)
+
+    def depth_points(self, depth: DepthImage) -> tuple[np.ndarray, Callable[[], np.ndarray] | None]:
+        """The block means a depth image is registered on, and how to get the points it adds to the map as a
+        keyframe (None: the same points): every block but those across depth edges."""
+        settings = self.settings
+        low, high = settings.min_range, settings.max_range
+        points = back_project(depth, settings.pixel_step, low, high, settings.block_stride)
+        if settings.map_edge_spread <= 0:
+            return points, None
+        return points, lambda: back_project(
+            depth, settings.pixel_step, low, high, max_spread=settings.map_edge_spread
+        )
 
     def register(
         self,
