@@ -232,6 +232,12 @@ class AssemblerSettings(BaseModel):
         "depth (it straddles a depth edge: its mean is a point in mid-air) is registered but left out of the "
         "map; 0 keeps every block (docs/services.md has the measurements behind it)",
     )
+    floor_level_max_deg: float = Field(
+        5.0,
+        ge=0,
+        description="the map is levelled on its floor plane when the frames' gravity (an IMU's) finds one "
+        "leaning at most this far from it (degrees), on the gravity otherwise; 0: always on the gravity",
+    )
     keyframe_distance: float = Field(
         0.05,
         ge=0,

@@ -131,3 +131,35 @@ def test_the_assembler_map_is_the_running_mean_of_its_keyframes(walk):
             expected.add_points(_world(blocks, record.pose))
     assert assembler.keyframes > 3
     np.testing.assert_allclose(assembler.map_points(), expected.point_cloud(), atol=1e-9)
+
+
+def _floor_tilt_deg(points: np.ndarray) -> float:
+    """The tilt of the plane fitted (least squares) to the points near z = 0, refitted to those within 2 cm
+    of it (a wall's foot leaves)."""
+    floor, plane = points[np.abs(points[:, 2]) < 0.2], np.zeros(3)
+    for _ in range(5):
+        design = np.column_stack([floor[:, :2], np.ones(len(floor))])
+        plane, *_ = np.linalg.lstsq(design, floor[:, 2], rcond=None)
+        near = points[
+            np.abs(points[:, 2] - np.column_stack([points[:, :2], np.ones(len(points))]) @ plane) < 0.02
+        ]
+        floor = near[np.abs(near[:, 2]) < 0.2]
+    return float(np.degrees(np.arctan(np.hypot(*plane[:2]))))
+
+
+@pytest.mark.parametrize("limit, levelled", [(5.0, True), (0.0, False)])
+def test_the_map_is_levelled_on_its_floor_when_the_gravity_is_a_few_degrees_off(walk, limit, levelled):
+    """An IMU 3 degrees off: the map is levelled on its floor plane (with `floor_level_max_deg` 0, on the
+    IMU's gravity, as before issue 25: the floor then leans 3 degrees)."""
+    images, poses = walk
+    tilt = np.radians(3.0)
+    wrong_down = np.array([0.0, np.sin(tilt), -np.cos(tilt)])  # the world's down turned 3 deg about x
+    assembler = Assembler(AssemblerSettings(floor_level_max_deg=limit))
+    for k, (image, pose) in enumerate(zip(images, poses)):
+        gravity = pose[:3, :3].T @ wrong_down
+        assembler.add(SensorFrame("camera", k / 10, depth=image, gravity=gravity), k / 10)
+    points, _ = assembler.aligned_map()
+    if levelled:
+        assert _floor_tilt_deg(points) < 0.5
+    else:
+        assert 2.5 < _floor_tilt_deg(points) < 3.5
