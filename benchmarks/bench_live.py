@@ -146,26 +146,38 @@ def offline(source: Source, settings: Settings, models: list) -> dict[str, tuple
 
 
 def where(source: Source, indices: list[int], settings: Settings, models: list) -> dict[str, dict]:
-    """The same frames made into a room four ways, in this process (every frame taken), each mapped and
+    """The same frames made into a room five ways, in this process (every frame taken), each mapped and
     scored: the live path's steps one at a time, from true poses and every pixel to the assembler's map."""
     from kiss_icp.voxelization import voxel_down_sample
 
-    from affordcore.assembly.assembler import Assembler
+    from affordcore.assembly.assembler import Assembler, SensorFrame
     from affordcore.assembly.depth import DepthImage, back_project
+    from affordcore.assembly.voxelmap import VoxelMeans
     from affordcore.geometry.scene import Cloud
 
     sequence, a = read_sequence(source.sequence), settings.assembler
     images = [DepthImage(sequence.depth(i), sequence.intrinsics, 0.001, 65535) for i in indices]
     every_pixel = [back_project(image, 1, a.min_range, a.max_range) for image in images]
     blocks = [back_project(image, a.pixel_step, a.min_range, a.max_range) for image in images]
+    map_blocks = [
+        back_project(image, a.pixel_step, a.min_range, a.max_range, max_spread=a.map_edge_spread)
+        for image in images
+    ]
     assembler = Assembler(a)
-    for index, points in zip(indices, blocks):
-        assembler.register(points, 1.0 + index / 30, gravity=sequence.gravity(index))
+    for index, image in zip(indices, images):
+        stamp = 1.0 + index / 30
+        assembler.add(SensorFrame("camera", stamp, depth=image, gravity=sequence.gravity(index)), stamp)
     truth = [source.room_from_truth @ sequence.pose(i) for i in indices]
     estimated = [truth[0] @ pose for pose in assembler.trajectory.poses]
 
     def fused(clouds, poses):
         return np.vstack([c @ pose[:3, :3].T + pose[:3, 3] for c, pose in zip(clouds, poses)])
+
+    def means(clouds, poses):  # the assembler's map step, every frame a keyframe
+        voxel_map = VoxelMeans(a.map_voxel)
+        for cloud, pose in zip(clouds, poses):
+            voxel_map.add_points(cloud @ pose[:3, :3].T + pose[:3, 3])
+        return voxel_map.point_cloud()
 
     labels = load_labels(source.room.with_suffix(".labels.json"))
     room = load_cloud(source.room.with_suffix(".ply")).points
@@ -187,8 +199,11 @@ def where(source: Source, indices: list[int], settings: Settings, models: list) 
         as_published = f"no map: {str(error)[:60]}"
     return {
         "true poses, every pixel": scored(fused(every_pixel, truth), np.eye(4), "auto"),
-        "true poses, block means, map voxel": scored(
+        "true poses, block means, first point per map voxel (the map before issue 25)": scored(
             voxel_down_sample(fused(blocks, truth), a.map_voxel), np.eye(4), "auto"
+        ),
+        "true poses, the map's blocks (no depth edges), mean per map voxel": scored(
+            means(map_blocks, truth), np.eye(4), "auto"
         ),
         "assembler's poses, every pixel": scored(fused(every_pixel, estimated), np.eye(4), "auto"),
         "assembler's map, as published": as_published,
