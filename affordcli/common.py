@@ -122,9 +122,11 @@ def progress(quiet: bool, speed_window: float = 30.0):
 
 def work_progress(quiet: bool, seconds_per_unit: float, start_weight: float = 0.1):
     """A rich progress bar like `progress`'s over weighted work (the task's total and advances are units of
-    work, shown as a percentage) whose time left shows from the start: the work left at a pace that starts
-    at `seconds_per_unit` (the caller's guess) and moves to the mean pace since the start as work is done
-    (the guess counts as if `start_weight` of the total had been done at it)."""
+    work, shown as a percentage; advance it with `advance_work`) whose time left shows from the start: the
+    work left at a pace that starts at `seconds_per_unit` (the caller's guess) and moves to the mean pace
+    measured as work is done (the guess counts as if `start_weight` of the total had been done at it). The
+    pace is measured from the last step of no work (preparing), so that a long preparation the total does not
+    count does not make the work look slow."""
     from rich.console import Console
     from rich.progress import BarColumn, Progress, ProgressColumn, TaskProgressColumn, TextColumn
     from rich.text import Text
@@ -136,7 +138,9 @@ def work_progress(quiet: bool, seconds_per_unit: float, start_weight: float = 0.
             if task.total is None or task.finished:
                 return Text("", style="progress.remaining")
             prior = start_weight * task.total
-            pace = ((task.elapsed or 0.0) + seconds_per_unit * prior) / (task.completed + prior)
+            since = task.fields.get("since", task.start_time)
+            elapsed = 0.0 if since is None else max(0.0, task.get_time() - since)
+            pace = (elapsed + seconds_per_unit * prior) / (task.completed + prior)
             minutes, seconds = divmod(int(pace * (task.total - task.completed)), 60)
             hours, minutes = divmod(minutes, 60)
             return Text(f"{hours:d}:{minutes:02d}:{seconds:02d} left", style="progress.remaining")
@@ -150,6 +154,12 @@ def work_progress(quiet: bool, seconds_per_unit: float, start_weight: float = 0.
         transient=True,
         disable=quiet,
     )
+
+
+def advance_work(bar, task, message: str, work: float) -> None:
+    """A step of a `work_progress` bar: `work` units done (none: a preparing step, which restarts the clock
+    the pace is measured from)."""
+    bar.update(task, description=message, advance=work, **({} if work else {"since": bar.get_time()}))
 
 
 def output_folder(path: Path, option: str = "--out") -> Path:

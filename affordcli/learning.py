@@ -11,6 +11,7 @@ from affordcore.learn.learners import LEARNERS
 
 from .common import (
     UserError,
+    advance_work,
     names,
     output_file,
     output_folder,
@@ -198,7 +199,7 @@ def evaluate(
             task = bar.add_task("evaluate", total=work)
 
             def step(message: str, weight: float) -> None:
-                bar.update(task, description=message, advance=weight)
+                advance_work(bar, task, message, weight)
 
             evaluation = run_evaluation(
                 data, kinds, chosen, folds, settings, seed, sweep, on_step=step, cache=cache

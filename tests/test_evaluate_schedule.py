@@ -45,12 +45,19 @@ def test_learners_sharing_a_fit_train_in_one_job_and_the_longest_jobs_start_firs
 
 def test_the_progress_bar_shows_the_time_left_before_any_work_is_done():
     pytest.importorskip("rich")
-    from affordcli.common import work_progress
+    from affordcli.common import advance_work, work_progress
 
+    now = [1000.0]
     bar = work_progress(quiet=False, seconds_per_unit=0.5)
-    task_id = bar.add_task("evaluate", total=200)
-    task = bar.tasks[0]
-    assert task.id == task_id and task.completed == 0
-    left = bar.columns[-1].render(task).plain
-    # 200 units at the guessed 0.5 s each (and the first moment's elapsed time)
-    assert left in ("0:01:40 left", "0:01:41 left"), left
+    bar.get_time = lambda: now[0]  # a clock the test moves
+    task = bar.add_task("evaluate", total=200)
+    left = bar.columns[-1]
+    # before any work: 200 units at the guessed 0.5 s each
+    assert left.render(bar.tasks[0]).plain == "0:01:40 left"
+    now[0] += 60.0
+    advance_work(bar, task, "fields of a room", 0.0)  # preparing: the total does not count it
+    assert left.render(bar.tasks[0]).plain == "0:01:40 left"
+    now[0] += 60.0
+    advance_work(bar, task, "a training", 100.0)  # done at 0.6 s a unit since the preparation
+    # the pace moves towards the measured: (60 s + 0.5 s x 20) / (100 + 20) units, 100 units left
+    assert left.render(bar.tasks[0]).plain == "0:00:58 left"

@@ -117,7 +117,7 @@ LEARNERS: dict[str, Learner] = {
             "focused",
             "focused resampling near the boundary (Batuwita & Palade 2010)",
             _baseline(_focused),
-            3,
+            4,
         ),
         Learner(
             "zsvm", "zSVM: positive support vectors weighted by z (Imam et al. 2006)", _baseline(_zsvm), 11
