@@ -99,3 +99,17 @@ def test_a_place_floor_raises_a_low_room_s_cut_and_travels_with_the_model(tmp_pa
     assert model.place_cut_from(-3.0) == pytest.approx(1.0)  # a room whose scores run low: the floor
     loaded = load_model(model.save(tmp_path / "m.json"), layout)
     assert loaded.place_floor == 1.0 and loaded.id == model.id != unfloored
+
+
+def test_a_new_place_model_is_the_one_the_model_answers_with():
+    """A refit gives a model another place model: `places` must follow it, not keep the first one it made
+    (a cached copy did, and the refit reported the old cut and figures beside the new coefficients)."""
+    from affordcore.learn.model import shipped_models
+
+    model = load_model(shipped_models()["sitting-working"])
+    before = model.places
+    assert model.places is before  # made once while the document stays
+    model.place_model = {**model.place_model, "cut": 0.35, "intercept": model.place_model["intercept"] - 1}
+    assert model.places.cut == 0.35 and model.places.intercept == pytest.approx(before.intercept - 1)
+    model.place_model = None
+    assert model.places is None

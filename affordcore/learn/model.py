@@ -127,10 +127,16 @@ class AffordanceModel:
         cut = self.skeleton_threshold + (reference if self.place_reference == "room-median" else 0.0)
         return cut if self.place_floor is None else max(cut, self.place_floor)
 
-    @cached_property
+    @property
     def places(self) -> PlaceModel | None:
-        """The place model that gives each candidate place its probability (None: places by score cut)."""
-        return PlaceModel.from_dict(self.place_model) if self.place_model else None
+        """The place model that gives each candidate place its probability (None: places by score cut). Made
+        once per `place_model` document: a model given a new one (a refit) answers with the new one."""
+        if not self.place_model:
+            return None
+        made = self.__dict__.get("_places")
+        if made is None or made[0] is not self.place_model:
+            made = self.__dict__["_places"] = (self.place_model, PlaceModel.from_dict(self.place_model))
+        return made[1]
 
     @cached_property
     def trees(self) -> TreeEnsemble | None:
