@@ -51,7 +51,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from affordcore.assembly.assembler import Assembler, SensorFrame, kiss_config, trajectory_errors  # noqa: E402
+from affordcore.assembly.assembler import (  # noqa: E402
+    Assembler,
+    SensorFrame,
+    kiss_config,
+    trajectory_errors,
+    within_range,
+)
 from affordcore.assembly.checkpoint import AssemblerStore  # noqa: E402
 from affordcore.assembly.depth import DepthImage, back_project  # noqa: E402
 from affordcore.assembly.sequence import INVALID_DEPTH, read_sequence  # noqa: E402
@@ -406,7 +412,7 @@ def _map_today(voxel_map, image: DepthImage, pose: np.ndarray, settings: Assembl
 
     start = time.perf_counter()
     low, high, spread = settings.min_range, settings.max_range, settings.map_edge_spread
-    points = back_project(image, settings.pixel_step, low, high, max_spread=spread)
+    points = within_range(back_project(image, settings.pixel_step, low, high, max_spread=spread), settings)
     _, sums, counts = cell_sums(points @ pose[:3, :3].T + pose[:3, 3], settings.map_voxel)
     voxel_map.add_points(sums / counts[:, None], counts)
     return time.perf_counter() - start

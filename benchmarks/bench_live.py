@@ -150,7 +150,7 @@ def where(source: Source, indices: list[int], settings: Settings, models: list) 
     scored: the live path's steps one at a time, from true poses and every pixel to the assembler's map."""
     from kiss_icp.voxelization import voxel_down_sample
 
-    from affordcore.assembly.assembler import Assembler, SensorFrame
+    from affordcore.assembly.assembler import Assembler, SensorFrame, within_range
     from affordcore.assembly.depth import DepthImage, back_project
     from affordcore.assembly.voxelmap import VoxelMeans
     from affordcore.geometry.scene import Cloud
@@ -159,8 +159,10 @@ def where(source: Source, indices: list[int], settings: Settings, models: list) 
     images = [DepthImage(sequence.depth(i), sequence.intrinsics, 0.001, 65535) for i in indices]
     every_pixel = [back_project(image, 1, a.min_range, a.max_range) for image in images]
     blocks = [back_project(image, a.pixel_step, a.min_range, a.max_range) for image in images]
-    map_blocks = [
-        back_project(image, a.pixel_step, a.min_range, a.max_range, max_spread=a.map_edge_spread)
+    map_blocks = [  # what a keyframe adds to the map (Assembler.depth_points, then the range filter)
+        within_range(
+            back_project(image, a.pixel_step, a.min_range, a.max_range, max_spread=a.map_edge_spread), a
+        )
         for image in images
     ]
     assembler = Assembler(a)

@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_live import KITCHEN, Source, generated_sources, kitchen_source  # noqa: E402
 
-from affordcore.assembly.assembler import Assembler, SensorFrame  # noqa: E402
+from affordcore.assembly.assembler import Assembler, SensorFrame, within_range  # noqa: E402
 from affordcore.assembly.depth import DepthImage, back_project  # noqa: E402
 from affordcore.assembly.sequence import read_sequence  # noqa: E402
 from affordcore.assembly.voxelmap import VoxelMeans  # noqa: E402
@@ -79,7 +79,8 @@ def map_clouds(
     for spread in SPREADS:
         means = VoxelMeans(a.map_voxel)
         for image, pose in zip(images, poses):
-            means.add_points(moved(back_project(image, a.pixel_step, low, high, max_spread=spread), pose))
+            blocks = back_project(image, a.pixel_step, low, high, max_spread=spread)
+            means.add_points(moved(within_range(blocks, a), pose))
         clouds[f"means, edge spread {spread:g}"] = means.point_cloud()
     return clouds
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from affordcore.assembly.assembler import Assembler, SensorFrame
+from affordcore.assembly.assembler import Assembler, SensorFrame, within_range
 from affordcore.assembly.depth import DepthImage, back_project
 from affordcore.assembly.voxelmap import VoxelMeans
 from affordcore.geometry.fields import voxel_down_sample
@@ -117,7 +117,8 @@ def test_the_map_of_a_noisy_walk_is_flatter_than_one_observation_per_voxel(walk)
 
 
 def test_the_assembler_map_is_the_running_mean_of_its_keyframes(walk):
-    """What `Assembler.add` puts in the map: each keyframe's edge-filtered blocks at its registered pose."""
+    """What `Assembler.add` puts in the map: each keyframe's edge-filtered blocks within range, at its
+    registered pose."""
     images, _ = walk
     settings = AssemblerSettings()
     assembler = Assembler(settings)
@@ -128,7 +129,7 @@ def test_the_assembler_map_is_the_running_mean_of_its_keyframes(walk):
             blocks = back_project(
                 image, 2, settings.min_range, settings.max_range, max_spread=settings.map_edge_spread
             )
-            expected.add_points(_world(blocks, record.pose))
+            expected.add_points(_world(within_range(blocks, settings), record.pose))
     assert assembler.keyframes > 3
     np.testing.assert_allclose(assembler.map_points(), expected.point_cloud(), atol=1e-9)
 

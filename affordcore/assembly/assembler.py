@@ -177,8 +177,7 @@ class Assembler:
         settings = self.settings
         if len(points) > settings.max_frame_points:  # every n-th point: a dense cloud's order is scan order
             points = points[:: thinning_step(len(points), settings.max_frame_points)]
-        squared = np.einsum("ij,ij->i", points, points)
-        frame = points[(squared > settings.min_range**2) & (squared < settings.max_range**2)]
+        frame = within_range(points, settings)
         if len(frame) < 100:
             raise ValueError(
                 f"the frame has {len(frame)} points within "
@@ -206,7 +205,7 @@ class Assembler:
         keyframe = self._is_keyframe(pose)
         map_points = weights = None
         if keyframe:  # moved, then reduced to the map's cells: their sums are all the map keeps of them
-            mapped = frame if map_frame is None else map_frame()
+            mapped = frame if map_frame is None else within_range(map_frame(), settings)
             _, sums, weights = cell_sums(mapped @ pose[:3, :3].T + pose[:3, 3], settings.map_voxel)
             map_points = sums / weights[:, None]
         record = FrameRecord(self.frames, stamp, pose, pose_guess, up, map_points, weights)
@@ -421,6 +420,13 @@ def kiss_config(settings: AssemblerSettings):
     config.registration.convergence_criterion = settings.convergence
     config.registration.max_num_threads = 0  # all cores
     return config
+
+
+def within_range(points: np.ndarray, settings: AssemblerSettings) -> np.ndarray:
+    """The points strictly between `min_range` and `max_range` of the sensor (KISS-ICP's range filter: the
+    same strict bounds on the same norms; a depth image's back-projection bounds depth, not range)."""
+    squared = np.einsum("ij,ij->i", points, points)
+    return points[(squared > settings.min_range**2) & (squared < settings.max_range**2)]
 
 
 def scaled_motion(delta: np.ndarray, ratio: float) -> np.ndarray:
