@@ -106,6 +106,8 @@ def _run(stack, wait: float) -> None:
     import signal
     import threading
 
+    from services.launch import deaths
+
     stopping = threading.Event()
     signals = {signal.SIGINT: "Ctrl-C", signal.SIGTERM: "SIGTERM"}
     received: list[str] = []
@@ -126,7 +128,7 @@ def _run(stack, wait: float) -> None:
             while not stopping.wait(0.5):
                 dead = stack.exited()
                 if dead:
-                    problem = "; ".join(f"{name} exited with code {code}" for name, code in dead.items())
+                    problem = deaths(dead)
                     break
     finally:
         with stack.echo.lock:

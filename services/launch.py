@@ -33,6 +33,11 @@ def cpu_hogs(count: int):
             hog.wait()
 
 
+def deaths(exited: dict[str, int]) -> str:
+    """Children that exited ({name: exit code}, `Stack.exited`), in words: "inference exited with code -9"."""
+    return "; ".join(f"{name} exited with code {code}" for name, code in exited.items())
+
+
 def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
@@ -241,8 +246,9 @@ class Stack:
                     return True
                 dead = self.exited()
             if dead:  # named as the supervisor names a death after the start, so either reads the same
-                deaths = "; ".join(f"{name} exited with code {code}" for name, code in dead.items())
-                raise RuntimeError(f"{deaths} while starting (ready: {sorted(alive)}); logs: {self.logs()}")
+                raise RuntimeError(
+                    f"{deaths(dead)} while starting (ready: {sorted(alive)}); logs: {self.logs()}"
+                )
             if time.monotonic() > deadline:
                 raise RuntimeError(f"services not ready (ready: {sorted(alive)}); logs: {self.logs()}")
             time.sleep(0.3)
