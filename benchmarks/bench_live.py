@@ -407,14 +407,26 @@ def live(
     }
 
 
+def add_source_arguments(parser: argparse.ArgumentParser) -> None:
+    """The sequences a run streams (`sources`): how many generated rooms, their seed, every n-th frame."""
+    parser.add_argument("--generated", type=int, default=3, help="generated rooms with sequences (0: none)")
+    parser.add_argument("--seed", type=int, default=11, help="their seed (the models never saw it)")
+    parser.add_argument("--step", type=int, default=3, help="every n-th frame of the sequence")
+
+
+def sources(args, folder: Path) -> list[Source]:
+    """The real kitchen (when ../shared is there) and `args.generated` generated rooms made into `folder`."""
+    return ([kitchen_source()] if KITCHEN.is_dir() else []) + generated_sources(
+        args.generated, args.seed, folder
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--generated", type=int, default=3, help="generated rooms with sequences (0: none)")
-    parser.add_argument("--seed", type=int, default=11, help="their seed (the models never saw it)")
+    add_source_arguments(parser)
     parser.add_argument("--rate", type=float, default=15.0, help="frames per second published")
-    parser.add_argument("--step", type=int, default=3, help="every n-th frame of the sequence")
     parser.add_argument(
         "--loads", default=f"0,{os.cpu_count()}", help="CPU hogs beside the services, per run"
     )
@@ -444,10 +456,7 @@ def main() -> None:
     print("|---|---:|---:|---:|---:|" + "---|" * len(names), flush=True)
     steps, timings = [], []
     with tempfile.TemporaryDirectory() as tmp:
-        sources = ([kitchen_source()] if KITCHEN.is_dir() else []) + generated_sources(
-            args.generated, args.seed, Path(tmp) / "generated"
-        )
-        for number, source in enumerate(sources):
+        for number, source in enumerate(sources(args, Path(tmp) / "generated")):
             indices = list(range(0, len(read_sequence(source.sequence).frames), args.step))
             reference = offline(source, settings, models)
             if not args.no_where:

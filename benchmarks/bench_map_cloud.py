@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_live import KITCHEN, Source, generated_sources, kitchen_source  # noqa: E402
+from bench_live import KITCHEN, Source, add_source_arguments, sources  # noqa: E402
 
 from affordcore.assembly.assembler import Assembler, SensorFrame, within_range  # noqa: E402
 from affordcore.assembly.depth import DepthImage, back_project  # noqa: E402
@@ -115,9 +115,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--generated", type=int, default=3, help="generated rooms with sequences (0: none)")
-    parser.add_argument("--seed", type=int, default=11, help="their seed (bench_live.py's)")
-    parser.add_argument("--step", type=int, default=3, help="every n-th frame of the sequence")
+    add_source_arguments(parser)  # bench_live.py's: the same sequences
     args = parser.parse_args()
     settings = Settings()
     a = settings.assembler
@@ -128,9 +126,7 @@ def main() -> None:
     )
     levels = []
     with tempfile.TemporaryDirectory() as tmp:
-        sources = [(kitchen_source(), False)] if KITCHEN.is_dir() else []
-        sources += [(s, True) for s in generated_sources(args.generated, args.seed, Path(tmp) / "generated")]
-        for source, generated in sources:
+        for source in sources(args, Path(tmp) / "generated"):
             sequence = read_sequence(source.sequence)
             indices = list(range(0, len(sequence.frames), args.step))
             images = [DepthImage(sequence.depth(i), sequence.intrinsics) for i in indices]
@@ -142,7 +138,7 @@ def main() -> None:
                 mine = cells(cloud)
                 counts = f"{len(cloud):,} | {len(mine - room):,} | {len(reach - mine):,}"
                 print(f"| {source.name} | {name} | {counts} |", flush=True)
-            levels += levelling(source, indices, settings, generated)
+            levels += levelling(source, indices, settings, generated=source.sequence != KITCHEN)
     print(
         "\nThe assembler's published map (its own poses, the frames' gravity): the tilt of its floor plane "
         "(deg), and for generated rooms the angle of its z from true up (deg)\n\n"
