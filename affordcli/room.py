@@ -239,11 +239,7 @@ def align(
         typer.echo(alignment.describe())
         for candidate in alignment.candidates:
             chosen = candidate.valid and candidate.axis == alignment.up_axis
-            score = (
-                f" (horizontal-surface score {candidate.score:.3f})"
-                if candidate.score == candidate.score
-                else ""
-            )
+            score = f" (floor evidence {candidate.score:.3f})" if candidate.score == candidate.score else ""
             typer.echo(f"  candidate up {candidate.axis}: {'chosen' if chosen else candidate.reason}{score}")
         if out:
             typer.echo(f"aligned cloud written to {out}")

@@ -5,9 +5,9 @@ Automatic alignment does not know which way the input frame is up. It tries each
 a floor: a plane among the lowest points, leaning at most ``max_tilt_deg`` from that axis, found by RANSAC.
 A candidate's floor is *valid* when it covers at least ``min_floor_area`` and almost nothing lies under it
 (walls fail here: doors, windows and scan noise put points behind them). Among valid floors the one with the
-most horizontal surface above it wins (floor, seats, tables and counters are parallel to the true floor).
-No valid floor is an error (`NoFloorError`) that says, per candidate, why it failed: a wrong frame is worse
-than no frame.
+strongest floor evidence wins (`_floor_evidence`: furniture tops above it, the plane's own extent, and
+nothing behind it). No valid floor is an error (`NoFloorError`) that says, per candidate, why it failed: a
+wrong frame is worse than no frame.
 """
 
 from __future__ import annotations
@@ -22,9 +22,15 @@ from .scene import voxel_thin
 _BELOW_MARGIN = 0.05  # a point this far under a floor plane is "below the floor"
 _AREA_CELL = 0.10  # floor area is counted in cells of this size
 _HORIZONTAL_COS = 0.9  # a surface whose normal is within ~25 deg of up counts as horizontal
-_FURNITURE_TOP = 1.3  # horizontal surfaces up to this height count for a floor's score (m)
+_FURNITURE_BOTTOM = 0.15  # horizontal surfaces from this height ... (m)
+_FURNITURE_TOP = 1.3  # ... up to this one count as furniture tops for a floor's evidence (m)
+# How the evidence weighs the plane's own points and the points under it against furniture tops: fitted (a
+# pairwise logistic regression, rounded) to which candidate is the floor in 280 generated rooms of every
+# scan style, each in three frames, and checked on 80 others (docs/geometry.md, benchmarks/gravity_choice.py)
+_ON_PLANE_WEIGHT = 0.4
+_BELOW_WEIGHT = 25.0
 _REFITS = 10  # least-squares refits of the RANSAC plane, at most
-_JUDGES = 20_000  # points that rank RANSAC hypotheses, and that the horizontal-surface score is taken over
+_JUDGES = 20_000  # points that rank RANSAC hypotheses, and that the floor evidence is taken over
 _DESCENTS = 3  # at most this many times a floor is looked for under a plane with points below it
 _LEVEL_SLAB = 0.25  # check_levelled looks for the floor among points this close to z = 0 (m)
 # check_levelled lets a floor be half as big and have twice as much under it as the search that levels a
@@ -55,7 +61,7 @@ class FloorCandidate:
     tilt_deg: float = float("nan")
     area: float = 0.0
     below_fraction: float = float("nan")
-    score: float = float("nan")  # horizontal-surface share; scored only when several floors are valid
+    score: float = float("nan")  # `_floor_evidence`; scored only when several floors are valid
 
 
 @dataclass
@@ -191,8 +197,8 @@ def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
         raise NoFloorError(
             f"no floor found ({reasons}). Give the gravity direction explicitly if the floor is not in view."
         )
-    if len(valid) > 1:  # the score only chooses between valid floors: normals only then
-        for candidate, score in zip(valid, _horizontal_scores(sample, valid, settings)):
+    if len(valid) > 1:  # the evidence only chooses between valid floors: normals only then
+        for candidate, score in zip(valid, _floor_evidences(sample, valid, settings)):
             candidate.score = score
     best = max(valid, key=lambda c: c.score)
     return Alignment(
@@ -254,29 +260,33 @@ def _find_floor(
     return candidate
 
 
-def _horizontal_scores(
+def _floor_evidences(
     sample: np.ndarray, candidates: list[FloorCandidate], settings: GravitySettings
 ) -> list[float]:
-    """Each candidate floor's horizontal-surface score (`_horizontal_score`), taken over `_JUDGES` random
-    points of a coarser copy of the sample (normals from all of its points): a share of points, which that
-    many estimate to within +-0.011 (3 sigma), and normal estimation, most of an auto alignment when it
-    runs, costs a sixth of what it costs at every point (0.5 s of CPU on a 10 m room's 131,000 coarse
-    points)."""
+    """Each candidate floor's `_floor_evidence`, its surface shares taken over `_JUDGES` random points of a
+    coarser copy of the sample (normals from all of its points): a share of points, which that many estimate
+    to within +-0.011 (3 sigma), and normal estimation, most of an auto alignment when it runs, costs a sixth
+    of what it costs at every point (0.5 s of CPU on a 10 m room's 131,000 coarse points)."""
     coarse = voxel_thin(sample, 2 * settings.sample_voxel)[0]
     rng = np.random.default_rng(settings.seed)
     judges = np.sort(rng.choice(len(coarse), _JUDGES, replace=False)) if len(coarse) > _JUDGES else None
     normals = _estimate_normals(coarse, radius=4 * settings.sample_voxel, at=judges)
     points = coarse if judges is None else coarse[judges]
-    return [_horizontal_score(c.normal, c.offset, points, normals) for c in candidates]
+    return [_floor_evidence(c, points, normals) for c in candidates]
 
 
-def _horizontal_score(
-    normal: np.ndarray, offset: float, points: np.ndarray, point_normals: np.ndarray
-) -> float:
-    """The share of points on surfaces parallel to a floor plane, from the floor up to furniture height."""
-    horizontal = np.abs(point_normals @ normal) > _HORIZONTAL_COS
-    level = points @ normal - offset
-    return float(np.mean(horizontal & (level > -_BELOW_MARGIN) & (level < _FURNITURE_TOP)))
+def _floor_evidence(candidate: FloorCandidate, points: np.ndarray, point_normals: np.ndarray) -> float:
+    """How much a valid candidate looks like the floor: the share of points on surfaces parallel to it at
+    furniture height (seats, tables, counters), plus a lesser share for the plane itself, less a heavy one
+    for the points under it. A wall seen by a few frames can show more of itself, and more surfaces parallel
+    to it (cabinet fronts, a sofa's back), than the floor does: by horizontal surface alone it won in one
+    case in ten among generated rooms, mostly raw frames and laser scans. What gives it away is what lies
+    behind it (a door, a window, a room beyond), counted at its candidate's `below_fraction`."""
+    parallel = np.abs(point_normals @ candidate.normal) > _HORIZONTAL_COS
+    level = points @ candidate.normal - candidate.offset
+    tops = np.mean(parallel & (level > _FURNITURE_BOTTOM) & (level < _FURNITURE_TOP))
+    plane = np.mean(parallel & (np.abs(level) < _BELOW_MARGIN))
+    return float(tops + _ON_PLANE_WEIGHT * plane - _BELOW_WEIGHT * candidate.below_fraction)
 
 
 def _ransac_plane(

@@ -1,0 +1,83 @@
+"""Which way is up: automatic gravity alignment on generated rooms of every scan style, each in three frames.
+
+`afford map` (and `afford align`) levels a cloud of unknown convention by looking for a floor along +z, +y and
+-y and choosing among the valid ones by their floor evidence (docs/geometry.md). Generated rooms are z-up, so
+each is presented z-up, y-up and as a camera frame (y down) and the choice is checked: right, a wall taken for
+the floor (wrong), or no floor found. Rooms come from a data set of `afford synth` (default: the accuracy
+benchmark's, generated there if absent); the real rooms are not used.
+
+    .venv/bin/python benchmarks/gravity_choice.py              # 360 rooms x 3 frames, about 4 min on 2 cores
+    .venv/bin/python benchmarks/gravity_choice.py --rooms 60
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+# each frame as the rotation taking the room's z-up coordinates into it, and the axis that is up there
+FRAMES = {
+    "+z": np.eye(3),
+    "+y": np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]),
+    "-y": np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]),
+}
+
+
+def choices(path: Path) -> list[str]:
+    """For each frame: "right", "wrong" (another axis chosen) or "no floor"."""
+    from affordcore.geometry.gravity import NoFloorError, align_to_gravity
+    from affordcore.geometry.scene import load_cloud
+
+    points = load_cloud(path).points
+    out = []
+    for up, rotation in FRAMES.items():
+        try:
+            chosen = align_to_gravity(points @ rotation.T).up_axis
+        except NoFloorError:
+            out.append("no floor")
+            continue
+        out.append("right" if chosen == up else "wrong")
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--data", type=Path, default=ROOT / "bench-data" / "accuracy")
+    parser.add_argument("--rooms", type=int, default=360, help="the first N rooms of the data set")
+    parser.add_argument("--seed", type=int, default=1, help="the data set's seed, when it is generated here")
+    args = parser.parse_args()
+    if not (args.data / "summary.json").is_file():
+        from affordcore.synth.batch import synthesize
+        from affordcore.synth.dataset import SynthOptions
+
+        synthesize(SynthOptions(rooms=args.rooms, seed=args.seed), args.data)
+    rooms = json.loads((args.data / "summary.json").read_text())["rooms"][: args.rooms]
+    paths = [args.data / f"{room['room']}.ply" for room in rooms]
+    with ProcessPoolExecutor(os.cpu_count()) as pool:
+        results = list(pool.map(choices, paths, chunksize=4))
+    counts: dict[str, Counter] = {}
+    for room, outcome in zip(rooms, results):
+        for style in (room["style"], "every style"):
+            counts.setdefault(style, Counter()).update(outcome)
+    print(f"{len(rooms)} rooms of {args.data}, each z-up, y-up and y-down; {os.cpu_count()} cores\n")
+    print("| scan style | clouds | up right | a wall taken for the floor | no floor found |")
+    print("|---|---:|---:|---:|---:|")
+    for style, count in sorted(counts.items(), key=lambda item: item[0] == "every style"):
+        total = sum(count.values())
+        print(f"| {style} | {total} | {count['right']} | {count['wrong']} | {count['no floor']} |")
+
+
+if __name__ == "__main__":
+    main()
