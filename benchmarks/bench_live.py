@@ -184,9 +184,21 @@ def where(source: Source, indices: list[int], settings: Settings, models: list) 
     labels = load_labels(source.room.with_suffix(".labels.json"))
     room = load_cloud(source.room.with_suffix(".ply")).points
 
-    def scored(points: np.ndarray, room_from_input: np.ndarray, gravity) -> dict | str:
+    z_up = settings.model_copy(
+        update={"gravity": settings.gravity.model_copy(update={"up_candidates": ["+z"]})}
+    )
+
+    def scored(points: np.ndarray, room_from_input: np.ndarray, levelled: bool = False) -> dict | str:
+        """The cloud's maps scored against the labels. `levelled`: as published, not levelled again; else in
+        the room's frame, z up, levelled on the floor found along +z alone, as the assembler levels its map on
+        the floor under the frames' gravity (a search over every axis can take a wall for a partial scan's
+        floor)."""
         try:
-            scene = prepare_scene(Cloud(points), settings, gravity)
+            scene = (
+                prepare_scene(Cloud(points), settings, "none")
+                if levelled
+                else prepare_scene(Cloud(points), z_up, "auto")
+            )
         except ValueError as error:  # no floor: what the service would answer with no map at all
             return f"no map: {str(error)[:60]}"
         guess = room_from_input @ np.linalg.inv(scene.alignment.world_from_input)
@@ -196,18 +208,18 @@ def where(source: Source, indices: list[int], settings: Settings, models: list) 
 
     try:
         map_points, world_from_odom = assembler.aligned_map(settings)
-        as_published = scored(map_points, truth[0] @ np.linalg.inv(world_from_odom), "none")
+        as_published = scored(map_points, truth[0] @ np.linalg.inv(world_from_odom), levelled=True)
     except ValueError as error:  # the assembler publishes no map until it finds a floor
         as_published = f"no map: {str(error)[:60]}"
     return {
-        "true poses, every pixel": scored(fused(every_pixel, truth), np.eye(4), "auto"),
+        "true poses, every pixel": scored(fused(every_pixel, truth), np.eye(4)),
         "true poses, block means, first point per map voxel (the map before issue 25)": scored(
-            voxel_down_sample(fused(blocks, truth), a.map_voxel), np.eye(4), "auto"
+            voxel_down_sample(fused(blocks, truth), a.map_voxel), np.eye(4)
         ),
         "true poses, the map's blocks (no depth edges), mean per map voxel": scored(
-            means(map_blocks, truth), np.eye(4), "auto"
+            means(map_blocks, truth), np.eye(4)
         ),
-        "assembler's poses, every pixel": scored(fused(every_pixel, estimated), np.eye(4), "auto"),
+        "assembler's poses, every pixel": scored(fused(every_pixel, estimated), np.eye(4)),
         "assembler's map, as published": as_published,
     }
 
