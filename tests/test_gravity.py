@@ -284,6 +284,7 @@ def test_a_few_frames_facing_a_wall_are_levelled_on_the_floor(seed):
     valid = [c.axis for c in alignment.candidates if c.valid]
     assert len(valid) > 1  # a choice was made: the wall is a valid floor by the area and under-it tests
     assert alignment.up_axis == "+z"
+    assert "over -y's" in alignment.describe()  # the user is told what else passed for a floor
 
 
 # --- a cloud said to be levelled ---------------------------------------------------------------------------

@@ -81,9 +81,20 @@ class Alignment:
             return "no gravity alignment (the cloud is taken as z-up with the floor at z = 0)"
         how = f"up = input {self.up_axis}" if self.method == "auto" else "up = against the given gravity"
         return (
-            f"gravity alignment ({self.method}): {how}, floor tilted {self.tilt_deg:.2f} deg from it, "
-            f"floor at {self.floor_offset:+.3f} m moved to z = 0, floor area {self.floor_area:.1f} m^2"
+            f"gravity alignment ({self.method}): {how}{self._runners_up()}, floor tilted "
+            f"{self.tilt_deg:.2f} deg from it, floor at {self.floor_offset:+.3f} m moved to z = 0, "
+            f"floor area {self.floor_area:.1f} m^2"
         )
+
+    def _runners_up(self) -> str:
+        """ " (floor evidence 0.15, over -y's 0.11)" when other candidates were valid floors too: a close call
+        on a partial scan is worth knowing (a wall can pass for a floor; --gravity settles it)."""
+        chosen = [c for c in self.candidates if c.valid and c.axis == self.up_axis]
+        others = [c for c in self.candidates if c.valid and c.axis != self.up_axis]
+        if self.method != "auto" or not chosen or not others:
+            return ""
+        over = ", ".join(f"{c.axis}'s {c.score:.2f}" for c in sorted(others, key=lambda c: -c.score))
+        return f" (floor evidence {chosen[0].score:.2f}, over {over})"
 
     def as_dict(self) -> dict:
         return {
