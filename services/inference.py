@@ -11,7 +11,7 @@ import threading
 import time
 
 from affordcore.geometry.features import FeatureLayout
-from affordcore.mapping.pipeline import RoomMapper, Superseded, preload
+from affordcore.mapping.pipeline import RoomMapper, preload
 from affordcore.mapping.recording import log_map, set_time
 from affordcore.mapping.recording import preload as preload_recording
 from affordwire import messages
@@ -44,11 +44,6 @@ class InferenceService:
         preload()  # now, not when the first fields arrive
         preload_recording()  # the first map's logging imports matplotlib's colours
         self.inbox = node.inbox(latest_only=True)
-        # newer fields arriving while maps are made supersede them: the maps in hand are given up, except
-        # right after a call given up, so that at least every other fields message gets its maps
-        self.mapping = self.gave_up_last = False
-        self.given_up = 0
-        self.inbox.on_queued = self._newer_fields
         node.subscribe(node.keys.fields, self.inbox)
         for model in self.models:
             node.answer_latest(node.keys.affordance(model.affordance))
@@ -91,30 +86,12 @@ class InferenceService:
                 self.ros.publish(self.node.keys.robot, out)
             log_map(self.node.recording, amap)
 
-        self.mapping = True
-        try:
-            self.mapper.maps(fields, on_map=publish)
-        except Superseded:
-            self.gave_up_last, self.given_up = True, self.given_up + 1
-            self.node.publish_status(
-                messages.Status.READY,
-                f"gave up the maps of a {message.frames}-frame map for newer fields ({self.given_up} in all)",
-            )
-            return
-        finally:
-            self.mapping = False
-        self.gave_up_last = False
+        self.mapper.maps(fields, on_map=publish)
         self.node.publish_status(
             messages.Status.READY,
             f"published {len(self.models)} maps of a {message.frames}-frame map; "
             + self.mapper.describe(ids),
         )
-
-    def _newer_fields(self) -> None:
-        """Newer fields were queued (on zenoh's thread): give up the maps in hand, unless the last maps were
-        given up."""
-        if self.mapping and not self.gave_up_last and self.node.settings.service.give_up_stale_maps:
-            self.mapper.cancel()
 
 
 class ShardedInference(InferenceService):

@@ -82,12 +82,6 @@ class NodeSettings(BaseModel):
         description="inference (one robot): processes that score the models side by side; 0: one per model "
         "on Linux with 2 cores or more, 1: every model in the service's own process",
     )
-    give_up_stale_maps: bool = Field(
-        True,
-        description="inference (one robot): newer fields arriving while maps are made give those maps up "
-        "(except right after maps given up, so that every other fields message is mapped at least): the "
-        "last map of a walk waits less for maps nobody will read",
-    )
 
 
 class RosSettings(BaseModel):
