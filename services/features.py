@@ -23,6 +23,7 @@ class FeaturesService:
         self.normals = NormalCache()  # the robot's map comes again and again: estimate only what changed
         preload()  # now, not when the first map arrives
         self.inbox = node.inbox(latest_only=True)  # a newer map supersedes one not yet worked on
+        self.held_back, self.held_back_last = 0, False  # fields of superseded maps not published
         node.subscribe(node.keys.cloud, self.inbox)
         node.answer_latest(node.keys.fields)
         node.fetch_latest(node.keys.cloud, self.inbox)  # a map published before this service (re)started
@@ -50,6 +51,15 @@ class FeaturesService:
             gravity="none" if levelled else "auto",
             normals=self.normals,
         )
+        if self._superseded():
+            self.held_back, self.held_back_last = self.held_back + 1, True
+            self.node.publish_status(
+                messages.Status.READY,
+                f"held back the fields of a {cloud.frames}-frame map: a newer map waits ({self.held_back} "
+                "in all; its normals are kept for the next)",
+            )
+            return
+        self.held_back_last = False
         # the Cloud's own world_from_input takes its source to the cloud's frame; levelling goes on from there
         world_from_input = scene.alignment.world_from_input @ messages.pose_matrix(cloud.world_from_input)
         message = messages.fields_message(scene.fields, cloud, world_from_input)
@@ -62,4 +72,14 @@ class FeaturesService:
             messages.Status.READY,
             f"published fields {scene.fields.lattice.shape} of a {cloud.frames}-frame map{levelling}; "
             f"normals estimated at {self.normals.estimated:,} of {len(self.normals.points):,} thinned points",
+        )
+
+    def _superseded(self) -> bool:
+        """A newer map came while these fields were computed: inference would map them only to map the newer
+        ones after, each on the cores the other needs, so they are not published. Never twice in a row: at
+        least every other map's fields go out, however fast maps come."""
+        return (
+            self.node.settings.service.hold_back_superseded
+            and not self.held_back_last
+            and self.inbox.supersedes(self.node.keys.cloud)
         )

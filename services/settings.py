@@ -82,6 +82,12 @@ class NodeSettings(BaseModel):
         description="inference (one robot): processes that score the models side by side; 0: one per model "
         "on Linux with 2 cores or more, 1: every model in the service's own process",
     )
+    hold_back_superseded: bool = Field(
+        True,
+        description="features: fields of a map superseded while they were computed (a newer map waits) are "
+        "not published, never twice in a row, so that inference maps the newer map without mapping the "
+        "older one beside it",
+    )
 
 
 class RosSettings(BaseModel):

@@ -270,6 +270,44 @@ def test_features_level_a_cloud_in_its_own_frame_refuse_a_world_one_without_a_fl
     assert "/world/cloud" not in entities  # the assembler's: one process logs an entity
 
 
+def test_features_hold_back_the_fields_of_a_map_superseded_while_they_were_computed(router, client, tmp_path):
+    """A map that comes while the fields of the last are computed makes those stale: they are not published
+    (inference would map them beside the newer), but never twice in a row, so a stream of maps still gets
+    every other map's fields."""
+    from services.features import FeaturesService
+
+    fields, status = _listen(client, KEYS.fields), _listen(client, KEYS.status("features"))
+    running = Running(FeaturesService, "features", router, tmp_path / "features.rrd")
+    rng = np.random.default_rng(2)
+    clouds = [  # sizes that tell their "computing the fields of N points" apart, and take a while
+        messages.cloud_message(_box_room_scan(rng, n), np.eye(4), "file", at=1_700_000_010.5 + k)
+        for k, n in enumerate((400_000, 400_004, 400_008))
+    ]
+
+    said = []
+
+    def when_busy_on(cloud) -> None:
+        points = f"{len(messages.cloud_points(cloud)):,} points"
+        while True:
+            said.append(_next(status, messages.Status).detail)
+            if said[-1].startswith("computing the fields") and said[-1].endswith(points):
+                return
+
+    try:
+        _send(client, KEYS.cloud, clouds[0].SerializeToString(), messages.CloudMessage)
+        for earlier, later in zip(clouds, clouds[1:]):
+            when_busy_on(earlier)
+            _send(client, KEYS.cloud, later.SerializeToString(), messages.CloudMessage)
+        published = [_next(fields, FIELDS).cloud_timestamp for _ in range(2)]
+        assert published == [clouds[1].timestamp, clouds[2].timestamp]  # the first held back, not the second
+        assert fields.empty()
+        while not status.empty():
+            said.append(_next(status, messages.Status).detail)
+        assert sum(d.startswith("held back the fields") for d in said) == 1, said
+    finally:
+        running.stop()
+
+
 def test_inference_refuses_fields_at_another_resolution_or_facing(router, client, tmp_path):
     from affordcore.geometry.fields import compute_fields
     from affordcore.settings import NormalSettings, VoxelSettings
