@@ -29,7 +29,11 @@ class FeaturesService:
         node.fetch_latest(node.keys.cloud, self.inbox)  # a map published before this service (re)started
 
     def run(self) -> None:
-        self.node.run(self.inbox, self.handle)
+        self.node.run(
+            self.inbox,
+            self.handle,
+            on_stop=lambda: f"fields held back, their map superseded while computed: {self.held_back}",
+        )
 
     def handle(self, item: Inbound) -> None:
         cloud = self.node.decode(item, messages.CloudMessage)

@@ -270,7 +270,9 @@ def test_features_level_a_cloud_in_its_own_frame_refuse_a_world_one_without_a_fl
     assert "/world/cloud" not in entities  # the assembler's: one process logs an entity
 
 
-def test_features_hold_back_the_fields_of_a_map_superseded_while_they_were_computed(router, client, tmp_path):
+def test_features_hold_back_the_fields_of_a_map_superseded_while_they_were_computed(
+    router, client, tmp_path, capsys
+):
     """A map that comes while the fields of the last are computed makes those stale: they are not published
     (inference would map them beside the newer), but never twice in a row, so a stream of maps still gets
     every other map's fields."""
@@ -306,6 +308,7 @@ def test_features_hold_back_the_fields_of_a_map_superseded_while_they_were_compu
         assert sum(d.startswith("held back the fields") for d in said) == 1, said
     finally:
         running.stop()
+    assert "fields held back, their map superseded while computed: 1" in capsys.readouterr().out
 
 
 def test_inference_refuses_fields_at_another_resolution_or_facing(router, client, tmp_path):

@@ -25,8 +25,8 @@ _HORIZONTAL_COS = 0.9  # a surface whose normal is within ~25 deg of up counts a
 _FURNITURE_BOTTOM = 0.15  # horizontal surfaces from this height ... (m)
 _FURNITURE_TOP = 1.3  # ... up to this one count as furniture tops for a floor's evidence (m)
 # How the evidence weighs the plane's own points and the points under it against furniture tops: fitted (a
-# pairwise logistic regression, rounded) to which candidate is the floor in 280 generated rooms of every
-# scan style, each in three frames, and checked on 80 others (docs/geometry.md, benchmarks/gravity_choice.py)
+# pairwise logistic regression, rounded) to which candidate is the floor in generated rooms of every scan
+# style, each in three frames (docs/geometry.md; benchmarks/gravity_choice.py measures the choice)
 _ON_PLANE_WEIGHT = 0.4
 _BELOW_WEIGHT = 25.0
 _REFITS = 10  # least-squares refits of the RANSAC plane, at most
@@ -87,8 +87,9 @@ class Alignment:
         )
 
     def _runners_up(self) -> str:
-        """ " (floor evidence 0.15, over -y's 0.11)" when other candidates were valid floors too: a close call
-        on a partial scan is worth knowing (a wall can pass for a floor; --gravity settles it)."""
+        """What else passed for a floor, and by how much the chosen one won (its evidence, then each other
+        valid candidate's), when any did: a close call on a partial scan is worth knowing (a wall can pass
+        for a floor; --gravity settles it)."""
         chosen = [c for c in self.candidates if c.valid and c.axis == self.up_axis]
         others = [c for c in self.candidates if c.valid and c.axis != self.up_axis]
         if self.method != "auto" or not chosen or not others:
@@ -290,9 +291,9 @@ def _floor_evidence(candidate: FloorCandidate, points: np.ndarray, point_normals
     """How much a valid candidate looks like the floor: the share of points on surfaces parallel to it at
     furniture height (seats, tables, counters), plus a lesser share for the plane itself, less a heavy one
     for the points under it. A wall seen by a few frames can show more of itself, and more surfaces parallel
-    to it (cabinet fronts, a sofa's back), than the floor does: by horizontal surface alone it won in one
-    case in ten among generated rooms, mostly raw frames and laser scans. What gives it away is what lies
-    behind it (a door, a window, a room beyond), counted at its candidate's `below_fraction`."""
+    to it (cabinet fronts, a sofa's back), than the floor does, and by horizontal surface alone it often won
+    (docs/geometry.md has how often). What gives it away is what lies behind it (a door, a window, a room
+    beyond), counted at its candidate's `below_fraction`."""
     parallel = np.abs(point_normals @ candidate.normal) > _HORIZONTAL_COS
     level = points @ candidate.normal - candidate.offset
     tops = np.mean(parallel & (level > _FURNITURE_BOTTOM) & (level < _FURNITURE_TOP))
