@@ -11,7 +11,7 @@ import threading
 import time
 
 from affordcore.geometry.features import FeatureLayout
-from affordcore.mapping.pipeline import RoomMapper, preload
+from affordcore.mapping.pipeline import RoomMapper, Superseded, preload
 from affordcore.mapping.recording import log_map, set_time
 from affordcore.mapping.recording import preload as preload_recording
 from affordwire import messages
@@ -44,6 +44,15 @@ class InferenceService:
         preload()  # now, not when the first fields arrive
         preload_recording()  # the first map's logging imports matplotlib's colours
         self.inbox = node.inbox(latest_only=True)
+        # a newer map reaching the features service, or newer fields arriving, while maps are made supersede
+        # them: the maps in hand are given up, except right after a call given up, so that at least every
+        # other fields message gets its maps
+        self.mapping = self.gave_up_last = False
+        self.mapping_cloud = 0  # nanoseconds: the time of the map whose fields are being mapped
+        self.features_newest = 0  # nanoseconds: the newest map the features service said it received
+        self.given_up = 0
+        self.inbox.on_queued = self._give_up
+        node.hold(node.session.declare_subscriber(node.keys.status("features"), self._features_status))
         node.subscribe(node.keys.fields, self.inbox)
         for model in self.models:
             node.answer_latest(node.keys.affordance(model.affordance))
@@ -86,12 +95,46 @@ class InferenceService:
                 self.ros.publish(self.node.keys.robot, out)
             log_map(self.node.recording, amap)
 
-        self.mapper.maps(fields, on_map=publish)
+        self.mapping_cloud, self.mapping = messages.nanoseconds(message.cloud_timestamp), True
+        try:
+            if self.features_newest > self.mapping_cloud and self._may_give_up():
+                raise Superseded("a newer map reached the features service before these maps began")
+            self.mapper.maps(fields, on_map=publish)
+        except Superseded:
+            self.gave_up_last, self.given_up = True, self.given_up + 1
+            self.node.publish_status(
+                messages.Status.READY,
+                f"gave up the maps of a {message.frames}-frame map for a newer map ({self.given_up} in all)",
+            )
+            return
+        finally:
+            self.mapping = False
+        self.gave_up_last = False
         self.node.publish_status(
             messages.Status.READY,
             f"published {len(self.models)} maps of a {message.frames}-frame map; "
             + self.mapper.describe(ids),
         )
+
+    def _may_give_up(self) -> bool:
+        return not self.gave_up_last and self.node.settings.service.give_up_stale_maps
+
+    def _give_up(self) -> None:
+        """A newer map is on its way (on zenoh's thread): give up the maps in hand, unless the last maps were
+        given up."""
+        if self.mapping and self._may_give_up():
+            self.mapper.cancel()
+
+    def _features_status(self, sample) -> None:
+        """The features service's status: a map newer than the one being mapped has reached it (its newest
+        input), so these maps will be stale before they are done. A status that does not parse is ignored."""
+        try:
+            status = messages.parse(messages.Status, sample.payload.to_bytes())
+        except messages.MessageError:
+            return
+        self.features_newest = max(self.features_newest, messages.nanoseconds(status.newest_input))
+        if self.mapping and self.features_newest > self.mapping_cloud:
+            self._give_up()
 
 
 class ShardedInference(InferenceService):

@@ -120,6 +120,7 @@ class Inbox(BoundedInbox):
         super().__init__(deque(), limit, max_bytes)
         self.latest_only, self.max_lag, self.max_gap = latest_only, max_lag, max_gap
         self._last_taken: float | None = None  # arrival time of the last input taken
+        self.on_queued: Callable[[], None] | None = None  # hears of each input queued (on zenoh's thread)
 
     def offer(self, item: Inbound) -> str | None:
         """None when taken, else why not (the caller answers it on the error key: nothing is dropped
@@ -144,6 +145,8 @@ class Inbox(BoundedInbox):
             self._items.append(item)
             self._bytes += size
             self._ready.notify()
+        if self.on_queued is not None:
+            self.on_queued()
         return None
 
     def take(self, timeout: float) -> Inbound | None:

@@ -88,6 +88,12 @@ class NodeSettings(BaseModel):
         "not published, never twice in a row, so that inference maps the newer map without mapping the "
         "older one beside it",
     )
+    give_up_stale_maps: bool = Field(
+        True,
+        description="inference (one robot): maps being made are given up when a newer map reaches the "
+        "features service (its status) or newer fields arrive, except right after maps given up, so that "
+        "at least every other fields message is mapped: the last map of a walk waits less for stale maps",
+    )
 
 
 class RosSettings(BaseModel):

@@ -13,7 +13,7 @@ import pytest
 from affordcore.example import example_room
 from affordcore.geometry.features import FeatureLayout
 from affordcore.learn.model import choose_models
-from affordcore.mapping.pipeline import RoomMapper, prepare_scene
+from affordcore.mapping.pipeline import RoomMapper, Superseded, prepare_scene
 from affordcore.mapping.workers import ForkedRoomMapper, mapping_workers
 from affordcore.settings import Settings
 
@@ -68,6 +68,45 @@ def test_an_error_comes_back_and_the_next_call_starts_clean(room):
             mapper.maps(dataclasses.replace(scene.fields, steep_facing=other))
         maps = mapper.maps(scene.fields)  # the pipes hold nothing left over from the failures
         assert list(maps) == [m.affordance for m in models[:2]]
+    finally:
+        mapper.close()
+
+
+def test_maps_given_up_for_newer_fields_leave_the_room_as_the_last_maps_did(room):
+    """`cancel` from another thread (here the first map's hand-on) gives up the rest of the call: the models
+    not reached keep no state of it, and the next call maps as a fresh mapper does."""
+    scene, models, settings = room
+    serial = RoomMapper(models, scene.layout, settings).maps(scene.fields)
+    mapper = RoomMapper(models, scene.layout, settings)
+    heard = []
+
+    def first_then_cancel(affordance, _):
+        heard.append(affordance)
+        mapper.cancel()
+
+    with pytest.raises(Superseded):
+        mapper.maps(scene.fields, on_map=first_then_cancel)
+    assert heard == [models[0].affordance] and list(mapper.states) == heard
+    mapper.cancel()  # between calls: gives up nothing to come
+    maps = mapper.maps(scene.fields)
+    for affordance in serial:
+        assert_same_map(maps[affordance], serial[affordance])
+
+
+def test_workers_give_up_a_call_through_the_shared_flag(room):
+    scene, models, settings = room
+    serial = RoomMapper(models, scene.layout, settings).maps(scene.fields)
+    mapper = ForkedRoomMapper(models, scene.layout, settings, workers=2)
+    try:
+        mapper.cancelled_through.value = mapper.call + 1  # the call to come, as `cancel` would mark it
+        heard = []
+        with pytest.raises(Superseded):
+            mapper.maps(scene.fields, on_map=lambda affordance, _: heard.append(affordance))
+        assert heard == []  # every worker gave up at its first checkpoint
+        maps = mapper.maps(scene.fields)  # the next call is not given up, and maps from clean states
+        for affordance in serial:
+            assert_same_map(maps[affordance], serial[affordance])
+        assert mapper.describe(list(maps)).startswith("scored in full")
     finally:
         mapper.close()
 

@@ -157,17 +157,36 @@ def map_affordances(
     return RoomMapper(models, layout, settings).maps(fields, on_map)
 
 
+class Superseded(Exception):
+    """The maps in hand were given up for newer fields (`RoomMapper.cancel`); the maps already handed on stay
+    valid maps of the older fields, and the room's state is that of the last map finished."""
+
+
 class RoomMapper:
     """Maps one room again and again as it changes (a robot's map growing): each time, only the poses within
     reach of a field that changed since the last maps are scored afresh (affordcore.mapping.updates), and the
-    maps
-    equal those of a mapping from scratch. `reports` says, per affordance, how much the last call rescored."""
+    maps equal those of a mapping from scratch. `reports` says, per affordance, how much the last call
+    rescored. `cancel` (from another thread) gives up the call in hand at its next checkpoint: before each
+    model, and between a model's first stage and its second."""
 
     def __init__(self, models: list, layout: FeatureLayout, settings: Settings | None = None):
         self.models, self.layout, self.settings = models, layout, settings or Settings()
         self.states: dict = {}  # {affordance: updates.ModelState}
         self.scanned: dict = {}  # {affordance: (nx, ny) bool, the pose grid's cells the sensor saw}
         self.reports: dict = {}  # {affordance: updates.UpdateReport}
+        self.call = 0  # calls of `maps` so far: the one in hand, while one runs
+        self.cancelled_through = -1  # `cancel` gave up every call up to this one
+        # whether the call in hand was given up: a forked worker asks its parent's shared flag instead
+        self.superseded: Callable[[], bool] = lambda: self.cancelled_through >= self.call
+
+    def cancel(self) -> None:
+        """Give up the call of `maps` in hand, if any (it raises `Superseded`); the next call is not
+        affected."""
+        self.cancelled_through = self.call
+
+    def _checkpoint(self) -> None:
+        if self.superseded():
+            raise Superseded("the maps in hand were given up for newer fields")
 
     def describe(self, affordances) -> str:
         """What the last maps of these affordances rescored, for a status line."""
@@ -193,9 +212,11 @@ class RoomMapper:
                 f"fields with steep normals facing '{fields.steep_facing}' for a layout of "
                 f"'{self.layout.steep_facing}' (compute them with the layout's NormalSettings.steep_facing)"
             )
+        self.call += 1
         maps = {}
         for model in self.models if models is None else models:
             model.check_layout(self.layout, f"model {model.id}")
+            self._checkpoint()
             grid, scores = self.scores(model, fields)
             maps[model.affordance] = build_map(
                 model.affordance,
@@ -238,6 +259,7 @@ class RoomMapper:
             previous, fields, grid, skeleton, self.layout, model.weights, model.bias
         )
         known = None if report.reason else known_second_stage(previous, grid, stale)
+        self._checkpoint()  # nothing is kept yet: the state below is set only once both stages are done
         scores = model_scores(model, fields, grid, self.layout, allowed, linear, known)
         self.states[model.affordance] = ModelState(fields, grid, linear, scores)
         self.scanned[model.affordance] = scanned

@@ -45,6 +45,9 @@ class ForkedRoomMapper:
         preload()  # once here, not once per worker at its first map
         context = multiprocessing.get_context("fork")
         self.models, self.reports = list(models), {}
+        # `cancel` writes the call to give up here; the workers read it at their checkpoints (shared memory,
+        # no lock: one writer, and a stale read only gives up a checkpoint later)
+        self.call, self.cancelled_through = 0, context.RawValue("q", -1)
         workers = max(1, min(workers, len(self.models)))
         self.shares = [self.models[k::workers] for k in range(workers)]
         self.connections, self.processes = [], []
@@ -54,7 +57,9 @@ class ForkedRoomMapper:
             # killed outright would leave the workers waiting for input that never ends, running for ever
             elders = [*self.connections, ours]
             process = context.Process(
-                target=_worker, args=(theirs, share, layout, settings or Settings(), elders), daemon=True
+                target=_worker,
+                args=(theirs, share, layout, settings or Settings(), elders, self.cancelled_through),
+                daemon=True,
             )
             process.start()
             theirs.close()
@@ -64,6 +69,10 @@ class ForkedRoomMapper:
     def describe(self, affordances) -> str:
         return RoomMapper.describe(self, affordances)  # it reads only `reports`, which the workers fill
 
+    def cancel(self) -> None:
+        """`RoomMapper.cancel`: every worker gives up the call in hand at its next checkpoint."""
+        self.cancelled_through.value = self.call
+
     def maps(
         self,
         fields: SceneFields,
@@ -72,15 +81,17 @@ class ForkedRoomMapper:
     ) -> dict:
         """{affordance: AffordanceMap} of every model (or of `models`, some of them) on the fields now, in the
         models' order; `on_map(affordance, map)` hears of each as it comes back. An error in a worker (or in
-        `on_map`) is raised once every worker has answered, so the next call starts clean."""
+        `on_map`) is raised once every worker has answered, so the next call starts clean; so is `Superseded`
+        when `cancel` gave the call up."""
         from multiprocessing.connection import wait
 
         wanted = [m.affordance for m in (self.models if models is None else models)]
+        self.call += 1
         busy = []
         for connection, share in zip(self.connections, self.shares):
             asked = [m.affordance for m in share if m.affordance in wanted]
             if asked:
-                connection.send((fields, asked))
+                connection.send((fields, asked, self.call))
                 busy.append(connection)
         maps, error = {}, None
         while busy:
@@ -115,17 +126,22 @@ class ForkedRoomMapper:
                 process.join()
 
 
-def _worker(connection, models: list, layout: FeatureLayout, settings: Settings, elders: list) -> None:
-    """A `ForkedRoomMapper` worker: (fields, affordances asked) in, ("map", affordance, map, report) out for
-    each, then ("done",); ("error", exception) instead when one fails. `elders`: the parent's ends of this
-    worker's pipe and of those forked before it, closed here so that only the parent holds them."""
+def _worker(
+    connection, models: list, layout: FeatureLayout, settings: Settings, elders: list, cancelled_through
+) -> None:
+    """A `ForkedRoomMapper` worker: (fields, affordances asked, call) in, ("map", affordance, map, report) out
+    for each, then ("done",); ("error", exception) instead when one fails, ("error", Superseded) when the
+    parent gave the call up (`cancelled_through`, shared). `elders`: the parent's ends of this worker's pipe
+    and of those forked before it, closed here so that only the parent holds them."""
     for elder in elders:
         elder.close()
     mapper = RoomMapper(models, layout, settings)
     by_name = {model.affordance: model for model in models}
+    call = 0
+    mapper.superseded = lambda: cancelled_through.value >= call
     while True:
         try:
-            fields, asked = connection.recv()
+            fields, asked, call = connection.recv()
         except EOFError:
             return
         try:
