@@ -361,6 +361,43 @@ def test_inference_updates_the_maps_of_a_changed_room_as_a_mapping_from_scratch_
         running.stop()
 
 
+def test_inference_gives_up_maps_a_newer_map_at_the_features_service_supersedes_but_never_twice(
+    router, client, tmp_path
+):
+    """The features service's status says a newer map reached it: fields of an older map are not mapped
+    (they would be stale before done), except right after maps given up; fields of that newer map are."""
+    from affordcore.geometry.fields import compute_fields
+    from services.inference import InferenceService
+
+    maps = _listen(client, KEYS.affordance("sitting-relaxing"))
+    running = Running(InferenceService, "inference", router, tmp_path / "inference.rrd")
+    try:
+        room = _box_room_scan(np.random.default_rng(4))
+        fields = compute_fields(room)
+        newer = messages.Status(service="features", state=messages.Status.BUSY)
+        newer.newest_input.FromNanoseconds(1_700_000_100 * 10**9)
+        publisher = _publisher(client, KEYS.status("features"), messages.Status, wait=10)
+        publisher.put(newer.SerializeToString())  # as the features service says it, on its status key
+        publisher.undeclare()
+        assert eventually(lambda: running.service.features_newest == 1_700_000_100 * 10**9, timeout=10)
+
+        def send(at: float) -> None:
+            cloud = messages.cloud_message(room, np.eye(4), "file", at=at)
+            message = messages.fields_message(fields, cloud)
+            _send(client, KEYS.fields, message.SerializeToString(), messages.SceneFieldsMessage)
+
+        send(1_700_000_090.5)  # older than what the features service has: given up before it begins
+        assert eventually(lambda: running.service.given_up == 1, timeout=30)
+        send(1_700_000_091.5)  # older too, but right after maps given up: mapped
+        assert messages.seconds(_next(maps, messages.AffordanceMapMessage).cloud_timestamp) == 1_700_000_091.5
+        send(1_700_000_100.0)  # the newer map itself
+        assert messages.seconds(_next(maps, messages.AffordanceMapMessage).cloud_timestamp) == 1_700_000_100.0
+        assert maps.empty()
+        assert running.service.given_up == 1
+    finally:
+        running.stop()
+
+
 def test_a_service_process_runs_on_one_blas_thread_unless_told_otherwise(monkeypatch):
     from threadpoolctl import threadpool_info
 
