@@ -127,9 +127,11 @@ class InferenceService:
 
     def _features_status(self, sample) -> None:
         """The features service's status: a map newer than the one being mapped has reached it (its newest
-        input), so these maps will be stale before they are done. A status that does not parse is ignored."""
+        input), so these maps will be stale before they are done. A status that does not parse, or whose time
+        is out of bounds (as `Node` checks every input's), is ignored."""
         try:
             status = messages.parse(messages.Status, sample.payload.to_bytes())
+            messages.checked_seconds(status.newest_input, self.node.settings.limits, "newest_input")
         except messages.MessageError:
             return
         self.features_newest = max(self.features_newest, messages.nanoseconds(status.newest_input))

@@ -374,9 +374,13 @@ def test_inference_gives_up_maps_a_newer_map_at_the_features_service_supersedes_
     try:
         room = _box_room_scan(np.random.default_rng(4))
         fields = compute_fields(room)
+        forged = messages.Status(service="features", state=messages.Status.BUSY)
+        forged.newest_input.seconds = 10**12  # beyond AFFORD_LIMITS__LATEST_TIMESTAMP: no newer map at all
         newer = messages.Status(service="features", state=messages.Status.BUSY)
         newer.newest_input.FromNanoseconds(1_700_000_100 * 10**9)
         publisher = _publisher(client, KEYS.status("features"), messages.Status, wait=10)
+        publisher.put(forged.SerializeToString())
+        publisher.put(b"\xff not a status")
         publisher.put(newer.SerializeToString())  # as the features service says it, on its status key
         publisher.undeclare()
         assert eventually(lambda: running.service.features_newest == 1_700_000_100 * 10**9, timeout=10)

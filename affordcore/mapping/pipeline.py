@@ -158,7 +158,7 @@ def map_affordances(
 
 
 class Superseded(Exception):
-    """The maps in hand were given up for newer fields (`RoomMapper.cancel`); the maps already handed on stay
+    """The maps in hand were given up for a newer map (`RoomMapper.cancel`); the maps already handed on stay
     valid maps of the older fields, and the room's state is that of the last map finished."""
 
 
@@ -186,7 +186,7 @@ class RoomMapper:
 
     def _checkpoint(self) -> None:
         if self.superseded():
-            raise Superseded("the maps in hand were given up for newer fields")
+            raise Superseded("the maps in hand were given up for a newer map")
 
     def describe(self, affordances) -> str:
         """What the last maps of these affordances rescored, for a status line."""
