@@ -193,6 +193,12 @@ def publish(
         help="a folder with gravity-direction.txt and poses: send the gravity direction an IMU "
         "would read with each frame; a recording: the gravity of its Imu topic",
     ),
+    odometry: bool = typer.Option(
+        True,
+        "--odometry/--no-odometry",
+        help="a folder whose frames have <stem>.odometry.txt: send it as each frame's pose guess (the "
+        "robot's own odometry)",
+    ),
     topic: str = typer.Option("", "--topic", help="a recording's PointCloud2 topic (default: its only one)"),
     imu_topic: str = typer.Option(
         "", "--imu-topic", help="a recording's Imu topic giving each scan its gravity (default: its only one)"
@@ -239,15 +245,16 @@ def publish(
                     f"(afford watch --frames {sent} waits for the maps that cover all of them)"
                 )
             elif source.is_dir():
-                sequence, messages, count = folder_frames(source, first, frames, step, imu)
+                sequence, messages, count = folder_frames(source, first, frames, step, imu, odometry)
                 sensor = sensor or ("camera" if sequence.kind == "depth" else "lidar")
                 with connected(connect, *session_of) as session, progress(quiet) as bar:
                     task = bar.add_task(f"{sequence.kind} frames to {keys.scan(sensor)}", total=count)
                     sent = publish_sequence(
                         session, keys, messages, sensor, rate, wait, on_frame=lambda _: bar.advance(task)
                     )
+                guessed = " with the robot's odometry" if odometry and sequence.has_odometry() else ""
                 typer.echo(
-                    f"published {sent} {sequence.kind} frames of {source} "
+                    f"published {sent} {sequence.kind} frames of {source}{guessed} "
                     f"(afford watch --frames {sent} waits for the maps that cover all of them)"
                 )
             elif as_map:

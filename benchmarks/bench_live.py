@@ -168,7 +168,10 @@ def where(source: Source, indices: list[int], settings: Settings, models: list) 
     assembler = Assembler(a)
     for index, image in zip(indices, images):
         stamp = 1.0 + index / 30
-        assembler.add(SensorFrame("camera", stamp, depth=image, gravity=sequence.gravity(index)), stamp)
+        frame = SensorFrame(
+            "camera", stamp, depth=image, gravity=sequence.gravity(index), pose_guess=sequence.odometry(index)
+        )
+        assembler.add(frame, stamp)  # as the service takes it: with the robot's odometry when recorded
     truth = [source.room_from_truth @ sequence.pose(i) for i in indices]
     estimated = [truth[0] @ pose for pose in assembler.trajectory.poses]
 

@@ -115,10 +115,10 @@ def publish_sequence(
     return sent
 
 
-def sequence_messages(sequence, indices, with_gravity: bool = True):
+def sequence_messages(sequence, indices, with_gravity: bool = True, with_odometry: bool = True):
     """(index, DepthFrame or Scan) for each frame of an affordcore.assembly.sequence.Sequence, with the
-    gravity
-    direction an IMU would report when the folder has gravity-direction.txt and poses."""
+    gravity direction an IMU would report when the folder has gravity-direction.txt and poses, and the
+    robot's odometry as the pose guess when the frame has one (``<stem>.odometry.txt``)."""
     from affordcore.assembly.sequence import DEPTH_SCALE, INVALID_DEPTH
 
     for index in indices:
@@ -136,6 +136,9 @@ def sequence_messages(sequence, indices, with_gravity: bool = True):
         gravity = sequence.gravity(index) if with_gravity else None
         if gravity is not None:
             messages.set_vector(message.gravity, gravity)
+        guess = sequence.odometry(index) if with_odometry else None
+        if guess is not None:
+            messages.set_pose(message.pose_guess, guess, "odom", message.frame_id)
         yield index, message
 
 
@@ -339,7 +342,7 @@ def scan_message(path: Path, sensor: str) -> messages.Scan:
     return scan
 
 
-def folder_frames(folder: Path, first: int, frames: int, step: int, imu: bool):
+def folder_frames(folder: Path, first: int, frames: int, step: int, imu: bool, odometry: bool = True):
     """(sequence, its frames to publish as (index, message) pairs, how many) of a recorded folder."""
     from affordcore.assembly.sequence import read_sequence
 
@@ -347,7 +350,7 @@ def folder_frames(folder: Path, first: int, frames: int, step: int, imu: bool):
     indices = list(range(first, len(sequence.frames), step))[: frames or None]
     if not indices:
         raise ValueError(f"{folder}: no frames from {first} (it has {len(sequence.frames)})")
-    return sequence, sequence_messages(sequence, indices, imu), len(indices)
+    return sequence, sequence_messages(sequence, indices, imu, odometry), len(indices)
 
 
 def watch_maps(

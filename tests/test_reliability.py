@@ -5,7 +5,10 @@ as processes: tests/test_hostile.py."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -83,6 +86,8 @@ def test_a_refused_frame_leaves_the_assembler_as_it_was(room):
         "must be finite": lambda: assembler.register(np.full((500, 3), np.nan), last + 0.1),
         "outside 0": lambda: assembler.register(next_frame, 9.3e9),
         "not a direction": lambda: assembler.register(next_frame, last + 0.1, gravity=np.zeros(3)),
+        "not a rigid transform": lambda: assembler.register(next_frame, last + 0.1, np.diag([1, 1, -1, 1.0])),
+        "not a finite 4 x 4": lambda: assembler.register(next_frame, last + 0.1, np.eye(3)),
     }
     for reason, refuse in refusals.items():
         with pytest.raises(ValueError, match=reason):
@@ -93,6 +98,30 @@ def test_a_refused_frame_leaves_the_assembler_as_it_was(room):
     # and it goes on registering where it was, its guesses measured from the last accepted one
     assembler.register(next_frame, last + 0.1, pose_guess=np.eye(4))
     assert assembler.frames == before[0] + 1
+
+
+def test_a_pose_guess_rigid_only_to_rounding_is_registered_not_a_crash():
+    """A guess read from text (9 decimals) is orthogonal to about 1e-9: within the check, but KISS-ICP's
+    Sophus aborts the process beyond 1e-10. Run in a child process: an abort takes the process with it."""
+    script = f"""
+import sys; sys.path.insert(0, {str(Path(__file__).parent)!r})
+import numpy as np
+from test_reliability import _moved, _room_points, _walk
+from affordcore.assembly.assembler import Assembler
+room = _room_points(np.random.default_rng(0))
+assembler = Assembler()
+_walk(assembler, room, range(3))
+guess = np.eye(4)
+for k in (3, 4, 5):
+    guess = guess.copy()
+    guess[0, 3] = 0.04 * k
+    guess[:3, :3] += 3e-9 * np.array([[0, 1, -1], [1, 0, 1], [-1, 1, 0]])  # rigid to the 9th decimal
+    assembler.register(_moved(room, 0.04 * k, 1.0 * k), 100.0 + 0.1 * k, pose_guess=guess)
+print(assembler.frames)
+"""
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.split()[-1] == "6"
 
 
 def test_a_pose_far_beyond_the_largest_extent_is_refused(room):

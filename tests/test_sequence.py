@@ -79,6 +79,31 @@ def test_a_sequence_frame_becomes_a_depth_frame_message(tmp_path):
     np.testing.assert_allclose(np.sort(points[:, 2]), np.sort(images[0][valid] * 0.001))
 
 
+def test_odometry_beside_a_frame_is_its_pose_guess_on_the_wire(tmp_path):
+    from services.clients import sequence_messages
+
+    _depth_folder(tmp_path / "seq", indices=(0, 1, 2))
+    guess = _pose(5)  # any frame of the robot's own: only its motion is used
+    np.savetxt(tmp_path / "seq" / "frame-000001.odometry.txt", guess)
+    sequence = read_sequence(tmp_path / "seq")
+    assert sequence.odometry(0) is None and not sequence.has_odometry()
+    np.testing.assert_allclose(sequence.odometry(1), guess, atol=1e-12)
+    sent = dict(sequence_messages(sequence, [0, 1]))
+    assert not sent[0].HasField("pose_guess")
+    np.testing.assert_allclose(messages.pose_matrix(sent[1].pose_guess), guess, atol=1e-9)
+    assert sent[1].pose_guess.child_frame_id == sent[1].frame_id == "camera"
+    without = dict(sequence_messages(sequence, [1], with_odometry=False))
+    assert not without[1].HasField("pose_guess")
+
+
+@pytest.mark.parametrize("text", ["1 2 3\n4 5 6\n", "nan " * 16, "not a number"])
+def test_odometry_that_is_no_pose_is_refused_with_the_file_named(tmp_path, text):
+    _depth_folder(tmp_path / "seq", indices=(0,))
+    (tmp_path / "seq" / "frame-000000.odometry.txt").write_text(text)
+    with pytest.raises(SequenceError, match=r"frame-000000\.odometry\.txt"):
+        read_sequence(tmp_path / "seq").odometry(0)
+
+
 def test_frames_without_poses_have_none(tmp_path):
     _depth_folder(tmp_path / "seq", poses=False)
     sequence = read_sequence(tmp_path / "seq")

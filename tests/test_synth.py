@@ -444,6 +444,32 @@ def test_depth_sequence_frames_back_project_onto_the_room(tmp_path):
         assert np.quantile(distance, 0.9) < 0.05
 
 
+def test_a_sequence_carries_the_robot_s_odometry_drifting_from_the_true_poses(tmp_path):
+    """Each frame's odometry moves as the true pose moves, within the wheel odometry's error per step, and
+    wanders off the true path as the errors add up."""
+    from affordcore.assembly.sequence import read_sequence
+    from affordcore.synth.styles import ODOMETRY_ERROR
+
+    result = _synth(tmp_path, 9, "--sequences", "--frames", "40")
+    assert result.returncode == 0, result.stderr
+    sequence = read_sequence(tmp_path / "office-000.sequence")
+    assert sequence.has_odometry()
+    truth = [sequence.pose(k) for k in range(len(sequence.frames))]
+    guess = [sequence.odometry(k) for k in range(len(sequence.frames))]
+    np.testing.assert_allclose(guess[0], truth[0], atol=1e-9)
+    share, degrees = ODOMETRY_ERROR
+    for k in range(1, len(truth)):
+        true_motion = np.linalg.inv(truth[k - 1]) @ truth[k]
+        odometry_motion = np.linalg.inv(guess[k - 1]) @ guess[k]
+        step = np.linalg.norm(true_motion[:3, 3])
+        # perturbed() draws each axis's error with this scale: 5 sigma over three axes
+        assert (
+            np.linalg.norm(odometry_motion[:3, 3] - true_motion[:3, 3]) < 5 * np.sqrt(3) * share * step + 1e-9
+        )
+    drift = np.linalg.norm(guess[-1][:3, 3] - truth[-1][:3, 3])
+    assert 0 < drift < 0.5 * sum(np.linalg.norm(t[:3, 3] - s[:3, 3]) for s, t in zip(truth, truth[1:]))
+
+
 def test_depth_scanned_rooms_are_the_same_bytes_with_any_worker_count(tmp_path):
     from affordcore.synth.batch import synthesize
     from affordcore.synth.dataset import SynthOptions

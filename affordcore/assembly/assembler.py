@@ -171,7 +171,7 @@ class Assembler:
         odometry = self.odometry
         delta = self._predicted_motion(stamp)
         if pose_guess is not None and self._last_guess is not None:
-            delta = np.linalg.inv(self._last_guess) @ pose_guess
+            delta = nearest_rigid(np.linalg.inv(self._last_guess) @ pose_guess)
         # KISS-ICP's preprocessing with deskew off, without copying the frame into C++ and back: its range
         # filter (the same strict bounds on the same norms; tests/test_assembly.py checks the poses match)
         settings = self.settings
@@ -249,9 +249,13 @@ class Assembler:
         if gravity is not None and not (np.isfinite(gravity).all() and np.linalg.norm(gravity) > 1e-6):
             raise ValueError(f"gravity {np.asarray(gravity).tolist()} is not a direction")
         if guess is not None:
+            guess = np.asarray(guess)
+            if guess.shape != (4, 4) or not np.isfinite(guess).all():
+                raise ValueError(f"the pose guess is not a finite 4 x 4 transform (shape {guess.shape})")
             rotation = guess[:3, :3]
-            if not np.isfinite(guess).all() or not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-3):
-                raise ValueError("the pose guess is not a finite rigid transform")
+            rigid = np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-3) and np.linalg.det(rotation) > 0
+            if not rigid or not np.allclose(guess[3], (0, 0, 0, 1), atol=1e-6):
+                raise ValueError("the pose guess is not a rigid transform")
             if self._last_guess is not None:
                 self._check_motion(self._last_guess, guess, stamp, "the pose guess", self._last_guess_stamp)
 
@@ -439,6 +443,17 @@ def scaled_motion(delta: np.ndarray, ratio: float) -> np.ndarray:
     scaled[:3, :3] = Rotation.from_rotvec(Rotation.from_matrix(delta[:3, :3]).as_rotvec() * ratio).as_matrix()
     scaled[:3, 3] = delta[:3, 3] * ratio
     return scaled
+
+
+def nearest_rigid(matrix: np.ndarray) -> np.ndarray:
+    """The rigid transform nearest a 4 x 4 that is one up to rounding (a pose read from text, or composed of
+    such): KISS-ICP's Sophus aborts the whole process on a rotation that is off orthogonal by 1e-10."""
+    from scipy.spatial.transform import Rotation
+
+    rigid = np.eye(4)
+    rigid[:3, :3] = Rotation.from_matrix(matrix[:3, :3]).as_matrix()
+    rigid[:3, 3] = matrix[:3, 3]
+    return rigid
 
 
 def rotation_angle_deg(rotation: np.ndarray) -> float:

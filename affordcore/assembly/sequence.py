@@ -7,6 +7,10 @@ and optionally ``frame-NNNNNN.pose.txt`` (4 x 4 camera-to-world ground truth) an
 (float32 x, y, z in the sensor frame) with optional ``scan-NNNNNN.pose.txt``. Cloud files: any ``*.ply`` or
 ``*.pcd`` files, one scan each in the sensor frame, in natural name order (``scan2`` before ``scan10``), as
 kiss-icp's generic dataset reads a folder; an optional ``<stem>.pose.txt`` beside each.
+
+Any frame may also have ``<stem>.odometry.txt``: the robot's own estimate of the sensor's pose (4 x 4
+sensor-to-odometry-frame, as wheel odometry gives it: drifting, in a frame of its own), which `afford
+publish` sends as the frame's pose guess. Only its motion from frame to frame is used.
 """
 
 from __future__ import annotations
@@ -38,6 +42,26 @@ class Sequence:
         stem = self.frames[index].name.split(".")[0]
         path = self.folder / f"{stem}.pose.txt"
         return np.loadtxt(path).reshape(4, 4) if path.exists() else None
+
+    def has_odometry(self) -> bool:
+        """Whether the first frame has the robot's odometry (a recording has it for every frame or none)."""
+        return (
+            bool(self.frames) and (self.folder / f"{self.frames[0].name.split('.')[0]}.odometry.txt").exists()
+        )
+
+    def odometry(self, index: int) -> np.ndarray | None:
+        """The robot's odometry pose of the sensor at a frame (sensor to odometry frame), if recorded."""
+        stem = self.frames[index].name.split(".")[0]
+        path = self.folder / f"{stem}.odometry.txt"
+        if not path.exists():
+            return None
+        try:
+            pose = np.loadtxt(path)
+        except ValueError as error:
+            raise SequenceError(f"{path}: not a 4 x 4 matrix of numbers ({error})") from None
+        if pose.size != 16 or not np.isfinite(pose).all():
+            raise SequenceError(f"{path}: expected a finite 4 x 4 rigid transform")
+        return pose.reshape(4, 4)
 
     def gravity(self, index: int) -> np.ndarray | None:
         """Gravity's direction in the sensor frame at a frame, what an accelerometer at rest would give: the

@@ -117,15 +117,18 @@ def make_room(options: SynthOptions, out: Path, index: int, seed: np.random.Seed
 
 
 def write_sequence(room, rng: np.random.Generator, folder: Path, sensor: str, frames: int) -> None:
-    """Frames along a hand-held path with ground-truth poses.
+    """Frames along a walk with ground-truth poses and the robot's odometry.
 
     depth: ``frame-NNNNNN.depth.png`` (16-bit millimetres, 0 = no return), ``frame-NNNNNN.pose.txt``
     (camera-to-world 4 x 4), ``camera-intrinsics.txt`` and ``gravity-direction.txt``: the 7-Scenes layout.
     lidar: ``scan-NNNNNN.bin`` (float32 x y z in the sensor frame) and ``scan-NNNNNN.pose.txt``.
+    Both: ``<stem>.odometry.txt``, the sensor's pose by wheel odometry (`styles.odometry`: drifting with the
+    distance gone, as the walk style's robot has it).
     """
     from PIL import Image
 
     from .scanner import DepthCamera, Raycaster, depth_frame, lidar_scan, trajectory
+    from .styles import odometry
 
     folder.mkdir(parents=True, exist_ok=True)
     raycaster = Raycaster(room.shell_boxes() + room.furniture_boxes())
@@ -134,16 +137,23 @@ def write_sequence(room, rng: np.random.Generator, folder: Path, sensor: str, fr
     np.savetxt(folder / "gravity-direction.txt", [0.0, 0.0, -1.0], fmt="%.6f")
     # ROS axes from camera axes
     to_lidar = np.array([[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]], float)
+    sensor_poses, stems = [], []
     for k, pose in enumerate(trajectory(room, rng, frames)):
         if sensor == "depth":
             depth, _ = depth_frame(raycaster, camera, pose, rng)
             millimetres = np.clip(np.round(depth * 1000), 0, 65534).astype(np.uint16)
             Image.fromarray(millimetres).save(folder / f"frame-{k:06d}.depth.png")
-            np.savetxt(folder / f"frame-{k:06d}.pose.txt", pose, fmt="%.9f")
+            stem = f"frame-{k:06d}"
         else:
-            sensor_pose = pose @ np.linalg.inv(to_lidar)
-            lidar_scan(raycaster, sensor_pose, rng).astype("<f4").tofile(folder / f"scan-{k:06d}.bin")
-            np.savetxt(folder / f"scan-{k:06d}.pose.txt", sensor_pose, fmt="%.9f")
+            pose = pose @ np.linalg.inv(to_lidar)
+            lidar_scan(raycaster, pose, rng).astype("<f4").tofile(folder / f"scan-{k:06d}.bin")
+            stem = f"scan-{k:06d}"
+        np.savetxt(folder / f"{stem}.pose.txt", pose, fmt="%.9f")
+        sensor_poses.append(pose)
+        stems.append(stem)
+    # drawn after the frames, so the frames are what they were before odometry was written
+    for stem, guess in zip(stems, odometry(sensor_poses, rng)):
+        np.savetxt(folder / f"{stem}.odometry.txt", guess, fmt="%.9f")
 
 
 def _summary(options: SynthOptions, reports: list[dict]) -> dict:
