@@ -189,6 +189,19 @@ class AssemblerSettings(BaseModel):
         "(docs/services.md has the measurements behind it)",
     )
     max_points_per_voxel: int = Field(20, ge=1, description="points KISS-ICP's local map keeps per voxel")
+    initial_threshold: float = Field(
+        0.1,
+        gt=0,
+        description="KISS-ICP's correspondence scale (m) until it has learned one from its own prediction "
+        "errors (KISS-ICP's 2 m is a car's at 10 Hz; a walking sensor moves centimetres a frame)",
+    )
+    min_motion: float = Field(
+        0.005,
+        gt=0,
+        description="prediction errors (m, at max_range) smaller than this teach KISS-ICP's adaptive "
+        "threshold nothing (KISS-ICP's 0.1 m is a car's: a walking sensor's errors never reach it, and "
+        "the threshold stayed at its start, matching points up to 6 m apart)",
+    )
     registration_voxels: float = Field(
         1.5,
         gt=0,

@@ -293,6 +293,28 @@ def test_every_map_the_assembler_levels_passes_the_features_check(generated_sequ
     assert levelled >= 10  # most maps of the second half of the walk are levelled and checked
 
 
+def _threshold_after_walk(folder, settings: AssemblerSettings) -> float:
+    """KISS-ICP's adaptive threshold after every third frame of a sequence."""
+    from affordcore.assembly.sequence import read_sequence
+
+    sequence, assembler = read_sequence(folder), Assembler(settings)
+    for index in range(0, len(sequence.frames), 3):
+        depth = DepthImage(sequence.depth(index), sequence.intrinsics)
+        assembler.add(
+            SensorFrame("camera", index / 30, depth=depth, gravity=sequence.gravity(index)), index / 30
+        )
+    return assembler.odometry.adaptive_threshold.get_threshold()
+
+
+def test_the_adaptive_threshold_learns_at_walking_speed(generated_sequence):
+    """KISS-ICP's own thresholds are a car's: prediction errors below 0.1 m teach its adaptive threshold
+    nothing, so a walking camera's (centimetres) barely did, and it matched points metres apart all walk long
+    (the drift this costs: docs/services.md, benchmarks/bench_live.py)."""
+    walking = _threshold_after_walk(generated_sequence, AssemblerSettings())
+    car = _threshold_after_walk(generated_sequence, AssemblerSettings(initial_threshold=2.0, min_motion=0.1))
+    assert walking < 0.1 < 1.0 < car
+
+
 def test_a_static_sensor_adds_no_keyframes(room_frames):
     frames, _ = room_frames
     rng = np.random.default_rng(1)

@@ -421,6 +421,8 @@ def kiss_config(settings: AssemblerSettings):
     config.data.deskew = False  # a depth image is one instant, and scans come without per-point times
     config.mapping.voxel_size = settings.voxel_size
     config.mapping.max_points_per_voxel = settings.max_points_per_voxel
+    config.adaptive_threshold.initial_threshold = settings.initial_threshold
+    config.adaptive_threshold.min_motion_th = settings.min_motion
     config.registration.convergence_criterion = settings.convergence
     config.registration.max_num_threads = 0  # all cores
     return config
