@@ -1,0 +1,94 @@
+"""How far the assembler's trajectory strays from the truth, with and without the robot's odometry.
+
+For the real 7-Scenes kitchen (no odometry: hand-held) and generated rooms of `afford synth --sequences`
+(whose frames carry wheel odometry that drifts with the distance gone), every --step-th frame goes through
+the assembler in this process, every frame taken, and the trajectory is compared with the true poses (mean
+and worst position error, anchored at the first frame; final rotation error): the odometry alone, the
+assembler started from the odometry's motion (as `afford publish` sends it), and the assembler without it
+(KISS-ICP's constant-velocity guess). `--against KEY=VALUE,...` runs the assembler a second time with those
+AFFORD_ASSEMBLER__ settings, side by side.
+
+    .venv/bin/python benchmarks/bench_odometry.py                # kitchen + 3 generated rooms, ~3 min
+    .venv/bin/python benchmarks/bench_odometry.py --against INITIAL_THRESHOLD=2.0,MIN_MOTION=0.1
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_live import add_source_arguments, sources  # noqa: E402
+
+from affordcore.assembly.assembler import Assembler, SensorFrame, trajectory_errors  # noqa: E402
+from affordcore.assembly.depth import DepthImage  # noqa: E402
+from affordcore.assembly.sequence import read_sequence  # noqa: E402
+from affordcore.settings import AssemblerSettings  # noqa: E402
+
+
+def assembled(sequence, indices: list[int], settings: AssemblerSettings, odometry: bool) -> list[np.ndarray]:
+    """The assembler's poses (odom_from_sensor) of the frames, every one taken."""
+    assembler = Assembler(settings)
+    for index in indices:
+        stamp = 1.0 + index / 30
+        guess = sequence.odometry(index) if odometry else None
+        depth = DepthImage(sequence.depth(index), sequence.intrinsics, 0.001, 65535)
+        frame = SensorFrame("camera", stamp, depth=depth, gravity=sequence.gravity(index), pose_guess=guess)
+        assembler.add(frame, stamp)
+    return list(assembler.trajectory.poses)
+
+
+def row(name: str, how: str, poses: list[np.ndarray], truth: list[np.ndarray]) -> str:
+    errors = trajectory_errors(poses, truth)
+    return (
+        f"| {name} | {how} | {100 * errors['mean_m']:.1f} / {100 * errors['worst_m']:.1f} "
+        f"| {errors['final_rotation_deg']:.1f} | {errors['path_m']:.2f} |"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    add_source_arguments(parser)
+    parser.add_argument("--against", default="", help="AFFORD_ASSEMBLER__ settings: KEY=VALUE,...")
+    args = parser.parse_args()
+    against = {
+        k.lower().removeprefix("afford_assembler__"): float(v)
+        for k, v in (p.split("=", 1) for p in args.against.split(",") if p)
+    }
+    variants = [("defaults", AssemblerSettings())]
+    if against:
+        variants.append((args.against, AssemblerSettings(**against)))
+    print(f"Every {args.step}th frame, every frame taken, {os.cpu_count()} cores\n")
+    print("| source | trajectory | position error mean / worst (cm) | final rotation (deg) | path (m) |")
+    print("|---|---|---:|---:|---:|")
+    with tempfile.TemporaryDirectory() as tmp:
+        for source in sources(args, Path(tmp) / "generated"):
+            sequence = read_sequence(source.sequence)
+            indices = list(range(0, len(sequence.frames), args.step))
+            truth = [sequence.pose(i) for i in indices]
+            if sequence.has_odometry():
+                first = np.linalg.inv(sequence.odometry(indices[0]))
+                alone = [first @ sequence.odometry(i) for i in indices]
+                print(row(source.name, "odometry alone", alone, truth), flush=True)
+            for label, settings in variants:
+                runs = [True, False] if sequence.has_odometry() else [False]
+                for odometry in runs:
+                    how = f"assembler ({label}), {'from the odometry' if odometry else 'no odometry'}"
+                    print(
+                        row(source.name, how, assembled(sequence, indices, settings, odometry), truth),
+                        flush=True,
+                    )
+
+
+if __name__ == "__main__":
+    main()
