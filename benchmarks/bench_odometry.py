@@ -5,8 +5,8 @@ For the real 7-Scenes kitchen (no odometry: hand-held) and generated rooms of `a
 the assembler in this process, every frame taken, and the trajectory is compared with the true poses (mean
 and worst position error, anchored at the first frame; final rotation error): the odometry alone, the
 assembler started from the odometry's motion (as `afford publish` sends it), and the assembler without it
-(KISS-ICP's constant-velocity guess). `--against KEY=VALUE,...` runs the assembler a second time with those
-AFFORD_ASSEMBLER__ settings, side by side.
+(KISS-ICP's constant-velocity guess), with its median time a frame. `--against KEY=VALUE,...` runs the
+assembler a second time with those AFFORD_ASSEMBLER__ settings, side by side.
 
     .venv/bin/python benchmarks/bench_odometry.py                # kitchen + 3 generated rooms, ~3 min
     .venv/bin/python benchmarks/bench_odometry.py --against INITIAL_THRESHOLD=2.0,MIN_MOTION=0.1
@@ -18,6 +18,7 @@ import argparse
 import os
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -34,23 +35,28 @@ from affordcore.assembly.sequence import read_sequence  # noqa: E402
 from affordcore.settings import AssemblerSettings  # noqa: E402
 
 
-def assembled(sequence, indices: list[int], settings: AssemblerSettings, odometry: bool) -> list[np.ndarray]:
-    """The assembler's poses (odom_from_sensor) of the frames, every one taken."""
-    assembler = Assembler(settings)
+def assembled(sequence, indices: list[int], settings: AssemblerSettings, odometry: bool):
+    """The assembler's poses (odom_from_sensor) of the frames, every one taken, and its median ms a frame
+    (back-projection, registration and map, as `Assembler.add` does them; the image read from disk before)."""
+    assembler, seconds = Assembler(settings), []
     for index in indices:
         stamp = 1.0 + index / 30
         guess = sequence.odometry(index) if odometry else None
         depth = DepthImage(sequence.depth(index), sequence.intrinsics, 0.001, 65535)
         frame = SensorFrame("camera", stamp, depth=depth, gravity=sequence.gravity(index), pose_guess=guess)
+        start = time.perf_counter()
         assembler.add(frame, stamp)
-    return list(assembler.trajectory.poses)
+        seconds.append(time.perf_counter() - start)
+    return list(assembler.trajectory.poses), 1000 * float(np.median(seconds))
 
 
-def row(name: str, how: str, poses: list[np.ndarray], truth: list[np.ndarray]) -> str:
-    errors = trajectory_errors(poses, truth)
+def row(
+    name: str, how: str, poses: list[np.ndarray], truth: list[np.ndarray], ms: float | None = None
+) -> str:
+    errors, cost = trajectory_errors(poses, truth), "-" if ms is None else f"{ms:.0f}"
     return (
         f"| {name} | {how} | {100 * errors['mean_m']:.1f} / {100 * errors['worst_m']:.1f} "
-        f"| {errors['final_rotation_deg']:.1f} | {errors['path_m']:.2f} |"
+        f"| {errors['final_rotation_deg']:.1f} | {errors['path_m']:.2f} | {cost} |"
     )
 
 
@@ -69,8 +75,11 @@ def main() -> None:
     if against:
         variants.append((args.against, AssemblerSettings(**against)))
     print(f"Every {args.step}th frame, every frame taken, {os.cpu_count()} cores\n")
-    print("| source | trajectory | position error mean / worst (cm) | final rotation (deg) | path (m) |")
-    print("|---|---|---:|---:|---:|")
+    print(
+        "| source | trajectory | position error mean / worst (cm) | final rotation (deg) | path (m) "
+        "| ms a frame (median) |"
+    )
+    print("|---|---|---:|---:|---:|---:|")
     with tempfile.TemporaryDirectory() as tmp:
         for source in sources(args, Path(tmp) / "generated"):
             sequence = read_sequence(source.sequence)
@@ -84,10 +93,8 @@ def main() -> None:
                 runs = [True, False] if sequence.has_odometry() else [False]
                 for odometry in runs:
                     how = f"assembler ({label}), {'from the odometry' if odometry else 'no odometry'}"
-                    print(
-                        row(source.name, how, assembled(sequence, indices, settings, odometry), truth),
-                        flush=True,
-                    )
+                    poses, ms = assembled(sequence, indices, settings, odometry)
+                    print(row(source.name, how, poses, truth, ms), flush=True)
 
 
 if __name__ == "__main__":
