@@ -37,22 +37,23 @@ class Sequence:
     frames: list[Path]
     intrinsics: np.ndarray | None  # 3 x 3 for depth
 
+    def _beside(self, index: int, suffix: str) -> Path:
+        """The file of this suffix beside a frame (``frame-000007.pose.txt`` beside its depth image)."""
+        return self.folder / f"{self.frames[index].name.split('.')[0]}{suffix}"
+
     def pose(self, index: int) -> np.ndarray | None:
         """The frame's ground-truth pose (sensor to world), if the sequence has one."""
-        stem = self.frames[index].name.split(".")[0]
-        path = self.folder / f"{stem}.pose.txt"
+        path = self._beside(index, ".pose.txt")
         return np.loadtxt(path).reshape(4, 4) if path.exists() else None
 
     def has_odometry(self) -> bool:
         """Whether the first frame has the robot's odometry (a recording has it for every frame or none)."""
-        return (
-            bool(self.frames) and (self.folder / f"{self.frames[0].name.split('.')[0]}.odometry.txt").exists()
-        )
+        return bool(self.frames) and self._beside(0, ".odometry.txt").exists()
 
     def odometry(self, index: int) -> np.ndarray | None:
-        """The robot's odometry pose of the sensor at a frame (sensor to odometry frame), if recorded."""
-        stem = self.frames[index].name.split(".")[0]
-        path = self.folder / f"{stem}.odometry.txt"
+        """The robot's odometry pose of the sensor at a frame (sensor to odometry frame), if recorded; whether
+        it is rigid, the assembler checks as it checks any pose guess."""
+        path = self._beside(index, ".odometry.txt")
         if not path.exists():
             return None
         try:
@@ -60,7 +61,7 @@ class Sequence:
         except ValueError as error:
             raise SequenceError(f"{path}: not a 4 x 4 matrix of numbers ({error})") from None
         if pose.size != 16 or not np.isfinite(pose).all():
-            raise SequenceError(f"{path}: expected a finite 4 x 4 rigid transform")
+            raise SequenceError(f"{path}: expected a finite 4 x 4 transform")
         return pose.reshape(4, 4)
 
     def gravity(self, index: int) -> np.ndarray | None:
