@@ -251,6 +251,30 @@ class AssemblerSettings(BaseModel):
         description="the map is levelled on its floor plane when the frames' gravity (an IMU's) finds one "
         "leaning at most this far from it (degrees), on the gravity otherwise; 0: always on the gravity",
     )
+    odometry_prior: bool = Field(
+        True,
+        description="with the robot's odometry (a pose guess), register point to plane from its motion, "
+        "weighted by it as a prior, instead of KISS-ICP's point to point from it (docs/services.md has the "
+        "measurements); without odometry KISS-ICP registers either way",
+    )
+    odometry_error: float = Field(
+        0.05,
+        gt=0,
+        description="the odometry's error between two frames, as a share of the step's length and of its "
+        "turn (one standard deviation per axis)",
+    )
+    odometry_least_error: float = Field(
+        0.002, gt=0, description="... at least this much (m), however short the step"
+    )
+    odometry_least_turn_error_deg: float = Field(
+        0.1, gt=0, description="... and at least this much of a turn (degrees)"
+    )
+    plane_noise: float = Field(
+        0.02,
+        gt=0,
+        description="how far (m, one standard deviation) a registration point may lie off the local map's "
+        "plane through its neighbours: weighs the planes against the odometry, and the robust kernel's scale",
+    )
     keyframe_distance: float = Field(
         0.05,
         ge=0,

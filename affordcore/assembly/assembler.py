@@ -1,5 +1,8 @@
 """Scan assembly: KISS-ICP registers each frame, and a global map keeps what it saw.
 
+With the robot's odometry (a pose guess per frame), a frame is registered point to plane from the odometry's
+motion, weighted by it (`planes`), on KISS-ICP's local map: KISS-ICP's own registration takes no prior.
+
 KISS-ICP's own local map forgets everything beyond ``max_range`` of the sensor (it is built for odometry), so
 the assembler keeps a second voxel map that never forgets: per ``map_voxel``, the mean of every point seen in
 it (`voxelmap.VoxelMeans`), from depth images without the blocks that straddle a depth edge
@@ -21,6 +24,7 @@ import numpy as np
 
 from ..settings import AssemblerSettings, LimitSettings, Settings
 from .depth import DepthImage, back_project
+from .planes import LocalPlanes, align_with_prior, odometry_information
 from .voxelmap import VoxelMeans, cell_sums
 
 
@@ -84,6 +88,7 @@ class Assembler:
         self._last_guess_stamp = 0.0
         # the last frame as KISS-ICP registered it (thinned, sensor frame)
         self.registered_points = np.empty((0, 3))
+        self._planes = LocalPlanes()  # the local map's planes, for registration weighted by odometry
         self._gravity_sum = np.zeros(3)  # gravity directions reported with the frames, in the odometry frame
         self.keyframes = 0  # frames that joined the global map
         # the last levelling found (world_from_odom); a later map whose floor search fails keeps it
@@ -170,7 +175,8 @@ class Assembler:
         self._check_input(points, stamp, pose_guess, gravity)
         odometry = self.odometry
         delta = self._predicted_motion(stamp)
-        if pose_guess is not None and self._last_guess is not None:
+        guessed = pose_guess is not None and self._last_guess is not None
+        if guessed:
             delta = nearest_rigid(np.linalg.inv(self._last_guess) @ pose_guess)
         # KISS-ICP's preprocessing with deskew off, without copying the frame into C++ and back: its range
         # filter (the same strict bounds on the same norms; tests/test_assembly.py checks the poses match)
@@ -188,13 +194,16 @@ class Assembler:
         source = voxel_down_sample(frame_downsample, source_voxel)
         sigma = odometry.adaptive_threshold.get_threshold()
         initial_guess = odometry.last_pose @ delta
-        pose = odometry.registration.align_points_to_map(
-            points=source,
-            voxel_map=odometry.local_map,
-            initial_guess=initial_guess,
-            max_correspondance_distance=3 * sigma,
-            kernel=sigma,
-        )
+        if guessed and settings.odometry_prior:
+            pose = self._align_with_odometry(source, initial_guess, delta, 3 * sigma)
+        else:
+            pose = odometry.registration.align_points_to_map(
+                points=source,
+                voxel_map=odometry.local_map,
+                initial_guess=initial_guess,
+                max_correspondance_distance=3 * sigma,
+                kernel=sigma,
+            )
         self._check_motion(odometry.last_pose, pose, stamp, "registration")
         if float(np.linalg.norm(pose[:3, 3])) > self.limits.max_extent:
             raise ValueError(
@@ -216,6 +225,21 @@ class Assembler:
             np.linalg.inv(initial_guess) @ pose,
             np.linalg.inv(odometry.last_pose) @ pose,
         )
+
+    def _align_with_odometry(
+        self, source: np.ndarray, prior: np.ndarray, step: np.ndarray, reach: float
+    ) -> np.ndarray:
+        """Point-to-plane registration on the local map from the odometry's `prior` pose, weighted by it
+        (`planes.align_with_prior`); the odometry's `step` since the last frame sets the prior's weight."""
+        settings = self.settings
+        self._planes.refresh(self.odometry.local_map, self.frames)
+        information = odometry_information(
+            step,
+            settings.odometry_error,
+            settings.odometry_least_error,
+            settings.odometry_least_turn_error_deg,
+        )
+        return align_with_prior(source, prior, information, self._planes, reach, settings.plane_noise)
 
     def _predicted_motion(self, stamp: float) -> np.ndarray:
         """KISS-ICP's constant-velocity prediction, constant in time rather than per frame: the last motion
@@ -330,6 +354,7 @@ class Assembler:
         points = self.map_points()
         near = np.linalg.norm(points - pose[:3, 3], axis=1) <= self.settings.max_range
         self.odometry.local_map.add_points(points[near])
+        self._planes.forget()
 
     def _is_keyframe(self, pose: np.ndarray) -> bool:
         if self._last_keyframe is None:
