@@ -1,6 +1,7 @@
 """Registration weighted by odometry (affordcore.assembly.planes): the geometry decides the directions it
 constrains, the odometry's prior the ones it does not; and on a generated walk with wheel odometry the
-assembler stays on the true path, where KISS-ICP's point-to-point registration from the same odometry drifts."""
+assembler stays on the true path, where KISS-ICP's point-to-point registration from the same odometry
+drifts."""
 
 from __future__ import annotations
 
