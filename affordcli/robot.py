@@ -196,12 +196,18 @@ def publish(
     odometry: bool = typer.Option(
         True,
         "--odometry/--no-odometry",
-        help="a folder whose frames have <stem>.odometry.txt: send it as each frame's pose guess (the "
-        "robot's own odometry)",
+        help="a folder whose frames have <stem>.odometry.txt, or a recording with an Odometry topic: send "
+        "the robot's own odometry as each frame's pose guess",
     ),
     topic: str = typer.Option("", "--topic", help="a recording's PointCloud2 topic (default: its only one)"),
     imu_topic: str = typer.Option(
         "", "--imu-topic", help="a recording's Imu topic giving each scan its gravity (default: its only one)"
+    ),
+    odometry_topic: str = typer.Option(
+        "",
+        "--odometry-topic",
+        help="a recording's nav_msgs/Odometry topic giving each scan its pose guess (default: its only one); "
+        "the sensor's mounting on the robot: AFFORD_ROS__BASE_FROM_CLOUD",
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
     zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help=ZENOH_CONFIG_HELP),
@@ -223,14 +229,26 @@ def publish(
         session_of = settings.service.mode, settings.service.zenoh_config
         from services.ros import is_recording
 
-        if (topic or imu_topic) and not is_recording(source):
-            raise UserError(f"--topic and --imu-topic are for ROS 2 recordings; {source} is not one")
+        if (topic or imu_topic or odometry_topic) and not is_recording(source):
+            raise UserError(
+                f"--topic, --imu-topic and --odometry-topic are for ROS 2 recordings; {source} is not one"
+            )
         try:
             if is_recording(source):
                 from services.ros import recording_frames
 
                 stats, scans, count = recording_frames(
-                    source, topic, imu_topic, imu, first, frames, step, settings.ros, settings.limits
+                    source,
+                    topic,
+                    imu_topic,
+                    imu,
+                    first,
+                    frames,
+                    step,
+                    settings.ros,
+                    settings.limits,
+                    odometry_topic=odometry_topic,
+                    odometry=odometry,
                 )
                 sensor = sensor or "lidar"
                 with connected(connect, *session_of) as session, progress(quiet) as bar:

@@ -1,6 +1,7 @@
 """ROS 2 sensor messages to arrays: `sensor_msgs/msg/PointCloud2` to points, `sensor_msgs/msg/Imu` to the
-direction of gravity. Bytes in, numpy out, no transport: the assembler's ROS 2 subscriptions
-(services/ros.py) and `afford publish`'s bag reader both decode here.
+direction of gravity, `nav_msgs/msg/Odometry` to the robot's pose by its own odometry. Bytes in, numpy out,
+no transport: the assembler's ROS 2 subscriptions (services/ros.py) and `afford publish`'s bag reader both
+decode here.
 
 The payload is what a ROS 2 publisher puts on the wire: CDR with its 4-byte encapsulation header (rmw_zenoh
 and zenoh-plugin-ros2dds both forward it as is). It is parsed by `rosbags` (the `[ros]` extra, imported only
@@ -15,6 +16,8 @@ Conventions (docs/ros.md):
 * Imu: `linear_acceleration` is the specific force (REP 145): at rest it points up, +9.81 m/s^2 along the
   up axis. Gravity, the down direction the assembler wants (`SensorFrame.gravity`), is therefore
   -a / |a|, in the IMU's frame.
+* Odometry: `pose.pose` is the pose of `child_frame_id` (the robot's base) in `header.frame_id` (its
+  odometry frame); the covariances and the twist are not used.
 """
 
 from __future__ import annotations
@@ -33,13 +36,15 @@ from .messages import MessageError, finite_rows
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 IMU = "sensor_msgs/msg/Imu"
+ODOMETRY = "nav_msgs/msg/Odometry"
 INSTALL = "pip install 'affordmap[ros]'"
 
 # sensor_msgs/msg/PointField datatypes (INT8 = 1 ... FLOAT64 = 8) as numpy kinds; the byte order is the
 # message's
 POINT_FIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
 STANDARD_GRAVITY = 9.80665
-# an Imu message is a few hundred bytes; a larger one is refused before it is parsed on the network thread
+# an Imu or Odometry message is a few hundred bytes; a larger one is refused before it is parsed on the
+# network thread
 MAX_IMU_BYTES = 64 * 1024
 MAX_FRAME_ID = 1024  # characters of a header's frame_id (it goes into logs and the pose messages)
 
@@ -262,6 +267,105 @@ def rotation_of(quaternion) -> np.ndarray:
             [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
         ]
     )
+
+
+# -- Odometry ------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class RosPose:
+    """One Odometry reading: `pose` (4 x 4) of `child_frame_id` in `frame_id`, at the header's time."""
+
+    pose: np.ndarray
+    stamp: float
+    frame_id: str
+    child_frame_id: str
+
+
+def odometry(payload: bytes, limits: LimitSettings | None = None) -> RosPose:
+    """The pose a CDR nav_msgs/msg/Odometry gives."""
+    if len(payload) > MAX_IMU_BYTES:
+        raise MessageError(f"an Odometry of {len(payload):,} bytes; at most {MAX_IMU_BYTES:,} are parsed")
+    return pose_of(deserialize(payload, ODOMETRY), limits)
+
+
+def pose_of(message, limits: LimitSettings | None = None) -> RosPose:
+    """The pose of an Odometry message object; refused when its position is not finite or lies beyond
+    AFFORD_LIMITS__MAX_EXTENT of the odometry's origin, or its orientation is not a unit quaternion."""
+    limits = limits or LimitSettings()
+    stamp, frame_id = _header(message, limits, "Odometry")
+    child = message.child_frame_id
+    if len(child) > MAX_FRAME_ID:
+        raise MessageError(f"Odometry child_frame_id is {len(child):,} characters; at most {MAX_FRAME_ID}")
+    p, q = message.pose.pose.position, message.pose.pose.orientation
+    position = np.array([p.x, p.y, p.z], dtype=np.float64)
+    if not np.isfinite(position).all() or np.abs(position).max() > limits.max_extent:
+        raise MessageError(
+            f"Odometry position {position.tolist()} is not finite or beyond AFFORD_LIMITS__MAX_EXTENT "
+            f"({limits.max_extent:g} m)"
+        )
+    try:
+        rotation = rotation_of([q.x, q.y, q.z, q.w])
+    except ValueError as error:
+        raise MessageError(f"Odometry orientation: {error}") from None
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = rotation, position
+    return RosPose(pose, stamp, frame_id, child)
+
+
+def rigid_of(pose) -> np.ndarray:
+    """4 x 4 transform of a pose as ROS writes one: x, y, z, then the quaternion x, y, z, w."""
+    values = np.asarray(pose, dtype=np.float64).reshape(-1)
+    if values.shape != (7,) or not np.isfinite(values).all():
+        raise ValueError(f"{np.asarray(pose).tolist()} is not a pose [x, y, z, qx, qy, qz, qw]")
+    rigid = np.eye(4)
+    rigid[:3, :3], rigid[:3, 3] = rotation_of(values[3:]), values[:3]
+    return rigid
+
+
+class PoseTrack:
+    """The latest odometry poses, so that each cloud gets the pose at its own time: interpolated between the
+    readings either side of it, else the nearest (odometry runs at 20-100 Hz, a depth camera or LiDAR at
+    10-30; between two readings a robot moves centimetres, which the registration's prior would take as
+    the odometry's word). Readings come from the network thread, clouds are handled on the worker."""
+
+    def __init__(self, keep: int = 2048):
+        self._readings: deque[tuple[float, np.ndarray]] = deque(maxlen=keep)
+        self._lock = threading.Lock()
+
+    def add(self, stamp: float, pose: np.ndarray) -> None:
+        with self._lock:
+            self._readings.append((stamp, np.asarray(pose, dtype=np.float64)))
+
+    def latest(self) -> float | None:
+        """The newest reading's time, None before any."""
+        with self._lock:
+            return max((s for s, _ in self._readings), default=None)
+
+    def at(self, stamp: float, max_age: float) -> np.ndarray | None:
+        """The pose at `stamp`: interpolated between the readings just before and after it when both lie
+        within `max_age` seconds of it, else the nearest such reading; None when none does."""
+        from scipy.spatial.transform import Rotation, Slerp
+
+        with self._lock:
+            readings = sorted(self._readings, key=lambda reading: reading[0])
+        stamps = np.array([s for s, _ in readings])
+        near = np.flatnonzero(np.abs(stamps - stamp) <= max_age)
+        if not len(near):
+            return None
+        before = [i for i in near if stamps[i] <= stamp]
+        after = [i for i in near if stamps[i] > stamp]
+        if not before or not after:
+            return readings[near[np.argmin(np.abs(stamps[near] - stamp))]][1].copy()
+        (t0, a), (t1, b) = readings[before[-1]], readings[after[0]]
+        share = (stamp - t0) / (t1 - t0)
+        pose = np.eye(4)
+        pose[:3, :3] = Slerp([0.0, 1.0], Rotation.from_matrix([a[:3, :3], b[:3, :3]]))(share).as_matrix()
+        pose[:3, 3] = (1 - share) * a[:3, 3] + share * b[:3, 3]
+        return pose
+
+    def __len__(self) -> int:
+        return len(self._readings)
 
 
 class GravityTrack:

@@ -1,5 +1,6 @@
-"""ROS 2 robots in: the assembler's subscriptions to `sensor_msgs/msg/PointCloud2` and `sensor_msgs/msg/Imu`
-as a robot publishes them over Zenoh, and rosbag2 / MCAP recordings read for `afford publish`.
+"""ROS 2 robots in: the assembler's subscriptions to `sensor_msgs/msg/PointCloud2`, `sensor_msgs/msg/Imu` and
+`nav_msgs/msg/Odometry` as a robot publishes them over Zenoh, and rosbag2 / MCAP recordings read for
+`afford publish`.
 
 Two key formats carry ROS 2 topics over Zenoh (docs/ros.md):
 
@@ -12,11 +13,13 @@ Two key formats carry ROS 2 topics over Zenoh (docs/ros.md):
 
 Both carry the message as CDR, decoded by affordwire.ros. Clouds go through the assembler's inbox like any
 scan; Imu readings are decoded on arrival (a few hundred bytes, at hundreds of Hz: they would flood the scan
-inbox) into a `GravityTrack`, and each cloud takes the reading nearest its own stamp.
+inbox) into a `GravityTrack`, and each cloud takes the reading nearest its own stamp; Odometry readings
+likewise into a `PoseTrack`, and each cloud takes the pose interpolated at its stamp as its pose guess, moved
+to the cloud's sensor by `AFFORD_ROS__BASE_FROM_CLOUD`.
 
 The IMU's `frame_id` is not looked up (there is no tf here): unless `AFFORD_ROS__CLOUD_FROM_IMU` gives the
 rotation from the IMU's frame to the cloud's, the IMU is taken to be mounted with the cloud sensor's axes, and
-a difference of frame names is said once on the log.
+a difference of frame names is said once on the log; so for the odometry's child frame and the cloud's.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from .settings import RosSettings
 # the schema a ROS subscription tags its samples with (they carry no afford schema of their own)
 POINTS_SCHEMA = f"ros2:{ros.POINTCLOUD2}"
 IMU_SCHEMA = f"ros2:{ros.IMU}"
+ODOMETRY_SCHEMA = f"ros2:{ros.ODOMETRY}"
 
 
 def dds_type(typename: str) -> str:
@@ -62,6 +66,19 @@ def imu_rotation(settings: RosSettings) -> np.ndarray | None:
     return None if settings.cloud_from_imu is None else ros.rotation_of(settings.cloud_from_imu)
 
 
+def sensor_mounting(settings: RosSettings) -> np.ndarray | None:
+    """base_from_cloud as a 4 x 4 transform, None when the sensor sits at the odometry's child frame."""
+    return None if settings.base_from_cloud is None else ros.rigid_of(settings.base_from_cloud)
+
+
+def pose_guess(track: ros.PoseTrack, stamp: float, settings: RosSettings, mounting: np.ndarray | None):
+    """The cloud sensor's pose by the odometry at `stamp` (odom_from_cloud); None without a reading near."""
+    base = track.at(stamp, settings.odometry_max_age)
+    if base is None:
+        return None
+    return base if mounting is None else base @ mounting
+
+
 @dataclass
 class Counts:
     clouds: int = 0
@@ -70,29 +87,46 @@ class Counts:
     nonfinite: int = 0  # of those, dropped for a NaN or infinite coordinate
     imu: int = 0
     with_gravity: int = 0
+    odometry: int = 0
+    with_odometry: int = 0
 
 
 class RosInput:
-    """The assembler's ROS 2 topics (AFFORD_ROS__POINTS, AFFORD_ROS__IMU). `frame` turns a cloud sample
-    into the assembler's SensorFrame with the gravity of the Imu reading nearest its stamp."""
+    """The assembler's ROS 2 topics (AFFORD_ROS__POINTS, AFFORD_ROS__IMU, AFFORD_ROS__ODOMETRY). `frame` turns
+    a cloud sample into the assembler's SensorFrame with the gravity of the Imu reading nearest its stamp and
+    the odometry's pose at it."""
 
     def __init__(self, node: Node, inbox: Inbox):
         self.node, self.settings, self.limits = node, node.settings.ros, node.settings.limits
         ros.typestore()  # RosUnavailable (pip install affordmap[ros]) at the start, not at the first cloud
         self.rotation = imu_rotation(self.settings)
         self.gravity = ros.GravityTrack()
+        self.mounting = sensor_mounting(self.settings)
+        self.poses = ros.PoseTrack()
         self.counts = Counts()
         self.imu_frame: str | None = None
-        self._warned_frames = self._warned_nonfinite = False
+        self.base_frame: str | None = None  # the odometry's child frame
+        self._warned_frames = self._warned_base = self._warned_nonfinite = False
         self.point_keys = topic_keys(self.settings.points, ros.POINTCLOUD2, self.settings)
         self.imu_keys = topic_keys(self.settings.imu, ros.IMU, self.settings) if self.settings.imu else []
         for key in self.point_keys:
             node.subscribe(key, inbox, schema=POINTS_SCHEMA)
         # kept referenced for the life of the service; the session's close undeclares them
         self._imu_subscribers = [node.session.declare_subscriber(key, self._on_imu) for key in self.imu_keys]
+        self.odometry_keys = (
+            topic_keys(self.settings.odometry, ros.ODOMETRY, self.settings) if self.settings.odometry else []
+        )
+        self._odometry_subscribers = [
+            node.session.declare_subscriber(key, self._on_odometry) for key in self.odometry_keys
+        ]
         print(
             f"[{node.service}] ROS 2 in: PointCloud2 on {', '.join(self.point_keys)}"
-            + (f"; Imu on {', '.join(self.imu_keys)}" if self.imu_keys else "; no Imu (AFFORD_ROS__IMU)"),
+            + (f"; Imu on {', '.join(self.imu_keys)}" if self.imu_keys else "; no Imu (AFFORD_ROS__IMU)")
+            + (
+                f"; Odometry on {', '.join(self.odometry_keys)}"
+                if self.odometry_keys
+                else "; no odometry (AFFORD_ROS__ODOMETRY)"
+            ),
             flush=True,
         )
 
@@ -104,18 +138,35 @@ class RosInput:
         return item.schema == POINTS_SCHEMA
 
     def _on_imu(self, sample) -> None:
-        """On zenoh's thread: keep the reading's gravity, or answer why not on the error key (an exception
-        must not escape into zenoh)."""
+        """On zenoh's thread: keep the reading's gravity, or answer why not on the error key."""
+        self._on_reading(sample, IMU_SCHEMA, self._take_imu)
+
+    def _take_imu(self, payload: bytes) -> None:
+        reading = ros.imu(payload, self.limits)
+        down = reading.down if self.rotation is None else self.rotation @ reading.down
+        self.gravity.add(reading.stamp, down)
+        self.imu_frame = reading.frame_id
+        self.counts.imu += 1
+
+    def _on_odometry(self, sample) -> None:
+        """On zenoh's thread: keep the odometry's pose, or answer why not on the error key."""
+        self._on_reading(sample, ODOMETRY_SCHEMA, self._take_odometry)
+
+    def _take_odometry(self, payload: bytes) -> None:
+        reading = ros.odometry(payload, self.limits)
+        self.poses.add(reading.stamp, reading.pose)
+        self.base_frame = reading.child_frame_id
+        self.counts.odometry += 1
+
+    def _on_reading(self, sample, schema: str, take) -> None:
+        """Decode and keep a reading; a bad one is answered on the error key (an exception must not escape
+        into zenoh) and the service goes on."""
         payload = sample.payload.to_bytes()
         try:
-            reading = ros.imu(payload, self.limits)
-            down = reading.down if self.rotation is None else self.rotation @ reading.down
-            self.gravity.add(reading.stamp, down)
-            self.imu_frame = reading.frame_id
-            self.counts.imu += 1
+            take(payload)
         except Exception as error:  # noqa: BLE001 - a bad reading is refused; the service goes on
             reason = str(error) if isinstance(error, ValueError) else f"{type(error).__name__}: {error}"
-            item = Inbound(str(sample.key_expr), IMU_SCHEMA, str(sample.encoding), payload, time.time())
+            item = Inbound(str(sample.key_expr), schema, str(sample.encoding), payload, time.time())
             self.node.reject(item, reason)
 
     def frame(self, item: Inbound) -> SensorFrame:
@@ -123,11 +174,15 @@ class RosInput:
         # thinned as the assembler would (AFFORD_ASSEMBLER__MAX_FRAME_POINTS) before the points are converted
         cloud = ros.pointcloud2(item.payload, self.limits, keep=self.node.settings.assembler.max_frame_points)
         gravity = self.gravity.at(cloud.stamp, self.settings.imu_max_age) if self.imu_keys else None
+        guess = None
+        if self.odometry_keys:
+            guess = pose_guess(self.poses, cloud.stamp, self.settings, self.mounting)
         self.counts.clouds += 1
         self.counts.points += cloud.total
         self.counts.read += cloud.read
         self.counts.nonfinite += cloud.nonfinite
         self.counts.with_gravity += gravity is not None
+        self.counts.with_odometry += guess is not None
         if cloud.nonfinite and not self._warned_nonfinite:
             self._warned_nonfinite = True
             print(
@@ -138,10 +193,23 @@ class RosInput:
             )
         self._check_frames(cloud.frame_id)
         return SensorFrame(
-            frame_id=cloud.frame_id or "sensor", stamp=cloud.stamp, points=cloud.points, gravity=gravity
+            frame_id=cloud.frame_id or "sensor",
+            stamp=cloud.stamp,
+            points=cloud.points,
+            gravity=gravity,
+            pose_guess=guess,
         )
 
     def _check_frames(self, cloud_frame: str) -> None:
+        base = self.base_frame
+        if not (self._warned_base or base is None or self.mounting is not None or base == cloud_frame):
+            self._warned_base = True
+            print(
+                f"[{self.node.service}] the odometry is of frame {base!r}, the clouds in {cloud_frame!r}: "
+                "the sensor is taken to sit at its origin with its axes (no tf is read); set "
+                "AFFORD_ROS__BASE_FROM_CLOUD to where it is mounted otherwise",
+                flush=True,
+            )
         imu_frame = self.imu_frame
         if self._warned_frames or imu_frame is None or self.rotation is not None or imu_frame == cloud_frame:
             return
@@ -157,8 +225,9 @@ class RosInput:
         c = self.counts
         return (
             f"ROS 2: {c.clouds} clouds decoded ({c.points:,} points, {c.read:,} of them read, "
-            f"{c.nonfinite:,} of those NaN or infinite and dropped), {c.with_gravity} with an Imu gravity; "
-            f"{c.imu} Imu readings taken"
+            f"{c.nonfinite:,} of those NaN or infinite and dropped), {c.with_gravity} with an Imu gravity, "
+            f"{c.with_odometry} with the odometry's pose; {c.imu} Imu and {c.odometry} Odometry readings "
+            "taken"
         )
 
 
@@ -188,9 +257,14 @@ class RecordingStats:
     bad_imu: int = 0
     nonfinite: int = 0
     with_gravity: int = 0
+    odometry_topic: str | None = None
+    bad_odometry: int = 0
+    with_odometry: int = 0
 
     def describe(self, sent: int, path: Path) -> str:
         gravity = f", {self.with_gravity} with gravity from {self.imu_topic}" if self.imu_topic else ""
+        if self.odometry_topic:
+            gravity += f", {self.with_odometry} with the pose of {self.odometry_topic}"
         return f"{sent} scans of {self.topic} from {path}{gravity}"
 
     def notes(self) -> list[str]:
@@ -200,6 +274,10 @@ class RecordingStats:
             said.append(f"{self.refused} unusable PointCloud2 messages were left out ({self.first_refusal})")
         if self.bad_imu:
             said.append(f"{self.bad_imu} unusable Imu messages of {self.imu_topic} were left out")
+        if self.bad_odometry:
+            said.append(
+                f"{self.bad_odometry} unusable Odometry messages of {self.odometry_topic} were left out"
+            )
         if self.nonfinite:
             said.append(f"dropped {self.nonfinite:,} points with NaN or infinite coordinates")
         return said
@@ -237,13 +315,16 @@ def recording_frames(
     step: int = 1,
     settings: RosSettings | None = None,
     limits=None,
+    odometry_topic: str = "",
+    odometry: bool = True,
 ) -> tuple[RecordingStats, Iterator[tuple[int, messages.Scan]], int]:
     """(stats, (index, Scan) pairs, how many) of a rosbag2 folder (sqlite3 or MCAP storage) or a single MCAP
     file, read by rosbags' AnyReader. `topic` is the PointCloud2 topic (default: the only one), `imu_topic`
     an Imu topic giving each scan its gravity (default: the only one, if any; none with `imu` False). Each
     Scan keeps its header stamp (the bag's receive time when the header has none): the assembler's motion
-    limits use the recorded times, whatever the rate of the replay. RecordingError when the topics are not
-    as asked."""
+    limits use the recorded times, whatever the rate of the replay. `odometry_topic`: a nav_msgs/Odometry
+    topic giving each scan its pose guess (default: the only one, if any; none with `odometry` False), the
+    sensor's pose by `settings.base_from_cloud`. RecordingError when the topics are not as asked."""
     try:
         from rosbags.highlevel import AnyReader
     except ImportError:
@@ -262,6 +343,10 @@ def recording_frames(
         stats = RecordingStats(topic=_choose(reader, path, ros.POINTCLOUD2, topic, "--topic"))
         if imu and (imu_topic or _topics_of(reader, ros.IMU)):
             stats.imu_topic = _choose(reader, path, ros.IMU, imu_topic, "--imu-topic or --no-imu")
+        if odometry and (odometry_topic or _topics_of(reader, ros.ODOMETRY)):
+            stats.odometry_topic = _choose(
+                reader, path, ros.ODOMETRY, odometry_topic, "--odometry-topic or --no-odometry"
+            )
     except BaseException:
         reader.close()
         raise
@@ -276,9 +361,22 @@ def recording_frames(
 
 
 def _stream(reader, stats: RecordingStats, wanted: set[int], settings: RosSettings, limits):
-    rotation = imu_rotation(settings)
-    track = ros.GravityTrack()
-    topics = {stats.topic, stats.imu_topic} - {None}
+    """The wanted clouds as Scans, in order. With an odometry topic a scan waits until a reading at or after
+    its stamp is read (the bag is in receive order): its pose is interpolated, not the last before it."""
+    rotation, mounting = imu_rotation(settings), sensor_mounting(settings)
+    track, poses = ros.GravityTrack(), ros.PoseTrack()
+    waiting: list[tuple[int, messages.Scan, float]] = []
+
+    def ready(until: float):
+        while waiting and waiting[0][2] <= until:
+            index, scan, stamp = waiting.pop(0)
+            guess = pose_guess(poses, stamp, settings, mounting)
+            if guess is not None:
+                messages.set_pose(scan.pose_guess, guess, "odom", scan.frame_id, at=stamp)
+                stats.with_odometry += 1
+            yield index, scan
+
+    topics = {stats.topic, stats.imu_topic, stats.odometry_topic} - {None}
     connections = [c for c in reader.connections if c.topic in topics]
     sensor = stats.topic.strip("/").replace("/", "_") or "sensor"
     index, last = -1, max(wanted)
@@ -291,6 +389,15 @@ def _stream(reader, stats: RecordingStats, wanted: set[int], settings: RosSettin
                     stats.bad_imu += 1
                     continue
                 track.add(reading.stamp, reading.down if rotation is None else rotation @ reading.down)
+                continue
+            if connection.topic == stats.odometry_topic:
+                try:
+                    pose = ros.pose_of(reader.deserialize(raw, connection.msgtype), limits)
+                except Exception:  # noqa: BLE001 - one bad reading: the cloud's pose from its neighbours
+                    stats.bad_odometry += 1
+                    continue
+                poses.add(pose.stamp, pose.pose)
+                yield from ready(pose.stamp)
                 continue
             index += 1
             if index not in wanted:
@@ -312,6 +419,9 @@ def _stream(reader, stats: RecordingStats, wanted: set[int], settings: RosSettin
             if gravity is not None:
                 messages.set_vector(scan.gravity, gravity)
                 stats.with_gravity += 1
-            yield index, scan
+            waiting.append((index, scan, stamp))
+            if not stats.odometry_topic:
+                yield from ready(stamp)
+        yield from ready(float("inf"))
     finally:
         reader.close()

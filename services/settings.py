@@ -110,6 +110,23 @@ class RosSettings(BaseModel):
         description="sensor_msgs/msg/Imu topic whose linear acceleration gives each scan the gravity "
         "measured nearest its time; empty: none (the map is levelled by its floor)",
     )
+    odometry: str = Field(
+        "",
+        description="nav_msgs/msg/Odometry topic (the robot's own odometry, e.g. /odom) giving each scan its "
+        "pose guess, interpolated at its time; the assembler then registers with the odometry as a prior "
+        "(AFFORD_ASSEMBLER__ODOMETRY_PRIOR); empty: none",
+    )
+    base_from_cloud: list[float] | None = Field(
+        None,
+        description="where the cloud's sensor is mounted on the odometry's child frame (the robot's base): "
+        "[x, y, z, qx, qy, qz, qw], e.g. '[0.2,0,0.5,0,0,0,1]'; none: at the base's origin, with its axes "
+        "(no tf is read). A sensor ahead of the base moves sideways when the base turns: say where it is",
+    )
+    odometry_max_age: float = Field(
+        0.1,
+        gt=0,
+        description="a scan takes odometry readings only within this many seconds of its header stamp",
+    )
     domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID: the first chunk of rmw_zenoh's keys")
     key_formats: list[Literal["rmw_zenoh", "ros2dds"]] = Field(
         ["rmw_zenoh", "ros2dds"],
@@ -145,7 +162,7 @@ class RosSettings(BaseModel):
         "z = 0); a robot's tf needs a transform from its map frame to it",
     )
 
-    @field_validator("points", "imu")
+    @field_validator("points", "imu", "odometry")
     @classmethod
     def _ros_name(cls, topic: str) -> str:
         """Checked before the service starts: a wildcard or space would subscribe to what it should not."""
@@ -182,6 +199,17 @@ class RosSettings(BaseModel):
         ):
             raise ValueError(f"cloud_from_imu {quaternion} is not a unit quaternion [x, y, z, w]")
         return quaternion
+
+    @field_validator("base_from_cloud")
+    @classmethod
+    def _mounting(cls, pose: list[float] | None) -> list[float] | None:
+        if pose is not None and (
+            len(pose) != 7
+            or not all(abs(v) < float("inf") for v in pose)
+            or not abs(sum(q * q for q in pose[3:]) ** 0.5 - 1) <= 1e-3  # NaN too
+        ):
+            raise ValueError(f"base_from_cloud {pose} is not a pose [x, y, z, qx, qy, qz, qw] (a unit q)")
+        return pose
 
 
 class ServiceSettings(Settings):

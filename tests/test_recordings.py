@@ -13,7 +13,16 @@ import pytest
 
 pytest.importorskip("rosbags")
 
-from test_ros import STORE, G, cdr, cloud_message, grid_points, imu_message, ros_stream  # noqa: E402
+from test_ros import (  # noqa: E402
+    STORE,
+    G,
+    cdr,
+    cloud_message,
+    grid_points,
+    imu_message,
+    odometry_message,
+    ros_stream,
+)
 
 from affordwire import messages, ros  # noqa: E402
 
@@ -21,19 +30,25 @@ AFFORD = [sys.executable, "-m", "affordcli"]
 STORAGES = ("sqlite3", "mcap")
 
 
-def write_bag(path, storage: str, clouds, imus=(), topic="/camera/points", imu_topic="/imu", extra=()):
-    """A rosbag2 folder: `clouds` and `imus` are (stamp, CDR) pairs, written at their stamp's time (an Imu a
-    moment before, a cloud 5 ms after: received after it was taken); `extra` adds topics of other types."""
+def write_bag(
+    path, storage: str, clouds, imus=(), topic="/camera/points", imu_topic="/imu", extra=(), odometry=()
+):
+    """A rosbag2 folder: `clouds`, `imus` and `odometry` are (stamp, CDR) pairs, written at their stamp's time
+    (an Imu or Odometry a moment before, a cloud 5 ms after: received after it was taken); `extra` adds
+    topics of other types."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     plugin = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}[storage]
     with Writer(path, version=9, storage_plugin=plugin) as writer:
         points = writer.add_connection(topic, ros.POINTCLOUD2, typestore=STORE)
         gravity = writer.add_connection(imu_topic, ros.IMU, typestore=STORE) if imus else None
+        odom = writer.add_connection("/odom", ros.ODOMETRY, typestore=STORE) if odometry else None
         for name, typename in extra:
             writer.add_connection(name, typename, typestore=STORE)
         for stamp, payload in imus:
             writer.write(gravity, int(stamp * 1e9) - 1000, payload)
+        for stamp, payload in odometry:
+            writer.write(odom, int(stamp * 1e9) - 1000, payload)
         for stamp, payload in clouds:
             writer.write(points, int(stamp * 1e9) + 5_000_000, payload)
     return path
@@ -100,6 +115,45 @@ def test_first_step_frames_and_no_imu_choose_what_is_streamed(tmp_path):
     scans = scans_of(bag, first=1, step=3, frames=2, imu=False)
     assert [messages.seconds(s.timestamp) for s in scans] == pytest.approx([clouds[1][0], clouds[4][0]])
     assert not any(scan.HasField("gravity") for scan in scans)
+
+
+def odometry_stream(start: float, seconds: float, rate: float = 50.0):
+    """A robot's odometry at `rate` Hz: driving along x at 0.5 m/s while turning at 0.5 rad/s, as (stamp,
+    CDR) pairs, and the true base pose at any time."""
+
+    def pose(t: float) -> np.ndarray:
+        yaw, matrix = 0.5 * (t - start), np.eye(4)
+        matrix[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+        matrix[0, 3] = 0.5 * (t - start)
+        return matrix
+
+    readings = []
+    for k in range(int(seconds * rate) + 1):
+        t = start + k / rate
+        yaw = 0.5 * (t - start)
+        sec, nanosec = int(t), round((t % 1) * 1e9) % 1_000_000_000
+        message = odometry_message(
+            [0.5 * (t - start), 0, 0], [0, 0, np.sin(yaw / 2), np.cos(yaw / 2)], sec=sec, nanosec=nanosec
+        )
+        readings.append((t, cdr(message, ros.ODOMETRY)))
+    return readings, pose
+
+
+def test_each_scan_of_a_bag_carries_the_odometry_interpolated_at_its_stamp_on_the_sensor(tmp_path):
+    """Clouds at 10 Hz between odometry readings at 50 Hz: each scan's pose guess is the base's pose at the
+    cloud's time (the reading after it comes later in the bag), moved to where the sensor is mounted."""
+    from services.settings import RosSettings
+
+    clouds, _, _ = small_stream(6, start=1_700_000_000.013)  # off the odometry's 20 ms beat
+    readings, truth = odometry_stream(1_700_000_000.0, 0.7)
+    bag = write_bag(tmp_path / "bag", "mcap", clouds, odometry=readings)
+    mounting = [0.3, 0.0, 0.4, 0.0, 0.0, 0.0, 1.0]  # 30 cm ahead of the base, 40 cm up
+    scans = scans_of(bag, settings=RosSettings(base_from_cloud=mounting))
+    mounted = ros.rigid_of(mounting)
+    for (stamp, _), scan in zip(clouds, scans, strict=True):
+        guess = messages.pose_matrix(scan.pose_guess)
+        np.testing.assert_allclose(guess, truth(stamp) @ mounted, atol=2e-4)  # linear between readings
+    assert not any(scan.HasField("pose_guess") for scan in scans_of(bag, odometry=False))
 
 
 def test_a_broken_cloud_in_a_bag_is_left_out_and_reported(tmp_path):

@@ -290,6 +290,102 @@ def test_a_quaternion_turns_imu_readings_into_the_cloud_frame():
         ros.rotation_of([0, 0, 1, 1])
 
 
+# -- Odometry ------------------------------------------------------------------------------------------------
+
+
+def odometry_message(position, quaternion=(0.0, 0.0, 0.0, 1.0), child: str = "base_link", **header_args):
+    vector = T["geometry_msgs/msg/Vector3"]
+    pose = T["geometry_msgs/msg/Pose"](
+        position=T["geometry_msgs/msg/Point"](*map(float, position)),
+        orientation=T["geometry_msgs/msg/Quaternion"](*map(float, quaternion)),
+    )
+    twist = T["geometry_msgs/msg/Twist"](linear=vector(0.0, 0.0, 0.0), angular=vector(0.0, 0.0, 0.0))
+    return T[ros.ODOMETRY](
+        header=header(**({"frame_id": "odom"} | header_args)),
+        child_frame_id=child,
+        pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+        twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=np.zeros(36)),
+    )
+
+
+def test_an_odometry_reading_is_the_pose_of_its_child_frame_in_its_odometry_frame():
+    half = np.radians(30) / 2  # 30 degrees about z
+    reading = ros.odometry(
+        cdr(odometry_message([1.0, 2.0, 0.1], [0, 0, np.sin(half), np.cos(half)]), ros.ODOMETRY)
+    )
+    assert (reading.stamp, reading.frame_id, reading.child_frame_id) == (
+        1_700_000_000.25,
+        "odom",
+        "base_link",
+    )
+    np.testing.assert_allclose(reading.pose[:3, 3], [1.0, 2.0, 0.1])
+    np.testing.assert_allclose(
+        reading.pose[:3, :3] @ [1, 0, 0], [np.cos(2 * half), np.sin(2 * half), 0], atol=1e-12
+    )
+
+
+@pytest.mark.parametrize(
+    ("position", "quaternion", "reason"),
+    [
+        ([np.nan, 0.0, 0.0], (0, 0, 0, 1), "not finite"),
+        ([1e6, 0.0, 0.0], (0, 0, 0, 1), "MAX_EXTENT"),
+        ([0.0, 0.0, 0.0], (0, 0, 0, 0), "unit quaternion"),
+        ([0.0, 0.0, 0.0], (0, 0, 1, 1), "unit quaternion"),
+    ],
+)
+def test_unusable_odometry_is_refused_with_a_reason(position, quaternion, reason):
+    with pytest.raises(MessageError, match=reason):
+        ros.odometry(cdr(odometry_message(position, quaternion), ros.ODOMETRY))
+
+
+def test_an_oversized_or_malformed_odometry_is_refused_before_parsing():
+    with pytest.raises(MessageError, match="at most"):
+        ros.odometry(b"\x00\x01\x00\x00" + b"\x00" * (ros.MAX_IMU_BYTES + 1))
+    with pytest.raises(MessageError, match="not a CDR nav_msgs/msg/Odometry"):
+        ros.odometry(cdr(odometry_message([0, 0, 0]), ros.ODOMETRY)[:60])
+
+
+def _pose_at(x: float, yaw_deg: float) -> np.ndarray:
+    pose = np.eye(4)
+    pose[:3, :3] = ros.rotation_of([0, 0, np.sin(np.radians(yaw_deg) / 2), np.cos(np.radians(yaw_deg) / 2)])
+    pose[0, 3] = x
+    return pose
+
+
+def test_the_pose_track_interpolates_between_the_readings_either_side_of_a_cloud():
+    track = ros.PoseTrack()
+    track.add(10.2, _pose_at(1.0, 20.0))  # out of order: the network does not promise order
+    track.add(10.0, _pose_at(0.0, 0.0))
+    between = track.at(10.05, 0.5)
+    np.testing.assert_allclose(between, _pose_at(0.25, 5.0), atol=1e-9)  # a quarter of the way, turn too
+    np.testing.assert_allclose(track.at(10.3, 0.2), _pose_at(1.0, 20.0))  # after the last: the nearest
+    assert track.at(10.1, 0.05) is None  # none within its age
+    np.testing.assert_allclose(track.at(10.01, 0.05), _pose_at(0.0, 0.0))  # only one side within its age
+
+
+def test_a_sensor_mounted_ahead_of_the_base_moves_sideways_when_the_base_turns():
+    from services.ros import pose_guess, sensor_mounting
+    from services.settings import RosSettings
+
+    settings = RosSettings(base_from_cloud=[0.5, 0, 0, 0, 0, 0, 1])
+    track = ros.PoseTrack()
+    track.add(1.0, _pose_at(0.0, 90.0))
+    guess = pose_guess(track, 1.0, settings, sensor_mounting(settings))
+    np.testing.assert_allclose(guess[:3, 3], [0.0, 0.5, 0.0], atol=1e-12)
+    assert pose_guess(track, 5.0, settings, sensor_mounting(settings)) is None
+
+
+@pytest.mark.parametrize("pose", ["[0, 0, 0, 0, 0, 1, 1]", "[0, 0, 0, 0, 0, 1]", "[NaN, 0, 0, 0, 0, 0, 1]"])
+def test_a_sensor_mounting_that_is_no_pose_is_refused_before_the_service_starts(pose, monkeypatch):
+    from pydantic import ValidationError
+
+    from services.settings import ServiceSettings
+
+    monkeypatch.setenv("AFFORD_ROS__BASE_FROM_CLOUD", pose)
+    with pytest.raises(ValidationError, match="base_from_cloud"):
+        ServiceSettings()
+
+
 def test_without_rosbags_the_error_names_the_extra(tmp_path):
     """The core installs without rosbags; a ROS message then says what to install (a subprocess, as the
     library is already imported here)."""
@@ -376,7 +472,7 @@ def rmw_zenoh_key(topic: str, typename: str, domain: int = 0) -> str:
 
 @pytest.fixture
 def ros_assembler(tmp_path, monkeypatch):
-    """An assembler (in a thread) with a router, taking /robot1/points and /robot1/imu."""
+    """An assembler (in a thread) with a router, taking /robot1/points, /robot1/imu and /robot1/odom."""
     import threading
 
     from services.assembler import AssemblerService
@@ -389,6 +485,7 @@ def ros_assembler(tmp_path, monkeypatch):
     router = open_session([], mode="router", listen=[endpoint])
     monkeypatch.setenv("AFFORD_ROS__POINTS", "/robot1/points")
     monkeypatch.setenv("AFFORD_ROS__IMU", "/robot1/imu")
+    monkeypatch.setenv("AFFORD_ROS__ODOMETRY", "/robot1/odom")
     monkeypatch.setenv("AFFORD_SERVICE__MAX_LAG", "600")
     node = Node("assembler", "robot1", [endpoint], ServiceSettings(), rrd=tmp_path / "a.rrd")
     service = AssemblerService(node)
@@ -459,6 +556,50 @@ def test_the_assembler_takes_clouds_and_imu_on_both_key_formats_and_answers_bad_
     # the Imu's gravity (down = +y of the camera) reached the assembler, in the odometry frame
     gravity_sum = service.assembler._gravity_sum
     np.testing.assert_allclose(gravity_sum / np.linalg.norm(gravity_sum), [0, 1, 0], atol=1e-6)
+    for subscriber in subscribers:
+        subscriber.undeclare()
+
+
+@pytest.mark.skipif(not _zenoh_ok(), reason="zenoh is not installed")
+def test_the_assembler_takes_each_cloud_s_pose_guess_from_the_odometry_and_answers_bad_readings(
+    ros_assembler,
+):
+    from conftest import eventually
+
+    from affordwire import messages
+    from services.transport import Keys
+
+    service, client = ros_assembler
+    errors, poses = [], []
+    keys = Keys("robot1")
+    subscribers = [
+        client.declare_subscriber(keys.error("assembler"), lambda s: errors.append(s.payload.to_bytes())),
+        client.declare_subscriber(keys.pose, lambda s: poses.append(s.payload.to_bytes())),
+    ]
+    rng = np.random.default_rng(2)
+    u = rng.uniform(-1, 1, (60, 80, 2))
+    floor = np.stack([u[..., 0] * 2, np.full(u.shape[:2], 1.2), 2 + u[..., 1] * 1.5], axis=-1)
+    import zenoh
+
+    publisher = client.declare_publisher("robot1/odom", congestion_control=zenoh.CongestionControl.BLOCK)
+    clouds = client.declare_publisher("robot1/points", congestion_control=zenoh.CongestionControl.BLOCK)
+    assert eventually_matched(publisher) and eventually_matched(clouds)
+    base = int(time.time())
+    for k in range(4):  # the base creeps along x, 1 cm every 0.1 s
+        stamp = header(sec=base, nanosec=k * 100_000_000, frame_id="odom").stamp
+        message = odometry_message([0.01 * k, 0.0, 0.0], sec=stamp.sec, nanosec=stamp.nanosec)
+        publisher.put(cdr(message, ros.ODOMETRY))
+    publisher.put(cdr(odometry_message([0, 0, 0], (0, 0, 0, 0), sec=base), ros.ODOMETRY))  # no rotation
+    assert eventually(lambda: service.ros.counts.odometry == 4 and len(errors) == 1, timeout=20, poll=0.02)
+    for k in (0, 1):  # clouds at 0.05 s and 0.25 s: between two readings each
+        clouds.put(
+            cdr(cloud_message(floor, sec=base, nanosec=50_000_000 + k * 200_000_000, frame_id="lidar"))
+        )
+    assert eventually(lambda: len(poses) == 2, timeout=20), (len(poses), errors)
+    assert "unit quaternion" in messages.parse(messages.Error, errors[0]).reason
+    assert service.ros.counts.with_odometry == 2
+    # the last cloud's guess: the base at 0.25 s, interpolated (2.5 cm); the sensor is taken to sit on it
+    np.testing.assert_allclose(service.assembler._last_guess[:3, 3], [0.025, 0.0, 0.0], atol=1e-9)
     for subscriber in subscribers:
         subscriber.undeclare()
 
