@@ -638,15 +638,26 @@ def ros_stream(sequence, indices, start: float, period: float, frame_id: str = "
         yield stamp, cdr(cloud), cdr(imu, ros.IMU)
 
 
+def odometry_reading(sequence, index: int, stamp: float, child: str = "camera_depth_optical_frame") -> bytes:
+    """The frame's pose by the robot's wheel odometry (`afford synth --sequences`) as a nav_msgs/Odometry
+    of the camera's frame, stamped as its cloud."""
+    from scipy.spatial.transform import Rotation
+
+    pose = sequence.odometry(index)
+    sec, nanosec = int(stamp), int(round((stamp - int(stamp)) * 1e9)) % 1_000_000_000
+    quaternion = Rotation.from_matrix(pose[:3, :3]).as_quat()
+    return cdr(odometry_message(pose[:3, 3], quaternion, child, sec=sec, nanosec=nanosec), ros.ODOMETRY)
+
+
 def _angle_deg(a, b) -> float:
     return float(np.degrees(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
 
 
 @pytest.mark.slow
 def test_a_ros2_robot_on_rmw_zenoh_keys_gets_affordance_maps(generated_sequence, generated_room, tmp_path):
-    """PointCloud2 and Imu as rmw_zenoh publishes them (CDR on <domain>/<topic>/<DDS type>/<RIHS01 hash>),
-    through the three services, to the maps `afford watch` writes; the IMU's up-pointing acceleration must
-    come out as a map whose up is the room's."""
+    """PointCloud2, Imu and Odometry as rmw_zenoh publishes them (CDR on <domain>/<topic>/<DDS type>/<RIHS01
+    hash>), through the three services, to the maps `afford watch` writes; the IMU's up-pointing
+    acceleration must come out as a map whose up is the room's, and the odometry must reach the assembler."""
     import zenoh
     from test_end_to_end import (
         AFFORD,
@@ -667,6 +678,7 @@ def test_a_ros2_robot_on_rmw_zenoh_keys_gets_affordance_maps(generated_sequence,
         **EVERY_FRAME,
         "AFFORD_ROS__POINTS": "/robot1/camera/points",
         "AFFORD_ROS__IMU": "/robot1/imu",
+        "AFFORD_ROS__ODOMETRY": "/robot1/odom",
         "AFFORD_SERVICE__RECORDING_ID": "e2e-ros",
     }
     stack = Stack(tmp_path / "run", env=env).start()
@@ -686,10 +698,16 @@ def test_a_ros2_robot_on_rmw_zenoh_keys_gets_affordance_maps(generated_sequence,
                 rmw_zenoh_key("/robot1/camera/points", ros.POINTCLOUD2), congestion_control=block
             )
             imu = session.declare_publisher(rmw_zenoh_key("/robot1/imu", ros.IMU), congestion_control=block)
-            assert eventually_matched(points) and eventually_matched(imu), stack.logs()
+            odom = session.declare_publisher(
+                rmw_zenoh_key("/robot1/odom", ros.ODOMETRY), congestion_control=block
+            )
+            assert eventually_matched(points) and eventually_matched(imu) and eventually_matched(odom), (
+                stack.logs()
+            )
             began = time.monotonic()
-            for k, (_, cloud, reading) in enumerate(ros_stream(sequence, indices, time.time(), 1 / 30)):
+            for k, (stamp, cloud, reading) in enumerate(ros_stream(sequence, indices, time.time(), 1 / 30)):
                 imu.put(reading)  # the IMU's reading just before the cloud, as at 200 Hz
+                odom.put(odometry_reading(sequence, indices[k], stamp))
                 points.put(cloud)
                 time.sleep(max(0.0, began + (k + 1) / 30 - time.monotonic()))  # a 30 Hz camera
             list(session.get(Keys(stack.robot).key("status", "*"), timeout=10.0))  # behind the samples
@@ -707,15 +725,16 @@ def test_a_ros2_robot_on_rmw_zenoh_keys_gets_affordance_maps(generated_sequence,
     assert_a_place_on_a_label(documents, generated_room, sequence)
     log = (tmp_path / "run" / "assembler.log").read_text()
     assert "0 rejected" in log and "40 clouds" in log and "40 with an Imu gravity" in log, log[-3000:]
+    assert "40 with the odometry's pose" in log, log[-3000:]
     assert "NaN or infinite and dropped" in log
     # the map's up, in the odometry frame (the first camera's), is the room's: -gravity of frame 0, to within
-    # the registration's drift (KISS-ICP turns 7 degrees off over this walk, by the depth-frame path alike,
-    # and the IMU's gravity is averaged through those poses). An IMU read with the wrong sign would turn the
-    # map upside down: 170-180 degrees
+    # the registration's drift (KISS-ICP turned 7 degrees off over this walk without odometry; with it as a
+    # prior, under one), and the IMU's gravity is averaged through those poses. An IMU read with the wrong
+    # sign would turn the map upside down: 170-180 degrees
     from affordwire import messages
 
     world_from_odom = messages.pose_matrix(cloud.world_from_input)
-    assert _angle_deg(world_from_odom[:3, :3].T @ [0, 0, 1], -sequence.gravity(0)) < 10.0
+    assert _angle_deg(world_from_odom[:3, :3].T @ [0, 0, 1], -sequence.gravity(0)) < 3.0
 
 
 def eventually_matched(publisher, timeout: float = 20.0) -> bool:
