@@ -69,6 +69,8 @@ class AssemblerService:
         record = self.assembler.add(frame, at, busy)  # a refused frame raises here and changes nothing
         if self.store:
             self.store.append(record)  # before anything goes out about it
+        if record.note:
+            print(f"[assembler] frame at {at:.3f} s: {record.note}", flush=True)
         pose = record.pose
         self.last_scan, self.pending, self.last_stamp = time.monotonic(), True, at
         self.first_scan = self.first_scan or self.last_scan

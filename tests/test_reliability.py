@@ -71,18 +71,43 @@ def _state(assembler: Assembler) -> tuple:
 # -- the assembler refuses without changing anything ---------------------------------------------------------
 
 
+def _turned(x: float, yaw_deg: float) -> np.ndarray:
+    """A pose moved `x` along x and turned `yaw_deg` about z: the sensor of `_moved`."""
+    yaw, pose = np.radians(yaw_deg), np.eye(4)
+    pose[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+    pose[0, 3] = x
+    return pose
+
+
+def test_an_odometry_that_jumps_is_taken_as_a_reset_and_the_frame_kept(room):
+    """A robot's odometry restarted (back at its origin) or relocalised jumps further than the robot can
+    move: the frame is still good. Refused, every later frame would be measured from the old odometry and
+    refused too; taken, the map would be flung 50 m. So the frame is registered without it, with a note, and
+    the next guesses follow from this one."""
+    assembler = Assembler()
+    for k in range(6):  # the odometry is exact here
+        assembler.register(_moved(room, 0.04 * k, 1.0 * k), 100.0 + 0.1 * k, pose_guess=_turned(0.04 * k, k))
+    reset = np.eye(4)
+    reset[0, 3] = 50.0  # the odometry starts again, 50 m off
+    jumped = assembler.register(_moved(room, 0.24, 6), 100.6, pose_guess=reset @ _turned(0.0, 0.0))
+    assert "taken as a reset" in jumped.note and "faster than AFFORD_LIMITS__MAX_SPEED" in jumped.note
+    np.testing.assert_allclose(jumped.pose[:3, 3], [0.24, 0, 0], atol=0.03)  # where the frame is
+    after = assembler.register(
+        _moved(room, 0.28, 7), 100.7, pose_guess=reset @ _turned(0.04, 1.0) @ np.eye(4)
+    )
+    assert after.note == ""  # measured from the reset odometry: 4 cm and 1 degree
+    np.testing.assert_allclose(after.pose[:3, 3], [0.28, 0, 0], atol=0.03)
+
+
 def test_a_refused_frame_leaves_the_assembler_as_it_was(room):
     assembler = Assembler()
     _walk(assembler, room, range(4))
     last = assembler.trajectory.stamps[-1] + 0.1
     assembler.register(_moved(room, 0.16, 4), last, pose_guess=np.eye(4))  # the robot's odometry starts
     before = _state(assembler)
-    far = np.eye(4)
-    far[0, 3] = 50.0  # a guess 50 m away a tenth of a second later
     next_frame = _moved(room, 0.2, 5)
     refusals = {
         "not after the last frame": lambda: assembler.register(next_frame, last),
-        "faster than AFFORD_LIMITS__MAX_SPEED": lambda: assembler.register(next_frame, last + 0.1, far),
         "must be finite": lambda: assembler.register(np.full((500, 3), np.nan), last + 0.1),
         "outside 0": lambda: assembler.register(next_frame, 9.3e9),
         "not a direction": lambda: assembler.register(next_frame, last + 0.1, gravity=np.zeros(3)),

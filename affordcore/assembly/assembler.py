@@ -63,6 +63,7 @@ class FrameRecord:
     gravity: np.ndarray  # its gravity direction in the odometry frame; zeros without an IMU
     map_points: np.ndarray | None  # (N, 3) odometry-frame cell means it added to the global map (keyframes)
     map_weights: np.ndarray | None = None  # (N,) the points each of them averages (None: one each)
+    note: str = ""  # what a person watching the robot should hear of this frame (not journaled)
 
 
 @dataclass
@@ -176,6 +177,9 @@ class Assembler:
         odometry = self.odometry
         delta = self._predicted_motion(stamp)
         guessed = pose_guess is not None and self._last_guess is not None
+        note = self._odometry_jump(pose_guess, stamp) if guessed else ""
+        if note:  # a reset or relocalised odometry: this frame without it, the next ones from its new pose
+            guessed = False
         if guessed:
             delta = nearest_rigid(np.linalg.inv(self._last_guess) @ pose_guess)
         # KISS-ICP's preprocessing with deskew off, without copying the frame into C++ and back: its range
@@ -217,7 +221,7 @@ class Assembler:
             mapped = frame if map_frame is None else within_range(map_frame(), settings)
             _, sums, weights = cell_sums(mapped @ pose[:3, :3].T + pose[:3, 3], settings.map_voxel)
             map_points = sums / weights[:, None]
-        record = FrameRecord(self.frames, stamp, pose, pose_guess, up, map_points, weights)
+        record = FrameRecord(self.frames, stamp, pose, pose_guess, up, map_points, weights, note)
         return _Proposal(
             record,
             frame_downsample,
@@ -280,8 +284,15 @@ class Assembler:
             rigid = np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-3) and np.linalg.det(rotation) > 0
             if not rigid or not np.allclose(guess[3], (0, 0, 0, 1), atol=1e-6):
                 raise ValueError("the pose guess is not a rigid transform")
-            if self._last_guess is not None:
-                self._check_motion(self._last_guess, guess, stamp, "the pose guess", self._last_guess_stamp)
+
+    def _odometry_jump(self, guess: np.ndarray, stamp: float) -> str:
+        """Why the guess cannot follow the last one ("" when it can): a motion beyond the limits since the
+        last guess is the odometry reset or relocalised, not the robot moving. The frame is still good."""
+        try:
+            self._check_motion(self._last_guess, guess, stamp, "the odometry", self._last_guess_stamp)
+        except ValueError as jump:
+            return f"{jump}: taken as a reset, this frame registered without it and the next ones from it"
+        return ""
 
     def _check_motion(
         self, before: np.ndarray, after: np.ndarray, stamp: float, what: str, since: float | None = None
