@@ -10,6 +10,10 @@ assembler a second time with those AFFORD_ASSEMBLER__ settings, side by side.
 
     .venv/bin/python benchmarks/bench_odometry.py                # kitchen + 3 generated rooms, ~3 min
     .venv/bin/python benchmarks/bench_odometry.py --against INITIAL_THRESHOLD=2.0,MIN_MOTION=0.1
+    .venv/bin/python benchmarks/bench_odometry.py --generated 2 --slip turn --against ODOMETRY_PRIOR=0
+
+`--slip translate|turn`: from the 30th frame taken on, the odometry is off by a wheel slip, 10 cm along the
+sensor's x or 5 degrees about its y (pitch), as a robot's odometry is after a slip or a bump.
 """
 
 from __future__ import annotations
@@ -34,14 +38,37 @@ from affordcore.assembly.depth import DepthImage  # noqa: E402
 from affordcore.assembly.sequence import read_sequence  # noqa: E402
 from affordcore.settings import AssemblerSettings  # noqa: E402
 
+SLIP_FROM = 30  # frames taken before the slip
 
-def assembled(sequence, indices: list[int], settings: AssemblerSettings, odometry: bool):
+
+def slip(kind: str) -> np.ndarray:
+    """The odometry's error after a slip: 10 cm along the sensor's x, or 5 degrees about its y."""
+    from scipy.spatial.transform import Rotation
+
+    error = np.eye(4)
+    if kind == "translate":
+        error[0, 3] = 0.1
+    elif kind == "turn":
+        error[:3, :3] = Rotation.from_euler("y", 5, degrees=True).as_matrix()
+    return error
+
+
+def assembled(
+    sequence,
+    indices: list[int],
+    settings: AssemblerSettings,
+    odometry: bool,
+    slipped: np.ndarray | None = None,
+):
     """The assembler's poses (odom_from_sensor) of the frames, every one taken, and its median ms a frame
-    (back-projection, registration and map, as `Assembler.add` does them; the image read from disk before)."""
+    (back-projection, registration and map, as `Assembler.add` does them; the image read from disk before).
+    `slipped`: the odometry's error from the `SLIP_FROM`-th frame on."""
     assembler, seconds = Assembler(settings), []
-    for index in indices:
+    for taken, index in enumerate(indices):
         stamp = 1.0 + index / 30
         guess = sequence.odometry(index) if odometry else None
+        if guess is not None and slipped is not None and taken >= SLIP_FROM:
+            guess = guess @ slipped
         depth = DepthImage(sequence.depth(index), sequence.intrinsics, 0.001, 65535)
         frame = SensorFrame("camera", stamp, depth=depth, gravity=sequence.gravity(index), pose_guess=guess)
         start = time.perf_counter()
@@ -66,7 +93,11 @@ def main() -> None:
     )
     add_source_arguments(parser)
     parser.add_argument("--against", default="", help="AFFORD_ASSEMBLER__ settings: KEY=VALUE,...")
+    parser.add_argument(
+        "--slip", choices=["translate", "turn"], help="the odometry slips after the 30th frame taken"
+    )
     args = parser.parse_args()
+    slipped = slip(args.slip) if args.slip else None
     against = {
         k.lower().removeprefix("afford_assembler__"): float(v)
         for k, v in (p.split("=", 1) for p in args.against.split(",") if p)
@@ -74,7 +105,8 @@ def main() -> None:
     variants = [("defaults", AssemblerSettings())]
     if against:
         variants.append((args.against, AssemblerSettings(**against)))
-    print(f"Every {args.step}th frame, every frame taken, {os.cpu_count()} cores\n")
+    slipping = f"; the odometry slips ({args.slip}) after the {SLIP_FROM}th frame" if args.slip else ""
+    print(f"Every {args.step}th frame, every frame taken, {os.cpu_count()} cores{slipping}\n")
     print(
         "| source | trajectory | position error mean / worst (cm) | final rotation (deg) | path (m) "
         "| ms a frame (median) |"
@@ -88,12 +120,14 @@ def main() -> None:
             if sequence.has_odometry():
                 first = np.linalg.inv(sequence.odometry(indices[0]))
                 alone = [first @ sequence.odometry(i) for i in indices]
+                if slipped is not None:
+                    alone = alone[:SLIP_FROM] + [pose @ slipped for pose in alone[SLIP_FROM:]]
                 print(row(source.name, "odometry alone", alone, truth), flush=True)
             for label, settings in variants:
                 runs = [True, False] if sequence.has_odometry() else [False]
                 for odometry in runs:
                     how = f"assembler ({label}), {'from the odometry' if odometry else 'no odometry'}"
-                    poses, ms = assembled(sequence, indices, settings, odometry)
+                    poses, ms = assembled(sequence, indices, settings, odometry, slipped)
                     print(row(source.name, how, poses, truth, ms), flush=True)
 
 
