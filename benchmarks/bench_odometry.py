@@ -13,7 +13,8 @@ assembler a second time with those AFFORD_ASSEMBLER__ settings, side by side.
     .venv/bin/python benchmarks/bench_odometry.py --generated 2 --slip turn --against ODOMETRY_PRIOR=0
 
 `--slip translate|turn`: from the 30th frame taken on, the odometry is off by a wheel slip, 10 cm along the
-sensor's x or 5 degrees about its y (pitch), as a robot's odometry is after a slip or a bump.
+sensor's x or 5 degrees about its y (the camera's down axis: mostly a turn of heading), as a robot's
+odometry is after its wheels slip.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ SLIP_FROM = 30  # frames taken before the slip
 
 
 def slip(kind: str) -> np.ndarray:
-    """The odometry's error after a slip: 10 cm along the sensor's x, or 5 degrees about its y."""
+    """The odometry's error after a slip: 10 cm along the sensor's x, or 5 degrees about its y (down)."""
     from scipy.spatial.transform import Rotation
 
     error = np.eye(4)
