@@ -231,9 +231,14 @@ class RosGravity:
 
 def imu(payload: bytes, limits: LimitSettings | None = None) -> RosGravity:
     """The gravity a CDR sensor_msgs/msg/Imu measures."""
+    return gravity_of(_small(payload, IMU, "Imu"), limits)
+
+
+def _small(payload: bytes, typename: str, what: str):
+    """A message of a few hundred bytes (Imu, Odometry) deserialized; a larger one is refused unparsed."""
     if len(payload) > MAX_IMU_BYTES:
-        raise MessageError(f"an Imu of {len(payload):,} bytes; at most {MAX_IMU_BYTES:,} are parsed")
-    return gravity_of(deserialize(payload, IMU), limits)
+        raise MessageError(f"an {what} of {len(payload):,} bytes; at most {MAX_IMU_BYTES:,} are parsed")
+    return deserialize(payload, typename)
 
 
 def gravity_of(message, limits: LimitSettings | None = None) -> RosGravity:
@@ -284,9 +289,7 @@ class RosPose:
 
 def odometry(payload: bytes, limits: LimitSettings | None = None) -> RosPose:
     """The pose a CDR nav_msgs/msg/Odometry gives."""
-    if len(payload) > MAX_IMU_BYTES:
-        raise MessageError(f"an Odometry of {len(payload):,} bytes; at most {MAX_IMU_BYTES:,} are parsed")
-    return pose_of(deserialize(payload, ODOMETRY), limits)
+    return pose_of(_small(payload, ODOMETRY, "Odometry"), limits)
 
 
 def pose_of(message, limits: LimitSettings | None = None) -> RosPose:
@@ -323,24 +326,27 @@ def rigid_of(pose) -> np.ndarray:
     return rigid
 
 
-class PoseTrack:
-    """The latest odometry poses, so that each cloud gets the pose at its own time: interpolated between the
-    readings either side of it, else the nearest (odometry runs at 20-100 Hz, a depth camera or LiDAR at
-    10-30; between two readings a robot moves centimetres, which the registration's prior would take as
-    the odometry's word). Readings come from the network thread, clouds are handled on the worker."""
+class _Readings:
+    """The latest timed readings (arrays) of a sensor, at most `keep`. Readings come from the network
+    thread, clouds are handled on the worker: hence the lock."""
 
     def __init__(self, keep: int = 2048):
         self._readings: deque[tuple[float, np.ndarray]] = deque(maxlen=keep)
         self._lock = threading.Lock()
 
-    def add(self, stamp: float, pose: np.ndarray) -> None:
+    def add(self, stamp: float, value: np.ndarray) -> None:
         with self._lock:
-            self._readings.append((stamp, np.asarray(pose, dtype=np.float64)))
+            self._readings.append((stamp, np.asarray(value, dtype=np.float64)))
 
-    def latest(self) -> float | None:
-        """The newest reading's time, None before any."""
-        with self._lock:
-            return max((s for s, _ in self._readings), default=None)
+    def __len__(self) -> int:
+        return len(self._readings)
+
+
+class PoseTrack(_Readings):
+    """The latest odometry poses, so that each cloud gets the pose at its own time: interpolated between the
+    readings either side of it, else the nearest (odometry runs at 20-100 Hz, a depth camera or LiDAR at
+    10-30; between two readings a robot moves centimetres, which the registration's prior would take as
+    the odometry's word)."""
 
     def at(self, stamp: float, max_age: float) -> np.ndarray | None:
         """The pose at `stamp`: interpolated between the readings just before and after it when both lie
@@ -364,22 +370,10 @@ class PoseTrack:
         pose[:3, 3] = (1 - share) * a[:3, 3] + share * b[:3, 3]
         return pose
 
-    def __len__(self) -> int:
-        return len(self._readings)
 
-
-class GravityTrack:
+class GravityTrack(_Readings):
     """The latest IMU readings, so that each cloud gets the gravity measured nearest its own time (an IMU
-    runs at hundreds of Hz, a depth camera or LiDAR at 10-30). Readings come from the network thread,
-    clouds are handled on the worker: hence the lock."""
-
-    def __init__(self, keep: int = 2048):
-        self._readings: deque[tuple[float, np.ndarray]] = deque(maxlen=keep)
-        self._lock = threading.Lock()
-
-    def add(self, stamp: float, down: np.ndarray) -> None:
-        with self._lock:
-            self._readings.append((stamp, np.asarray(down, dtype=np.float64)))
+    runs at hundreds of Hz, a depth camera or LiDAR at 10-30)."""
 
     def at(self, stamp: float, max_age: float) -> np.ndarray | None:
         """The reading nearest `stamp`, if one lies within `max_age` seconds of it."""
@@ -391,6 +385,3 @@ class GravityTrack:
             if abs(stamps[nearest] - stamp) > max_age:
                 return None
             return self._readings[nearest][1].copy()
-
-    def __len__(self) -> int:
-        return len(self._readings)

@@ -194,9 +194,7 @@ class RosSettings(BaseModel):
     @field_validator("cloud_from_imu")
     @classmethod
     def _unit_quaternion(cls, quaternion: list[float] | None) -> list[float] | None:
-        if quaternion is not None and (
-            len(quaternion) != 4 or not abs(sum(q * q for q in quaternion) ** 0.5 - 1) <= 1e-3  # NaN too
-        ):
+        if quaternion is not None and (len(quaternion) != 4 or not _unit(quaternion)):
             raise ValueError(f"cloud_from_imu {quaternion} is not a unit quaternion [x, y, z, w]")
         return quaternion
 
@@ -204,12 +202,15 @@ class RosSettings(BaseModel):
     @classmethod
     def _mounting(cls, pose: list[float] | None) -> list[float] | None:
         if pose is not None and (
-            len(pose) != 7
-            or not all(abs(v) < float("inf") for v in pose)
-            or not abs(sum(q * q for q in pose[3:]) ** 0.5 - 1) <= 1e-3  # NaN too
+            len(pose) != 7 or not all(abs(v) < float("inf") for v in pose) or not _unit(pose[3:])
         ):
             raise ValueError(f"base_from_cloud {pose} is not a pose [x, y, z, qx, qy, qz, qw] (a unit q)")
         return pose
+
+
+def _unit(quaternion: list[float]) -> bool:
+    """Whether a quaternion's norm is 1 to within 1e-3 (False for NaN too)."""
+    return abs(sum(q * q for q in quaternion) ** 0.5 - 1) <= 1e-3
 
 
 class ServiceSettings(Settings):

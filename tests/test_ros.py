@@ -501,25 +501,34 @@ def ros_assembler(tmp_path, monkeypatch):
         router.close()
 
 
+def _answers(client) -> tuple[list, list, list]:
+    """(the assembler's error payloads, its pose payloads, the subscribers collecting them) for robot1."""
+    from services.transport import Keys
+
+    errors, poses, keys = [], [], Keys("robot1")
+    subscribers = [
+        client.declare_subscriber(keys.error("assembler"), lambda s: errors.append(s.payload.to_bytes())),
+        client.declare_subscriber(keys.pose, lambda s: poses.append(s.payload.to_bytes())),
+    ]
+    return errors, poses, subscribers
+
+
+def _camera_floor(seed: int) -> np.ndarray:
+    """An organised cloud (60, 80, 3) of a floor as a depth camera (x right, y down, z ahead) sees it."""
+    u = np.random.default_rng(seed).uniform(-1, 1, (60, 80, 2))
+    return np.stack([u[..., 0] * 2, np.full(u.shape[:2], 1.2), 2 + u[..., 1] * 1.5], axis=-1)
+
+
 @pytest.mark.skipif(not _zenoh_ok(), reason="zenoh is not installed")
 def test_the_assembler_takes_clouds_and_imu_on_both_key_formats_and_answers_bad_ones(ros_assembler):
     from conftest import eventually
 
     from affordwire import messages
-    from services.transport import Keys
 
     service, client = ros_assembler
-    errors, poses = [], []
-    keys = Keys("robot1")
-    subscribers = [
-        client.declare_subscriber(keys.error("assembler"), lambda s: errors.append(s.payload.to_bytes())),
-        client.declare_subscriber(keys.pose, lambda s: poses.append(s.payload.to_bytes())),
-    ]
-    # a floor as a depth camera (x right, y down, z ahead) sees it, with missing returns
-    rng = np.random.default_rng(1)
-    u = rng.uniform(-1, 1, (60, 80, 2))
-    floor = np.stack([u[..., 0] * 2, np.full(u.shape[:2], 1.2), 2 + u[..., 1] * 1.5], axis=-1)
-    floor[::7, ::5] = np.nan
+    errors, poses, subscribers = _answers(client)
+    floor = _camera_floor(1)
+    floor[::7, ::5] = np.nan  # missing returns
     import zenoh
 
     publishers = {}
@@ -567,18 +576,10 @@ def test_the_assembler_takes_each_cloud_s_pose_guess_from_the_odometry_and_answe
     from conftest import eventually
 
     from affordwire import messages
-    from services.transport import Keys
 
     service, client = ros_assembler
-    errors, poses = [], []
-    keys = Keys("robot1")
-    subscribers = [
-        client.declare_subscriber(keys.error("assembler"), lambda s: errors.append(s.payload.to_bytes())),
-        client.declare_subscriber(keys.pose, lambda s: poses.append(s.payload.to_bytes())),
-    ]
-    rng = np.random.default_rng(2)
-    u = rng.uniform(-1, 1, (60, 80, 2))
-    floor = np.stack([u[..., 0] * 2, np.full(u.shape[:2], 1.2), 2 + u[..., 1] * 1.5], axis=-1)
+    errors, poses, subscribers = _answers(client)
+    floor = _camera_floor(2)
     import zenoh
 
     publisher = client.declare_publisher("robot1/odom", congestion_control=zenoh.CongestionControl.BLOCK)
