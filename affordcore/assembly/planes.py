@@ -1,8 +1,8 @@
 """Registration weighted by the robot's odometry: point-to-plane ICP with the odometry's motion as a prior.
 
 KISS-ICP registers point to point and takes no prior: where a frame sees flat walls and floor, nothing pins
-the sensor along them, and its correspondences to the samples of a flat surface pull it along consistently
-(a generated office walk drifted 20 cm in 2 m from odometry good to 1 cm). Here each registration point is
+the sensor along them, and its correspondences to the samples of a flat surface pull it along consistently,
+further than the odometry it started from would have strayed. Here each registration point is
 matched to the plane of its nearest local-map points, and the odometry's motion since the last frame enters
 as a Gaussian prior: the geometry decides the directions it constrains, the odometry the ones it does not
 (docs/services.md, "Odometry as a prior", has the measurements). No library at hand does this: KISS-ICP's,
@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-# the local map's k-d tree is rebuilt every this many frames: a frame adds little to a map of 100-300k points,
-# and the tree costs about 35 ms to build (docs/services.md)
+# the local map's k-d tree is rebuilt every this many frames: a frame adds little to the map, and the tree
+# costs more to build than the registration that uses it (docs/services.md)
 REBUILD_EVERY = 3
 NEIGHBOURS = 8  # local-map points a plane is fitted to
 PLANAR = 0.2  # a fit is a plane when its smallest spread is under this share of the middle one
