@@ -208,7 +208,7 @@ def features_at(
     grid: PoseGrid,
     layout: FeatureLayout,
     index: np.ndarray,
-    chunk: int = 8192,
+    chunk: int = 2048,
 ) -> np.ndarray:
     """Features of the given poses only (flat grid indices), (len(index), n_features) float32, rows in the
     order given: the same values as the grid's rows from `iter_features` (normals rotated and cells summed
@@ -217,7 +217,9 @@ def features_at(
     For the second stage and for sampled training sets, so the cost follows the number of poses asked for,
     not the grid. Every read is one gather over all poses at once: the bilinear corners and weights of each
     joint and normal sample depend only on the pose's theta, so they are tabled per theta; the fields,
-    interpolated in z once per torso height that has a pose, are stacked by level and read at flat indices."""
+    interpolated in z once per torso height that has a pose, are stacked by level and read at flat indices.
+    Poses go `chunk` at a time: the gathers of a chunk (four corners of every normal sample of every pose)
+    stay in the cache, where larger chunks stream them through memory."""
     index = np.asarray(index, dtype=np.int64).ravel()
     if len(index) and (index.min() < 0 or index.max() >= grid.size):
         raise IndexError(f"pose indices must lie in [0, {grid.size}) for this grid")

@@ -15,7 +15,11 @@ scipy's k-d tree queries on every core. Normals are unsigned: callers use n n^T 
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
+
+from ..parallel import cores
 
 # points per neighbour query: bounds memory, and the chunk's arrays (12 MB of neighbours) are small enough for
 # the allocator to reuse them chunk after chunk rather than map fresh pages (a third of the CPU in page
@@ -37,10 +41,18 @@ def pca_normals(
         return normals
     tree = cKDTree(points, balanced_tree=False, compact_nodes=False)  # 15 % less CPU here, same neighbours
     padded = np.vstack([points, np.zeros((1, 3))])  # scipy's index for "no neighbour" reads a zero point
-    for start in range(0, len(queries), _CHUNK):
+
+    def chunk(start: int) -> None:
         stop = min(start + _CHUNK, len(queries))
-        _, index = tree.query(queries[start:stop], k=max_neighbours, distance_upper_bound=radius, workers=-1)
+        _, index = tree.query(queries[start:stop], k=max_neighbours, distance_upper_bound=radius)
         normals[start:stop] = _smallest_axis(_covariances(padded, index.reshape(stop - start, -1)))
+
+    # chunks side by side, one thread per core: the neighbour search and numpy's loops release the GIL, so
+    # one chunk's covariances run while another's neighbours are searched (a search on every core for one
+    # chunk at a time left the other cores idle during each chunk's covariances)
+    starts = range(0, len(queries), _CHUNK)
+    with ThreadPoolExecutor(min(len(starts), cores())) as pool:
+        list(pool.map(chunk, starts))
     return normals
 
 

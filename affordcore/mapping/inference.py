@@ -71,39 +71,42 @@ def score_poses(
         )
         vertical.append(np.einsum("xyk,qk->qxy", n[..., 2], w_cube[..., 2]))
     joint_planes = np.ascontiguousarray(np.stack(joint_planes, axis=1))
-    along, across, vertical = (np.stack(v, axis=1) for v in (along, across, vertical))
-    scores = np.empty((nt, nz, nx, ny), dtype=np.float32)
-    cube_planes = np.empty_like(along, dtype=np.float32)
     # a cell's normal is the mean of its sample columns, hence the 1 / per_cell^2
     scale = 1.0 / per_cell**2
-    vertical *= scale  # the same for every theta
-    # every theta's sum in two reused float64 buffers: fresh temporaries of this size (5 MB each, four per
-    # theta) were handed back to the system and faulted in again theta after theta, a quarter of the CPU
-    turned, term = np.empty_like(along), np.empty_like(along)
+    vertical = [v * scale for v in vertical]  # the same for every theta
+    along, across, vertical = (np.stack(v, axis=1).astype(np.float32) for v in (along, across, vertical))
+    reader = _PlaneReader(sampler, joint_planes.shape[1:])
+    scores = np.empty((nz, nt, nx, ny), dtype=np.float32)
     for it in range(nt):
         theta = float(grid.theta[it])
-        np.multiply(along, np.cos(theta) * scale, out=turned)
-        np.add(turned, np.multiply(across, np.sin(theta) * scale, out=term), out=turned)
-        np.add(turned, vertical, out=cube_planes, casting="unsafe")
-        reads = _slab_reads(sampler, skeleton, theta, column_of_sample)
-        scores[it] = bias + _slab_scores(sampler, reads, joint_planes, cube_planes)
-    return np.ascontiguousarray(scores.transpose(1, 0, 2, 3))
+        joint_reads, column_reads = _slab_reads(sampler, skeleton, theta, column_of_sample)
+        reader.start()
+        for plane, cu, cv, weight in joint_reads:
+            reader.add(joint_planes[plane], cu, cv, weight)
+        cos, sin = np.cos(theta) * scale, np.sin(theta) * scale
+        for column, reads in column_reads.items():
+            plane = reader.cube_plane(along[column], across[column], vertical[column], cos, sin)
+            for cu, cv, weight in reads:
+                reader.add(plane, cu, cv, weight)
+        scores[:, it] = bias + reader.total()
+    return scores
 
 
 def _slab_reads(
     sampler: _SlabSampler, skeleton: Skeleton, theta: float, column_of_sample: np.ndarray
-) -> list[tuple[int, int, int, np.float32]]:
-    """(plane, x index, y index, weight) of every bilinear read of one theta's slab: the 15 joint planes at
-    the joints' offsets, then the cube planes at their samples' offsets. Weights of reads that share a plane
-    and a voxel corner are summed first (the samples of one cell column read the same plane at offsets a
-    voxel apart: 2 x 2 samples make 9 corners, not 16), in the order the reads first occur, as
-    `_SlabSampler.corners` computes them, for all offsets at once."""
+) -> tuple[list, dict]:
+    """The bilinear reads of one theta's slab: ([(joint plane, x index, y index, weight)] at the 15 joints'
+    offsets, {cell column: [(x index, y index, weight)]} at the cube's sample offsets). Weights of reads that
+    share a plane and a voxel corner are summed first (the samples of one cell column read the same plane at
+    offsets about a voxel apart: 2 x 2 samples make 9 corners, not 16), as `_SlabSampler.corners` computes
+    them, for all offsets at once."""
     rotation = rotation_z(theta)
     joint_xy = (skeleton.joints @ rotation.T)[:, :2]
     axis = sampler.layout.sample_positions()
     sample_xy = np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2) @ rotation[:2, :2].T
     offsets = np.concatenate([joint_xy, sample_xy])
-    plane = np.concatenate([np.arange(len(joint_xy)), len(joint_xy) + column_of_sample])
+    n_joints = len(joint_xy)
+    plane = np.concatenate([np.arange(n_joints), n_joints + column_of_sample])
     (bu, bv), (fu, fv) = sampler.floor_and_fraction(offsets[:, 0], offsets[:, 1])
     # (offset, corner), corners in `corners`' order: (0, 0), (1, 0), (0, 1), (1, 1)
     weight = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], axis=1)
@@ -118,26 +121,60 @@ def _slab_reads(
     order = np.argsort(first)
     k = first[order]
     # plain Python numbers: the caller's loop indexes with them once per read
-    return list(zip(plane[k].tolist(), cu[k].tolist(), cv[k].tolist(), summed[order].astype(np.float32)))
+    reads = zip(plane[k].tolist(), cu[k].tolist(), cv[k].tolist(), summed[order].astype(np.float32))
+    joints, columns = [], {}
+    for p, u, v, w in reads:
+        if p < n_joints:
+            joints.append((p, u, v, w))
+        else:
+            columns.setdefault(p - n_joints, []).append((u, v, w))
+    return joints, columns
 
 
-def _slab_scores(
-    sampler: _SlabSampler, reads: list, joint_planes: np.ndarray, cube_planes: np.ndarray
-) -> np.ndarray:
-    """The sum of a slab's weighted reads for every torso level at once: planes are (plane, level, X, Y)."""
-    stride, nx, ny = sampler.stride, sampler.nx, sampler.ny
-    n_joints = len(joint_planes)
-    total = np.zeros((joint_planes.shape[1], nx, ny), dtype=np.float32)
-    term = np.empty_like(total)
-    for plane, cu, cv, weight in reads:
-        field = joint_planes[plane] if plane < n_joints else cube_planes[plane - n_joints]
-        np.multiply(
-            field[:, cu : cu + (nx - 1) * stride + 1 : stride, cv : cv + (ny - 1) * stride + 1 : stride],
-            weight,
-            out=term,
-        )
+class _PlaneReader:
+    """Sums weighted shifted reads of (level, X, Y) planes into one slab's scores (level, nx, ny).
+
+    With poses a voxel apart (stride 1), a read at corner (cu, cv) of every pose is one contiguous run of the
+    flattened plane, offset by cu * Y + cv: the sum is taken over the whole flattened plane (rows wrap into
+    the next, and those sums are thrown away), one long vector operation per read rather than one per row.
+    A cube plane is made column by column just before its reads, so that it is still in the cache."""
+
+    def __init__(self, sampler: _SlabSampler, plane_shape: tuple[int, int, int]):
+        self.stride, self.nx, self.ny = sampler.stride, sampler.nx, sampler.ny
+        self.plane_shape = plane_shape
+        self.flat = self.stride == 1
+        shape = (int(np.prod(plane_shape)),) if self.flat else (plane_shape[0], self.nx, self.ny)
+        self._total, self._term = np.empty(shape, np.float32), np.empty(shape, np.float32)
+        self._cube = np.empty(plane_shape, np.float32)
+        self._part = np.empty(plane_shape, np.float32)
+
+    def start(self) -> None:
+        self._total[:] = 0
+
+    def cube_plane(self, along, across, vertical, cos: float, sin: float) -> np.ndarray:
+        """One cell column's normal plane at this theta (as float32): cos (w_x n_x + w_y n_y) + sin (w_x n_y -
+        w_y n_x) + w_z n_z, the three terms scaled already but the first two's cos and sin."""
+        np.multiply(along, np.float32(cos), out=self._cube)
+        np.add(self._cube, np.multiply(across, np.float32(sin), out=self._part), out=self._cube)
+        return np.add(self._cube, vertical, out=self._cube)
+
+    def add(self, plane: np.ndarray, cu: int, cv: int, weight) -> None:
+        total, term = self._total, self._term
+        if self.flat:
+            offset = cu * self.plane_shape[2] + cv
+            size = len(total) - offset
+            np.multiply(plane.reshape(-1)[offset:], weight, out=term[:size])
+            np.add(total[:size], term[:size], out=total[:size])
+            return
+        s, nx, ny = self.stride, self.nx, self.ny
+        read = plane[:, cu : cu + (nx - 1) * s + 1 : s, cv : cv + (ny - 1) * s + 1 : s]
+        np.multiply(read, weight, out=term)
         total += term
-    return total
+
+    def total(self) -> np.ndarray:
+        if self.flat:
+            return self._total.reshape(self.plane_shape)[:, : self.nx, : self.ny]
+        return self._total
 
 
 def model_scores(
