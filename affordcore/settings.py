@@ -354,6 +354,12 @@ class LearnSettings(BaseModel):
         "rooms' samples weighted up to stand for the rest: memory stops growing with the number of rooms "
         "(liblinear copies its data at 16 bytes a value)",
     )
+    max_positives: int = Field(
+        300_000,
+        ge=1,
+        description="a training set keeps at most this many positives in all, likewise: every positive pose "
+        "of a room is kept, so without a cap the positives grow with the rooms (docs/learning.md)",
+    )
     rescore_fraction: float = Field(
         0.03,
         gt=0,

@@ -82,7 +82,13 @@ def room_set(affordance: str, rooms: Path, cache: Path) -> Path:
     loaded = load_rooms([f for f in files if f.name in set(train) | set(validation)], settings)
     task = Task(affordance, settings, FeatureLayout.from_settings(settings))
     examples = {room.name: room_examples(room, task) for room in loaded}
-    training = stack(examples, train, settings.learn.max_negatives, np.random.default_rng([0, 2]))
+    training = stack(
+        examples,
+        train,
+        settings.learn.max_negatives,
+        np.random.default_rng([0, 2]),
+        settings.learn.max_positives,
+    )
     held = stack(examples, validation)
     cache.mkdir(parents=True, exist_ok=True)
     np.savez(path, X=training.X, y=training.y, Xv=held.X, yv=held.y)

@@ -98,8 +98,13 @@ def main() -> None:
         rng = np.random.default_rng([args.seed, 1])
         task = Task(affordance, settings, FeatureLayout.from_settings(settings))
         examples = {room.name: room_examples(room, task) for room in train_rooms}
+        learn = settings.learn
         train = stack(
-            examples, list(examples), settings.learn.max_negatives, np.random.default_rng(args.seed)
+            examples,
+            list(examples),
+            learn.max_negatives,
+            np.random.default_rng(args.seed),
+            learn.max_positives,
         )
         first = get_learner("linear-tuned").fit(train, train, {}, rng)
         fraction, max_poses = settings.learn.rescore_fraction, settings.learn.rescore_max_poses

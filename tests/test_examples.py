@@ -126,3 +126,30 @@ def test_a_stack_keeps_every_positive_and_at_most_the_negatives_asked_for_weight
         source = examples["a" if x[1] == 1 else "bb"]
         assert source.y[int(x[0])] == y
     assert stack(examples, ["a", "bb"], max_negatives=1000).X.shape == whole.X.shape
+
+
+def test_a_stack_caps_the_positives_too_weighted_up_and_draws_the_same_negatives_when_they_fit():
+    from affordcore.learn.examples import RoomExamples, stack
+
+    def room(name, positives, negatives, weight):
+        y = np.r_[np.ones(positives), -np.ones(negatives)].astype(np.int8)
+        X = np.column_stack([np.arange(len(y)), np.full(len(y), len(name))]).astype(np.float32)
+        return RoomExamples(name, X, y, np.where(y > 0, 1.0, weight).astype(np.float32), [], None)
+
+    examples = {"a": room("a", 400, 300, 10.0), "bb": room("bb", 200, 100, 4.0)}
+    whole = stack(examples, ["a", "bb"])
+    both = stack(examples, ["a", "bb"], 80, np.random.default_rng(3), max_positives=150)
+    assert int((both.y > 0).sum()) == 150 and int((both.y < 0).sum()) == 80
+    for label in (1, -1):  # each class's kept rows stand for all of its rows
+        kept, every = both.weights[both.y == label].sum(), whole.weights[whole.y == label].sum()
+        assert kept == pytest.approx(every, rel=0.15)
+    assert both.weights[both.y > 0] == pytest.approx(np.full(150, 600 / 150))
+    for x, y in zip(both.X, both.y):  # features and labels travel together
+        assert examples["a" if x[1] == 1 else "bb"].y[int(x[0])] == y
+    # a cap the positives fit under draws nothing more: the same rows as negatives alone
+    negatives_only = stack(examples, ["a", "bb"], 80, np.random.default_rng(3))
+    roomy = stack(examples, ["a", "bb"], 80, np.random.default_rng(3), max_positives=600)
+    np.testing.assert_array_equal(roomy.X, negatives_only.X)
+    np.testing.assert_array_equal(roomy.weights, negatives_only.weights)
+    only_positives = stack(examples, ["a", "bb"], max_positives=60, rng=np.random.default_rng(3))
+    assert int((only_positives.y > 0).sum()) == 60 and int((only_positives.y < 0).sum()) == 400

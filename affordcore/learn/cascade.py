@@ -79,7 +79,23 @@ def second_stage_examples(
         Xs.append(features_at(fields, task.skeleton, grid, task.layout, best[chosen]))
         ys.append(np.where(label[chosen], 1, -1).astype(np.int8))
         ws.append(np.where(label[chosen], 1.0, 1.0 / rate).astype(np.float32))
-    return RoomExamples("second-stage", np.concatenate(Xs), np.concatenate(ys), np.concatenate(ws))
+    return RoomExamples("second-stage", _joined_float64(Xs), np.concatenate(ys), np.concatenate(ws))
+
+
+def _joined_float64(parts: list[np.ndarray]) -> np.ndarray:
+    """The rooms' float32 feature rows as one float64 array, the dtype scikit-learn's boosted trees take (a
+    float32 array they copy whole, beside it), each room's rows let go once copied (`parts` is emptied): the
+    memory of the float64 array and not much more, where joining then converting held three copies at once."""
+    if not parts:
+        raise ValueError("no training room has a pose for the second stage")
+    joined = np.empty((sum(len(p) for p in parts), *parts[0].shape[1:]), dtype=np.float64)
+    offset = 0
+    parts.reverse()  # pop from the end, in the rooms' order
+    while parts:
+        part = parts.pop()
+        joined[offset : offset + len(part)] = part
+        offset += len(part)
+    return joined
 
 
 def tree_sample_weights(y: np.ndarray, weights: np.ndarray, settings: TreeSettings) -> np.ndarray:

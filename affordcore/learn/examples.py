@@ -352,28 +352,27 @@ def stack(
     names: list[str],
     max_negatives: int | None = None,
     rng: np.random.Generator | None = None,
+    max_positives: int | None = None,
 ) -> RoomExamples:
-    """The rooms' examples as one set. With `max_negatives`, at most that many negatives in all: a uniform
-    random share of them (drawn with `rng`), weighted up by the inverse share so they still stand for every
-    negative of the rooms. The rows to keep are chosen from the labels alone, then each room's rows are read
-    in turn and only the kept ones copied: memory holds the result and one room."""
+    """The rooms' examples as one set. With `max_negatives` (`max_positives`), at most that many negatives
+    (positives) in all: a uniform random share of them (drawn with `rng`), weighted up by the inverse share so
+    they still stand for every example of the rooms. The rows to keep are chosen from the labels alone, then
+    each room's rows are read in turn and only the kept ones copied: memory holds the result and one room."""
     examples = ExampleSet.of(examples)
     labels = [examples.labels(n) for n in names]
-    rows: list = [slice(None)] * len(names)
-    scale = 1.0
-    negatives = [np.flatnonzero(y <= 0) for y, _ in labels]
-    total = sum(len(n) for n in negatives)
-    if max_negatives is not None and total > max_negatives:
-        rng = rng or np.random.default_rng(0)
-        pick = np.zeros(total, bool)
-        pick[rng.choice(total, max_negatives, replace=False)] = True
-        picks = np.split(pick, np.cumsum([len(n) for n in negatives])[:-1])
-        rows = [
-            np.sort(np.concatenate([np.flatnonzero(y > 0), n[p]]))
-            for (y, _), n, p in zip(labels, negatives, picks)
-        ]
-        scale = total / max_negatives
-    weights = [w[r] * np.where(y[r] > 0, 1.0, scale).astype(np.float32) for (y, w), r in zip(labels, rows)]
+    rng = rng or np.random.default_rng(0)
+    # negatives first, then positives: a set with positives under their cap draws what it drew before
+    negatives, negative_scale = _share([np.flatnonzero(y <= 0) for y, _ in labels], max_negatives, rng)
+    positives, positive_scale = _share([np.flatnonzero(y > 0) for y, _ in labels], max_positives, rng)
+    rows: list = (
+        [np.sort(np.concatenate(kept)) for kept in zip(positives, negatives)]
+        if max(negative_scale, positive_scale) > 1
+        else [slice(None)] * len(names)
+    )
+    weights = [
+        w[r] * np.where(y[r] > 0, positive_scale, negative_scale).astype(np.float32)
+        for (y, w), r in zip(labels, rows)
+    ]
     ys = [y[r] for (y, _), r in zip(labels, rows)]
     return RoomExamples(
         "+".join(names),
@@ -383,6 +382,18 @@ def stack(
         [room for n in names for room in examples.rooms_of(n)],
         examples.task,
     )
+
+
+def _share(rows: list[np.ndarray], limit: int | None, rng: np.random.Generator) -> tuple[list, float]:
+    """Each room's rows of one class kept when the rooms together may keep `limit` (None: no limit) of them,
+    and the weight a kept row takes on to stand for the rest (1 when every row is kept)."""
+    total = sum(len(r) for r in rows)
+    if limit is None or total <= limit:
+        return rows, 1.0
+    pick = np.zeros(total, bool)
+    pick[rng.choice(total, limit, replace=False)] = True
+    picks = np.split(pick, np.cumsum([len(r) for r in rows])[:-1])
+    return [r[p] for r, p in zip(rows, picks)], total / limit
 
 
 def _stacked_rows(examples: ExampleSet, names: list[str], rows: list, total: int) -> np.ndarray:

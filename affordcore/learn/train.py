@@ -124,9 +124,10 @@ def train_on_rooms(
     training examples further, and `own_threshold` keeps the learner's own pose threshold: the paper's
     imbalance test, which is about how each learner's own decision rule bears the imbalance."""
     examples = ExampleSet.of(examples)
-    # at most learn.max_negatives: memory stops growing with the number of training rooms
+    # at most learn.max_negatives and max_positives: memory stops growing with the number of training rooms
+    learn = task.settings.learn
     training = stack(
-        examples, train_names, task.settings.learn.max_negatives, np.random.default_rng([seed, 2])
+        examples, train_names, learn.max_negatives, np.random.default_rng([seed, 2]), learn.max_positives
     )
     validation = stack(examples, validation_names)
     if training.positives == 0:
