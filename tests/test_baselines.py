@@ -75,3 +75,17 @@ def test_the_different_cost_model_is_the_same_model_on_the_same_data():
     np.random.seed(2)
     second = different_costs(X, y, cost_ratio=50.0)
     assert np.array_equal(first.weights, second.weights) and first.bias == second.bias
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_standardised_rows_are_the_float32_values_liblinear_was_given_before_in_blocks(dtype):
+    from affordcore.learn.baselines import _standardised
+
+    rng = np.random.default_rng(5)
+    X = (rng.normal(size=(1000, 7)) * [1, 10, 0.1, 3, 1, 1, 5]).astype(dtype)
+    mean, scale = X.mean(axis=0, dtype=np.float64), X.std(axis=0, dtype=np.float64)
+    # the one expression it replaces, then scikit-learn's float64 copy of it
+    before = ((X - mean.astype(X.dtype)) / scale.astype(X.dtype)).astype(np.float32).astype(np.float64)
+    standard = _standardised(X, mean, scale, rows=128)  # blocks that do not divide the rows
+    assert standard.dtype == np.float64 and standard.flags.c_contiguous
+    np.testing.assert_array_equal(standard, before)

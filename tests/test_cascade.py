@@ -186,3 +186,16 @@ def test_fast_weighted_binning_gives_scikit_learns_thresholds_and_trees():
         patched = tree_classifier(settings, 3).fit(X, y, sample_weight=weight)
     plain, patched = TreeEnsemble.from_sklearn(plain).to_dict(), TreeEnsemble.from_sklearn(patched).to_dict()
     assert patched == plain
+
+
+def test_second_stage_rows_are_joined_into_float64_in_order_and_let_go():
+    from affordcore.learn.cascade import _joined_float64
+
+    rng = np.random.default_rng(2)
+    parts = [rng.normal(size=(n, 4)).astype(np.float32) for n in (3, 0, 5, 1)]
+    expected = np.concatenate(parts).astype(np.float64)
+    joined = _joined_float64(parts)
+    np.testing.assert_array_equal(joined, expected)
+    assert joined.dtype == np.float64 and parts == []  # each room's rows were let go once copied
+    with pytest.raises(ValueError, match="no training room"):
+        _joined_float64([])
