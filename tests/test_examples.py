@@ -104,17 +104,22 @@ def test_rooms_need_a_label_file(data_set, tmp_path):
         data_set_rooms(tmp_path)
 
 
+def _room(name, positives, negatives, weight):
+    """A room's examples, each row (index, len(name)) so a stacked row tells where it came from; negatives
+    weighted `weight`."""
+    from affordcore.learn.examples import RoomExamples
+
+    y = np.r_[np.ones(positives), -np.ones(negatives)].astype(np.int8)
+    X = np.column_stack([np.arange(len(y)), np.full(len(y), len(name))]).astype(np.float32)
+    return RoomExamples(name, X, y, np.where(y > 0, 1.0, weight).astype(np.float32), [], None)
+
+
 def test_a_stack_keeps_every_positive_and_at_most_the_negatives_asked_for_weighted_to_stand_for_all():
-    from affordcore.learn.examples import RoomExamples, stack
+    from affordcore.learn.examples import stack
 
     rng = np.random.default_rng(0)
 
-    def room(name, positives, negatives, weight):
-        y = np.r_[np.ones(positives), -np.ones(negatives)].astype(np.int8)
-        X = np.column_stack([np.arange(len(y)), np.full(len(y), len(name))]).astype(np.float32)
-        return RoomExamples(name, X, y, np.where(y > 0, 1.0, weight).astype(np.float32), [], None)
-
-    examples = {"a": room("a", 5, 300, 10.0), "bb": room("bb", 2, 100, 4.0)}
+    examples = {"a": _room("a", 5, 300, 10.0), "bb": _room("bb", 2, 100, 4.0)}
     whole = stack(examples, ["a", "bb"])
     capped = stack(examples, ["a", "bb"], max_negatives=80, rng=rng)
     assert capped.positives == whole.positives == 7 and int((capped.y < 0).sum()) == 80
@@ -129,14 +134,9 @@ def test_a_stack_keeps_every_positive_and_at_most_the_negatives_asked_for_weight
 
 
 def test_a_stack_caps_the_positives_too_weighted_up_and_draws_the_same_negatives_when_they_fit():
-    from affordcore.learn.examples import RoomExamples, stack
+    from affordcore.learn.examples import stack
 
-    def room(name, positives, negatives, weight):
-        y = np.r_[np.ones(positives), -np.ones(negatives)].astype(np.int8)
-        X = np.column_stack([np.arange(len(y)), np.full(len(y), len(name))]).astype(np.float32)
-        return RoomExamples(name, X, y, np.where(y > 0, 1.0, weight).astype(np.float32), [], None)
-
-    examples = {"a": room("a", 400, 300, 10.0), "bb": room("bb", 200, 100, 4.0)}
+    examples = {"a": _room("a", 400, 300, 10.0), "bb": _room("bb", 200, 100, 4.0)}
     whole = stack(examples, ["a", "bb"])
     both = stack(examples, ["a", "bb"], 80, np.random.default_rng(3), max_positives=150)
     assert int((both.y > 0).sum()) == 150 and int((both.y < 0).sum()) == 80
