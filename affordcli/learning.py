@@ -44,7 +44,8 @@ def synth(
         "--styles",
         help="comma-separated scan styles dealt to rooms in turn: fused (fused depth frames), mesh (a "
         "reconstruction's vertices), laser (360-degree laser stations), frames (1-3 raw depth frames), walk "
-        "(depth frames registered by the assembler)",
+        "(depth frames registered by the assembler), sweep (3-6 raw frames panned across the room from its "
+        "edge)",
     ),
     sequences: bool = typer.Option(
         False, "--sequences", help="also write a sensor sequence per room with ground-truth poses"

@@ -44,6 +44,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rooms", type=int, default=200, help="generated rooms in all")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument(
+        "--styles", help="scan styles dealt to rooms in turn (afford synth --styles; default: its default)"
+    )
     parser.add_argument("--test", type=int, default=40, help="the last this many rooms are test rooms")
     parser.add_argument("--validation", type=int, default=40, help="the this many before them validate")
     parser.add_argument("--data", type=Path, default=ROOT / "bench-data" / "accuracy")
@@ -214,13 +217,17 @@ def generated_rooms(args) -> list:
     from affordcore.learn.examples import data_set_rooms
     from affordcore.synth.batch import synthesize
     from affordcore.synth.dataset import SynthOptions
+    from affordcore.synth.styles import DEFAULT_STYLES
 
     stamp = args.data / "accuracy-options.json"
     have = json.loads(stamp.read_text()) if stamp.exists() else {}
+    styles = tuple(args.styles.split(",")) if args.styles else DEFAULT_STYLES
     wanted = {"seed": args.seed, "generator": generator_version()}
+    if styles != DEFAULT_STYLES:  # a stamp of the default styles stays as it was before styles were chosen
+        wanted["styles"] = list(styles)
     if have.get("rooms", 0) < args.rooms or {k: have.get(k) for k in wanted} != wanted:
         print(f"generating {args.rooms} rooms into {args.data} ...")
-        synthesize(SynthOptions(rooms=args.rooms, seed=args.seed), args.data)
+        synthesize(SynthOptions(rooms=args.rooms, seed=args.seed, styles=styles), args.data)
         stamp.write_text(json.dumps({"rooms": args.rooms, **wanted}))
     # by generation index, not by name: names start with the room kind, and kinds are dealt round-robin,
     # so every part of the split holds every kind

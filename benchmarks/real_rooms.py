@@ -6,6 +6,11 @@ apart from where the threshold sits), and place-level recall with the count of f
 the maps with the labels go to docs/figures/real-rooms/. Needs ../shared beside the project.
 
     .venv/bin/python benchmarks/real_rooms.py            # about a minute on 2 cores
+    .venv/bin/python benchmarks/real_rooms.py --rooms DIR --figures none   # any folder of labelled clouds
+
+With `--rooms`, any folder of `<room>.ply` beside `<room>.labels.json` (`afford synth`'s output) is scored the
+same way, its sensor positions left out as the real rooms' are, with each affordance's totals at the end: the
+generated counterpart of a real scan measured on the footing the real rooms are.
 """
 
 from __future__ import annotations
@@ -36,19 +41,29 @@ def main() -> None:
         default="none",
         help="none: the rooms are z-up already; auto: find the floor as for any cloud",
     )
-    parser.add_argument("--figures", type=Path, default=FIGURES)
+    parser.add_argument("--rooms", type=Path, default=ROOMS, help="a folder of <room>.ply and its labels")
+    parser.add_argument("--models", type=Path, help="a folder of <affordance>.model.json (default: shipped)")
+    parser.add_argument("--figures", default=str(FIGURES), help="where the plan views go; none: no figures")
     args = parser.parse_args()
-    if not ROOMS.is_dir():
-        sys.exit(f"{ROOMS} not found: this report needs ../shared/data/rooms beside the project")
+    if not args.rooms.is_dir():
+        sys.exit(f"{args.rooms} not found: this report needs ../shared/data/rooms beside the project")
+    figures = None if args.figures == "none" else Path(args.figures)
     settings = Settings()
-    models = {name: load_model(path) for name, path in shipped_models().items()}
-    args.figures.mkdir(parents=True, exist_ok=True)
+    files = (
+        {p.name.removesuffix(".model.json"): p for p in sorted(args.models.glob("*.model.json"))}
+        if args.models
+        else shipped_models()
+    )
+    models = {name: load_model(path) for name, path in files.items()}
+    if figures is not None:
+        figures.mkdir(parents=True, exist_ok=True)
+    totals = {name: np.zeros(3, np.int64) for name in models}  # places found, labelled, false skeletons
     print(
         "| room | affordance | labels | positive poses | P / R / F1 at the threshold "
         "| oracle-threshold F1 | places found | false skeletons | probabilities of the places |"
     )
     print("|---|---|---:|---:|---|---:|---:|---:|---|")
-    for cloud_path in sorted(ROOMS.glob("*.ply")):
+    for cloud_path in sorted(args.rooms.glob("*.ply")):
         labels = load_labels(cloud_path.with_name(cloud_path.stem + ".labels.json"))
         scene = prepare_scene(load_cloud(cloud_path), settings, args.gravity)
         # every affordance in every room: a skeleton where the room labels none of its affordance is false
@@ -73,9 +88,12 @@ def main() -> None:
                 f"{int(places.found.sum())} / {len(places.found)} | {int(places.false.sum())} | "
                 f"{', '.join(amap.place_labels()) or '-'} |"
             )
-            plot_map(
-                scene.cloud.points, amap, args.figures / f"{short}-{model.affordance}.png", labels=labels
-            )
+            totals[model.affordance] += [places.found.sum(), len(places.found), places.false.sum()]
+            if figures is not None:
+                plot_map(scene.cloud.points, amap, figures / f"{short}-{model.affordance}.png", labels=labels)
+    rooms = len(list(args.rooms.glob("*.ply")))
+    for name, (found, labelled, false) in totals.items():
+        print(f"| all {rooms} rooms | {name} | {labelled} | | | | {found} / {labelled} | {false} | |")
 
 
 if __name__ == "__main__":

@@ -195,9 +195,11 @@ def frames_scan(room: Room, rng: np.random.Generator) -> Scan:
     return Scan(np.concatenate(points), np.concatenate(colors), _eyes(poses), f"{len(poses)} frames")
 
 
-def _piece_and_spot(room: Room, rng: np.random.Generator):
-    """A labelled piece (any piece in a room with none) and a free floor spot 1.0-2.5 m from its centre (the
-    free spot nearest 1.8 m when none is in that band)."""
+def _piece_and_spot(
+    room: Room, rng: np.random.Generator, band: tuple[float, float] = (1.0, 2.5), nearest: float = 1.8
+):
+    """A labelled piece (any piece in a room with none) and a free floor spot `band` m from its centre (the
+    free spot nearest `nearest` m when none is in the band)."""
     pieces = [piece for piece in room.pieces if piece.anchors] or room.pieces
     piece = pieces[int(rng.integers(len(pieces)))] if pieces else None
     free = free_floor(room, rng)
@@ -205,9 +207,46 @@ def _piece_and_spot(room: Room, rng: np.random.Generator):
         return None, free[int(rng.integers(len(free)))]
     lo, hi = piece.local_bounds()
     distance = np.linalg.norm(free - piece.world_point((lo + hi) / 2), axis=1)
-    band = np.flatnonzero((distance > 1.0) & (distance < 2.5))
-    spot = free[int(rng.choice(band))] if len(band) else free[int(np.abs(distance - 1.8).argmin())]
+    within = np.flatnonzero((distance > band[0]) & (distance < band[1]))
+    spot = free[int(rng.choice(within))] if len(within) else free[int(np.abs(distance - nearest).argmin())]
     return piece, spot
+
+
+# -- sweep: a few raw frames panned across the room from its edge --------------------------------------------
+
+SWEEP_FRAMES = (3, 7)  # frames per sweep, drawn per room (upper bound excluded)
+SWEEP_DISTANCE = (2.5, 4.5)  # m from the piece the sweep is centred on: across a room, to the Kinect's limit
+SWEEP_PAN = 12.0  # degrees at most between one frame's heading and the next
+SWEEP_STRIDE = 0.15  # m at most a hand-held camera moves between frames
+
+
+def sweep_scan(room: Room, rng: np.random.Generator) -> Scan:
+    """3-6 unfused VGA Kinect frames of a hand-held sweep from a spot 2.5-4.5 m from a labelled piece: the
+    camera 1.2-1.7 m up, panned across the room a few degrees a frame and carried a few centimetres, each
+    frame registered with a visual odometry's small error. What a short RGB-D capture of a room is (the few
+    posed frames of an SLAM tutorial's data set): far surfaces at the sensor's noisiest, seats seen over
+    tables and from behind, most of the floor plan never seen."""
+    raycaster = _raycaster(room)
+    camera = DepthCamera().with_kinect_noise()
+    piece, spot = _piece_and_spot(room, rng, SWEEP_DISTANCE, nearest=3.5)
+    eye = np.array([*spot, rng.uniform(1.2, 1.7)])
+    target = aim_at_piece(piece, eye, rng)
+    count = int(rng.integers(*SWEEP_FRAMES))
+    pan = np.radians(rng.uniform(-SWEEP_PAN, SWEEP_PAN)) * (np.arange(count) - (count - 1) / 2)
+    heading = rng.uniform(0, 2 * np.pi)
+    carried = np.outer(np.arange(count) - (count - 1) / 2, [np.cos(heading), np.sin(heading), 0.0])
+    carried *= rng.uniform(0, SWEEP_STRIDE)
+    points, colors, poses = [], [], []
+    for turn, offset in zip(pan, carried, strict=True):
+        c, s = np.cos(turn), np.sin(turn)
+        ahead = target - eye
+        turned = np.array([c * ahead[0] - s * ahead[1], s * ahead[0] + c * ahead[1], ahead[2]])
+        pose = look_at(eye + offset, eye + offset + turned)
+        depth, box = depth_frame(raycaster, camera, pose, rng)
+        points.append(backproject(depth, camera, perturbed(pose, rng, (0.005, 0.3))))
+        colors.append(raycaster.colors[box[depth > 0]])
+        poses.append(pose)
+    return Scan(np.concatenate(points), np.concatenate(colors), _eyes(poses), f"a sweep of {count} frames")
 
 
 # -- walk: a robot's walk through the assembler --------------------------------------------------------------
@@ -296,4 +335,7 @@ STYLES: dict[str, Callable[[Room, np.random.Generator], Scan]] = {
     "laser": laser_scan,
     "frames": frames_scan,
     "walk": walk_scan,
+    "sweep": sweep_scan,
 }
+# the styles `afford synth` deals to rooms unless told otherwise (SynthOptions.styles)
+DEFAULT_STYLES = ("fused", "mesh", "laser", "frames", "walk")
