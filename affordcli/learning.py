@@ -40,7 +40,7 @@ def synth(
         "depth", "--scanner", help="depth (virtual sensors, --styles) or uniform (surface samples)"
     ),
     styles: str = typer.Option(
-        "fused,mesh,laser,frames,walk",
+        "fused,mesh,laser,frames,walk,sweep",
         "--styles",
         help="comma-separated scan styles dealt to rooms in turn: fused (fused depth frames), mesh (a "
         "reconstruction's vertices), laser (360-degree laser stations), frames (1-3 raw depth frames), walk "
@@ -246,10 +246,10 @@ def models_rebuild(
         None, "--evaluation", help="an afford evaluate results.json: each affordance gets its best learner"
     ),
     rooms: int = typer.Option(
-        200,
+        240,
         "--rooms",
-        min=81,
-        help="generated rooms: the last 40 are held out for benchmarks/accuracy.py, the 40 before them "
+        min=97,
+        help="generated rooms: the last 48 are held out for benchmarks/accuracy.py, the 48 before them "
         "choose the thresholds and fit the place models, the rest train",
     ),
     seed: int = typer.Option(1, "--seed", help="same seed, same models"),

@@ -42,13 +42,13 @@ LOOSE = {"xy_tolerance": 0.3, "theta_tolerance": 0.5}
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rooms", type=int, default=200, help="generated rooms in all")
+    parser.add_argument("--rooms", type=int, default=240, help="generated rooms in all")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument(
-        "--styles", help="scan styles dealt to rooms in turn (afford synth --styles; default: its default)"
+        "--styles", help="scan styles dealt to rooms in turn (afford synth --styles; default: every style)"
     )
-    parser.add_argument("--test", type=int, default=40, help="the last this many rooms are test rooms")
-    parser.add_argument("--validation", type=int, default=40, help="the this many before them validate")
+    parser.add_argument("--test", type=int, default=48, help="the last this many rooms are test rooms")
+    parser.add_argument("--validation", type=int, default=48, help="the this many before them validate")
     parser.add_argument("--data", type=Path, default=ROOT / "bench-data" / "accuracy")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "accuracy")
     parser.add_argument("--learners", default="cascade")
@@ -68,7 +68,7 @@ def main() -> None:
 
     from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.cache import RoomCache
-    from affordcore.learn.defaults import data_record, split_by_index
+    from affordcore.learn.defaults import data_record, data_set_styles, split_by_index
     from affordcore.learn.examples import Task, data_set_rooms, load_rooms, split_examples
     from affordcore.learn.train import train_on_rooms
     from affordcore.settings import Settings
@@ -163,7 +163,9 @@ def main() -> None:
         if args.models and (affordance, "cascade") in models:
             args.models.mkdir(parents=True, exist_ok=True)
             model = models[(affordance, "cascade")]
-            model.parameters["data"] = data_record(len(files), args.seed, [f.name for f in test])
+            model.parameters["data"] = data_record(
+                len(files), args.seed, [f.name for f in test], data_set_styles(args.data)
+            )
             model.save(args.models / f"{affordance}.model.json")
     results["seconds"] = time.perf_counter() - started
     results["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
@@ -189,12 +191,12 @@ def curve_sizes(curve: str, train_rooms: int) -> list[int]:
 def shipped_models_for(args, test_names: list[str]) -> dict:
     """{affordance: the shipped cascade model}, refused (SystemExit naming the difference) unless each was
     trained for this benchmark's data set and split: scoring it on rooms it trained on would flatter it."""
-    from affordcore.learn.defaults import data_record
+    from affordcore.learn.defaults import data_record, data_set_styles
     from affordcore.learn.model import load_model, shipped_models
 
     if args.learners != "cascade":
         raise SystemExit(f"--shipped scores the shipped cascade models; --learners {args.learners} cannot")
-    wanted = data_record(args.rooms, args.seed, test_names)
+    wanted = data_record(args.rooms, args.seed, test_names, data_set_styles(args.data))
     models = {}
     for affordance in args.affordances.split(","):
         path = shipped_models().get(affordance)
@@ -217,14 +219,12 @@ def generated_rooms(args) -> list:
     from affordcore.learn.examples import data_set_rooms
     from affordcore.synth.batch import synthesize
     from affordcore.synth.dataset import SynthOptions
-    from affordcore.synth.styles import DEFAULT_STYLES
+    from affordcore.synth.styles import STYLES
 
     stamp = args.data / "accuracy-options.json"
     have = json.loads(stamp.read_text()) if stamp.exists() else {}
-    styles = tuple(args.styles.split(",")) if args.styles else DEFAULT_STYLES
-    wanted = {"seed": args.seed, "generator": generator_version()}
-    if styles != DEFAULT_STYLES:  # a stamp of the default styles stays as it was before styles were chosen
-        wanted["styles"] = list(styles)
+    styles = tuple(args.styles.split(",")) if args.styles else tuple(STYLES)
+    wanted = {"seed": args.seed, "generator": generator_version(), "styles": list(styles)}
     if have.get("rooms", 0) < args.rooms or {k: have.get(k) for k in wanted} != wanted:
         print(f"generating {args.rooms} rooms into {args.data} ...")
         synthesize(SynthOptions(rooms=args.rooms, seed=args.seed, styles=styles), args.data)

@@ -32,7 +32,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL_ROOMS = ROOT.parent / "shared" / "data" / "rooms"
-DENSE, SPARSE = {"fused", "mesh", "laser"}, {"frames", "walk"}
+DENSE, SPARSE = {"fused", "mesh", "laser"}, {"frames", "walk", "sweep"}
 SPLITS = {
     "dense -> sparse": (DENSE, SPARSE),
     "sparse -> dense": (SPARSE, DENSE),
@@ -70,7 +70,7 @@ def main() -> None:
 
 
 BUDGETS = (0.2, 0.4, 0.6, 1.0)  # false places per validation room
-STYLES = ("fused", "mesh", "laser", "frames", "walk")
+STYLES = ("fused", "mesh", "laser", "frames", "walk", "sweep")
 
 
 def print_cuts(candidates: list[dict]) -> None:

@@ -9,8 +9,8 @@ the maps with the labels go to docs/figures/real-rooms/. Needs ../shared beside 
     .venv/bin/python benchmarks/real_rooms.py --rooms DIR --figures none   # any folder of labelled clouds
 
 With `--rooms`, any folder of `<room>.ply` beside `<room>.labels.json` (`afford synth`'s output) is scored the
-same way, its sensor positions left out as the real rooms' are, with each affordance's totals at the end: the
-generated counterpart of a real scan measured on the footing the real rooms are.
+same way (with the sensor positions of a `<room>.origins.npy` beside it, as `afford map` reads them), with
+each affordance's totals at the end; `--models DIR` scores other model files than the shipped ones.
 """
 
 from __future__ import annotations

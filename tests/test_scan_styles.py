@@ -29,7 +29,6 @@ from affordcore.synth.scanner import (
 )
 from affordcore.synth.shapes import Box
 from affordcore.synth.styles import (
-    DEFAULT_STYLES,
     GREY,
     STYLES,
     SWEEP_STRIDE,
@@ -237,11 +236,10 @@ def test_a_walk_is_the_assembler_s_map_near_the_true_room_but_not_exact():
 
 
 def test_styles_are_dealt_by_index_so_every_kind_meets_every_style():
-    options = SynthOptions(15, kinds=("living", "office", "workshop"))
-    assert {options.style_of(i) for i in range(5)} == set(DEFAULT_STYLES)
-    assert set(DEFAULT_STYLES) < set(STYLES)  # sweep is dealt only when asked for (docs/synthetic-rooms.md)
-    pairs = {(options.room_name(i).split("-")[0], options.style_of(i)) for i in range(15)}
-    assert len(pairs) == 15
+    options = SynthOptions(18, kinds=("living", "office", "workshop"))
+    assert {options.style_of(i) for i in range(6)} == set(STYLES)
+    pairs = {(options.room_name(i).split("-")[0], options.style_of(i)) for i in range(18)}
+    assert len(pairs) == 18
     four_by_two = SynthOptions(8, kinds=("living", "office", "workshop", "mixed"), styles=("laser", "mesh"))
     assert len({(i % 4, four_by_two.style_of(i)) for i in range(8)}) == 8  # not locked kind to style
     with pytest.raises(ValueError, match="scan styles"):

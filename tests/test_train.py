@@ -318,6 +318,7 @@ def test_default_models_train_on_the_split_the_benchmark_uses_and_are_reproducib
         assert a.read_bytes() == b.read_bytes(), a.name
         model = load_model(a)
         assert model.parameters["data"]["held_out_test_rooms"] == ["office-004"]
+        assert model.parameters["data"]["styles"] == ["uniform"]  # as the data set's summary says
         assert model.validation["rooms"] == ["living-003"]
         assert "office-004" not in model.training["rooms"] and "living-003" not in model.training["rooms"]
         assert model.place_reference == "room-median"

@@ -1,9 +1,9 @@
 """The shipped default models, rebuilt reproducibly: generate rooms, train every affordance, write the files.
 
-The rooms are `afford synth --rooms 200 --seed 1`, dealt by generation index as `benchmarks/accuracy.py`
-deals them: the last `TEST` rooms are held out (the benchmark measures the shipped models on them), the
-`VALIDATION` before them choose the thresholds, the rest train. So the default rebuild makes exactly the
-models whose figures docs/accuracy.md shows.
+The rooms are `afford synth --rooms 240 --seed 1` (every scan style in turn), dealt by generation index as
+`benchmarks/accuracy.py` deals them: the last `TEST` rooms are held out (the benchmark measures the shipped
+models on them), the `VALIDATION` before them choose the thresholds, the rest train. So the default rebuild
+makes the models whose figures docs/accuracy.md shows.
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ from ..geometry.skeleton import skeleton_files
 from ..settings import Settings
 from .cache import RoomCache
 
-ROOMS, SEED, VALIDATION, TEST, LEARNER = 200, 1, 40, 40, "cascade"
+# 240 rooms deal each of the six scan styles to 8 validation and 8 test rooms
+ROOMS, SEED, VALIDATION, TEST, LEARNER = 240, 1, 48, 48, "cascade"
 
 
 def winners(results_json: Path) -> dict[str, str]:
@@ -48,9 +49,22 @@ def split_by_index(names: list[str], validation: int, test: int) -> tuple[list[s
     return ordered[:cut], ordered[cut : cut + validation], ordered[cut + validation :]
 
 
-def data_record(rooms: int, seed: int, test_names: list[str]) -> dict:
+def data_record(rooms: int, seed: int, test_names: list[str], styles: list[str]) -> dict:
     """What a default model was trained on, as its file records it."""
-    return {"generator": "afford synth", "rooms": rooms, "seed": seed, "held_out_test_rooms": test_names}
+    return {
+        "generator": "afford synth",
+        "rooms": rooms,
+        "seed": seed,
+        "styles": list(styles),
+        "held_out_test_rooms": test_names,
+    }
+
+
+def data_set_styles(data: Path) -> list[str]:
+    """The scan styles a generated data set's rooms were dealt (its summary.json)."""
+    from ..jsonfile import read_json
+
+    return list(read_json(Path(data) / "summary.json", ValueError).get("styles", []))
 
 
 def rebuild_default_models(
@@ -103,7 +117,7 @@ def train_default_models(
         task = Task(affordance, settings, layout)
         examples = split_examples(rooms, train_names, validation_names, task, cache)
         model = train_on_rooms(examples, train_names, validation_names, task, learner, seed=seed)
-        model.parameters["data"] = data_record(len(rooms), seed, test_names)
+        model.parameters["data"] = data_record(len(rooms), seed, test_names, data_set_styles(data))
         written.append(model.save(out / f"{affordance}.model.json"))
         if on_step:
             v = model.validation

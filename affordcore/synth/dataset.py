@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .rooms import KINDS, generate_room
-from .styles import DEFAULT_STYLES, STYLES
+from .styles import STYLES
 
 SENSORS = ("depth", "lidar")
 SCANNERS = ("depth", "uniform")
@@ -39,7 +39,7 @@ class SynthOptions:
     # the rest are scanned from spots spread over the whole floor
     few_views: float = 0.5
     # how depth-scanned rooms are scanned (styles.STYLES), dealt to rooms by index (`style_of`)
-    styles: tuple[str, ...] = DEFAULT_STYLES
+    styles: tuple[str, ...] = tuple(STYLES)
 
     def __post_init__(self) -> None:
         unknown = set(self.kinds) - set(KINDS)

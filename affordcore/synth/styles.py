@@ -337,5 +337,3 @@ STYLES: dict[str, Callable[[Room, np.random.Generator], Scan]] = {
     "walk": walk_scan,
     "sweep": sweep_scan,
 }
-# the styles `afford synth` deals to rooms unless told otherwise (SynthOptions.styles)
-DEFAULT_STYLES = ("fused", "mesh", "laser", "frames", "walk")
