@@ -344,6 +344,8 @@ def watch(
         arrived = watch_maps(connect, service.mode, keys, watcher, timeout, service.zenoh_config)
         if watcher.refused is not None:
             fail(f"the features service refused the cloud: {watcher.refused}", code=1)
+        if watcher.gave_up is not None:
+            fail(watcher.gave_up, code=1)
         for name in sorted(watcher.received):
             document = watcher.received[name]
             typer.echo(

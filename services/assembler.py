@@ -126,7 +126,7 @@ class AssemblerService:
             points, world_from_odom = self.assembler.aligned_map(self.node.settings)
         except ValueError as error:
             self.node.publish_status(
-                messages.Status.READY, f"{self.assembler.frames} frames, no map yet: {error}"
+                messages.Status.READY, f"{self.assembler.frames} frames, {messages.NO_MAP_YET}: {error}"
             )
             self.last_attempt = time.monotonic()
             self.pending = False

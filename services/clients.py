@@ -191,7 +191,8 @@ class MapWatcher:
     older than `since` (nanoseconds since the epoch; `watch` sets it to the newest cloud the features service
     has when 0) that covers at least `min_frames` scans: scans the assembler received, fused or skipped to
     keep up (a busy assembler skips scans, and a map of every one published would never come). A refusal of
-    that very cloud ends the watch too (`refused` says why)."""
+    that very cloud ends the watch too (`refused` says why), and so does an assembler that has had every scan
+    and no map to give of them (`gave_up` says why)."""
 
     def __init__(
         self,
@@ -206,6 +207,7 @@ class MapWatcher:
         self.out, self.echo, self.since = out, echo, since
         self.received: dict[str, dict] = {}
         self.refused: str | None = None
+        self.gave_up: str | None = None
         self.newest_covered = 0  # scans covered by the newest map seen: what a timeout reports
         self.done = threading.Event()
         self._lock = threading.Lock()
@@ -217,6 +219,8 @@ class MapWatcher:
             self._take_map(payload)
         elif schema == messages.schema_name(messages.Error) and key == self.keys.error("features"):
             self._take_refusal(payload)
+        elif schema == messages.schema_name(messages.Status) and key == self.keys.status("assembler"):
+            self._take_assembler_status(payload)
 
     def _take_map(self, payload: bytes) -> None:
         try:
@@ -250,6 +254,21 @@ class MapWatcher:
             return
         if self.since and messages.nanoseconds(error.input_timestamp) == self.since:
             self.refuse(error.reason)
+
+    def _take_assembler_status(self, payload: bytes) -> None:
+        """The assembler tried to publish its map with every scan waited for settled (taken, refused or
+        passed over) and had none: no later map will cover them unless more scans come."""
+        try:
+            status = messages.parse(messages.Status, payload)
+        except messages.MessageError:
+            return
+        settled = status.accepted + status.rejected + status.skipped
+        if self.min_frames and settled >= self.min_frames and messages.NO_MAP_YET in status.detail:
+            self.gave_up = (
+                f"the assembler has settled all {settled} scans and has no map of them ({status.detail}); "
+                "publish scans that see the floor, or more of them (a slower --rate leaves it fewer to skip)"
+            )
+            self.done.set()
 
     def refuse(self, reason: str) -> None:
         self.refused = reason
