@@ -46,7 +46,8 @@ def main() -> None:
     parser.add_argument("--figures", default=str(FIGURES), help="where the plan views go; none: no figures")
     args = parser.parse_args()
     if not args.rooms.is_dir():
-        sys.exit(f"{args.rooms} not found: this report needs ../shared/data/rooms beside the project")
+        where = "../shared/data/rooms beside the project" if args.rooms == ROOMS else "labelled rooms"
+        sys.exit(f"{args.rooms} not found: this report needs {where}")
     figures = None if args.figures == "none" else Path(args.figures)
     settings = Settings()
     files = (
