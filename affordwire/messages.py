@@ -26,8 +26,6 @@ SceneFieldsMessage = maps_pb2.SceneFields
 AffordanceMapMessage = maps_pb2.AffordanceMap
 Pose = geometry_pb2.Pose
 Status = service_pb2.Status
-# an assembler's status detail when it tried to publish its map and had none (no floor in view yet)
-NO_MAP_YET = "no map yet"
 Error = service_pb2.Error
 
 WORLD = "world"

@@ -67,6 +67,7 @@ class AssemblerService:
         # with scans waiting, a cheaper registration: more frames taken, fewer skipped to keep up
         busy = len(self.inbox) > 0
         record = self.assembler.add(frame, at, busy)  # a refused frame raises here and changes nothing
+        self.node.no_output = ""  # the map has changed: whether it makes one is not known until the next try
         if self.store:
             self.store.append(record)  # before anything goes out about it
         if record.note:
@@ -125,9 +126,8 @@ class AssemblerService:
         try:
             points, world_from_odom = self.assembler.aligned_map(self.node.settings)
         except ValueError as error:
-            self.node.publish_status(
-                messages.Status.READY, f"{self.assembler.frames} frames, {messages.NO_MAP_YET}: {error}"
-            )
+            self.node.no_output = f"{self.assembler.frames} frames, no map yet: {error}"
+            self.node.publish_status(messages.Status.READY, self.node.no_output)
             self.last_attempt = time.monotonic()
             self.pending = False
             return

@@ -256,16 +256,17 @@ class MapWatcher:
             self.refuse(error.reason)
 
     def _take_assembler_status(self, payload: bytes) -> None:
-        """The assembler tried to publish its map with every scan waited for settled (taken, refused or
-        passed over) and had none: no later map will cover them unless more scans come."""
+        """The assembler has every scan waited for settled (taken, refused or passed over) and says its map of
+        them makes no output (`Status.no_output`, cleared by each scan it takes): no later map will cover
+        them unless more scans come."""
         try:
             status = messages.parse(messages.Status, payload)
         except messages.MessageError:
             return
         settled = status.accepted + status.rejected + status.skipped
-        if self.min_frames and settled >= self.min_frames and messages.NO_MAP_YET in status.detail:
+        if self.min_frames and settled >= self.min_frames and status.no_output:
             self.gave_up = (
-                f"the assembler has settled all {settled} scans and has no map of them ({status.detail}); "
+                f"the assembler has settled all {settled} scans and has no map of them ({status.no_output}); "
                 "publish scans that see the floor, or more of them (a slower --rate leaves it fewer to skip)"
             )
             self.done.set()

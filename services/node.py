@@ -225,6 +225,7 @@ class Node:
         self.last_seconds = 0.0
         self.newest_input = 0  # nanoseconds: the newest timestamp among the inputs received (Status)
         self.newest_input_refused = ""  # and why that input was refused, if it was
+        self.no_output = ""  # why the inputs taken so far make no output (Status; the service sets it)
         self.latest: dict[str, tuple[bytes, object]] = {}  # key: (payload, encoding) answered on get
         self._declared: list = []
         self._lock = threading.Lock()
@@ -400,6 +401,7 @@ class Node:
             )
             status.newest_input.FromNanoseconds(self.newest_input)
             status.newest_input_refused = self.newest_input_refused
+            status.no_output = self.no_output
         messages.stamp(status.timestamp)
         return status
 

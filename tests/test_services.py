@@ -191,6 +191,43 @@ def test_the_assembler_publishes_fewer_maps_while_scans_wait(router, client, tmp
         running.stop()
 
 
+def test_the_assembler_says_why_its_scans_make_no_map_until_one_sees_a_floor(router, client, tmp_path):
+    """`Status.no_output`: set when the map of the scans taken cannot be levelled, cleared by the next scan
+    taken (whether that makes a map is not known until it is tried), and empty once a map goes out."""
+    from services.assembler import AssemblerService
+
+    settings = ServiceSettings()
+    settings.assembler.publish_period = 0.0
+    clouds, poses = _listen(client, KEYS.cloud), _listen(client, KEYS.pose)
+    running = Running(AssemblerService, "assembler", router, tmp_path / "assembler.rrd", settings)
+    room = _box_room_scan(np.random.default_rng(0)) - [2.0, 1.5, 1.2]
+    walls = room[
+        np.abs(room[:, 2] - np.array([-1.2, -0.75])[:, None]).min(axis=0) > 0.01
+    ]  # no floor, no seat
+    publisher = _publisher(client, KEYS.scan("cam"), messages.Scan, wait=10)
+
+    def send(points: np.ndarray) -> None:
+        message = messages.Scan(frame_id="lidar")
+        messages.pack_points(message, points)
+        messages.stamp(message.timestamp)
+        message.gravity.z = -9.81  # an IMU's: the walls alone cannot be taken for a floor
+        publisher.put(message.SerializeToString())
+        _next(poses, messages.Pose)
+
+    try:
+        send(walls)
+        assert eventually(lambda: _status(client, "assembler").no_output, timeout=30)
+        status = _status(client, "assembler")
+        assert "1 frames, no map yet" in status.no_output and "floor" in status.no_output, status.no_output
+        assert clouds.empty()
+        send(room + [0.1, 0, 0])  # the room with its floor, 10 cm on (a keyframe): levelled, and it goes out
+        assert _next(clouds, messages.CloudMessage).frames == 2
+        assert _status(client, "assembler").no_output == ""
+    finally:
+        publisher.undeclare()
+        running.stop()
+
+
 def _status(client, service: str) -> messages.Status:
     replies = [r.ok for r in client.get(KEYS.status(service), timeout=5) if r.ok is not None]
     return messages.parse(messages.Status, replies[0].payload.to_bytes())

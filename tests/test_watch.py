@@ -84,18 +84,18 @@ def test_a_map_of_a_service_that_does_not_count_received_scans_is_judged_by_the_
     assert watcher.done.is_set()
 
 
-def _assembler_status(detail: str, accepted: int, skipped: int) -> messages.Status:
-    return messages.Status(service="assembler", detail=detail, accepted=accepted, skipped=skipped)
+def _assembler_status(no_output: str, accepted: int, skipped: int) -> messages.Status:
+    return messages.Status(service="assembler", no_output=no_output, accepted=accepted, skipped=skipped)
 
 
 def test_the_watch_stops_at_once_when_the_assembler_has_every_scan_and_no_map_of_them():
     keys = Keys("r1")
     watcher = MapWatcher(keys, ["sitting-working"], min_frames=100, out=None, echo=lambda line: None)
     status_key = keys.status("assembler")
-    no_map = f"9 frames, {messages.NO_MAP_YET}: no floor in view"
+    no_map = "9 frames, no map yet: no floor in view"
     # mid-stream, a failed try says nothing about the map of every scan
     watcher.on_sample(_Sample(status_key, _assembler_status(no_map, accepted=5, skipped=40)))
-    watcher.on_sample(_Sample(status_key, _assembler_status("0 inputs waiting", accepted=9, skipped=91)))
+    watcher.on_sample(_Sample(status_key, _assembler_status("", accepted=9, skipped=91)))
     assert not watcher.done.is_set() and watcher.gave_up is None
     watcher.on_sample(_Sample(status_key, _assembler_status(no_map, accepted=9, skipped=91)))
     assert watcher.done.is_set() and "all 100 scans" in watcher.gave_up and "no floor" in watcher.gave_up

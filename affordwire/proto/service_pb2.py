@@ -25,7 +25,7 @@ _sym_db = _symbol_database.Default()
 from google.protobuf import timestamp_pb2 as google_dot_protobuf_dot_timestamp__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x17\x61\x66\x66ord/v1/service.proto\x12\tafford.v1\x1a\x1fgoogle/protobuf/timestamp.proto\"\xa6\x03\n\x06Status\x12-\n\ttimestamp\x18\x01 \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x0f\n\x07service\x18\x02 \x01(\t\x12\r\n\x05robot\x18\x03 \x01(\t\x12&\n\x05state\x18\x04 \x01(\x0e\x32\x17.afford.v1.Status.State\x12\x0e\n\x06\x64\x65tail\x18\x05 \x01(\t\x12\x10\n\x08\x61\x63\x63\x65pted\x18\x06 \x01(\x04\x12\x10\n\x08rejected\x18\x07 \x01(\x04\x12\x11\n\tpublished\x18\x08 \x01(\x04\x12\x14\n\x0clast_seconds\x18\t \x01(\x01\x12\x0f\n\x07version\x18\n \x01(\t\x12\x0f\n\x07skipped\x18\x0b \x01(\x04\x12\x0f\n\x07\x64ropped\x18\x0c \x01(\x04\x12\x30\n\x0cnewest_input\x18\r \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x1c\n\x14newest_input_refused\x18\x0e \x01(\t\"E\n\x05State\x12\x0b\n\x07UNKNOWN\x10\x00\x12\x0c\n\x08STARTING\x10\x01\x12\t\n\x05READY\x10\x02\x12\x08\n\x04\x42USY\x10\x03\x12\x0c\n\x08STOPPING\x10\x04\"\xc2\x01\n\x05\x45rror\x12-\n\ttimestamp\x18\x01 \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x0f\n\x07service\x18\x02 \x01(\t\x12\x0b\n\x03key\x18\x03 \x01(\t\x12\x10\n\x08\x65ncoding\x18\x04 \x01(\t\x12\x15\n\rpayload_bytes\x18\x05 \x01(\x04\x12\x0e\n\x06reason\x18\x06 \x01(\t\x12\x33\n\x0finput_timestamp\x18\x07 \x01(\x0b\x32\x1a.google.protobuf.TimestampBY\n\x13\x61\x66\x66ordmap.afford.v1B\x0cServiceProtoP\x01Z\x1c\x61\x66\x66ordmap/afford/v1;affordv1\xaa\x02\x13\x41\x66\x66ordmap.Afford.V1b\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x17\x61\x66\x66ord/v1/service.proto\x12\tafford.v1\x1a\x1fgoogle/protobuf/timestamp.proto\"\xb9\x03\n\x06Status\x12-\n\ttimestamp\x18\x01 \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x0f\n\x07service\x18\x02 \x01(\t\x12\r\n\x05robot\x18\x03 \x01(\t\x12&\n\x05state\x18\x04 \x01(\x0e\x32\x17.afford.v1.Status.State\x12\x0e\n\x06\x64\x65tail\x18\x05 \x01(\t\x12\x10\n\x08\x61\x63\x63\x65pted\x18\x06 \x01(\x04\x12\x10\n\x08rejected\x18\x07 \x01(\x04\x12\x11\n\tpublished\x18\x08 \x01(\x04\x12\x14\n\x0clast_seconds\x18\t \x01(\x01\x12\x0f\n\x07version\x18\n \x01(\t\x12\x0f\n\x07skipped\x18\x0b \x01(\x04\x12\x0f\n\x07\x64ropped\x18\x0c \x01(\x04\x12\x30\n\x0cnewest_input\x18\r \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x1c\n\x14newest_input_refused\x18\x0e \x01(\t\x12\x11\n\tno_output\x18\x0f \x01(\t\"E\n\x05State\x12\x0b\n\x07UNKNOWN\x10\x00\x12\x0c\n\x08STARTING\x10\x01\x12\t\n\x05READY\x10\x02\x12\x08\n\x04\x42USY\x10\x03\x12\x0c\n\x08STOPPING\x10\x04\"\xc2\x01\n\x05\x45rror\x12-\n\ttimestamp\x18\x01 \x01(\x0b\x32\x1a.google.protobuf.Timestamp\x12\x0f\n\x07service\x18\x02 \x01(\t\x12\x0b\n\x03key\x18\x03 \x01(\t\x12\x10\n\x08\x65ncoding\x18\x04 \x01(\t\x12\x15\n\rpayload_bytes\x18\x05 \x01(\x04\x12\x0e\n\x06reason\x18\x06 \x01(\t\x12\x33\n\x0finput_timestamp\x18\x07 \x01(\x0b\x32\x1a.google.protobuf.TimestampBY\n\x13\x61\x66\x66ordmap.afford.v1B\x0cServiceProtoP\x01Z\x1c\x61\x66\x66ordmap/afford/v1;affordv1\xaa\x02\x13\x41\x66\x66ordmap.Afford.V1b\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -34,9 +34,9 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['DESCRIPTOR']._loaded_options = None
   _globals['DESCRIPTOR']._serialized_options = b'\n\023affordmap.afford.v1B\014ServiceProtoP\001Z\034affordmap/afford/v1;affordv1\252\002\023Affordmap.Afford.V1'
   _globals['_STATUS']._serialized_start=72
-  _globals['_STATUS']._serialized_end=494
-  _globals['_STATUS_STATE']._serialized_start=425
-  _globals['_STATUS_STATE']._serialized_end=494
-  _globals['_ERROR']._serialized_start=497
-  _globals['_ERROR']._serialized_end=691
+  _globals['_STATUS']._serialized_end=513
+  _globals['_STATUS_STATE']._serialized_start=444
+  _globals['_STATUS_STATE']._serialized_end=513
+  _globals['_ERROR']._serialized_start=516
+  _globals['_ERROR']._serialized_end=710
 # @@protoc_insertion_point(module_scope)
