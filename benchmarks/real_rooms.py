@@ -24,7 +24,7 @@ import numpy as np
 from affordcore.geometry.scene import load_cloud
 from affordcore.labels import ground_truth, load_labels, match_places
 from affordcore.learn.baselines import tune_threshold
-from affordcore.learn.model import load_model, shipped_models
+from affordcore.learn.model import load_model, models_in, shipped_models
 from affordcore.learn.train import metrics
 from affordcore.mapping.pipeline import map_affordances, prepare_scene
 from affordcore.mapping.plots import plot_map
@@ -50,11 +50,7 @@ def main() -> None:
         sys.exit(f"{args.rooms} not found: this report needs {where}")
     figures = None if args.figures == "none" else Path(args.figures)
     settings = Settings()
-    files = (
-        {p.name.removesuffix(".model.json"): p for p in sorted(args.models.glob("*.model.json"))}
-        if args.models
-        else shipped_models()
-    )
+    files = models_in(args.models) if args.models else shipped_models()
     models = {name: load_model(path) for name, path in files.items()}
     if figures is not None:
         figures.mkdir(parents=True, exist_ok=True)

@@ -193,9 +193,14 @@ def _summary(layout: dict) -> str:
     )
 
 
+def models_in(folder: Path) -> dict[str, Path]:
+    """{affordance: model file} of the `<affordance>.model.json` files in `folder`."""
+    return {path.name.removesuffix(".model.json"): path for path in sorted(folder.glob("*.model.json"))}
+
+
 def shipped_models() -> dict[str, Path]:
     """{affordance: model file} of the default models inside the package."""
-    return {path.name.removesuffix(".model.json"): path for path in sorted(MODELS_DIR.glob("*.model.json"))}
+    return models_in(MODELS_DIR)
 
 
 def choose_models(
