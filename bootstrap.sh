@@ -91,5 +91,7 @@ case "$job" in
     .venv/bin/ruff check --quiet .
     .venv/bin/ruff format --check --quiet .
     .venv/bin/lint-imports --no-cache | tail -n +13
-    exec .venv/bin/python -m pytest "$@" ;;
+    # One worker per core, a test module to a worker (module fixtures, such as a stack of services, are
+    # made once); `-n 0` after `test` runs everything in this process.
+    exec .venv/bin/python -m pytest -n 2 --dist loadfile "$@" ;;
 esac

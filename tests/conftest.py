@@ -119,6 +119,19 @@ def small_room(tmp_path_factory) -> str:
     return str(path)
 
 
+# -- order -------------------------------------------------------------------------------------------------
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """Modules with the most slow tests first, otherwise as collected: in two workers (bootstrap.sh test hands
+    out whole modules in this order) the long modules start at once and the short ones fill in behind them,
+    instead of one long module running alone at the end."""
+    slow: dict[str, int] = {}
+    for item in items:
+        slow[item.module.__name__] = slow.get(item.module.__name__, 0) + bool(item.get_closest_marker("slow"))
+    items.sort(key=lambda item: -slow[item.module.__name__])  # a stable sort: in-module order is kept
+
+
 # -- leaving ------------------------------------------------------------------------------------------------
 
 _EXIT_STATUS = {"code": 0}

@@ -483,6 +483,7 @@ def test_a_depth_frame_off_the_wire_back_projects_as_its_image():
 # -- real frames --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not KITCHEN.is_dir(), reason=f"the 7-Scenes kitchen frames are not at {KITCHEN}")
 def test_the_defaults_on_the_first_100_real_kitchen_frames():
     from affordcore.assembly.sequence import INVALID_DEPTH, read_sequence

@@ -194,6 +194,7 @@ def test_an_out_that_cannot_be_written_is_one_line(tmp_path):
     assert result.stderr == "error: --out /sys/afford-rooms cannot be made: Operation not permitted\n"
 
 
+@pytest.mark.slow
 def test_points_that_are_not_finite_are_counted_on_stderr(small_room, tmp_path):
     from affordcore.geometry.scene import load_cloud
 

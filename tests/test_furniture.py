@@ -218,6 +218,7 @@ def _room_with(piece):
     return room
 
 
+@pytest.mark.slow
 def test_a_big_box_filling_a_seat_makes_it_an_unlabelled_region(monkeypatch):
     monkeypatch.setattr(F, "BIG_BOX_SHARE", 1.0)
     for seed in range(8):

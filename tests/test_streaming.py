@@ -29,6 +29,8 @@ from affordcore.settings import FeatureSettings, GridSettings, LearnSettings, Se
 from affordcore.synth.batch import synthesize
 from affordcore.synth.dataset import SynthOptions
 
+pytestmark = pytest.mark.slow  # each trains or caches three rooms more than once
+
 
 @pytest.fixture(scope="module")
 def data_set(tmp_path_factory):

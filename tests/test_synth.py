@@ -47,6 +47,7 @@ def test_no_furniture_intersects_furniture_or_walls(rooms):
                 )
 
 
+@pytest.mark.slow
 def test_every_label_has_room_for_its_skeleton(rooms):
     """The free space a label needs is clear of everything else, and its skeleton, placed anywhere along the
     label, puts no joint inside another piece or a wall."""
@@ -395,6 +396,7 @@ def _synth(out, seed, *extra):
     )
 
 
+@pytest.mark.slow
 def test_same_seed_same_files_and_a_class_table(tmp_path):
     first, second, other = tmp_path / "a", tmp_path / "b", tmp_path / "c"
     for folder, seed in ((first, 4), (second, 4), (other, 5)):
@@ -444,6 +446,7 @@ def test_depth_sequence_frames_back_project_onto_the_room(tmp_path):
         assert np.quantile(distance, 0.9) < 0.05
 
 
+@pytest.mark.slow
 def test_a_sequence_carries_the_robot_s_odometry_drifting_from_the_true_poses(tmp_path):
     """Each frame's odometry moves as the true pose moves, within the wheel odometry's error per step, and
     wanders off the true path as the errors add up."""
@@ -513,6 +516,7 @@ def test_synth_resumes_making_only_the_rooms_missing_and_the_same_bytes(tmp_path
     assert (part / "office-000.ply").stat().st_mtime_ns != first_room
 
 
+@pytest.mark.slow
 def test_few_views_share_chooses_the_scan_regime_and_refuses_a_share_outside_0_to_1(tmp_path):
     for share, regime in (("0", "full"), ("1", "few")):
         result = _synth(tmp_path / share, 1, "--few-views", share, "--styles", "fused")

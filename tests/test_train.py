@@ -81,6 +81,7 @@ F1_FLOOR = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("learner", LEARNERS)
 def test_every_learner_trains_and_beats_chance(data_set, learner):
     params = {"max_iterations": 60} if learner == "ssvm" else {}
@@ -139,6 +140,7 @@ def test_folds_are_stratified_seeded_and_cover_every_room():
         deal_folds(names, 13, seed=0)
 
 
+@pytest.mark.slow
 def test_evaluate_runs_every_learner_per_fold_and_the_imbalance_test(data_set, tmp_path):
     affordance = _affordance(data_set)
     learners = ["linear-tuned", "undersample", "ssvm"]
@@ -237,6 +239,7 @@ def test_the_evaluation_picks_each_affordance_its_best_learner(tmp_path):
     assert winners(tmp_path / "results.json") == {"a": "dcm", "b": "ssvm"}  # b: zsvm's lead is one lucky fold
 
 
+@pytest.mark.slow
 def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set, tmp_path):
     from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.examples import data_set_rooms, load_room
@@ -324,6 +327,7 @@ def test_default_models_train_on_the_split_the_benchmark_uses_and_are_reproducib
         assert model.place_reference == "room-median"
 
 
+@pytest.mark.slow
 def test_learners_sharing_a_linear_svc_fit_it_once_and_train_as_they_do_alone(
     data_set, tmp_path, monkeypatch
 ):
