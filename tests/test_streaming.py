@@ -39,6 +39,12 @@ def data_set(tmp_path_factory):
     return folder
 
 
+@pytest.fixture(scope="module")
+def held_rooms(data_set):
+    """The rooms at `_settings()`, fields held in memory (no test changes them)."""
+    return load_rooms(data_set_rooms(data_set), _settings())
+
+
 FAST = {"max_iter": 20}  # trees enough to show the same ones are fitted
 
 
@@ -72,11 +78,9 @@ def test_a_streamed_cascade_is_the_model_trained_in_memory(data_set, tmp_path):
     assert texts[1] == texts[0] and texts[2] == texts[0]
 
 
-def test_cached_rooms_hold_no_fields_and_read_back_the_same(data_set, tmp_path):
-    settings = _settings()
-    files = data_set_rooms(data_set)
-    held = load_rooms(files, settings)
-    cached = load_rooms(files, settings, cache=RoomCache(tmp_path))
+def test_cached_rooms_hold_no_fields_and_read_back_the_same(data_set, held_rooms, tmp_path):
+    held = held_rooms
+    cached = load_rooms(data_set_rooms(data_set), _settings(), cache=RoomCache(tmp_path))
     for a, b in zip(held, cached):
         assert b.held_fields is None and b.fields_path.exists()
         fields = b.fields
@@ -122,13 +126,13 @@ def test_a_changed_setting_cloud_or_layout_is_a_new_cache_entry(data_set, tmp_pa
     assert unseen.fields_path != edited.fields_path
 
 
-def test_stack_reads_one_room_at_a_time_and_keeps_the_same_rows(data_set, tmp_path, monkeypatch):
+def test_stack_reads_one_room_at_a_time_and_keeps_the_same_rows(data_set, held_rooms, tmp_path, monkeypatch):
     settings = _settings()
     affordance = _affordance(data_set)
     task = Task(affordance, settings, FeatureLayout.from_settings(settings))
     files = data_set_rooms(data_set)
     names = [f.name for f in files]
-    held = split_examples({r.name: r for r in load_rooms(files, settings)}, names[:2], names[2:], task)
+    held = split_examples({r.name: r for r in held_rooms}, names[:2], names[2:], task)
     cache = RoomCache(tmp_path)
     stored = split_examples(
         {r.name: r for r in load_rooms(files, settings, cache=cache)}, names[:2], names[2:], task, cache

@@ -66,11 +66,11 @@ def test_every_label_has_room_for_its_skeleton(rooms):
                 for t in (0.0, 0.5, 1.0):
                     xy = piece.world_point(np.add(anchor.start, t * np.subtract(anchor.end, anchor.start)))
                     pose = np.array([[*xy, skeleton.torso_height, anchor.facing + piece.yaw]])
-                    for joint in place_joints(skeleton.joints, pose)[0]:
-                        dot = Box(tuple(joint), (0.02, 0.02, 0.02))
-                        assert not any(boxes_overlap(dot, box) for box in others), (
-                            f"{room.name}: {piece.note}"
-                        )
+                    dots = [
+                        Box(tuple(joint), (0.02, 0.02, 0.02))
+                        for joint in place_joints(skeleton.joints, pose)[0]
+                    ]
+                    assert not any_overlap(dots, others), f"{room.name}: {piece.note}"
 
 
 def test_labels_are_valid_and_round_trip(rooms, tmp_path):
