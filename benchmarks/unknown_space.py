@@ -8,6 +8,10 @@ validation rooms (the most places with no more false skeletons than without the 
 it, per scan style. Also: how much of each room the sensors saw (free, unknown), and what carving costs.
 
     .venv/bin/python benchmarks/unknown_space.py        # about 15 minutes on 2 cores
+    .venv/bin/python benchmarks/unknown_space.py --carving-only --old /tmp/old-afford   # side by side
+
+`--old PATH`: a checkout of another commit (`git worktree add --detach /tmp/old-afford <commit>`) whose
+carving runs alternately with this one's on the same lattice and positions; the states must be the same.
 """
 
 from __future__ import annotations
@@ -31,9 +35,11 @@ def main() -> None:
     add_split_arguments(parser)
     parser.add_argument("--shares", type=float, nargs="+", default=[0.0, 0.05, 0.1, 0.2, 0.4])
     parser.add_argument("--carving-only", action="store_true", help="only the carving's cost on the kitchen")
+    parser.add_argument("--old", type=Path, help="a checkout of another commit to time the carving against")
+    parser.add_argument("--repeats", type=int, default=3, help="carving runs per setting (medians)")
     args = parser.parse_args()
 
-    print_carving_cost()
+    print_carving_cost(args.repeats, args.old)
     if args.carving_only:
         return
 
@@ -44,9 +50,10 @@ def main() -> None:
     print_places(results, part, style, args.shares)
 
 
-def print_carving_cost(repeats: int = 3) -> None:
+def print_carving_cost(repeats: int = 3, old: Path | None = None) -> None:
     """What the features service pays per live map: carving the real kitchen's lattice (../shared, when
-    present) from a straight walk of 100 positions at 1.5 m, at several `visibility.max_origins`."""
+    present) from a straight walk of 100 positions at 1.5 m, at several `visibility.max_origins`; with `old`,
+    that checkout's carving too, the two taking turns (CPU seconds: other processes move wall time)."""
     from affordcore.geometry.scene import load_cloud
     from affordcore.geometry.visibility import voxel_states
     from affordcore.mapping.pipeline import prepare_scene
@@ -61,19 +68,38 @@ def print_carving_cost(repeats: int = 3) -> None:
     low, high = np.array(fields.footprint[:2]), np.array(fields.footprint[2:])
     along = np.linspace(0.3, 0.7, 100)[:, None]
     walk = np.column_stack([low + (high - low) * along, np.full(100, 1.5)])
+    carvers = {"this": voxel_states} | ({} if old is None else {"old": _old_voxel_states(old)})
     print(
-        f"carving the kitchen's {fields.lattice.shape} lattice from a 100-position walk, median of {repeats}:"
+        f"carving the kitchen's {fields.lattice.shape} lattice from a 100-position walk, "
+        f"{os.cpu_count()} cores, CPU seconds, median of {repeats}:"
     )
-    print("| max_origins | seconds |")
-    print("|---:|---:|")
+    print("| max_origins | " + " | ".join(carvers) + (" | old / this |" if old else " |"))
+    print("|---:|" + "---:|" * (len(carvers) + bool(old)))
     for most in (8, 16, 32):
         chosen = settings.visibility.model_copy(update={"max_origins": most})
-        seconds = []
+        seconds: dict[str, list[float]] = {name: [] for name in carvers}
+        states = {}
         for _ in range(repeats):
-            start = time.perf_counter()
-            voxel_states(fields.occupancy, fields.lattice, walk, chosen)
-            seconds.append(time.perf_counter() - start)
-        print(f"| {most} | {np.median(seconds):.2f} |")
+            for name, carve in carvers.items():
+                start = time.process_time()
+                states[name] = carve(fields.occupancy, fields.lattice, walk, chosen)
+                seconds[name].append(time.process_time() - start)
+        if old is not None and not np.array_equal(states["this"], states["old"]):
+            sys.exit(f"max_origins {most}: the old commit's states differ from this one's")
+        medians = [float(np.median(seconds[name])) for name in carvers]
+        ratio = f" {medians[1] / medians[0]:.2f}x |" if old else ""
+        print(f"| {most} | " + " | ".join(f"{m:.2f}" for m in medians) + " |" + ratio)
+
+
+def _old_voxel_states(checkout: Path):
+    """`voxel_states` of the checkout at `checkout` (its visibility module, loaded beside this one's)."""
+    import importlib.util
+
+    path = checkout / "affordcore" / "geometry" / "visibility.py"
+    spec = importlib.util.spec_from_file_location("affordcore.geometry._old_visibility", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.voxel_states
 
 
 def load(args):

@@ -47,16 +47,17 @@ def voxel_states(
     if not len(origins) or not occupied.any():
         return state
     surface = lattice.centres(np.argwhere(occupied))
-    empty = np.flatnonzero(~occupied.ravel())
-    # one contiguous float32 column per axis: the per-position arithmetic over every voxel is what costs
-    centres = lattice.centres(np.column_stack(np.unravel_index(empty, occupied.shape))).astype(np.float32)
-    columns = [np.ascontiguousarray(c) for c in centres.T]
-    free = np.zeros(len(empty), bool)
+    # voxel centres along each axis, in float32: the per-position arithmetic over every voxel is what costs
+    axes = [
+        (lattice.origin[k] + np.arange(n, dtype=np.float64) * lattice.resolution).astype(np.float32)
+        for k, n in enumerate(lattice.shape)
+    ]
+    free = np.zeros(occupied.shape, bool)
     for origin in spread_origins(origins, settings.max_origins):  # a few dozen at most
         image = _range_image(surface - origin, lattice.resolution, settings.angular_step)
-        offsets = [c - np.float32(o) for c, o in zip(columns, origin)]
+        offsets = [axis - np.float32(o) for axis, o in zip(axes, origin)]
         free |= _in_front(offsets, image, settings.angular_step, lattice.resolution)
-    state.ravel()[empty[free]] = FREE
+    state[free & ~occupied] = FREE
     return state
 
 
@@ -81,13 +82,24 @@ def _bins(step: float) -> tuple[int, int]:
 def _directions(x: np.ndarray, y: np.ndarray, z: np.ndarray, step: float):
     """Range, elevation bin and azimuth bin of offsets (x, y, z columns) from a sensor position (`step` in
     degrees)."""
-    n_el, n_az = _bins(step)
-    per_radian = 1.0 / np.radians(step)
-    across = np.sqrt(x * x + y * y)
+    across, column = _plan(x, y, step)
+    distance, row = _height(across, z, step)
+    return distance, row, column
+
+
+def _plan(x: np.ndarray, y: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Distance in plan and azimuth bin of offsets (x, y) from a sensor position."""
+    n_az = _bins(step)[1]
+    column = ((np.arctan2(y, x) + np.pi) * (1.0 / np.radians(step))).astype(np.int32)
+    return np.sqrt(x * x + y * y), column % n_az
+
+
+def _height(across: np.ndarray, z: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Range and elevation bin of offsets `across` (in plan) and `z` (up) from a sensor position."""
+    n_el = _bins(step)[0]
     distance = np.sqrt(across * across + z * z)
-    row = ((np.arctan2(z, across) + np.pi / 2) * per_radian).astype(np.int32)
-    column = ((np.arctan2(y, x) + np.pi) * per_radian).astype(np.int32)
-    return distance, np.minimum(row, n_el - 1), column % n_az
+    row = ((np.arctan2(z, across) + np.pi / 2) * (1.0 / np.radians(step))).astype(np.int32)
+    return distance, np.minimum(row, n_el - 1)
 
 
 def _range_image(offsets: np.ndarray, resolution: float, step: float) -> np.ndarray:
@@ -132,10 +144,13 @@ def _splats(offsets: np.ndarray, resolution: float, step: float) -> tuple[np.nda
 
 
 def _in_front(offsets: list[np.ndarray], image: np.ndarray, step: float, resolution: float) -> np.ndarray:
-    """Whether each voxel centre (x, y, z offset columns from the sensor) lies a voxel or more in front of
-    the surface the range image holds in its direction."""
-    distance, row, column = _directions(*offsets, step)
-    return distance + resolution <= image[row, column]
+    """(nx, ny, nz): whether each voxel centre of the lattice whose centres lie at the offsets (x, y, z, one
+    array per axis) from the sensor is a voxel or more in front of the surface the range image holds in its
+    direction. A voxel column shares its plan distance and azimuth: those are worked out once per column."""
+    x, y, z = offsets
+    across, column = _plan(x[:, None], y[None, :], step)
+    distance, row = _height(across[:, :, None], z[None, None, :], step)
+    return distance + resolution <= image[row, column[:, :, None]]
 
 
 def seen_share(state: np.ndarray, lattice: VoxelLattice, low: float, high: float) -> np.ndarray:
