@@ -11,8 +11,9 @@ one and testing on the other is the one to trust on a scan nobody generated. Var
 * relative: only what is counted from the room itself (margin over the median, below the best, rank, support
   near the peak, scanned share).
 
-Reads the data set and the shipped models of `benchmarks/accuracy.py` (the last 80 rooms: 40 validation, 40
-test); prints places found at probability 0.5, false skeletons per room and the log-loss per candidate.
+Reads the data set and the shipped models of `benchmarks/accuracy.py` (the last 96 rooms: 48 validation, 48
+test, as `learn.defaults` splits them); prints places found at probability 0.5, false skeletons per room and
+the log-loss per candidate.
 
 Then the place cut (`learn.thresholds.place_cut`): the shipped place models refitted on every validation room
 (the same fit as training's), each cut chosen under a budget of false places per validation room, judged on
@@ -101,11 +102,14 @@ def print_cuts(candidates: list[dict]) -> None:
 
 
 def add_split_arguments(parser: argparse.ArgumentParser) -> None:
-    """The data set of `benchmarks/accuracy.py` and the shipped models' split of its first rooms."""
+    """The data set of `benchmarks/accuracy.py` and the shipped models' split of its first rooms (by default
+    the split `afford models rebuild` trains on, `learn.defaults`)."""
+    from affordcore.learn.defaults import ROOMS, TEST, VALIDATION
+
     parser.add_argument("--data", type=Path, default=ROOT / "bench-data" / "accuracy")
-    parser.add_argument("--rooms", type=int, default=200, help="the data set's first rooms")
-    parser.add_argument("--validation", type=int, default=40)
-    parser.add_argument("--test", type=int, default=40)
+    parser.add_argument("--rooms", type=int, default=ROOMS, help="the data set's first rooms")
+    parser.add_argument("--validation", type=int, default=VALIDATION)
+    parser.add_argument("--test", type=int, default=TEST)
 
 
 def shipped_split(args) -> tuple[dict, dict[str, str], dict[str, str]]:

@@ -3,9 +3,10 @@ positions each room was scanned from, with the rule that a place's body space mu
 (`visibility.min_seen`) at several shares, against no such rule.
 
 Reads the data set and the shipped models' split of `benchmarks/accuracy.py` (the first `--rooms` rooms:
-40 validation, 40 test), each room's ``<room>.origins.npy`` beside its cloud. The share is chosen on the
-validation rooms (the most places with no more false skeletons than without the rule); the test rooms report
-it, per scan style. Also: how much of each room the sensors saw (free, unknown), and what carving costs.
+48 validation, 48 test by default), each room's ``<room>.origins.npy`` beside its cloud. The share is chosen
+on the validation rooms (the most places with no more false skeletons than without the rule); the test rooms
+report it, per scan style. Also: how much of each room the sensors saw (free, unknown), and what carving
+costs.
 
     .venv/bin/python benchmarks/unknown_space.py        # about 15 minutes on 2 cores
     .venv/bin/python benchmarks/unknown_space.py --carving-only --old /tmp/old-afford   # side by side
