@@ -5,7 +5,9 @@ A place's body is where a person using it would be: the 15 joints of its afforda
 (a segment's middle). Each lies in a voxel the room's sensor positions saw (free or occupied) or never saw
 (unknown, docs/geometry.md); a place is *seen* when at most a quarter of its joints are in unknown voxels
 and *hidden* when more than half are: a chair behind a table seen from across the room, a seat under a top.
-Places found of labelled, per scan style and affordance, for each kind.
+Places found of labelled, per scan style and affordance, for each kind; then, of the places missed, those the
+pose scores saw (a pose above the model's threshold within DESIGN.md's place tolerance of the label: the
+place step lost them) and those they did not.
 
 Reads the data set of `benchmarks/accuracy.py` and its test rooms (`learn.defaults`' split), each with its
 ``<room>.origins.npy``; the real rooms carry no sensor positions and are not in it.
@@ -60,17 +62,16 @@ def collect(args) -> list[dict]:
             continue
         maps = map_affordances(scene.fields, scene.layout, models, settings)
         for model in models:
-            found = match_places(
-                labels, model.affordance, maps[model.affordance].skeletons[:, [0, 1, 3]]
-            ).found
+            amap = maps[model.affordance]
+            found = match_places(labels, model.affordance, amap.skeletons[:, [0, 1, 3]]).found
             for label, hit in zip(labels.of(model.affordance), found):
-                unknown = unknown_share(scene.fields, model.as_skeleton(), label)
                 places.append(
                     {
                         "style": style[name],
                         "affordance": model.affordance,
                         "found": bool(hit),
-                        "unknown": unknown,
+                        "unknown": unknown_share(scene.fields, model.as_skeleton(), label),
+                        "scored": best_score_at(amap, label) > model.threshold,
                     }
                 )
         print(f"{name} ({style[name]}) done", file=sys.stderr, flush=True)
@@ -90,6 +91,24 @@ def unknown_share(fields, skeleton, label) -> float:
     unknown = np.ones(len(joints), bool)  # beyond the lattice nothing was seen
     unknown[inside] = fields.visibility[tuple(voxels[inside].T)] == UNKNOWN
     return float(unknown.mean())
+
+
+def best_score_at(amap, label) -> float:
+    """The best score of the poses a skeleton at `label` would match (DESIGN.md's place tolerance)."""
+    from affordcore.labels import THETA_TOLERANCE, XY_TOLERANCE
+
+    grid = amap.grid
+    if label.at is not None:
+        start = end = np.asarray(label.at, float)
+    else:
+        start, end = np.asarray(label.start, float), np.asarray(label.end, float)
+    x, y = np.meshgrid(grid.x, grid.y, indexing="ij")
+    along = end - start
+    t = np.clip(((x - start[0]) * along[0] + (y - start[1]) * along[1]) / max(along @ along, 1e-12), 0, 1)
+    near = np.hypot(x - start[0] - t * along[0], y - start[1] - t * along[1]) <= XY_TOLERANCE
+    turned = np.abs((grid.theta - label.facing + np.pi) % (2 * np.pi) - np.pi) <= THETA_TOLERANCE
+    scores = amap.scores[:, turned][:, :, near]
+    return float(scores.max()) if scores.size else -np.inf
 
 
 def kind(unknown: float) -> str:
@@ -113,6 +132,18 @@ def print_recall(places: list[dict]) -> None:
                 counts[kind(p["unknown"])][0] += p["found"]
                 counts[kind(p["unknown"])][1] += 1
             cells.append(" / ".join(f"{counts[k][0]}/{counts[k][1]}" for k in KINDS))
+        print(f"| {affordance} | " + " | ".join(cells) + " |")
+    print(
+        "\nPlaces missed: with a pose above the threshold at the label (lost by the place step) / without\n"
+    )
+    print("| affordance | " + " | ".join(KINDS) + " | all |")
+    print("|---|" + "---|" * (len(KINDS) + 1))
+    for affordance in sorted({p["affordance"] for p in places}):
+        missed = [p for p in places if p["affordance"] == affordance and not p["found"]]
+        cells = []
+        for chosen in [[p for p in missed if kind(p["unknown"]) == k] for k in KINDS] + [missed]:
+            scored = sum(p["scored"] for p in chosen)
+            cells.append(f"{scored} / {len(chosen) - scored}")
         print(f"| {affordance} | " + " | ".join(cells) + " |")
 
 
