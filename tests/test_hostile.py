@@ -28,6 +28,9 @@ KEYS = Keys(ROBOT)
 ANSWER_TIMEOUT = 60.0  # seconds an input may take to be answered (a valid cloud is computed)
 AFFORDANCES = ["sitting-relaxing", "sitting-working", "standing-working"]  # the shipped models
 DAMAGE = ("random bytes", "truncated", "bit flips", "wrong encoding", "spoiled field")
+# the valid inputs' room shrunk in plan to 2 x 1.7 m: every valid input taken (about a fifth of them: bit
+# flips in point data) is computed through features and inference, so its size is most of this module's time
+VALID_ROOM = np.array([2 / 3, 2 / 3, 1.0])
 
 
 def _room(rng: np.random.Generator, n: int = 3000) -> np.ndarray:
@@ -43,15 +46,17 @@ def _room(rng: np.random.Generator, n: int = 3000) -> np.ndarray:
 
 
 def _valid_inputs(rng: np.random.Generator) -> dict[str, tuple[object, type]]:
-    """One valid message per input key (the scan is the room from a sensor 1.2 m above its middle)."""
-    room = _room(rng)
+    """One valid message per input key (the scan is the room, `VALID_ROOM` of `_room`, from a sensor 1.2 m
+    above its middle)."""
+    room = _room(rng) * VALID_ROOM
+    sensor = np.array([1.5, 1.25, 1.2]) * VALID_ROOM  # above the room's middle
     scan = messages.Scan(frame_id="lidar")
-    messages.pack_points(scan, room - [1.5, 1.25, 1.2])
+    messages.pack_points(scan, room - sensor)
     messages.stamp(scan.timestamp)
     depth = messages.depth_frame_message(
         np.full((48, 64), 2000, np.uint16), np.array([[60.0, 0, 32], [0, 60, 24], [0, 0, 1]])
     )
-    sensor = np.array([[1.5, 1.25, 1.2]])
+    sensor = sensor[None]
     cloud = messages.cloud_message(room, np.eye(4), "fuzz", frames=1, origins=sensor)
     room_fields = compute_fields(room)
     room_fields.visibility = voxel_states(room_fields.occupancy, room_fields.lattice, sensor)
