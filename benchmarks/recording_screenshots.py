@@ -109,11 +109,15 @@ def service_recordings(folder: Path) -> list[Path]:
         watch = subprocess.Popen(
             AFFORD + ["watch", *connect, "--frames", "40", "--timeout", "300", "--out", str(folder / "maps")],
             stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
         )
         subprocess.run(
             AFFORD + ["publish", str(sequence), *connect, "--rate", "30", "--step", "3", "-q"], check=True
         )
-        watch.wait(timeout=360)
+        _, said = watch.communicate(timeout=360)
+        if watch.returncode != 0:  # a screenshot of a run without its maps shows nothing worth a figure
+            sys.exit(f"afford watch exited {watch.returncode}: {said.strip()}")
     return sorted((folder / "run").glob("*.rrd"))
 
 
@@ -121,6 +125,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "figures")
     args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as work, headless_display() as display:
         work = Path(work)
         for name, recordings in (

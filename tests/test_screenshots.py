@@ -82,3 +82,42 @@ def test_the_demo_recording_opens_on_each_affordances_places(tmp_path):
             assert _near(around, color).sum() > 10, f"{name}'s place at ({place['x']}, {place['y']})"
             found += 1
     assert found == sum(len(m["skeletons"]) for m in maps.values()) and found >= 3
+
+
+def test_a_recording_of_a_run_opens_at_its_last_map_not_at_its_first_scan(tmp_path):
+    """A service run's recording is timed (each scan and map at its stamp); opened afterwards, its first view
+    is its latest time, with the final map, and not the run's start, where the room is still empty (played
+    from the start, a screenshot of a service run showed an empty viewer)."""
+    from PIL import Image
+
+    from affordcore.geometry.grid import PoseGrid
+    from affordcore.geometry.skeleton import get_skeleton
+    from affordcore.mapping.maps import build_map
+    from affordcore.mapping.recording import close_recording, log_cloud, log_map, open_recording, set_time
+
+    rng = np.random.default_rng(0)
+    floor = np.column_stack([rng.uniform(0, 3, (4000, 2)), np.zeros(4000)])
+    grid = PoseGrid(
+        np.arange(30) * 0.1 + 0.05, np.arange(30) * 0.1 + 0.05, np.array([0.5]), np.arange(4) * 1.5
+    )
+    scores = np.full(grid.shape, -3.0, np.float32)
+    scores[0, 1, 15, 15] = 2.0  # one place, in the room's middle
+    amap = build_map(AFFORDANCES[0], scores, grid, get_skeleton(AFFORDANCES[0]), threshold=0.1)
+    rrd = tmp_path / "run.rrd"
+    recording = open_recording(rrd, [AFFORDANCES[0]], name="a run")
+    set_time(recording, 1_700_000_000.0)
+    log_cloud(recording, floor[:50])  # the first scan's few points
+    set_time(recording, 1_700_000_120.0)  # two minutes on: the room and its map
+    log_cloud(recording, floor)
+    log_map(recording, amap)
+    close_recording(recording)
+    try:
+        with headless_display() as display:
+            shot = screenshot([rrd], tmp_path / "run.png", display)
+    except ViewerUnavailable as error:
+        pytest.skip(str(error))
+    image = np.asarray(Image.open(shot).convert("RGB")).astype(float)
+    scale = image.shape[1] / WINDOW[0]
+    view = image[int(80 * scale) :, : int(0.58 * image.shape[1])]
+    blue = np.array(matplotlib.colormaps["tab10"](0)[:3]) * 255
+    assert _near(view, blue).sum() > 100 * scale**2, "the last map's skeleton is not in the first view"

@@ -157,9 +157,10 @@ def _log(recording, entity: str, *archetypes) -> None:
 
 def blueprint(room: tuple[np.ndarray, np.ndarray, int] | None = None):
     """The first tab answers "where can a person sit, work, stand?": the room in 3D from above (without the
-    points above ``CEILING_CUT``, the fields and the scans) beside the plan and the places; the second shows
-    everything. `room`: the floor's (low, high) (x, y) corners and how many colour bars run below it, which
-    the 3D eye and the plan frame (else the viewer's own choice)."""
+    points above ``CEILING_CUT``, the fields and the scans) beside the plan and the places, at the latest
+    time the recording holds; the second shows everything. `room`: the floor's (low, high) (x, y) corners
+    and how many colour bars run below it, which the 3D eye and the plan frame (else the viewer's own
+    choice)."""
     import rerun.blueprint as rrb
 
     eye, bounds = _framing(*room) if room is not None else (None, None)
@@ -179,7 +180,10 @@ def blueprint(room: tuple[np.ndarray, np.ndarray, int] | None = None):
         name="places",
     )
     everything = rrb.Spatial3DView(origin="world", name="fields and scans")
-    return rrb.Blueprint(rrb.Tabs(answer, everything, active_tab=0), collapse_panels=True)
+    # a recording opened after the run starts at its latest time, where the final maps are: played from the
+    # start, a service run's first view is its first scan's empty room
+    time = rrb.TimePanel(state="collapsed", play_state="following")
+    return rrb.Blueprint(rrb.Tabs(answer, everything, active_tab=0), time, collapse_panels=True)
 
 
 def _framing(low: np.ndarray, high: np.ndarray, bars: int):
