@@ -41,14 +41,18 @@ LOOSE = {"xy_tolerance": 0.3, "theta_tolerance": 0.5}
 
 
 def main() -> None:
+    from affordcore.learn.defaults import ROOMS, SEED, TEST, VALIDATION
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rooms", type=int, default=240, help="generated rooms in all")
-    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--rooms", type=int, default=ROOMS, help="generated rooms in all")
+    parser.add_argument("--seed", type=int, default=SEED)
     parser.add_argument(
         "--styles", help="scan styles dealt to rooms in turn (afford synth --styles; default: every style)"
     )
-    parser.add_argument("--test", type=int, default=48, help="the last this many rooms are test rooms")
-    parser.add_argument("--validation", type=int, default=48, help="the this many before them validate")
+    parser.add_argument("--test", type=int, default=TEST, help="the last this many rooms are test rooms")
+    parser.add_argument(
+        "--validation", type=int, default=VALIDATION, help="the this many before them validate"
+    )
     parser.add_argument("--data", type=Path, default=ROOT / "bench-data" / "accuracy")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "accuracy")
     parser.add_argument("--learners", default="cascade")

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from affordcore.synth.styles import STYLES as SCAN_STYLES
+
 ROOT = Path(__file__).resolve().parents[1]
 REAL_ROOMS = ROOT.parent / "shared" / "data" / "rooms"
 DENSE, SPARSE = {"fused", "mesh", "laser"}, {"frames", "walk", "sweep"}
@@ -71,7 +73,7 @@ def main() -> None:
 
 
 BUDGETS = (0.2, 0.4, 0.6, 1.0)  # false places per validation room
-STYLES = ("fused", "mesh", "laser", "frames", "walk", "sweep")
+STYLES = tuple(SCAN_STYLES)  # the generator's, in the order `afford synth` deals them
 
 
 def print_cuts(candidates: list[dict]) -> None:

@@ -95,18 +95,11 @@ def unknown_share(fields, skeleton, label) -> float:
 
 def best_score_at(amap, label) -> float:
     """The best score of the poses a skeleton at `label` would match (DESIGN.md's place tolerance)."""
-    from affordcore.labels import THETA_TOLERANCE, XY_TOLERANCE
+    from affordcore.labels import THETA_TOLERANCE, XY_TOLERANCE, angle_gap
 
     grid = amap.grid
-    if label.at is not None:
-        start = end = np.asarray(label.at, float)
-    else:
-        start, end = np.asarray(label.start, float), np.asarray(label.end, float)
-    x, y = np.meshgrid(grid.x, grid.y, indexing="ij")
-    along = end - start
-    t = np.clip(((x - start[0]) * along[0] + (y - start[1]) * along[1]) / max(along @ along, 1e-12), 0, 1)
-    near = np.hypot(x - start[0] - t * along[0], y - start[1] - t * along[1]) <= XY_TOLERANCE
-    turned = np.abs((grid.theta - label.facing + np.pi) % (2 * np.pi) - np.pi) <= THETA_TOLERANCE
+    near = label.distance(np.stack(np.meshgrid(grid.x, grid.y, indexing="ij"), axis=-1)) <= XY_TOLERANCE
+    turned = angle_gap(grid.theta, label.facing) <= THETA_TOLERANCE
     scores = amap.scores[:, turned][:, :, near]
     return float(scores.max()) if scores.size else -np.inf
 
