@@ -39,25 +39,30 @@ def _floor_box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return corner + cells.min(axis=0) * PLAN_CELL, corner + (cells.max(axis=0) + 1) * PLAN_CELL
 
 
-def test_the_demo_recording_opens_on_each_affordances_places(tmp_path):
+def _first_view(rrd, out) -> tuple[np.ndarray, float, np.ndarray]:
+    """The viewer's first view of the recording `rrd` (skips when the viewer cannot run here): the image
+    (float RGB), its pixels per window point, and its 3D view (the left 3/5 below the tab bar)."""
     from PIL import Image
 
-    from affordcore.geometry.scene import load_cloud
-
-    rrd = demo_recording(tmp_path / "demo")
     try:
         with headless_display() as display:
-            shot = screenshot([rrd], tmp_path / "demo.png", display)
+            shot = screenshot([rrd], out, display)
     except ViewerUnavailable as error:
         pytest.skip(str(error))
     image = np.asarray(Image.open(shot).convert("RGB")).astype(float)
     scale = image.shape[1] / WINDOW[0]
+    return image, scale, image[int(80 * scale) :, : int(0.58 * image.shape[1])]
+
+
+def test_the_demo_recording_opens_on_each_affordances_places(tmp_path):
+    from affordcore.geometry.scene import load_cloud
+
+    image, scale, view = _first_view(demo_recording(tmp_path / "demo"), tmp_path / "demo.png")
     colors = np.array([matplotlib.colormaps["tab10"](i)[:3] for i in range(3)]) * 255
     maps = {name: json.loads((tmp_path / "demo" / f"{name}.json").read_text()) for name in AFFORDANCES}
 
-    # the 3D view (the left 3/5 below the tab bar) is not blank: the room's points fill much of it, and
-    # each affordance's skeletons show in its colour
-    view = image[int(80 * scale) :, : int(0.58 * image.shape[1])]
+    # the 3D view is not blank: the room's points fill much of it, and each affordance's skeletons show in
+    # its colour
     assert (view.max(axis=-1) > 60).mean() > 0.2
     for name, color in zip(AFFORDANCES, colors):
         assert _near(view, color).sum() > 200 * scale**2, f"{name}'s colour is not in the 3D view"
@@ -88,8 +93,6 @@ def test_a_recording_of_a_run_opens_at_its_last_map_not_at_its_first_scan(tmp_pa
     """A service run's recording is timed (each scan and map at its stamp); opened afterwards, its first view
     is its latest time, with the final map, and not the run's start, where the room is still empty (played
     from the start, a screenshot of a service run showed an empty viewer)."""
-    from PIL import Image
-
     from affordcore.geometry.grid import PoseGrid
     from affordcore.geometry.skeleton import get_skeleton
     from affordcore.mapping.maps import build_map
@@ -111,13 +114,6 @@ def test_a_recording_of_a_run_opens_at_its_last_map_not_at_its_first_scan(tmp_pa
     log_cloud(recording, floor)
     log_map(recording, amap)
     close_recording(recording)
-    try:
-        with headless_display() as display:
-            shot = screenshot([rrd], tmp_path / "run.png", display)
-    except ViewerUnavailable as error:
-        pytest.skip(str(error))
-    image = np.asarray(Image.open(shot).convert("RGB")).astype(float)
-    scale = image.shape[1] / WINDOW[0]
-    view = image[int(80 * scale) :, : int(0.58 * image.shape[1])]
+    _, scale, view = _first_view(rrd, tmp_path / "run.png")
     blue = np.array(matplotlib.colormaps["tab10"](0)[:3]) * 255
     assert _near(view, blue).sum() > 100 * scale**2, "the last map's skeleton is not in the first view"
