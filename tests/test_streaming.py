@@ -45,6 +45,14 @@ def held_rooms(data_set):
     return load_rooms(data_set_rooms(data_set), _settings())
 
 
+@pytest.fixture(scope="module")
+def stored(tmp_path_factory, data_set) -> RoomCache:
+    """A cache holding the rooms' fields at `_settings()`, written once for the tests that only read it."""
+    cache = RoomCache(tmp_path_factory.mktemp("stored"))
+    load_rooms(data_set_rooms(data_set), _settings(), cache=cache)
+    return cache
+
+
 FAST = {"max_iter": 20}  # trees enough to show the same ones are fitted
 
 
@@ -78,9 +86,9 @@ def test_a_streamed_cascade_is_the_model_trained_in_memory(data_set, tmp_path):
     assert texts[1] == texts[0] and texts[2] == texts[0]
 
 
-def test_cached_rooms_hold_no_fields_and_read_back_the_same(data_set, held_rooms, tmp_path):
+def test_cached_rooms_hold_no_fields_and_read_back_the_same(data_set, held_rooms, stored):
     held = held_rooms
-    cached = load_rooms(data_set_rooms(data_set), _settings(), cache=RoomCache(tmp_path))
+    cached = load_rooms(data_set_rooms(data_set), _settings(), cache=stored)
     for a, b in zip(held, cached):
         assert b.held_fields is None and b.fields_path.exists()
         fields = b.fields
@@ -126,18 +134,17 @@ def test_a_changed_setting_cloud_or_layout_is_a_new_cache_entry(data_set, tmp_pa
     assert unseen.fields_path != edited.fields_path
 
 
-def test_stack_reads_one_room_at_a_time_and_keeps_the_same_rows(data_set, held_rooms, tmp_path, monkeypatch):
+def test_stack_reads_one_room_at_a_time_and_keeps_the_same_rows(data_set, held_rooms, stored, monkeypatch):
     settings = _settings()
     affordance = _affordance(data_set)
     task = Task(affordance, settings, FeatureLayout.from_settings(settings))
     files = data_set_rooms(data_set)
     names = [f.name for f in files]
     held = split_examples({r.name: r for r in held_rooms}, names[:2], names[2:], task)
-    cache = RoomCache(tmp_path)
-    stored = split_examples(
-        {r.name: r for r in load_rooms(files, settings, cache=cache)}, names[:2], names[2:], task, cache
+    streamed = split_examples(
+        {r.name: r for r in load_rooms(files, settings, cache=stored)}, names[:2], names[2:], task, stored
     )
-    assert isinstance(stored, ExampleSet) and list(stored) == names
+    assert isinstance(streamed, ExampleSet) and list(streamed) == names
     alive, most = [], [0]
     read = examples_module.load_example_rows
 
@@ -151,20 +158,20 @@ def test_stack_reads_one_room_at_a_time_and_keeps_the_same_rows(data_set, held_r
 
     monkeypatch.setattr(examples_module, "load_example_rows", counted)
     a = stack(held, names, 400, np.random.default_rng(5))
-    b = stack(stored, names, 400, np.random.default_rng(5))
+    b = stack(streamed, names, 400, np.random.default_rng(5))
     assert len(alive) == 3 and most[0] == 1
     for field in ("X", "y", "weight"):
         np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
     assert [r.name for r in b.rooms] == names and all(r.held_fields is None for r in b.rooms)
 
 
-def test_a_streamed_evaluation_gives_the_same_results(data_set, tmp_path):
+def test_a_streamed_evaluation_gives_the_same_results(data_set, stored):
     affordance = _affordance(data_set)
     settings = _settings()
     # held in memory, one process; from the cache, trainings in two processes
     runs = [
         evaluate(data_set, [affordance], ["linear-tuned"], 3, s, ratios=(4,), cache=cache)
-        for s, cache in ((settings, None), (_settings(workers=2), RoomCache(tmp_path)))
+        for s, cache in ((settings, None), (_settings(workers=2), stored))
     ]
     same = [
         [(o.learner, o.fold, o.ratio, o.precision, o.recall, o.f1, o.train_ratio) for o in r.outcomes]

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from affordcore.geometry.fields import scanned_cells
+from affordcore.learn.cache import RoomCache
 from affordcore.learn.evaluate import deal_folds, evaluate, write_outputs
 from affordcore.learn.learners import LEARNERS
 from affordcore.learn.model import load_model
@@ -56,6 +57,13 @@ def data_set(tmp_path_factory):
     return folder
 
 
+@pytest.fixture(scope="module")
+def cache() -> RoomCache:
+    """The session's room cache (conftest): the trainings below share the same three rooms, whose fields and
+    examples are then made once, not once a training (the cache's own equivalence is test_streaming's)."""
+    return RoomCache.from_settings(Settings())
+
+
 def _settings() -> Settings:
     return Settings(
         features=FeatureSettings(cell_size=0.5), grid=GridSettings(n_theta=8, theta_step=np.pi / 4)
@@ -83,9 +91,9 @@ F1_FLOOR = {
 
 @pytest.mark.slow
 @pytest.mark.parametrize("learner", LEARNERS)
-def test_every_learner_trains_and_beats_chance(data_set, learner):
+def test_every_learner_trains_and_beats_chance(data_set, cache, learner):
     params = {"max_iterations": 60} if learner == "ssvm" else {}
-    model = train(data_set, _affordance(data_set), learner, _settings(), params)
+    model = train(data_set, _affordance(data_set), learner, _settings(), params, cache=cache)
     assert model.learner == learner and len(model.weights) == 30 + 3 * 8
     assert set(model.training["rooms"]).isdisjoint(model.validation["rooms"])  # split by room
     assert model.validation["f1"] >= F1_FLOOR[learner], model.validation
@@ -141,7 +149,7 @@ def test_folds_are_stratified_seeded_and_cover_every_room():
 
 
 @pytest.mark.slow
-def test_evaluate_runs_every_learner_per_fold_and_the_imbalance_test(data_set, tmp_path):
+def test_evaluate_runs_every_learner_per_fold_and_the_imbalance_test(data_set, cache, tmp_path):
     affordance = _affordance(data_set)
     learners = ["linear-tuned", "undersample", "ssvm"]
     evaluation = evaluate(
@@ -153,6 +161,7 @@ def test_evaluate_runs_every_learner_per_fold_and_the_imbalance_test(data_set, t
         seed=0,
         ratios=(1, 4, None),
         params={"ssvm": {"max_iterations": 30}},
+        cache=cache,
     )
     rooms = sorted(sum(evaluation.folds, []))
     assert len(rooms) == 3 and all(len(fold) == 1 for fold in evaluation.folds)
@@ -240,14 +249,14 @@ def test_the_evaluation_picks_each_affordance_its_best_learner(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set, tmp_path):
+def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set, cache, tmp_path):
     from affordcore.geometry.features import FeatureLayout
-    from affordcore.learn.examples import data_set_rooms, load_room
+    from affordcore.learn.examples import data_set_rooms, load_rooms
     from affordcore.mapping.pipeline import map_affordances, score_model
 
     settings = _settings()
     affordance = _affordance(data_set)
-    model = train(data_set, affordance, "cascade", settings, {"max_iter": 20}, seed=0)
+    model = train(data_set, affordance, "cascade", settings, {"max_iter": 20}, seed=0, cache=cache)
     path = model.save(tmp_path / "cascade.model.json")
     model = load_model(path)
     assert (
@@ -256,18 +265,18 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
     # it finds the validation room's places (all of them here: 1.0; one or two missed at most)
     assert model.place_threshold is not None and model.validation["place_recall"] >= 0.75
     layout = FeatureLayout.from_settings(settings)
-    room = load_room(data_set_rooms(data_set)[0], settings)
-    grid, scores = score_model(model, room.fields, layout, settings)
+    fields = load_rooms(data_set_rooms(data_set), settings, cache=cache)[0].fields  # read from the cache once
+    grid, scores = score_model(model, fields, layout, settings)
     lowest = np.finfo(np.float32).min
     live = scores > lowest
     # the trees rescored the first stage's best 3 % of the poses near scanned floor, and no other pose
     first = dataclasses.replace(model, rescorer=None)
-    _, linear = score_model(first, room.fields, layout, settings)
+    _, linear = score_model(first, fields, layout, settings)
     candidates = int((linear > lowest).sum())
     wanted = int(np.ceil(model.rescorer["fraction"] * candidates))
     assert live.sum() == min(wanted, model.rescorer["max_poses"])
     assert linear[live].min() >= linear[(linear > lowest) & ~live].max()
-    amap = map_affordances(room.fields, layout, [model], settings)[affordance]
+    amap = map_affordances(fields, layout, [model], settings)[affordance]
     # the score cut (counted from the room's median candidate score) stays on record ...
     cut = model.place_threshold + np.median(scores[live])
     assert model.place_reference == "room-median" and model.place_cut(scores) == pytest.approx(cut)
@@ -280,7 +289,7 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
         grid,
         model.threshold,
         model.places.candidate_spacing,
-        scanned_cells(room.fields, grid.x, grid.y),
+        scanned_cells(fields, grid.x, grid.y),
     )
     p = model.places.probability(candidates.evidence)
     eligible = above_threshold(candidates.rows, model.threshold)
@@ -329,7 +338,7 @@ def test_default_models_train_on_the_split_the_benchmark_uses_and_are_reproducib
 
 @pytest.mark.slow
 def test_learners_sharing_a_linear_svc_fit_it_once_and_train_as_they_do_alone(
-    data_set, tmp_path, monkeypatch
+    data_set, cache, tmp_path, monkeypatch
 ):
     """The evaluation trains linear-tuned, focused and the cascade of one split in one process
     (`baselines.reused_fits`): their common LinearSVC is fitted once, and each model file is the one it
@@ -342,7 +351,7 @@ def test_learners_sharing_a_linear_svc_fit_it_once_and_train_as_they_do_alone(
 
     settings = _settings()
     task = Task(_affordance(data_set), settings, FeatureLayout.from_settings(settings))
-    examples = example_set(load_rooms(data_set_rooms(data_set), settings), task)
+    examples = example_set(load_rooms(data_set_rooms(data_set), settings, cache=cache), task, cache=cache)
     fit_rooms, validation_rooms = list(examples)[:2], list(examples)[2:]
     fits = []
     original = baselines._fit_svc
