@@ -6,6 +6,7 @@ read in place, never copied, and tests that need it skip cleanly when it is abse
 
 from __future__ import annotations
 
+import fcntl
 import subprocess
 import sys
 import time
@@ -86,14 +87,22 @@ def generated_room():
 
 
 @pytest.fixture(scope="session")
-def generated_sequence(tmp_path_factory) -> Path:
+def generated_sequence(tmp_path_factory, worker_id) -> Path:
     """A generated living room seen by a virtual Kinect along a hand-held path (120 frames, published every
-    third: 40 frames over 0.84 m of walk, enough to see the floor of a cluttered room)."""
+    third: 40 frames over 0.84 m of walk, enough to see the floor of a cluttered room). Written once per run:
+    the xdist workers share it (the first to take the lock writes it, 12 s of rendering; no test writes to
+    it)."""
     from affordcore.synth.dataset import write_sequence
 
-    room, rng = living_e2e_room()
-    folder = tmp_path_factory.mktemp("sequence") / "living-e2e.sequence"
-    write_sequence(room, rng, folder, "depth", frames=120)
+    root = tmp_path_factory.getbasetemp()
+    root = root if worker_id == "master" else root.parent  # the run's folder, above each worker's own
+    folder, written = root / "living-e2e.sequence", root / "living-e2e.sequence.done"
+    with open(root / "living-e2e.sequence.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not written.exists():
+            room, rng = living_e2e_room()
+            write_sequence(room, rng, folder, "depth", frames=120)
+            written.touch()
     return folder
 
 
