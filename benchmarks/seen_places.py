@@ -7,7 +7,9 @@ A place's body is where a person using it would be: the 15 joints of its afforda
 and *hidden* when more than half are: a chair behind a table seen from across the room, a seat under a top.
 Places found of labelled, per scan style and affordance, for each kind; then, of the places missed, those the
 pose scores saw (a pose above the model's threshold within DESIGN.md's place tolerance of the label: the
-place step lost them) and those they did not.
+place step lost them) and those they did not. Last, the places at desks and tables by the state their chair
+was generated in (the label's note, docs/synthetic-rooms.md "Table scenes"): a place is labelled whatever its
+chair's state, with no chair at all too.
 
 Reads the data set of `benchmarks/accuracy.py` and its test rooms (`learn.defaults`' split), each with its
 ``<room>.origins.npy``; the real rooms carry no sensor positions and are not in it.
@@ -72,6 +74,7 @@ def collect(args) -> list[dict]:
                         "found": bool(hit),
                         "unknown": unknown_share(scene.fields, model.as_skeleton(), label),
                         "scored": best_score_at(amap, label) > model.threshold,
+                        "chair": chair_state(label.note),
                     }
                 )
         print(f"{name} ({style[name]}) done", file=sys.stderr, flush=True)
@@ -102,6 +105,20 @@ def best_score_at(amap, label) -> float:
     turned = angle_gap(grid.theta, label.facing) <= THETA_TOLERANCE
     scores = amap.scores[:, turned][:, :, near]
     return float(scores.max()) if scores.size else -np.inf
+
+
+CHAIR_STATES = ("as far as it goes", "pushed in", "pulled out", "turned", "no chair")  # most specific first
+SHARED_TABLES = ("meeting table", "dining table")  # tables of several places, as against a desk or a bar
+
+
+def chair_state(note: str) -> str | None:
+    """The chair's state a table place's label note names (`furniture._chair_note`), with where: "no chair
+    at a desk" and "no chair at a shared table" apart (a desk's knee space shows where its place is, an
+    empty stretch of a meeting table's edge does not); None for a place at no table."""
+    state = next((s for s in CHAIR_STATES if s in note), None)
+    if state == "no chair":
+        return state + (" at a shared table" if note.startswith(SHARED_TABLES) else " at a desk or bar")
+    return state
 
 
 def kind(unknown: float) -> str:
@@ -138,6 +155,31 @@ def print_recall(places: list[dict]) -> None:
             scored = sum(p["scored"] for p in chosen)
             cells.append(f"{scored} / {len(chosen) - scored}")
         print(f"| {affordance} | " + " | ".join(cells) + " |")
+    print_chairs(places)
+
+
+def print_chairs(places: list[dict]) -> None:
+    """Places at desks and tables found of labelled by their chair's state; of those missed, how many the
+    pose scores saw (a positive pose at the label)."""
+    chaired = [p for p in places if p["chair"] is not None]
+    if not chaired:
+        return
+    print("\nPlaces at desks and tables by their chair's state: found / labelled (missed, a pose positive)\n")
+    print("| affordance | chair | " + " | ".join(STYLES) + " | all |")
+    print("|---|---|" + "---|" * (len(STYLES) + 1))
+    for affordance in sorted({p["affordance"] for p in chaired}):
+        for state in sorted({p["chair"] for p in chaired if p["affordance"] == affordance}):
+            cells = []
+            for style in (*STYLES, None):
+                chosen = [
+                    p
+                    for p in chaired
+                    if p["affordance"] == affordance and p["chair"] == state and style in (None, p["style"])
+                ]
+                found = sum(p["found"] for p in chosen)
+                lost = sum(p["scored"] and not p["found"] for p in chosen)
+                cells.append(f"{found}/{len(chosen)} ({lost})" if chosen else "-")
+            print(f"| {affordance} | {state} | " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":
