@@ -99,3 +99,19 @@ def test_the_room_is_handed_to_the_writer_without_waiting_for_it(room, tmp_path,
     assert handed.wait(60), "start_scene waited for the writer to read the room"
     writer.close()
     assert not writer._process.is_alive()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the writer is forked on Linux only")
+def test_a_writer_closed_before_it_finished_is_ended_not_waited_for(monkeypatch):
+    """A command that fails before its maps (an empty file, a cloud without a floor) closes its writer
+    before `finish`: the writer, still importing matplotlib and rerun, is killed, not waited for (the error
+    came seconds late). Here the writer would end by itself after 3 s; it must not get to."""
+    import signal
+    import time
+
+    from affordcore.mapping import outputs
+
+    monkeypatch.setattr(outputs, "_writer_main", lambda connection: time.sleep(3))
+    with pytest.raises(ValueError, match="empty file"), outputs.OutputWriter() as writer:
+        raise ValueError("an empty file")
+    assert writer._process.exitcode == -signal.SIGKILL

@@ -213,6 +213,7 @@ class OutputWriter:
         self._process.start()
         theirs.close()
         self.has_scene, self._sending, self._send_error = False, None, None
+        self._finished = False  # `finish` answered: what it wrote is all there is
 
     def __enter__(self) -> OutputWriter:
         return self
@@ -268,14 +269,19 @@ class OutputWriter:
             outcome, value = self._connection.recv()
         except EOFError:
             raise RuntimeError("the process writing the map outputs ended without a word") from None
+        self._finished = True
         if outcome == "error":
             raise value
         return value
 
     def close(self) -> None:
-        if self._sending is not None and self._sending.is_alive():  # closed before finish (an error)
-            self._process.kill()  # nobody will read the rest of the scene: its send fails and ends
-            self._sending.join()
+        """End the writer. Closed before `finish` (the command failed: a bad cloud, a map that raised),
+        nothing it would still write is wanted, so it is killed at once rather than left to finish its
+        imports first: `afford map` of an empty file said so 6 s after it started, 3 of them waiting here."""
+        if not self._finished:
+            self._process.kill()  # a scene still being sent fails, and its thread ends
+            if self._sending is not None:
+                self._sending.join()
         self._connection.close()  # the writer reads the end of its input and stops
         self._process.join(timeout=5)
         if self._process.is_alive():
