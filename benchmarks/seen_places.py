@@ -107,15 +107,17 @@ def best_score_at(amap, label) -> float:
     return float(scores.max()) if scores.size else -np.inf
 
 
-CHAIR_STATES = ("as far as it goes", "pushed in", "pulled out", "turned", "no chair")  # most specific first
+# the phrases `furniture._chair_note` writes into a table place's label note, the most specific first (they
+# name the states of `furniture.CHAIR_STATES`; a pushed-in chair may be in as far as it goes)
+CHAIR_NOTES = ("as far as it goes", "pushed in", "pulled out", "turned", "no chair")
 SHARED_TABLES = ("meeting table", "dining table")  # tables of several places, as against a desk or a bar
 
 
 def chair_state(note: str) -> str | None:
-    """The chair's state a table place's label note names (`furniture._chair_note`), with where: "no chair
-    at a desk" and "no chair at a shared table" apart (a desk's knee space shows where its place is, an
+    """The chair's state a table place's label note names, with where for a missing chair: "no chair at a
+    shared table" apart from "no chair at a desk or bar" (a desk's knee space shows where its place is, an
     empty stretch of a meeting table's edge does not); None for a place at no table."""
-    state = next((s for s in CHAIR_STATES if s in note), None)
+    state = next((s for s in CHAIR_NOTES if s in note), None)
     if state == "no chair":
         return state + (" at a shared table" if note.startswith(SHARED_TABLES) else " at a desk or bar")
     return state
