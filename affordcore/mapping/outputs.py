@@ -277,7 +277,7 @@ class OutputWriter:
     def close(self) -> None:
         """End the writer. Closed before `finish` (the command failed: a bad cloud, a map that raised),
         nothing it would still write is wanted, so it is killed at once rather than left to finish its
-        imports first: `afford map` of an empty file said so 6 s after it started, 3 of them waiting here."""
+        imports first: waiting for them delayed a bad input's one-line error by seconds (docs/maps.md)."""
         if not self._finished:
             self._process.kill()  # a scene still being sent fails, and its thread ends
             if self._sending is not None:

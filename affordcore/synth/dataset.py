@@ -142,8 +142,8 @@ def write_sequence(room, rng: np.random.Generator, folder: Path, sensor: str, fr
         if sensor == "depth":
             depth, _ = depth_frame(raycaster, camera, pose, rng)
             millimetres = np.clip(np.round(depth * 1000), 0, 65534).astype(np.uint16)
-            # zlib level 1: 7x faster to write than PIL's default 6 for 8 % more bytes (a 640 x 480 frame:
-            # 18 against 123 ms, 325 against 301 KB), which was half of a sequence's time
+            # zlib level 1, not PIL's default 6: a few per cent more bytes, written several times faster
+            # (PNG encoding was half of a sequence's time; docs/synthetic-rooms.md, "Sequences")
             Image.fromarray(millimetres).save(folder / f"frame-{k:06d}.depth.png", compress_level=1)
             stem = f"frame-{k:06d}"
         else:
