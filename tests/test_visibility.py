@@ -73,6 +73,20 @@ def test_space_no_sensor_could_see_is_unknown(room_state):
     assert _state_at(fields, state, (3.8, 2.8, 0.2)) == UNKNOWN
 
 
+def test_a_table_top_seen_from_above_hides_all_the_space_under_it():
+    """Looked down on from just above, a voxel spans many more bins in azimuth than in elevation: its
+    outline must cover them all, or the space under the top is carved free through the gaps."""
+    u, v = np.meshgrid(np.arange(1.0, 2.2, SPACING), np.arange(0.9, 2.1, SPACING), indexing="ij")
+    top = np.column_stack([u.ravel(), v.ravel(), np.full(u.size, 0.75)])
+    fields = _fields(np.concatenate([_box([0, 0, 0], [4, 3, 2.4]), top]))
+    state = voxel_states(fields.occupancy, fields.lattice, np.array([[1.6, 1.5, 1.6]]))
+    low, high = fields.lattice.voxel_of(np.array([[1.15, 1.05, 0.1], [2.05, 1.95, 0.65]]))
+    under = state[low[0] : high[0] + 1, low[1] : high[1] + 1, low[2] : high[2] + 1]
+    assert under.size > 500 and np.all(under == UNKNOWN)
+    assert _state_at(fields, state, (1.6, 1.5, 1.2)) == FREE  # between the sensor and the top
+    assert _state_at(fields, state, (3.0, 1.5, 0.3)) == FREE  # beside the table, under the sensor's view
+
+
 def test_without_sensor_positions_nothing_is_free(room_state):
     fields, _ = room_state
     state = voxel_states(fields.occupancy, fields.lattice, np.zeros((0, 3)))

@@ -8,9 +8,9 @@ assembler's frames, a generated scan's stations, a depth frame's camera) the two
 sensor and the first surface along a line of sight was seen, and is free; the rest is unknown.
 
 How: one range image per sensor position (the range of the nearest occupied voxel in each direction, over
-bins of `VisibilitySettings.angular_step` in azimuth and elevation). Each occupied voxel is splatted as a
-square across the line of sight, with more samples the nearer it is, so it covers every bin it spans; a
-single empty bin between splats takes its nearest neighbour's range. A voxel is free when it lies at least
+bins of `VisibilitySettings.angular_step` in azimuth and elevation). Each occupied voxel covers the bins
+its outline spans, a square across the line of sight (more bins the nearer it is); a single empty bin
+between outlines takes its nearest neighbour's range. A voxel is free when it lies at least
 one voxel nearer than that image's surface in its direction. Each position is
 taken to have looked all round: a camera's field of view is not known here, so space in a line of sight
 counts as seen. That errs towards free only where a surface was seen from elsewhere and the space in
@@ -20,6 +20,8 @@ A direction with no surface at all (an open door, a missing return) frees nothin
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ..settings import VisibilitySettings
@@ -28,7 +30,8 @@ from .fields import SceneFields, VoxelLattice, at_columns, disc
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 
 _SPLAT_HALF_WIDTH = 0.6  # voxels: a square this wide either side covers most of a voxel's outline
-_MAX_SPLAT = 8  # samples per side at most (a voxel an arm's length from the sensor spans ~6 one-degree bins)
+_MAX_SPAN = 64  # bins across at most: a voxel nearer than that to the sensor is not drawn in full
+_SINE_TABLE = 1 << 14  # entries of the elevation table: a bin 89-90 degrees up still spans one
 
 
 def voxel_states(
@@ -79,14 +82,6 @@ def _bins(step: float) -> tuple[int, int]:
     return int(round(180 / step)), int(round(360 / step))
 
 
-def _directions(x: np.ndarray, y: np.ndarray, z: np.ndarray, step: float):
-    """Range, elevation bin and azimuth bin of offsets (x, y, z columns) from a sensor position (`step` in
-    degrees)."""
-    across, column = _plan(x, y, step)
-    distance, row = _height(across, z, step)
-    return distance, row, column
-
-
 def _plan(x: np.ndarray, y: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     """Distance in plan and azimuth bin of offsets (x, y) from a sensor position."""
     n_az = _bins(step)[1]
@@ -94,24 +89,17 @@ def _plan(x: np.ndarray, y: np.ndarray, step: float) -> tuple[np.ndarray, np.nda
     return np.sqrt(x * x + y * y), column % n_az
 
 
-def _height(across: np.ndarray, z: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """Range and elevation bin of offsets `across` (in plan) and `z` (up) from a sensor position."""
-    n_el = _bins(step)[0]
-    distance = np.sqrt(across * across + z * z)
-    row = ((np.arctan2(z, across) + np.pi / 2) * (1.0 / np.radians(step))).astype(np.int32)
-    return distance, np.minimum(row, n_el - 1)
-
-
 def _range_image(offsets: np.ndarray, resolution: float, step: float) -> np.ndarray:
     """(n_el, n_az): the range of the nearest surface voxel in each direction; 0 where none was seen
-    (nothing is free that way). A single empty bin among surface bins (a gap between two splats) takes its
+    (nothing is free that way). A single empty bin among surface bins (a gap between two outlines) takes its
     nearest neighbour's range."""
     from scipy import ndimage
 
-    samples, distance = _splats(offsets, resolution, step)
-    _, row, column = _directions(*samples.T, step)
-    image = np.full(_bins(step), np.inf)
-    np.minimum.at(image, (row, column), distance)
+    n_el, n_az = _bins(step)
+    bins, distance = _outlines(offsets, resolution, step)
+    image = np.full(n_el * n_az, np.inf)
+    np.minimum.at(image, bins, distance)
+    image = image.reshape(n_el, n_az)
     gaps = np.isinf(image)
     near = ndimage.minimum_filter(image, size=3, mode=("nearest", "wrap"))
     image[gaps] = near[gaps]
@@ -119,28 +107,41 @@ def _range_image(offsets: np.ndarray, resolution: float, step: float) -> np.ndar
     return image
 
 
-def _splats(offsets: np.ndarray, resolution: float, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """Points covering each surface voxel's outline as the sensor sees it (a square across the line of
-    sight, with more samples the nearer the voxel, so no bin it covers is missed), and the range of the
-    voxel centre each stands for."""
-    distance = np.linalg.norm(offsets, axis=1)
-    # samples per side: a bin's width at the voxel's range, at least 2
-    across = resolution / np.maximum(distance, resolution) / np.radians(step)
-    per_side = np.clip(np.ceil(2 * _SPLAT_HALF_WIDTH * across).astype(int) + 1, 2, _MAX_SPLAT)
-    sight = offsets / np.maximum(distance, 1e-9)[:, None]
-    side = np.cross(sight, [0.0, 0.0, 1.0])
-    flat = np.linalg.norm(side, axis=1) < 1e-6  # straight up or down: any horizontal side will do
-    side[flat] = [1.0, 0.0, 0.0]
-    side /= np.linalg.norm(side, axis=1, keepdims=True)
-    up = np.cross(side, sight)
-    samples, ranges = [], []
-    for n in np.unique(per_side):  # at most _MAX_SPLAT - 1 groups
-        pick = per_side == n
-        a, b = np.meshgrid(*(np.linspace(-_SPLAT_HALF_WIDTH, _SPLAT_HALF_WIDTH, n) * resolution,) * 2)
-        shift = a.ravel()[:, None, None] * side[pick] + b.ravel()[:, None, None] * up[pick]
-        samples.append((offsets[pick] + shift).reshape(-1, 3))
-        ranges.append(np.broadcast_to(distance[pick], shift.shape[:2]).ravel())
-    return np.concatenate(samples), np.concatenate(ranges)
+def _outlines(offsets: np.ndarray, resolution: float, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Every bin (flat index into the range image) each surface voxel's outline covers as the sensor sees it,
+    and the range of the voxel for each: the bins within `_SPLAT_HALF_WIDTH` voxels of its centre across the
+    line of sight, in elevation (that width at its range) and in azimuth (at its distance in plan, so a
+    voxel under the sensor spans many azimuth bins). Bins are worked out per voxel, not per sample point:
+    one rectangle of rows and columns each, expanded without a loop."""
+    n_el, n_az = _bins(step)
+    per_bin = 1.0 / np.radians(step)
+    x, y, z = offsets.T
+    across = np.hypot(x, y)
+    distance = np.hypot(across, z)
+    row = (np.arctan2(z, across) + np.pi / 2) * per_bin  # fractional bins
+    column = (np.arctan2(y, x) + np.pi) * per_bin
+    half = _SPLAT_HALF_WIDTH * resolution * per_bin
+    half_row = np.minimum(half / np.maximum(distance, resolution), _MAX_SPAN / 2)
+    half_column = np.minimum(half / np.maximum(across, resolution), _MAX_SPAN / 2)
+    first_row = np.clip(np.floor(row - half_row), 0, n_el - 1).astype(np.int64)
+    rows = np.clip(np.floor(row + half_row), 0, n_el - 1).astype(np.int64) - first_row + 1
+    first_column = np.floor(column - half_column).astype(np.int64)
+    columns = np.floor(column + half_column).astype(np.int64) - first_column + 1
+    count = rows * columns
+    owner = np.repeat(np.arange(len(count)), count)
+    k = np.arange(owner.size) - np.repeat(np.cumsum(count) - count, count)  # a bin's place in its rectangle
+    width = columns[owner]
+    bins = (first_row[owner] + k // width) * n_az + (first_column[owner] + k % width) % n_az
+    return bins, distance[owner]
+
+
+@functools.lru_cache(maxsize=4)
+def _elevation_rows(step: float) -> np.ndarray:
+    """Elevation bin by the sine of the elevation, tabulated over [-1, 1] in `_SINE_TABLE` steps: one
+    lookup per voxel instead of an arctan2, at most one bin off at a bin's edge."""
+    sine = np.linspace(-1.0, 1.0, _SINE_TABLE)
+    rows = ((np.arcsin(sine) + np.pi / 2) * (1.0 / np.radians(step))).astype(np.int32)
+    return np.minimum(rows, _bins(step)[0] - 1).astype(np.int16)
 
 
 def _in_front(offsets: list[np.ndarray], image: np.ndarray, step: float, resolution: float) -> np.ndarray:
@@ -149,7 +150,11 @@ def _in_front(offsets: list[np.ndarray], image: np.ndarray, step: float, resolut
     direction. A voxel column shares its plan distance and azimuth: those are worked out once per column."""
     x, y, z = offsets
     across, column = _plan(x[:, None], y[None, :], step)
-    distance, row = _height(across[:, :, None], z[None, None, :], step)
+    across = across[:, :, None]
+    distance = np.sqrt(across * across + z * z)
+    to_table = np.float32((_SINE_TABLE - 1) / 2)
+    sine = z / np.maximum(distance, np.float32(1e-6))
+    row = _elevation_rows(step)[((sine + 1) * to_table).astype(np.int32)]
     return distance + resolution <= image[row, column[:, :, None]]
 
 
