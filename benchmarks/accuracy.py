@@ -97,6 +97,7 @@ def main() -> None:
         "split": {"train": train_names, "validation": validation_names, "test": [f.name for f in test]}
     }
     results["rows"], results["curve"], results["reliability"], models = [], [], [], {}
+    results["operating"] = []
     groups = test_groups(args.data, [f.name for f in test], [r.name for r in real])
     shipped = shipped_models_for(args, [f.name for f in test]) if args.shipped else {}
     for affordance in args.affordances.split(","):
@@ -122,6 +123,15 @@ def main() -> None:
                 }
                 results["rows"].append(row)
                 if model.places is not None:
+                    results["operating"].append(
+                        {
+                            "affordance": affordance,
+                            "learner": learner,
+                            "rooms": group,
+                            "cut": model.places.cut,
+                            "points": operating_curve(results_of, names),
+                        }
+                    )
                     results["reliability"].append(
                         {
                             "affordance": affordance,
@@ -184,6 +194,7 @@ def main() -> None:
     (args.out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
     (args.out / "results.md").write_text(markdown(results, args))
     plot_reliability(results["reliability"], args.out / "reliability.png")
+    plot_operating(results["operating"], args.out / "operating.png")
     print(markdown(results, args))
 
 
@@ -284,7 +295,9 @@ def room_results(model, rooms: list, task, loose: bool = True) -> dict:
                 candidates = r.candidates(model.threshold, model.places.candidate_spacing)
                 p = model.places.probability(candidates.evidence)
                 own = model.places.cut if cut is None else cut
-                result["probability"] = candidates.places(p, own, task.settings.map.nms_radius)
+                radius = task.settings.map.nms_radius
+                result["probability"] = candidates.places(p, own, radius)
+                result["operating"] = [candidates.places(p, c, radius) for c in OPERATING_CUTS]
                 counted = ~candidates.ignored
                 result["reliability"] = (p[counted], candidates.used[counted])
             results[room.name][prefix] = result
@@ -371,6 +384,38 @@ def reliability(results: dict, names: list[str]) -> list[dict]:
     ]
 
 
+# place probabilities a map can be asked for (`map.place_probability`): the operating curve's points
+OPERATING_CUTS = np.round(np.concatenate([[0.02], np.arange(0.05, 0.951, 0.05)]), 2)
+TABLE_CUTS = (0.1, 0.2, 0.3, 0.5, 0.7)  # the ones results.md tabulates
+
+
+def operating_curve(results: dict, names: list[str]) -> list[dict]:
+    """Place recall and false skeletons per room of rooms `names` at every one of OPERATING_CUTS: what a map
+    asked for places of at least that probability would hold."""
+    parts = [results[name][""] for name in names if "operating" in results[name][""]]
+    if not parts:
+        return []
+    labelled = sum(part["n_labels"] for part in parts)
+    counts = np.sum([part["operating"] for part in parts], axis=0)  # (cuts, 3): found, kept, false
+    return [
+        {
+            "cut": float(cut),
+            "found": int(found),
+            "labelled": labelled,
+            "recall": float(found / labelled) if labelled else float("nan"),
+            "false_per_room": float(false / len(parts)),
+        }
+        for cut, (found, _, false) in zip(OPERATING_CUTS, counts)
+    ]
+
+
+def best_within(points: list[dict], false_per_room: float) -> dict | None:
+    """The point of an operating curve with the most places found among those with at most
+    `false_per_room` false skeletons per room (the highest cut among equals); None when none is."""
+    within = [p for p in points if p["false_per_room"] <= false_per_room]
+    return max(within, key=lambda p: (p["found"], p["cut"])) if within else None
+
+
 def worst_room_figures(args, model, per_room: dict, test_rooms: list, files: list, task) -> None:
     """Plan views of the two generated test rooms where `model` errs most (`per_room`: its missed and false
     places per room, from the table's run)."""
@@ -445,6 +490,7 @@ def markdown(results: dict, args) -> str:
             for a, b in zip(RELIABILITY_BINS, RELIABILITY_BINS[1:])
         ]
         lines.append(f"| {r['affordance']} | {r['rooms']} | " + " | ".join(row) + " |")
+    lines += operating_table(results["operating"])
     lines += [
         "",
         "Learning curve (generated test rooms"
@@ -459,6 +505,100 @@ def markdown(results: dict, args) -> str:
             f"{r['place_recall']:.2f} | {r['false_per_room']:.1f} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def operating_table(rows: list[dict]) -> list[str]:
+    """results.md's table of the operating curves: places found and false skeletons per room at a few place
+    probabilities, and the most places any of OPERATING_CUTS finds with at most 1 false skeleton per room."""
+    if not rows:
+        return []
+    lines = [
+        "",
+        "Operating curve of the place probability (`AFFORD_MAP__PLACE_PROBABILITY`): places found, false "
+        "skeletons per room, at each probability; the model's own cut in the last column but one; the last, "
+        "the most places found at any probability with at most 1 false skeleton per room (issue 24's "
+        "budget):",
+        "",
+        "| affordance | rooms | "
+        + " | ".join(f"p >= {c}" for c in TABLE_CUTS)
+        + " | own cut | most places, <= 1 false / room |",
+        "|---|---|" + "---|" * (len(TABLE_CUTS) + 2),
+    ]
+    for r in rows:
+        if not r["points"]:
+            continue
+        at = {p["cut"]: p for p in r["points"]}
+        cells = [
+            f"{p['found']}/{p['labelled']}, {p['false_per_room']:.1f}"
+            for p in (at.get(c) for c in TABLE_CUTS)
+            if p
+        ]
+        own = min(r["points"], key=lambda p: abs(p["cut"] - r["cut"]))
+        best = best_within(r["points"], 1.0)
+        best_cell = (
+            f"{best['found']}/{best['labelled']}, {best['false_per_room']:.1f} (p >= {best['cut']})"
+            if best
+            else "-"
+        )
+        lines.append(
+            f"| {r['affordance']} | {r['rooms']} | "
+            + " | ".join(cells)
+            + f" | {r['cut']}: {own['found']}/{own['labelled']}, {own['false_per_room']:.1f} | {best_cell} |"
+        )
+    return lines
+
+
+def plot_operating(rows: list[dict], path: Path) -> None:
+    """Place recall against false skeletons per room as the place probability a map asks for falls: one panel
+    per affordance, the generated test rooms (black), each scan style (thin) and the real rooms (red); the
+    model's own cut is circled, and the grey line is issue 24's budget of 1 false skeleton per room."""
+    from affordcore.mapping.plots import pyplot
+
+    plt = pyplot()
+    affordances = list(dict.fromkeys(r["affordance"] for r in rows))
+    if not affordances:
+        return
+    figure, axes = plt.subplots(
+        1, len(affordances), figsize=(4.6 * len(affordances), 4.4), constrained_layout=True, squeeze=False
+    )
+    styles = dict.fromkeys(r["rooms"] for r in rows if r["rooms"].startswith("generated/"))
+    colours = [
+        c for k, c in enumerate(plt.get_cmap("tab10").colors) if k != 3
+    ]  # tab10's red: the real rooms'
+    palette = dict(zip(styles, colours))
+    for affordance, ax in zip(affordances, axes[0]):
+        ax.axvline(1.0, color="grey", lw=1, ls=":", label="1 false / room")
+        for r in rows:
+            if r["affordance"] != affordance or not r["points"]:
+                continue
+            if r["rooms"] == "generated":
+                look = {"color": "black", "lw": 2.0, "label": "generated (all styles)"}
+            elif r["rooms"] == "real":
+                look = {"color": "crimson", "lw": 2.0, "label": "real rooms"}
+            elif r["rooms"] in palette:
+                look = {
+                    "color": palette[r["rooms"]],
+                    "lw": 0.9,
+                    "alpha": 0.8,
+                    "label": r["rooms"].split("/", 1)[1],
+                }
+            else:
+                continue  # a single real room: the real rooms' line has it
+            false = [p["false_per_room"] for p in r["points"]]
+            recall = [p["recall"] for p in r["points"]]
+            ax.plot(false, recall, "-", **look)
+            own = min(r["points"], key=lambda p: abs(p["cut"] - r["cut"]))
+            ax.plot(own["false_per_room"], own["recall"], "o", mfc="none", color=look["color"], ms=7)
+        ax.set(
+            xlim=(-0.05, 3.0),
+            ylim=(-0.02, 1.02),
+            xlabel="false skeletons per room",
+            ylabel="share of labelled places found",
+            title=f"{affordance} (circle: the model's cut)",
+        )
+        ax.legend(fontsize=7, loc="lower right")
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
 
 
 def plot_reliability(reliability_rows: list[dict], path: Path) -> None:
