@@ -548,25 +548,34 @@ def operating_table(rows: list[dict]) -> list[str]:
     return lines
 
 
-def plot_operating(rows: list[dict], path: Path) -> None:
-    """Place recall against false skeletons per room as the place probability a map asks for falls: one panel
-    per affordance, the generated test rooms (black), each scan style (thin) and the real rooms (red); the
-    model's own cut is circled, and the grey line is issue 24's budget of 1 false skeleton per room."""
+def _affordance_panels(rows: list[dict], height: float):
+    """pyplot, a figure of one panel per affordance of `rows` (None when there is none) and its (affordance,
+    axes) pairs."""
     from affordcore.mapping.plots import pyplot
 
     plt = pyplot()
     affordances = list(dict.fromkeys(r["affordance"] for r in rows))
     if not affordances:
-        return
+        return plt, None, []
     figure, axes = plt.subplots(
-        1, len(affordances), figsize=(4.6 * len(affordances), 4.4), constrained_layout=True, squeeze=False
+        1, len(affordances), figsize=(4.6 * len(affordances), height), constrained_layout=True, squeeze=False
     )
+    return plt, figure, list(zip(affordances, axes[0]))
+
+
+def plot_operating(rows: list[dict], path: Path) -> None:
+    """Place recall against false skeletons per room as the place probability a map asks for falls: one panel
+    per affordance, the generated test rooms (black), each scan style (thin) and the real rooms (red); the
+    model's own cut is circled, and the grey line is issue 24's budget of 1 false skeleton per room."""
+    plt, figure, panels = _affordance_panels(rows, 4.4)
+    if figure is None:
+        return
     styles = dict.fromkeys(r["rooms"] for r in rows if r["rooms"].startswith("generated/"))
     colours = [
         c for k, c in enumerate(plt.get_cmap("tab10").colors) if k != 3
     ]  # tab10's red: the real rooms'
     palette = dict(zip(styles, colours))
-    for affordance, ax in zip(affordances, axes[0]):
+    for affordance, ax in panels:
         ax.axvline(1.0, color="grey", lw=1, ls=":", label="1 false / room")
         for r in rows:
             if r["affordance"] != affordance or not r["points"]:
@@ -605,16 +614,10 @@ def plot_reliability(reliability_rows: list[dict], path: Path) -> None:
     """The reliability diagram: one panel per affordance, every generated test room (black) and the real rooms
     (red); each bin's dot is as large as its number of candidates, and the diagonal is perfect calibration.
     Per scan style: the table in results.md (too few candidates per style and bin for a readable line)."""
-    from affordcore.mapping.plots import pyplot
-
-    plt = pyplot()
-    affordances = list(dict.fromkeys(r["affordance"] for r in reliability_rows))
-    if not affordances:
+    plt, figure, panels = _affordance_panels(reliability_rows, 4.6)
+    if figure is None:
         return
-    figure, axes = plt.subplots(
-        1, len(affordances), figsize=(4.6 * len(affordances), 4.6), constrained_layout=True, squeeze=False
-    )
-    for affordance, ax in zip(affordances, axes[0]):
+    for affordance, ax in panels:
         ax.plot([0, 1], [0, 1], color="grey", lw=1, ls=":", label="calibrated")
         for r in reliability_rows:
             if r["affordance"] != affordance or r["rooms"] not in ("generated", "real") or not r["bins"]:
