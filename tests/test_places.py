@@ -13,6 +13,7 @@ from affordcore.geometry.grid import PoseGrid
 from affordcore.geometry.skeleton import get_skeleton
 from affordcore.learn.model import AffordanceModel, load_model
 from affordcore.mapping.maps import build_map
+from affordcore.mapping.outputs import summary_line
 from affordcore.mapping.places import (
     CANDIDATE_SPACING,
     EVIDENCE,
@@ -128,8 +129,12 @@ def test_the_map_keeps_the_places_that_reach_the_probability_likeliest_first():
     model = _place_model_on_score(4.0, -8.5)  # p(2.5) = 0.82, p(2.0) = 0.38, p(noise) ~ 0
     kept = build_map("a", scores, grid, skeleton, 0.0, place_model=model, place_probability=0.5)
     assert len(kept.skeletons) == 1 and kept.probabilities[0] == pytest.approx(1 / (1 + np.exp(-1.5)))
+    # the place at 0.38 is not kept, and the summary says how to ask for it
+    assert kept.unsure_places == 1
+    assert summary_line(kept).endswith("1 more with AFFORD_MAP__PLACE_PROBABILITY=0.1")
     both = build_map("a", scores, grid, skeleton, 0.0, place_model=model, place_probability=0.3)
     assert len(both.skeletons) == 2 and np.all(np.diff(both.probabilities) <= 0)
+    assert both.unsure_places == 0 and "more with" not in summary_line(both)
     assert both.joints.shape == (2, 15, 3) and np.isnan(both.place_threshold)
     document = both.to_json("m", np.eye(4))
     assert [s["probability"] for s in document["skeletons"]] == pytest.approx(both.probabilities, abs=1e-4)

@@ -30,6 +30,9 @@ from .places import (
 )
 
 FORMAT = "affordance-map/1"
+# a probability low enough that a map asked for it keeps nearly every place the scores see (docs/accuracy.md,
+# the operating curve): the places it would add to a map are that map's unsure places
+UNSURE_PROBABILITY = 0.1
 
 
 @dataclass
@@ -47,6 +50,9 @@ class AffordanceMap:
     place_threshold: float  # the score cut places beat in this room (NaN: kept by probability)
     probabilities: np.ndarray  # (k,) that a person can use each place (NaN: no place model)
     place_probability: float  # what a place's probability reached to be kept (NaN: no place model)
+    # places a map asked for UNSURE_PROBABILITY would keep besides these (0 without a place model): what
+    # lowering `map.place_probability` would add, for the one who reads the map
+    unsure_places: int = 0
 
     def place_labels(self) -> list[str]:
         """What a person reads beside each place: its probability, or its score for a model without a place
@@ -151,7 +157,10 @@ def build_map(
         probabilities = place_model.probability(candidates.evidence)
         place_probability = place_model.cut if place_probability is None else place_probability
         eligible = above_threshold(candidates.rows, threshold)
-        kept = choose_places(candidates.rows[:, :2], probabilities, place_probability, nms_radius, eligible)
+        xy = candidates.rows[:, :2]
+        kept = choose_places(xy, probabilities, place_probability, nms_radius, eligible)
+        lower = min(UNSURE_PROBABILITY, place_probability)
+        unsure = len(choose_places(xy, probabilities, lower, nms_radius, eligible)) - len(kept)
         skeletons, probabilities = candidates.rows[kept].reshape(-1, 5), probabilities[kept]
         place_threshold = float("nan")
     else:
@@ -159,6 +168,7 @@ def build_map(
         i, j = peak_cells(confidence, grid, place_threshold, nms_radius, None).T
         skeletons = np.column_stack([grid.x[i], grid.y[j], best_z[i, j], best_theta[i, j], confidence[i, j]])
         probabilities, place_probability = np.full(len(skeletons), np.nan), float("nan")
+        unsure = 0
     joints = (
         place_joints(skeleton.joints, skeletons[:, :4])
         if len(skeletons)
@@ -178,4 +188,5 @@ def build_map(
         float(place_threshold),
         probabilities,
         float(place_probability),
+        max(0, unsure),
     )
