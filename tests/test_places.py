@@ -23,6 +23,7 @@ from affordcore.mapping.places import (
     fit_place_model,
     place_candidates,
 )
+from affordcore.mapping.plots import place_summary
 
 
 def _grid() -> PoseGrid:
@@ -132,9 +133,11 @@ def test_the_map_keeps_the_places_that_reach_the_probability_likeliest_first():
     # the place at 0.38 is not kept, and the summary says how to ask for it
     assert kept.unsure_places == 1
     assert summary_line(kept).endswith("1 more with AFFORD_MAP__PLACE_PROBABILITY=0.1")
+    assert place_summary(kept) == "1 place (probability >= 0.50; +1 at >= 0.1)"  # the PNG's title
     both = build_map("a", scores, grid, skeleton, 0.0, place_model=model, place_probability=0.3)
     assert len(both.skeletons) == 2 and np.all(np.diff(both.probabilities) <= 0)
     assert both.unsure_places == 0 and "more with" not in summary_line(both)
+    assert place_summary(both) == "2 places (probability >= 0.30)"
     assert both.joints.shape == (2, 15, 3) and np.isnan(both.place_threshold)
     document = both.to_json("m", np.eye(4))
     assert [s["probability"] for s in document["skeletons"]] == pytest.approx(both.probabilities, abs=1e-4)
@@ -142,6 +145,7 @@ def test_the_map_keeps_the_places_that_reach_the_probability_likeliest_first():
     assert both.place_labels()[0] == f"p {both.probabilities[0]:.2f}"
     # without a place model: the score cut, and no probability
     plain = build_map("a", scores, grid, skeleton, 0.0)
+    assert place_summary(plain) == f"{len(plain.skeletons)} places" and plain.unsure_places == 0
     assert (
         np.isnan(plain.probabilities).all()
         and plain.to_json("m", np.eye(4))["skeletons"][0]["probability"] is None

@@ -23,6 +23,19 @@ def pyplot():
     return plt
 
 
+def place_summary(amap) -> str:
+    """What the map kept, and what a lower probability would add: '3 places (probability >= 0.30; +2 at
+    >= 0.1)'."""
+    from .maps import UNSURE_PROBABILITY
+
+    count = len(amap.skeletons)
+    places = f"{count} place" + ("" if count == 1 else "s")
+    if not np.isfinite(amap.place_probability):
+        return places
+    more = f"; +{amap.unsure_places} at >= {UNSURE_PROBABILITY:g}" if amap.unsure_places else ""
+    return f"{places} (probability >= {amap.place_probability:.2f}{more})"
+
+
 def plot_fields(fields: SceneFields, path: str | Path, slice_height: float = 0.45) -> Path:
     """Plan views of a room's fields: the height of the highest occupied voxel, and the distance field at
     ``slice_height`` (seat height by default), with the floor footprint the pose grid covers."""
@@ -133,11 +146,8 @@ def plot_map(
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    kept = f" (probability >= {amap.place_probability:.2f})" if np.isfinite(amap.place_probability) else ""
-    ax.set_title(
-        f"{amap.affordance}: {len(amap.skeletons)} places{kept}, {len(amap.positives):,} poses above the "
-        "threshold"
-    )
+    positives = f"{len(amap.positives):,} poses above the threshold"
+    ax.set_title(f"{amap.affordance}: {place_summary(amap)}, {positives}")
     if len(amap.skeletons):
         ax.plot([], [], "o", color="crimson", label="place (p: probability a person can use it)")
     if labels is not None and labels.of(amap.affordance):
