@@ -54,6 +54,13 @@ class AffordanceMap:
     # lowering `map.place_probability` would add, for the one who reads the map
     unsure_places: int = 0
 
+    def unsure_note(self) -> str:
+        """How many more places a map at UNSURE_PROBABILITY would keep, and how to ask for them ("" when
+        none): "2 more with AFFORD_MAP__PLACE_PROBABILITY=0.1"."""
+        if not self.unsure_places:
+            return ""
+        return f"{self.unsure_places} more with AFFORD_MAP__PLACE_PROBABILITY={UNSURE_PROBABILITY:g}"
+
     def place_labels(self) -> list[str]:
         """What a person reads beside each place: its probability, or its score for a model without a place
         model."""

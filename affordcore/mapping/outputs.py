@@ -189,12 +189,9 @@ def _close_with_maps(recording, maps) -> None:
 def summary_line(amap) -> str:
     """One line per map for people: places, poses above the threshold, the best score, and the places a lower
     place probability would add (how to ask for them)."""
-    from .maps import UNSURE_PROBABILITY
-
     count = len(amap.skeletons)
     best = f", best {amap.place_labels()[0]}" if count else ""
-    more = amap.unsure_places
-    unsure = f"; {more} more with AFFORD_MAP__PLACE_PROBABILITY={UNSURE_PROBABILITY:g}" if more else ""
+    unsure = f"; {amap.unsure_note()}" if amap.unsure_places else ""
     return (
         f"{amap.affordance:<18} {count:>3} {'place, ' if count == 1 else 'places,'} "
         f"{len(amap.positives):>7,} poses above the threshold{best}{unsure}"

@@ -34,7 +34,7 @@ on screen, metres):
 * ``world/<affordance>/places`` and ``plan/<affordance>/places``: each skeleton's torso, in the affordance's
   colour, labelled with its rank and probability (or score);
 * ``places``: a markdown table of every affordance's places, their probabilities, positions and facings, or
-  "no place found";
+  "no place found", and how many more a map at p >= 0.1 would keep;
 * ``world/<affordance>/labels/places`` and ``.../labels/facing``, and the same under ``plan/``
   (``afford map --labels``): the room's labelled places of that affordance, each its segment (or point) on
   the floor in near-white, with an arrow along its facing, so a skeleton can be checked against the place it
@@ -508,15 +508,17 @@ def _log_skeletons(recording, amap, class_id: int, color: np.ndarray) -> None:
 
 def places_rows(amap, colour: str) -> list[str]:
     """An affordance's rows of the places table: each place's rank, probability (or score, for a model
-    without a place model), position and facing, or one row saying "no place found"."""
+    without a place model), position and facing, or one row saying "no place found"; then, when a lower
+    place probability would keep more, how many and how to ask for them."""
     name = f"{amap.affordance} ({colour})"
+    more = [f"| {name} | {amap.unsure_note()} | | | |"] if amap.unsure_places else []
     if not len(amap.skeletons):
-        return [f"| {name} | **no place found** | | | |"]
+        return [f"| {name} | **no place found** | | | |", *more]
     return [
         f"| {name} | {rank + 1} | {f'{p:.2f}' if np.isfinite(p) else f'score {score:.2f}'} "
         f"| {x:.2f}, {y:.2f} | {np.degrees(theta) % 360:.0f}° |"
         for rank, (p, (x, y, _, theta, score)) in enumerate(zip(amap.probabilities, amap.skeletons))
-    ]
+    ] + more
 
 
 PLACES_HEADER = "| affordance | place | probability | x, y (m) | facing |\n|---|---|---|---|---|"
