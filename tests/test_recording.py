@@ -6,6 +6,8 @@ Every test writes a recording through the real logging functions and reads the .
 
 from __future__ import annotations
 
+import dataclasses
+
 import matplotlib
 import numpy as np
 import pyarrow as pa
@@ -250,6 +252,14 @@ def test_the_places_table_lists_every_place_with_its_probability_or_says_none_wa
     (text,) = _last(path, "/places", "TextDocument:text")
     assert "| sitting-relaxing | not mapped yet |" in text
     assert "| standing-working (orange) | **no place found** |" in text
+    assert "more with" not in text
+    # a map that left places under its probability says how many, under the table
+    path = tmp_path / "unsure.rrd"
+    recording = open_recording(path, ["sitting-relaxing"])
+    log_map(recording, dataclasses.replace(_map("sitting-relaxing", [(5, 3, 2.0)]), unsure_places=2))
+    close_recording(recording)
+    (text,) = _last(path, "/places", "TextDocument:text")
+    assert text.endswith("|\n\n* sitting-relaxing: 2 more with AFFORD_MAP__PLACE_PROBABILITY=0.1\n"), text
 
 
 def test_an_empty_map_records_an_empty_skeleton_map_and_a_valid_range(tmp_path):

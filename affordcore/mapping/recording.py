@@ -97,6 +97,7 @@ class _State:
     logged: bool = False
     skeletons: dict[str, int] = field(default_factory=dict)
     sections: dict[str, list[str]] = field(default_factory=dict)
+    notes: dict[str, str] = field(default_factory=dict)  # under the table: what a lower probability would add
     timed: bool = False
     framed: bool = False
 
@@ -508,17 +509,15 @@ def _log_skeletons(recording, amap, class_id: int, color: np.ndarray) -> None:
 
 def places_rows(amap, colour: str) -> list[str]:
     """An affordance's rows of the places table: each place's rank, probability (or score, for a model
-    without a place model), position and facing, or one row saying "no place found"; then, when a lower
-    place probability would keep more, how many and how to ask for them."""
+    without a place model), position and facing, or one row saying "no place found"."""
     name = f"{amap.affordance} ({colour})"
-    more = [f"| {name} | {amap.unsure_note()} | | | |"] if amap.unsure_places else []
     if not len(amap.skeletons):
-        return [f"| {name} | **no place found** | | | |", *more]
+        return [f"| {name} | **no place found** | | | |"]
     return [
         f"| {name} | {rank + 1} | {f'{p:.2f}' if np.isfinite(p) else f'score {score:.2f}'} "
         f"| {x:.2f}, {y:.2f} | {np.degrees(theta) % 360:.0f}° |"
         for rank, (p, (x, y, _, theta, score)) in enumerate(zip(amap.probabilities, amap.skeletons))
-    ] + more
+    ]
 
 
 PLACES_HEADER = "| affordance | place | probability | x, y (m) | facing |\n|---|---|---|---|---|"
@@ -526,17 +525,20 @@ PLACES_HEADER = "| affordance | place | probability | x, y (m) | facing |\n|---|
 
 def _log_places_document(recording, amap, class_id: int) -> None:
     """The ``places`` document: one table of every affordance the recording knows, mapped or not yet, in
-    class order."""
+    class order; under it, for each map that left places below its probability, how many and how to ask
+    for them (a line of its own: in the table it would widen a column off the panel)."""
     import rerun as rr
 
     state = _state(recording)
     state.sections[amap.affordance] = places_rows(amap, TAB10_NAMES[(class_id - 1) % 10])
+    state.notes[amap.affordance] = amap.unsure_note()
     rows = [
         row
         for name in state.affordances
         for row in state.sections.get(name, [f"| {name} | not mapped yet | | | |"])
     ]
-    text = "\n".join([PLACES_HEADER, *rows]) + "\n"
+    notes = [f"* {name}: {state.notes[name]}" for name in state.affordances if state.notes.get(name)]
+    text = "\n".join([PLACES_HEADER, *rows]) + "\n" + ("\n" + "\n".join(notes) + "\n" if notes else "")
     _log(recording, "places", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN))
 
 
