@@ -55,11 +55,16 @@ def cluster_jobs(settings: Settings) -> Iterator[None]:
 
 
 @contextmanager
-def local_ray_cluster(node_cpus: tuple[int, ...] = (1, 1), timeout: float = 180.0) -> Iterator[str]:
+def local_ray_cluster(
+    node_cpus: tuple[int, ...] = (1, 1), timeout: float = 180.0, grace: float = 3.0
+) -> Iterator[str]:
     """A Ray head and worker nodes on this machine, `node_cpus` CPUs each (the head first), for tests and
     benchmarks: yields the head's address; on leaving, each node's `ray start --block` and what it started
-    (a process group of their own) get SIGTERM, then SIGKILL for what outlives it."""
+    (a process group of their own) get SIGTERM, then SIGKILL for what outlives `grace` seconds (Ray's own
+    stop waits up to 16 s a node for work that a throwaway cluster does not need finished), and its
+    temporary folder goes."""
     import os
+    import shutil
     import signal
     import socket
     import subprocess
@@ -99,9 +104,10 @@ def local_ray_cluster(node_cpus: tuple[int, ...] = (1, 1), timeout: float = 180.
     finally:
         for process in reversed(started):
             os.killpg(process.pid, signal.SIGTERM)
+        deadline = time.monotonic() + grace
         for process in reversed(started):
             try:
-                process.wait(20)
+                process.wait(max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 pass
             try:
@@ -109,6 +115,7 @@ def local_ray_cluster(node_cpus: tuple[int, ...] = (1, 1), timeout: float = 180.
             except ProcessLookupError:
                 pass
             process.wait(20)
+        shutil.rmtree(temp, ignore_errors=True)
 
 
 def _active_nodes(ray: str, address: str) -> int:
