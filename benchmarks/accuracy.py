@@ -409,6 +409,11 @@ def operating_curve(results: dict, names: list[str]) -> list[dict]:
     ]
 
 
+def own_point(row: dict) -> dict:
+    """The point of an operating curve (`row`, as results["operating"] holds it) at the model's own cut."""
+    return min(row["points"], key=lambda p: abs(p["cut"] - row["cut"]))
+
+
 def best_within(points: list[dict], false_per_room: float) -> dict | None:
     """The point of an operating curve with the most places found among those with at most
     `false_per_room` false skeletons per room (the highest cut among equals); None when none is."""
@@ -533,7 +538,7 @@ def operating_table(rows: list[dict]) -> list[str]:
             for p in (at.get(c) for c in TABLE_CUTS)
             if p
         ]
-        own = min(r["points"], key=lambda p: abs(p["cut"] - r["cut"]))
+        own = own_point(r)
         best = best_within(r["points"], 1.0)
         best_cell = (
             f"{best['found']}/{best['labelled']}, {best['false_per_room']:.1f} (p >= {best['cut']})"
@@ -596,7 +601,7 @@ def plot_operating(rows: list[dict], path: Path) -> None:
             false = [p["false_per_room"] for p in r["points"]]
             recall = [p["recall"] for p in r["points"]]
             ax.plot(false, recall, "-", **look)
-            own = min(r["points"], key=lambda p: abs(p["cut"] - r["cut"]))
+            own = own_point(r)
             ax.plot(own["false_per_room"], own["recall"], "o", mfc="none", color=look["color"], ms=7)
         ax.set(
             xlim=(-0.05, 3.0),

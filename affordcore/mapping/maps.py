@@ -195,5 +195,5 @@ def build_map(
         float(place_threshold),
         probabilities,
         float(place_probability),
-        max(0, unsure),
+        unsure,
     )
