@@ -214,6 +214,12 @@ class AssemblerSettings(BaseModel):
         description="... and of this many while scans wait for the assembler: half the time a frame on a "
         "busy computer, so fewer frames are skipped (docs/services.md has the measurements)",
     )
+    registration_threads: int = Field(
+        0,
+        ge=0,
+        description="threads KISS-ICP's registration may use (0: every core). With one, a frame's pose is "
+        "the same to the bit in every run; with more, its sums are added in the order the threads finish",
+    )
     max_frame_points: int = Field(
         100_000,
         ge=100,

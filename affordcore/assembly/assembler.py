@@ -460,7 +460,7 @@ def kiss_config(settings: AssemblerSettings):
     config.adaptive_threshold.initial_threshold = settings.initial_threshold
     config.adaptive_threshold.min_motion_th = settings.min_motion
     config.registration.convergence_criterion = settings.convergence
-    config.registration.max_num_threads = 0  # all cores
+    config.registration.max_num_threads = settings.registration_threads
     return config
 
 
