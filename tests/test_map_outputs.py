@@ -115,3 +115,25 @@ def test_a_writer_closed_before_it_finished_is_ended_not_waited_for(monkeypatch)
     with pytest.raises(ValueError, match="empty file"), outputs.OutputWriter() as writer:
         raise ValueError("an empty file")
     assert writer._process.exitcode == -signal.SIGKILL
+
+
+def test_a_plan_shows_the_room_under_its_ceiling():
+    """A laser scan's ceiling is a third of its points: the plan's highest point per cell is taken under
+    `CEILING_CUT`, so a table shows at its height and the floor around it at the floor's, not all ceiling;
+    the plan still spans the whole cloud."""
+    import numpy as np
+
+    from affordcore.mapping.plots import CEILING_CUT, plan_heights
+
+    rng = np.random.default_rng(0)
+    floor = np.column_stack([rng.uniform(0, 4, (20_000, 2)), np.zeros(20_000)])
+    table = np.column_stack([rng.uniform(1, 2, (2_000, 2)), np.full(2_000, 0.75)])
+    ceiling = np.column_stack([rng.uniform(-0.5, 4.5, (20_000, 2)), np.full(20_000, 2.6)])
+    assert CEILING_CUT < 2.6
+    top, corner = plan_heights(np.concatenate([floor, table, ceiling]), cell=0.25)
+    assert np.allclose(corner, [-0.5, -0.5], atol=0.01) and top.shape == (21, 21)  # the ceiling's extent
+    cells = corner + (np.indices(top.shape).transpose(1, 2, 0) + 0.5) * 0.25
+    on_table = ((cells > 1.1) & (cells < 1.9)).all(axis=2)
+    on_floor = ((cells > 0.1) & (cells < 3.9)).all(axis=2) & ~((cells > 0.9) & (cells < 2.1)).all(axis=2)
+    assert np.allclose(top[on_table], 0.75) and np.allclose(top[on_floor], 0.0)
+    assert np.isnan(top[0]).all()  # beyond the walls only ceiling: nothing under it to show

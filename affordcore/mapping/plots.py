@@ -12,6 +12,10 @@ from ..geometry.grid import PoseGrid
 from ..geometry.skeleton import BONE_ENDS, BONES, Skeleton, skeleton_files
 from ..labels import GroundTruth, LabelSet, affordance_colours
 
+# a plan shows the room under the points above this, as the recording's view from above does: a ceiling (a
+# third of a laser scan's points) or a lamp would otherwise be the highest point of every cell under it
+from .recording import CEILING_CUT
+
 
 def pyplot():
     """matplotlib's pyplot on the Agg backend: every figure here goes to a file, no screen needed."""
@@ -78,10 +82,11 @@ def plot_fields(fields: SceneFields, path: str | Path, slice_height: float = 0.4
 
 
 def plan_heights(points: np.ndarray, cell: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
-    """The cloud seen from above: the highest point's height per `cell` square (NaN where there is none),
-    (nx, ny), and the (x, y) of the first cell's corner. One sort of the points; `plot_map` of several maps
-    of one room can share it."""
+    """The cloud seen from above: the highest point's height up to `CEILING_CUT` per `cell` square (NaN where
+    there is none), (nx, ny), and the (x, y) of the first cell's corner (the whole cloud's extent). One sort
+    of the points; `plot_map` of several maps of one room can share it."""
     low, high = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
+    points = points[points[:, 2] <= CEILING_CUT]
     shape = np.ceil((high - low) / cell).astype(int) + 1
     index = np.floor((points[:, :2] - low) / cell).astype(int)
     top = np.full(shape, np.nan)
@@ -167,15 +172,16 @@ def plot_labels(
     ground_truth: dict[str, GroundTruth] | None = None,
     max_points: int = 200_000,
 ) -> Path:
-    """Top view of a room: the cloud coloured by height, each label as its segment or point in its
-    affordance's colour with arrows along ``facing``, unlabelled regions hatched, and optionally the grid's
-    footprint (dashed) and the (x, y) cells that are positive at some theta (shaded)."""
+    """Top view of a room: the cloud up to `CEILING_CUT` coloured by height, each label as its segment or
+    point in its affordance's colour with arrows along ``facing``, unlabelled regions hatched, and optionally
+    the grid's footprint (dashed) and the (x, y) cells that are positive at some theta (shaded)."""
     plt = pyplot()
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch, Polygon
 
     ground_truth = ground_truth or {}
     points = np.asarray(points, dtype=np.float64)
+    points = points[points[:, 2] <= CEILING_CUT]
     if len(points) > max_points:
         points = points[np.random.default_rng(0).choice(len(points), max_points, replace=False)]
     points = points[np.argsort(points[:, 2])]  # higher points drawn last: what a view from above sees
