@@ -113,7 +113,10 @@ def plot_map(
     grid = amap.grid
     top, low = plan if plan is not None else plan_heights(points, cell)
     shape = top.shape
-    figure, ax = plt.subplots(figsize=(9, 9 * max(0.4, shape[1] / shape[0])), constrained_layout=True)
+    # 9 inches wide, of which about 7 are the plan (the colour bar and the labels take the rest), and as
+    # tall as the room's aspect makes the plan at that width, with room for the title and the axis labels
+    aspect = max(0.4, shape[1] / shape[0])
+    figure, ax = plt.subplots(figsize=(9, 7.0 * aspect + 1.2), constrained_layout=True)
     ax.imshow(
         top.T,
         origin="lower",
@@ -152,7 +155,8 @@ def plot_map(
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     positives = f"{len(amap.positives):,} poses above the threshold"
-    ax.set_title(f"{amap.affordance}: {place_summary(amap)}, {positives}")
+    # over the figure, not the plan: a tall room's plan is narrower than the title
+    figure.suptitle(f"{amap.affordance}: {place_summary(amap)}, {positives}")
     if len(amap.skeletons):
         ax.plot([], [], "o", color="crimson", label="place (p: probability a person can use it)")
     if labels is not None and labels.of(amap.affordance):
