@@ -22,6 +22,11 @@ from .scene import voxel_thin
 _BELOW_MARGIN = 0.05  # a point this far under a floor plane is "below the floor"
 _AREA_CELL = 0.10  # floor area is counted in cells of this size
 _HORIZONTAL_COS = 0.9  # a surface whose normal is within ~25 deg of up counts as horizontal
+# two candidate floors whose normals are this close to opposite and whose planes are at least this far apart
+# (m) are a floor and the ceiling over it (nearer, the upper one is something's top: a workbench seen from a
+# walk, whose floor is what stands under it)
+_OPPOSITE_COS = 0.9
+_ROOM_HEIGHT = 1.8
 _FURNITURE_BOTTOM = 0.15  # horizontal surfaces from this height ... (m)
 _FURNITURE_TOP = 1.3  # ... up to this one count as furniture tops for a floor's evidence (m)
 # How the evidence weighs the plane's own points and the points under it against furniture tops: fitted (a
@@ -62,6 +67,7 @@ class FloorCandidate:
     area: float = 0.0
     below_fraction: float = float("nan")
     score: float = float("nan")  # `_floor_evidence`; scored only when several floors are valid
+    tops: float = float("nan")  # `_furniture_tops`: the share of points on furniture tops above it (likewise)
 
 
 @dataclass
@@ -210,9 +216,12 @@ def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
             f"no floor found ({reasons}). Give the gravity direction explicitly if the floor is not in view."
         )
     if len(valid) > 1:  # the evidence only chooses between valid floors: normals only then
-        for candidate, score in zip(valid, _floor_evidences(sample, valid, settings)):
-            candidate.score = score
+        _score(sample, valid, settings)
     best = max(valid, key=lambda c: c.score)
+    # A floor and the ceiling over it are both wide planes with nothing beyond them, and the ceiling, which no
+    # furniture hides, is often the wider (a third of a laser scan's points): between the two, the floor is
+    # the one furniture stands on (docs/geometry.md)
+    best = max([best, *_ends_of_a_room(best, valid)], key=lambda c: c.tops)
     return Alignment(
         _world_from(best.normal, best.offset),
         "auto",
@@ -222,6 +231,16 @@ def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
         best.area,
         candidates,
     )
+
+
+def _ends_of_a_room(floor: FloorCandidate, candidates: list[FloorCandidate]) -> list[FloorCandidate]:
+    """The candidates facing the other way at least a room's height from `floor`: the other end of its room,
+    if `floor` is a floor or a ceiling."""
+    return [
+        c
+        for c in candidates
+        if c.normal @ floor.normal < -_OPPOSITE_COS and abs(c.offset + floor.offset) >= _ROOM_HEIGHT
+    ]
 
 
 def _find_floor(
@@ -272,19 +291,28 @@ def _find_floor(
     return candidate
 
 
-def _floor_evidences(
-    sample: np.ndarray, candidates: list[FloorCandidate], settings: GravitySettings
-) -> list[float]:
-    """Each candidate floor's `_floor_evidence`, its surface shares taken over `_JUDGES` random points of a
-    coarser copy of the sample (normals from all of its points): a share of points, which that many estimate
-    to within +-0.011 (3 sigma), and normal estimation, most of an auto alignment when it runs, costs a sixth
-    of what it costs at every point (0.5 s of CPU on a 10 m room's 131,000 coarse points)."""
+def _score(sample: np.ndarray, candidates: list[FloorCandidate], settings: GravitySettings) -> None:
+    """Each candidate floor's `_furniture_tops` and `_floor_evidence`, their surface shares taken over
+    `_JUDGES` random points of a coarser copy of the sample (normals from all of its points): a share of
+    points, which that many estimate to within +-0.011 (3 sigma), and normal estimation, most of an auto
+    alignment when it runs, costs a sixth of what it costs at every point (0.5 s of CPU on a 10 m room's
+    131,000 coarse points)."""
     coarse = voxel_thin(sample, 2 * settings.sample_voxel)[0]
     rng = np.random.default_rng(settings.seed)
     judges = np.sort(rng.choice(len(coarse), _JUDGES, replace=False)) if len(coarse) > _JUDGES else None
     normals = _estimate_normals(coarse, radius=4 * settings.sample_voxel, at=judges)
     points = coarse if judges is None else coarse[judges]
-    return [_floor_evidence(c, points, normals) for c in candidates]
+    for candidate in candidates:
+        candidate.tops = _furniture_tops(candidate, points, normals)
+        candidate.score = _floor_evidence(candidate, points, normals)
+
+
+def _furniture_tops(candidate: FloorCandidate, points: np.ndarray, point_normals: np.ndarray) -> float:
+    """The share of points on surfaces parallel to a candidate floor at furniture height above it (seats,
+    tables, counters)."""
+    parallel = np.abs(point_normals @ candidate.normal) > _HORIZONTAL_COS
+    level = points @ candidate.normal - candidate.offset
+    return float(np.mean(parallel & (level > _FURNITURE_BOTTOM) & (level < _FURNITURE_TOP)))
 
 
 def _floor_evidence(candidate: FloorCandidate, points: np.ndarray, point_normals: np.ndarray) -> float:
@@ -296,9 +324,8 @@ def _floor_evidence(candidate: FloorCandidate, points: np.ndarray, point_normals
     beyond), counted at its candidate's `below_fraction`."""
     parallel = np.abs(point_normals @ candidate.normal) > _HORIZONTAL_COS
     level = points @ candidate.normal - candidate.offset
-    tops = np.mean(parallel & (level > _FURNITURE_BOTTOM) & (level < _FURNITURE_TOP))
     plane = np.mean(parallel & (np.abs(level) < _BELOW_MARGIN))
-    return float(tops + _ON_PLANE_WEIGHT * plane - _BELOW_WEIGHT * candidate.below_fraction)
+    return float(candidate.tops + _ON_PLANE_WEIGHT * plane - _BELOW_WEIGHT * candidate.below_fraction)
 
 
 def _ransac_plane(
