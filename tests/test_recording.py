@@ -17,8 +17,8 @@ from rerun.chunk import RrdReader
 from affordcore.geometry.grid import PoseGrid
 from affordcore.geometry.skeleton import BONE_ENDS, JOINTS, get_skeleton
 from affordcore.mapping.maps import build_map
+from affordcore.mapping.plots import CEILING_CUT
 from affordcore.mapping.recording import (
-    CEILING_CUT,
     LEGEND_STEPS,
     affordance_colors,
     close_recording,

@@ -11,7 +11,8 @@ import matplotlib
 import numpy as np
 import pytest
 
-from affordcore.mapping.recording import CEILING_CUT, PLAN_CELL
+from affordcore.mapping.plots import CEILING_CUT
+from affordcore.mapping.recording import PLAN_CELL
 from benchmarks.recording_screenshots import (
     WINDOW,
     ViewerUnavailable,

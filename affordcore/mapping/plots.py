@@ -12,9 +12,9 @@ from ..geometry.grid import PoseGrid
 from ..geometry.skeleton import BONE_ENDS, BONES, Skeleton, skeleton_files
 from ..labels import GroundTruth, LabelSet, affordance_colours
 
-# a plan shows the room under the points above this, as the recording's view from above does: a ceiling (a
-# third of a laser scan's points) or a lamp would otherwise be the highest point of every cell under it
-from .recording import CEILING_CUT
+# m above the floor: a plan shows the room under the points above this, and so does the recording's view from
+# above: a ceiling (a third of a laser scan's points) or a lamp would be the highest point of every cell
+CEILING_CUT = 2.0
 
 
 def pyplot():

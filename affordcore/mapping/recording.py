@@ -12,9 +12,9 @@ on screen, metres):
   AnnotationContext (static): class i + 1 per affordance (its name and a colour, tab10 in the order the
   recording was opened with; an affordance not in that list is appended), each naming the 15 joints as
   keypoints 0..14 (``skeleton.JOINTS``) and connecting them by ``skeleton.BONES``;
-* ``world/cloud``: the room's points up to ``CEILING_CUT``; ``world/cloud/above``: the points above it
+* ``world/cloud``: the room's points up to ``plots.CEILING_CUT``; ``world/cloud/above``: the points above it
   (the ceiling, shown only in the "fields and scans" tab);
-* ``plan/room``: the room from above, an image of the highest point up to ``CEILING_CUT`` per 8 cm cell
+* ``plan/room``: the room from above, an image of the highest point up to ``plots.CEILING_CUT`` per 8 cm cell
   (darker = higher);
 * ``world/<affordance>/confidence``: the confidence map, one point per floor cell above the model's threshold,
   coloured from pale (the threshold) to the affordance's colour (the map's best value); the cells' values
@@ -65,7 +65,6 @@ from ..geometry.skeleton import BONE_ENDS, JOINTS
 APPLICATION_ID = "affordmap"
 CONFIDENCE_ARCHETYPE = "affordmap.Confidence"  # the confidence cells' scalar values and range
 SKELETONS_ARCHETYPE = "affordmap.SkeletonMap"  # how many skeletons the map has, their scores
-CEILING_CUT = 2.0  # m above the floor: the view from above looks into the room under the points above this
 PLAN_CELL = 0.08  # m: the plan's room image
 LEGEND_OFFSET = (
     0.5  # m: each affordance's colour bar runs below the grid's low-y edge, at least this far apart
@@ -225,10 +224,10 @@ def _frame_room(recording, grid) -> None:
 
 
 def log_cloud(recording, points: np.ndarray, max_points: int = 2_000_000) -> None:
-    """The room's points (those above ``CEILING_CUT`` apart) and the plan's room image."""
+    """The room's points (those above ``plots.CEILING_CUT`` apart) and the plan's room image."""
     import rerun as rr
 
-    from .plots import plan_heights
+    from .plots import CEILING_CUT, plan_heights
 
     if len(points) > max_points:
         points = points[:: int(np.ceil(len(points) / max_points))]
