@@ -246,7 +246,7 @@ def models_rebuild(
         None, "--evaluation", help="an afford evaluate results.json: each affordance gets its best learner"
     ),
     rooms: int = typer.Option(
-        240,
+        500,
         "--rooms",
         min=97,
         help="generated rooms: the last 48 are held out for benchmarks/accuracy.py, the 48 before them "
