@@ -137,3 +137,33 @@ def test_a_plan_shows_the_room_under_its_ceiling():
     on_floor = ((cells > 0.1) & (cells < 3.9)).all(axis=2) & ~((cells > 0.9) & (cells < 2.1)).all(axis=2)
     assert np.allclose(top[on_table], 0.75) and np.allclose(top[on_floor], 0.0)
     assert np.isnan(top[0]).all()  # beyond the walls only ceiling: nothing under it to show
+
+
+@pytest.mark.parametrize("stretch", [(1.0, 1.0), (1.0, 0.25), (0.3, 1.0)], ids=["square", "wide", "tall"])
+def test_a_map_plan_keeps_its_text_inside_the_figure_and_its_colour_bar_beside_the_plan(
+    room, tmp_path, monkeypatch, stretch
+):
+    """The plan figure is laid out by hand (`plots._plan_figure`), not by matplotlib's constrained layout: for
+    a room as deep as wide, four times as wide and three times as deep, every text (title, ticks, axis and
+    colour-bar labels, legend) lies inside the figure, and the colour bar stands right of the plan, apart."""
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from affordcore.mapping.plots import plot_map
+
+    scene, models, settings = room
+    amap = map_affordances(scene.fields, scene.layout, models[:1], settings)[models[0].affordance]
+    assert amap.confidence.max() > amap.threshold  # the colour bar is drawn
+    figures = []
+    monkeypatch.setattr(plt, "close", lambda figure: figures.append(figure))
+    points = scene.cloud.points * np.array([*stretch, 1.0])
+    plot_map(points, amap, tmp_path / "plan.png")
+    (figure,) = figures
+    renderer = figure.canvas.get_renderer()
+    drawn = figure.get_tightbbox(renderer).transformed(figure.dpi_scale_trans)  # in pixels, what was drawn
+    assert drawn.x0 >= -1 and drawn.y0 >= -1, drawn
+    assert drawn.x1 <= figure.bbox.x1 + 1 and drawn.y1 <= figure.bbox.y1 + 1, (drawn, figure.bbox)
+    plan, bar = figure.axes[:2]
+    plan_box, bar_box = plan.get_window_extent(renderer), bar.get_window_extent(renderer)
+    assert bar_box.x0 > plan_box.x1 and not plan_box.overlaps(bar_box)
+    plt.close(figure)

@@ -95,6 +95,30 @@ def plan_heights(points: np.ndarray, cell: float = 0.05) -> tuple[np.ndarray, np
     return top, low
 
 
+# the plan figure's frame, in inches: its width, the margins around the plan and the colour bar right of it
+_PLAN_FIGURE_WIDTH, _PLAN_LEFT, _PLAN_RIGHT, _PLAN_BOTTOM, _PLAN_TOP = 9.0, 0.75, 1.6, 0.55, 0.6
+_BAR_GAP, _BAR_WIDTH, _BAR_SHARE = 0.2, 0.18, 0.7
+
+
+def _plan_figure(plt, aspect: float):
+    """(figure, the plan's axes, the colour bar's axes) of a map's plan view for a room `aspect` (y span
+    over x span) times as deep as it is wide: the plan spans the figure's width less its margins, and the
+    figure is as tall as the plan at that width (for a room at least 0.4 times as deep as wide: a narrower
+    one is centred in that height, which the colour bar and its label need). Laid out here, not by
+    matplotlib's constrained layout, which took about half of each PNG's CPU (docs/maps.md, "Speed")."""
+    width = _PLAN_FIGURE_WIDTH - _PLAN_LEFT - _PLAN_RIGHT
+    plan_height = width * max(0.4, aspect)
+    w, h = _PLAN_FIGURE_WIDTH, plan_height + _PLAN_BOTTOM + _PLAN_TOP
+    figure = plt.figure(figsize=(w, h))
+    ax = figure.add_axes((_PLAN_LEFT / w, _PLAN_BOTTOM / h, width / w, plan_height / h))
+    bar_height = _BAR_SHARE * plan_height
+    bar_bottom = _PLAN_BOTTOM + (plan_height - bar_height) / 2
+    bar = figure.add_axes(
+        ((_PLAN_LEFT + width + _BAR_GAP) / w, bar_bottom / h, _BAR_WIDTH / w, bar_height / h)
+    )
+    return figure, ax, bar
+
+
 def plot_map(
     points: np.ndarray,
     amap,
@@ -113,10 +137,7 @@ def plot_map(
     grid = amap.grid
     top, low = plan if plan is not None else plan_heights(points, cell)
     shape = top.shape
-    # 9 inches wide, of which about 7 are the plan (the colour bar and the labels take the rest), and as
-    # tall as the room's aspect makes the plan at that width, with room for the title and the axis labels
-    aspect = max(0.4, shape[1] / shape[0])
-    figure, ax = plt.subplots(figsize=(9, 7.0 * aspect + 1.2), constrained_layout=True)
+    figure, ax, bar = _plan_figure(plt, shape[1] / shape[0])
     ax.imshow(
         top.T,
         origin="lower",
@@ -131,7 +152,9 @@ def plot_map(
     if top > amap.threshold:
         levels = np.linspace(amap.threshold, top, 8)
         filled = ax.contourf(grid.x, grid.y, confidence, levels=levels, cmap="viridis", alpha=0.55)
-        figure.colorbar(filled, ax=ax, shrink=0.7, label="decision value (above the model's threshold)")
+        figure.colorbar(filled, cax=bar, label="decision value (above the model's threshold)")
+    else:
+        bar.set_visible(False)
     for (x, y, _, theta, _), text in zip(amap.skeletons, amap.place_labels()):
         ax.plot(x, y, "o", color="crimson", ms=6)
         ax.annotate(
