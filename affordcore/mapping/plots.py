@@ -111,6 +111,7 @@ def _plan_figure(plt, aspect: float):
     w, h = _PLAN_FIGURE_WIDTH, plan_height + _PLAN_BOTTOM + _PLAN_TOP
     figure = plt.figure(figsize=(w, h))
     ax = figure.add_axes((_PLAN_LEFT / w, _PLAN_BOTTOM / h, width / w, plan_height / h))
+    ax.set_anchor("E")  # labels beyond the cloud make the plan narrower than its box: keep it by the bar
     bar_height = _BAR_SHARE * plan_height
     bar_bottom = _PLAN_BOTTOM + (plan_height - bar_height) / 2
     bar = figure.add_axes(
