@@ -266,8 +266,8 @@ def test_floor_evidence_of_sampled_points_matches_every_point(room):
     normals = pca_normals(coarse, 4 * settings.sample_voxel, 30)
     every = []
     for floor in floors:
-        floor.tops = gravity._furniture_tops(floor, coarse, normals)
-        every.append(gravity._floor_evidence(floor, coarse, normals))
+        gravity._judge_floor(floor, coarse, normals)
+        every.append(floor.score)
     gravity._score(sample, floors, settings)
     sampled = [floor.score for floor in floors]
     assert every[0] > every[1] + 0.1  # the floor's evidence and a wall's: what is being told apart

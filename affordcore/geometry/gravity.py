@@ -5,7 +5,7 @@ Automatic alignment does not know which way the input frame is up. It tries each
 a floor: a plane among the lowest points, leaning at most ``max_tilt_deg`` from that axis, found by RANSAC.
 A candidate's floor is *valid* when it covers at least ``min_floor_area`` and almost nothing lies under it
 (walls fail here: doors, windows and scan noise put points behind them). Among valid floors the one with the
-strongest floor evidence wins (`_floor_evidence`: furniture tops above it, the plane's own extent, and
+strongest floor evidence wins (`_judge_floor`: furniture tops above it, the plane's own extent, and
 nothing behind it). No valid floor is an error (`NoFloorError`) that says, per candidate, why it failed: a
 wrong frame is worse than no frame.
 """
@@ -66,8 +66,8 @@ class FloorCandidate:
     tilt_deg: float = float("nan")
     area: float = 0.0
     below_fraction: float = float("nan")
-    score: float = float("nan")  # `_floor_evidence`; scored only when several floors are valid
-    tops: float = float("nan")  # `_furniture_tops`: the share of points on furniture tops above it (likewise)
+    score: float = float("nan")  # `_judge_floor`'s floor evidence; scored only when several floors are valid
+    tops: float = float("nan")  # `_judge_floor`'s share of points on furniture tops above it (likewise)
 
 
 @dataclass
@@ -292,7 +292,7 @@ def _find_floor(
 
 
 def _score(sample: np.ndarray, candidates: list[FloorCandidate], settings: GravitySettings) -> None:
-    """Each candidate floor's `_furniture_tops` and `_floor_evidence`, their surface shares taken over
+    """Each candidate floor's tops and floor evidence (`_judge_floor`), their surface shares taken over
     `_JUDGES` random points of a coarser copy of the sample (normals from all of its points): a share of
     points, which that many estimate to within +-0.011 (3 sigma), and normal estimation, most of an auto
     alignment when it runs, costs a sixth of what it costs at every point (0.5 s of CPU on a 10 m room's
@@ -303,29 +303,23 @@ def _score(sample: np.ndarray, candidates: list[FloorCandidate], settings: Gravi
     normals = _estimate_normals(coarse, radius=4 * settings.sample_voxel, at=judges)
     points = coarse if judges is None else coarse[judges]
     for candidate in candidates:
-        candidate.tops = _furniture_tops(candidate, points, normals)
-        candidate.score = _floor_evidence(candidate, points, normals)
+        _judge_floor(candidate, points, normals)
 
 
-def _furniture_tops(candidate: FloorCandidate, points: np.ndarray, point_normals: np.ndarray) -> float:
-    """The share of points on surfaces parallel to a candidate floor at furniture height above it (seats,
-    tables, counters)."""
+def _judge_floor(candidate: FloorCandidate, points: np.ndarray, point_normals: np.ndarray) -> None:
+    """Set a valid candidate's `tops`, the share of points on surfaces parallel to it at furniture height
+    above it (seats, tables, counters), and its `score`, how much it looks like the floor: those tops, plus a
+    lesser share for the plane itself, less a heavy one for the points under it. A wall seen by a few frames
+    can show more of itself, and more surfaces parallel to it (cabinet fronts, a sofa's back), than the floor
+    does, and by horizontal surface alone it often won (docs/geometry.md has how often). What gives it away
+    is what lies behind it (a door, a window, a room beyond), counted at its candidate's `below_fraction`."""
     parallel = np.abs(point_normals @ candidate.normal) > _HORIZONTAL_COS
     level = points @ candidate.normal - candidate.offset
-    return float(np.mean(parallel & (level > _FURNITURE_BOTTOM) & (level < _FURNITURE_TOP)))
-
-
-def _floor_evidence(candidate: FloorCandidate, points: np.ndarray, point_normals: np.ndarray) -> float:
-    """How much a valid candidate looks like the floor: the share of points on surfaces parallel to it at
-    furniture height (seats, tables, counters), plus a lesser share for the plane itself, less a heavy one
-    for the points under it. A wall seen by a few frames can show more of itself, and more surfaces parallel
-    to it (cabinet fronts, a sofa's back), than the floor does, and by horizontal surface alone it often won
-    (docs/geometry.md has how often). What gives it away is what lies behind it (a door, a window, a room
-    beyond), counted at its candidate's `below_fraction`."""
-    parallel = np.abs(point_normals @ candidate.normal) > _HORIZONTAL_COS
-    level = points @ candidate.normal - candidate.offset
+    candidate.tops = float(np.mean(parallel & (level > _FURNITURE_BOTTOM) & (level < _FURNITURE_TOP)))
     plane = np.mean(parallel & (np.abs(level) < _BELOW_MARGIN))
-    return float(candidate.tops + _ON_PLANE_WEIGHT * plane - _BELOW_WEIGHT * candidate.below_fraction)
+    candidate.score = float(
+        candidate.tops + _ON_PLANE_WEIGHT * plane - _BELOW_WEIGHT * candidate.below_fraction
+    )
 
 
 def _ransac_plane(
