@@ -268,7 +268,7 @@ def test_floor_evidence_of_sampled_points_matches_every_point(room):
     for floor in floors:
         gravity._judge_floor(floor, coarse, normals)
         every.append(floor.score)
-    gravity._score(sample, floors, settings)
+    gravity._judge_floors(sample, floors, settings)
     sampled = [floor.score for floor in floors]
     assert every[0] > every[1] + 0.1  # the floor's evidence and a wall's: what is being told apart
     np.testing.assert_allclose(sampled, every, atol=0.011 * (1 + gravity._ON_PLANE_WEIGHT))

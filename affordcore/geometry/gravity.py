@@ -216,7 +216,7 @@ def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
             f"no floor found ({reasons}). Give the gravity direction explicitly if the floor is not in view."
         )
     if len(valid) > 1:  # the evidence only chooses between valid floors: normals only then
-        _score(sample, valid, settings)
+        _judge_floors(sample, valid, settings)
     best = max(valid, key=lambda c: c.score)
     # A floor and the ceiling over it are both wide planes with nothing beyond them, and the ceiling, which no
     # furniture hides, is often the wider (a third of a laser scan's points): between the two, the floor is
@@ -291,7 +291,7 @@ def _find_floor(
     return candidate
 
 
-def _score(sample: np.ndarray, candidates: list[FloorCandidate], settings: GravitySettings) -> None:
+def _judge_floors(sample: np.ndarray, candidates: list[FloorCandidate], settings: GravitySettings) -> None:
     """Each candidate floor's tops and floor evidence (`_judge_floor`), their surface shares taken over
     `_JUDGES` random points of a coarser copy of the sample (normals from all of its points): a share of
     points, which that many estimate to within +-0.011 (3 sigma), and normal estimation, most of an auto

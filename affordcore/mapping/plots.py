@@ -105,7 +105,8 @@ def _plan_figure(plt, aspect: float):
     over x span) times as deep as it is wide: the plan spans the figure's width less its margins, and the
     figure is as tall as the plan at that width (for a room at least 0.4 times as deep as wide: a narrower
     one is centred in that height, which the colour bar and its label need). Laid out here, not by
-    matplotlib's constrained layout, which took about half of each PNG's CPU (docs/maps.md, "Speed")."""
+    matplotlib's constrained layout, which draws every figure twice to measure it (docs/maps.md, "Speed",
+    has what that cost)."""
     width = _PLAN_FIGURE_WIDTH - _PLAN_LEFT - _PLAN_RIGHT
     plan_height = width * max(0.4, aspect)
     w, h = _PLAN_FIGURE_WIDTH, plan_height + _PLAN_BOTTOM + _PLAN_TOP
