@@ -32,10 +32,38 @@ def test_stored_trees_score_as_scikit_learn(boosted):
     np.testing.assert_allclose(trees.log_odds(X_nan), model.decision_function(X_nan), atol=1e-9)
 
 
+def test_the_complete_layout_reaches_the_leaves_the_node_tables_reach(boosted, monkeypatch):
+    """The walk over complete trees (float32 thresholds for float32 rows) gives the node tables' walk's
+    values to the bit, at every split's threshold and one float step either side of it, and with NaN."""
+    import affordcore.learn.trees as trees_module
+
+    model, X = boosted
+    complete = TreeEnsemble.from_sklearn(model)
+    assert complete._complete is not None  # laid out now, while the limit allows it
+    monkeypatch.setattr(trees_module, "COMPLETE_POSITIONS", 0)
+    tables = TreeEnsemble.from_sklearn(model)
+    assert tables._complete is None
+    splits = np.flatnonzero(complete.feature >= 0)
+    edges = complete.threshold[splits].astype(np.float32)
+    rows = np.repeat(X[:1], 3 * len(splits), axis=0)
+    for k, step in enumerate((-np.inf, None, np.inf)):  # below, at (rounded to float32), above
+        near = edges if step is None else np.nextafter(edges, np.float32(step))
+        rows[k * len(splits) + np.arange(len(splits)), complete.feature[splits]] = near
+    rows = np.concatenate([rows, X])
+    rows[::7, 1] = np.nan
+    for sample in (rows, rows.astype(np.float64)):
+        np.testing.assert_array_equal(complete.log_odds(sample, chunk=333), tables.log_odds(sample))
+    np.testing.assert_allclose(complete.log_odds(rows), model.decision_function(rows), atol=1e-9)
+
+
 def test_malformed_tree_tables_are_refused(boosted):
     document = TreeEnsemble.from_sklearn(boosted[0]).to_dict()
     document["nodes"]["left"][0] = 10**6
     with pytest.raises(ValueError, match="links outside"):
+        TreeEnsemble.from_dict(document)
+    document = TreeEnsemble.from_sklearn(boosted[0]).to_dict()
+    document["depth"] = -1
+    with pytest.raises(ValueError, match="depth of -1"):
         TreeEnsemble.from_dict(document)
 
 

@@ -5,13 +5,19 @@ inference should not need scikit-learn. So the second stage's trees are kept as 
 one table with per-tree roots: a node splits on ``feature <= threshold`` (NaN goes where ``missing_left``
 says), a leaf holds its value, and the ensemble's log-odds is ``baseline + sum of the leaves reached``.
 Every tree is walked at once, one level per step, so the cost is (depth x trees x rows) vector operations.
+For the walk each tree is laid out as a complete binary tree (`_Complete`): the children of position p are
+2p + 1 and 2p + 2, so a step needs no gather of child links, and a leaf above the deepest level is carried
+down to it by splits whose two sides lead to the same value.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
+
+COMPLETE_POSITIONS = 1 << 22  # at most this many positions in the complete layout, beyond: the node tables
 
 
 @dataclass(frozen=True)
@@ -49,27 +55,54 @@ class TreeEnsemble:
             depth=int(nodes["depth"].max()),
         )
 
-    def log_odds(self, X: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    def log_odds(self, X: np.ndarray, chunk: int = 1024) -> np.ndarray:
         """The ensemble's raw score of each row of X (n, n_features), float64; rows go in chunks so the
-        (rows x trees) walk stays small."""
+        (rows x trees) walk stays in the cache."""
         X = np.ascontiguousarray(X)
         out = np.empty(len(X), dtype=np.float64)
+        walk = self._walk_complete if self._complete is not None else self._walk_nodes
+        for start in range(0, len(X), chunk):
+            rows = X[start : start + chunk]
+            leaves = walk(rows.ravel(), (np.arange(len(rows)) * rows.shape[1])[:, None], np.isnan(rows).any())
+            out[start : start + chunk] = self.baseline + leaves.sum(axis=1)
+        return out
+
+    def _walk_complete(self, flat: np.ndarray, first: np.ndarray, missing: bool) -> np.ndarray:
+        """(rows, trees) leaf values, every tree walked in its complete layout."""
+        complete = self._complete
+        threshold = complete.threshold32 if flat.dtype == np.float32 else complete.threshold
+        base = complete.tree_base
+        position = np.zeros((len(first), len(base)), dtype=np.int32)
+        for _ in range(self.depth):
+            at = base + position
+            values = flat[first + complete.feature[at]]
+            go_left = values <= threshold[at]
+            if missing:
+                go_left = np.where(np.isnan(values), complete.missing_left[at], go_left)
+            position = 2 * position + 2 - go_left
+        return complete.value[complete.leaf_base + position]
+
+    def _walk_nodes(self, flat: np.ndarray, first: np.ndarray, missing: bool) -> np.ndarray:
+        """(rows, trees) leaf values, every tree walked through the node tables: for trees too deep for
+        the complete layout."""
         # children[2 k] is node k's right child, children[2 k + 1] its left: one gather per level
         children = np.column_stack([self.right, self.left]).ravel()
         feature = np.maximum(self.feature, 0)  # leaves read any column and point back at themselves
-        for start in range(0, len(X), chunk):
-            rows = X[start : start + chunk]
-            flat, first = rows.ravel(), (np.arange(len(rows)) * rows.shape[1])[:, None]
-            node = np.broadcast_to(self.roots, (len(rows), len(self.roots)))
-            missing = np.isnan(flat).any()  # the NaN routing only when there is a NaN
-            for _ in range(self.depth):
-                values = flat[first + feature[node]]
-                go_left = values <= self.threshold[node]
-                if missing:
-                    go_left = np.where(np.isnan(values), self.missing_left[node], go_left)
-                node = children[2 * node + go_left]
-            out[start : start + chunk] = self.baseline + self.value[node].sum(axis=1)
-        return out
+        node = np.broadcast_to(self.roots, (len(first), len(self.roots)))
+        for _ in range(self.depth):
+            values = flat[first + feature[node]]
+            go_left = values <= self.threshold[node]
+            if missing:
+                go_left = np.where(np.isnan(values), self.missing_left[node], go_left)
+            node = children[2 * node + go_left]
+        return self.value[node]
+
+    @cached_property
+    def _complete(self) -> _Complete | None:
+        """The complete layout, or None when it would hold more than `COMPLETE_POSITIONS` positions."""
+        if len(self.roots) << self.depth > COMPLETE_POSITIONS:
+            return None
+        return _Complete.of(self)
 
     def to_dict(self) -> dict:
         return {
@@ -105,6 +138,8 @@ class TreeEnsemble:
         arrays = (ensemble.threshold, ensemble.left, ensemble.right, ensemble.missing_left, ensemble.value)
         if any(len(a) != n for a in arrays) or not len(ensemble.roots):
             raise ValueError("tree tables of unequal lengths, or no tree")
+        if ensemble.depth < 0:
+            raise ValueError(f"a tree depth of {ensemble.depth}")
         for links in (ensemble.left, ensemble.right, ensemble.roots):
             if len(links) and (links.min() < 0 or links.max() >= n):
                 raise ValueError("a tree node links outside the node table")
@@ -113,3 +148,42 @@ class TreeEnsemble:
     @property
     def n_features_used(self) -> int:
         return int(self.feature.max()) + 1 if (self.feature >= 0).any() else 0
+
+
+@dataclass(frozen=True)
+class _Complete:
+    """Each tree as a complete binary tree of the ensemble's depth: split positions (trees, 2^depth - 1)
+    flattened tree by tree, then leaf values (trees, 2^depth). A walk that ends at position p of the last
+    level reads leaf value p - (2^depth - 1) of its tree, the value the node tables' walk reaches: a leaf
+    above the last level fills its whole subtree (the node tables' leaves point back at themselves, so
+    both of its children are itself), and a node the tables leave unsplit at the depth holds 0 as there."""
+
+    feature: np.ndarray  # int32, 0 at a carried-down leaf (either side leads to the same value)
+    threshold: np.ndarray  # float64
+    threshold32: np.ndarray  # float32: the largest float32 at or below the threshold, for float32 rows
+    missing_left: np.ndarray  # bool
+    value: np.ndarray  # float64 leaf values
+    tree_base: np.ndarray  # (trees,) int32: each tree's first split position
+    leaf_base: np.ndarray  # (trees,) int32: each tree's leaf values, less the last level's first position
+
+    @classmethod
+    def of(cls, trees: TreeEnsemble) -> _Complete:
+        levels, node = [], trees.roots[:, None]  # (trees, 2^level) node of each position of a level
+        for _ in range(trees.depth):
+            levels.append(node)
+            node = np.stack([trees.left[node], trees.right[node]], axis=-1).reshape(len(node), -1)
+        splits = np.concatenate(levels, axis=1) if levels else np.empty((len(node), 0), np.int32)
+        threshold = trees.threshold[splits].ravel()
+        threshold32 = threshold.astype(np.float32)
+        above = threshold32.astype(np.float64) > threshold  # rounded up: one float32 step down
+        threshold32[above] = np.nextafter(threshold32[above], np.float32(-np.inf))
+        n_splits, n_leaves = splits.shape[1], node.shape[1]
+        return cls(
+            feature=np.maximum(trees.feature[splits], 0).ravel(),
+            threshold=threshold,
+            threshold32=threshold32,
+            missing_left=trees.missing_left[splits].ravel(),
+            value=trees.value[node].ravel(),
+            tree_base=(np.arange(len(node)) * n_splits).astype(np.int32),
+            leaf_base=(np.arange(len(node)) * n_leaves - n_splits).astype(np.int32),
+        )
