@@ -2,10 +2,11 @@
 trees rescore its best few percent from their full features.
 
 Why: a linear score of geometric features ranks poses poorly (a seat and a desk top look alike to it), but
-its top 3 % of poses hold nearly every positive, and trees cost about 100 us a pose: too slow for millions
-of poses, cheap for the few it passes on. The trees are trained on exactly what they will see at inference:
-each training room is scored by the first stage and its top `fraction` of poses (near scanned floor, outside
-unlabelled regions) are featurised with `features.features_at` and labelled from the ground truth.
+its top 3 % of poses hold nearly every positive, and trees, which need a pose's full features, cost too much
+a pose for millions of poses and little for the few it passes on. The trees are trained on exactly what they
+will see at inference: each training room is scored by the first stage and its top `fraction` of poses (near
+scanned floor, outside unlabelled regions) are featurised with `features.features_at` and labelled from the
+ground truth.
 
 Trees: scikit-learn's HistGradientBoostingClassifier (already a dependency), positives up-weighted to a fixed
 share, stored as node tables (`trees.TreeEnsemble`) so model files stay data and scoring needs neither

@@ -34,6 +34,8 @@ def score_poses(
     bias: float,
 ) -> np.ndarray:
     """w . f + b of every pose, shaped like the grid (z, theta, x, y), float32."""
+    from threadpoolctl import threadpool_limits
+
     weights = np.asarray(weights, dtype=np.float64)
     if weights.shape != (layout.n_features,):
         raise ValueError(
@@ -77,18 +79,19 @@ def score_poses(
     along, across, vertical = (np.stack(v, axis=1).astype(np.float32) for v in (along, across, vertical))
     reader = _PlaneReader(sampler, joint_planes.shape[1:])
     scores = np.empty((nz, nt, nx, ny), dtype=np.float32)
-    for it in range(nt):
-        theta = float(grid.theta[it])
-        joint_reads, column_reads = _slab_reads(sampler, skeleton, theta, column_of_sample)
-        reader.start()
-        for plane, cu, cv, weight in joint_reads:
-            reader.add(joint_planes[plane], cu, cv, weight)
-        cos, sin = np.cos(theta) * scale, np.sin(theta) * scale
-        for column, reads in column_reads.items():
-            plane = reader.cube_plane(along[column], across[column], vertical[column], cos, sin)
-            for cu, cv, weight in reads:
-                reader.add(plane, cu, cv, weight)
-        scores[:, it] = bias + reader.total()
+    with threadpool_limits(1, user_api="blas"):  # a read is too short to share: a second thread spin-waits
+        for it in range(nt):
+            theta = float(grid.theta[it])
+            joint_reads, column_reads = _slab_reads(sampler, skeleton, theta, column_of_sample)
+            reader.start()
+            for plane, cu, cv, weight in joint_reads:
+                reader.add(joint_planes[plane], cu, cv, weight)
+            cos, sin = np.cos(theta) * scale, np.sin(theta) * scale
+            for column, reads in column_reads.items():
+                plane = reader.cube_plane(along[column], across[column], vertical[column], cos, sin)
+                for cu, cv, weight in reads:
+                    reader.add(plane, cu, cv, weight)
+            scores[:, it] = bias + reader.total()
     return scores
 
 
@@ -140,6 +143,9 @@ class _PlaneReader:
     A cube plane is made column by column just before its reads, so that it is still in the cache."""
 
     def __init__(self, sampler: _SlabSampler, plane_shape: tuple[int, int, int]):
+        from scipy.linalg.blas import saxpy  # y += a x, in place on float32 y
+
+        self._saxpy = saxpy
         self.stride, self.nx, self.ny = sampler.stride, sampler.nx, sampler.ny
         self.plane_shape = plane_shape
         self.flat = self.stride == 1
@@ -160,11 +166,9 @@ class _PlaneReader:
 
     def add(self, plane: np.ndarray, cu: int, cv: int, weight) -> None:
         total, term = self._total, self._term
-        if self.flat:
+        if self.flat:  # total[:n - offset] += weight * plane[offset:], in one pass (BLAS's saxpy)
             offset = cu * self.plane_shape[2] + cv
-            size = len(total) - offset
-            np.multiply(plane.reshape(-1)[offset:], weight, out=term[:size])
-            np.add(total[:size], term[:size], out=total[:size])
+            self._saxpy(plane.reshape(-1), total, n=len(total) - offset, a=weight, offx=offset)
             return
         s, nx, ny = self.stride, self.nx, self.ny
         read = plane[:, cu : cu + (nx - 1) * s + 1 : s, cv : cv + (ny - 1) * s + 1 : s]
