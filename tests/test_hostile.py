@@ -25,7 +25,9 @@ pytestmark = pytest.mark.slow
 PER_KEY = 1000  # hostile inputs per input key
 ROBOT = "fuzzbot"
 KEYS = Keys(ROBOT)
-ANSWER_TIMEOUT = 60.0  # seconds an input may take to be answered (a valid cloud is computed)
+# seconds an input may take to be answered (a valid cloud is computed): a bound for a service that hangs, not
+# a speed target, so generous: on a starved CI machine one answer once took over 60 s
+ANSWER_TIMEOUT = 180.0
 AFFORDANCES = ["sitting-relaxing", "sitting-working", "standing-working"]  # the shipped models
 DAMAGE = ("random bytes", "truncated", "bit flips", "wrong encoding", "spoiled field")
 # the valid inputs' room shrunk in plan to 2 x 1.7 m: every valid input taken (about a fifth of them: bit
