@@ -31,6 +31,7 @@ errors is how far a change of settings has to move them to mean anything.
     .venv/bin/python benchmarks/bench_assembler.py --grid-noise  # 3 minutes more
     .venv/bin/python benchmarks/bench_assembler.py --frames 100 --repeats 1
     .venv/bin/python benchmarks/bench_assembler.py --step 3 --hogs 2 --repeats 1   # a 10 Hz walk, busy robot
+    .venv/bin/python benchmarks/bench_assembler.py --against MAX_POINTS_PER_VOXEL=20   # other settings beside
 
 Three settings side by side: before issue 15, today's defaults, and the registration a busy assembler uses
 (scans waiting in its inbox: one point per `busy_registration_voxels` registered; bare KISS-ICP beside it
@@ -232,7 +233,18 @@ def main() -> None:
     )
     parser.add_argument("--hogs", type=int, default=0, help="CPU hogs beside it (one per core: a busy robot)")
     parser.add_argument("--step", type=int, default=1, help="every n-th frame (3: a 10 Hz stream)")
+    parser.add_argument(
+        "--against", default="", help="AFFORD_ASSEMBLER__ settings: KEY=VALUE,... (two more rows: calm, busy)"
+    )
     args = parser.parse_args()
+    if args.against:  # the defaults with these settings, calm and with scans waiting, beside the others
+        from bench_odometry import against_settings
+
+        other = AssemblerSettings(**against_settings(args.against))
+        SETTINGS[args.against] = other
+        SETTINGS[f"{args.against}, busy"] = other.model_copy(
+            update={"registration_voxels": other.busy_registration_voxels}
+        )
     with cpu_hogs(args.hogs):
         run(args)
 

@@ -88,6 +88,14 @@ def row(
     )
 
 
+def against_settings(against: str) -> dict:
+    """`KEY=VALUE,...` of AFFORD_ASSEMBLER__ settings (the prefix optional) as AssemblerSettings fields."""
+    return {
+        k.lower().removeprefix("afford_assembler__"): float(v)
+        for k, v in (p.split("=", 1) for p in against.split(",") if p)
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -99,10 +107,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     slipped = slip(args.slip) if args.slip else None
-    against = {
-        k.lower().removeprefix("afford_assembler__"): float(v)
-        for k, v in (p.split("=", 1) for p in args.against.split(",") if p)
-    }
+    against = against_settings(args.against)
     variants = [("defaults", AssemblerSettings())]
     if against:
         variants.append((args.against, AssemblerSettings(**against)))
