@@ -150,7 +150,8 @@ class _PlaneReader:
         self.plane_shape = plane_shape
         self.flat = self.stride == 1
         shape = (int(np.prod(plane_shape)),) if self.flat else (plane_shape[0], self.nx, self.ny)
-        self._total, self._term = np.empty(shape, np.float32), np.empty(shape, np.float32)
+        self._total = np.empty(shape, np.float32)
+        self._term = None if self.flat else np.empty(shape, np.float32)  # strided reads' product, in place
         self._cube = np.empty(plane_shape, np.float32)
         self._part = np.empty(plane_shape, np.float32)
 
@@ -165,15 +166,14 @@ class _PlaneReader:
         return np.add(self._cube, vertical, out=self._cube)
 
     def add(self, plane: np.ndarray, cu: int, cv: int, weight) -> None:
-        total, term = self._total, self._term
         if self.flat:  # total[:n - offset] += weight * plane[offset:], in one pass (BLAS's saxpy)
             offset = cu * self.plane_shape[2] + cv
-            self._saxpy(plane.reshape(-1), total, n=len(total) - offset, a=weight, offx=offset)
+            self._saxpy(plane.reshape(-1), self._total, n=len(self._total) - offset, a=weight, offx=offset)
             return
         s, nx, ny = self.stride, self.nx, self.ny
         read = plane[:, cu : cu + (nx - 1) * s + 1 : s, cv : cv + (ny - 1) * s + 1 : s]
-        np.multiply(read, weight, out=term)
-        total += term
+        np.multiply(read, weight, out=self._term)
+        self._total += self._term
 
     def total(self) -> np.ndarray:
         if self.flat:
