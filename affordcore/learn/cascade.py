@@ -34,7 +34,7 @@ from .trees import TreeEnsemble
 class TreeSettings:
     """The second stage's boosting; chosen once on generated validation rooms, never on the real ones."""
 
-    max_iter: int = 150
+    max_iter: int = 450  # fewer underfit the default training rooms (docs/accuracy.md, "More trees")
     learning_rate: float = 0.1
     max_leaf_nodes: int = 31
     max_depth: int = 8  # inference walks every tree to its depth: bounded, so rescoring stays cheap
