@@ -21,6 +21,7 @@ from affordcore.geometry.skeleton import (
     load_skeleton,
     skeleton_files,
 )
+from affordcore.learn.model import load_model, shipped_models
 from affordcore.settings import Settings
 
 PACKAGE = Path(__file__).resolve().parents[1] / "affordcore"
@@ -150,3 +151,17 @@ def test_settings_refuse_a_grid_off_the_voxel_lattice(monkeypatch):
 
 def test_builtin_skeleton_dir_is_inside_the_package():
     assert BUILTIN_DIR.is_dir() and shutil.os.path.commonpath([BUILTIN_DIR, PACKAGE]) == str(PACKAGE)
+
+
+def test_model_files_name_built_in_skeletons_from_the_package_and_user_ones_by_their_path(tmp_path):
+    built_in = get_skeleton("standing-working")
+    assert Path(built_in.source).is_absolute()  # what `afford skeletons` shows stays the file on this machine
+    assert built_in.portable_source == "affordcore/data/skeletons/standing-working.json"
+    document = json.loads((BUILTIN_DIR / "standing-working.json").read_text())
+    (tmp_path / "standing-working.json").write_text(json.dumps(document))
+    user = get_skeleton("standing-working", [tmp_path])
+    assert user.portable_source == user.source == str(tmp_path / "standing-working.json")
+    # and the shipped models hold no path of the checkout that trained them
+    for path in shipped_models().values():
+        source = load_model(path).skeleton["source"]
+        assert source == f"affordcore/data/skeletons/{path.name.removesuffix('.model.json')}.json"

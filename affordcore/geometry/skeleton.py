@@ -73,6 +73,15 @@ class Skeleton:
     # 0 (files without the field, models that do not record it): the grid of DESIGN.md, unchanged.
     torso_reach_above: float = 0.0
 
+    @property
+    def portable_source(self) -> str:
+        """`source` as a model file records it: a built-in skeleton's file named from the package, since a
+        shipped model must not hold the path of the checkout that trained it; any other file as it is."""
+        path = Path(self.source)
+        if path.is_absolute() and path.parent == BUILTIN_DIR:
+            return path.relative_to(BUILTIN_DIR.parents[2]).as_posix()
+        return self.source
+
     def placed(self, x: float, y: float, z: float, theta: float) -> np.ndarray:
         """Joints in the world for one pose: [x, y, z] + R_z(theta) H."""
         return place_joints(self.joints, np.array([[x, y, z, theta]]))[0]

@@ -95,7 +95,7 @@ class Task:
         record = {
             "joints": skeleton.joints.round(4).tolist(),
             "torso_height": skeleton.torso_height,
-            "source": skeleton.source,
+            "source": skeleton.portable_source,
         }
         if skeleton.torso_reach_above:  # the grid it was trained on has levels above the usual three
             record["torso_reach_above"] = skeleton.torso_reach_above
