@@ -18,6 +18,7 @@ from functools import cached_property
 import numpy as np
 
 COMPLETE_POSITIONS = 1 << 22  # at most this many positions in the complete layout, beyond: the node tables
+WALK_CELLS = 1 << 18  # (rows x trees) walked at once: the walk's position arrays stay in the cache
 
 
 @dataclass(frozen=True)
@@ -55,10 +56,11 @@ class TreeEnsemble:
             depth=int(nodes["depth"].max()),
         )
 
-    def log_odds(self, X: np.ndarray, chunk: int = 1024) -> np.ndarray:
-        """The ensemble's raw score of each row of X (n, n_features), float64; rows go in chunks so the
-        (rows x trees) walk stays in the cache."""
+    def log_odds(self, X: np.ndarray, chunk: int | None = None) -> np.ndarray:
+        """The ensemble's raw score of each row of X (n, n_features), float64; rows go in chunks (by default
+        of about `WALK_CELLS` / trees rows) so the (rows x trees) walk stays in the cache."""
         X = np.ascontiguousarray(X)
+        chunk = chunk or int(np.clip(WALK_CELLS // len(self.roots), 256, 2048))
         out = np.empty(len(X), dtype=np.float64)
         walk = self._walk_complete if self._complete is not None else self._walk_nodes
         for start in range(0, len(X), chunk):
