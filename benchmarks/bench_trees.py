@@ -1,12 +1,14 @@
 """The cascade's second stage on the 10 m benchmark room: the features of the poses it rescores, and the walk
 of its trees over them at several chunk sizes (rows walked at once), every shipped model.
 
-The walk of 450 trees is the largest single cost of `afford map` by cProfile (docs/maps.md, "Speed"), so
-its chunk size is measured here, side by side in one process: the same rows, every chunk size in turn within
-each repeat, CPU seconds (medians), and the scores compared to the bit.
+The walk of 450 trees is the largest single cost of `afford map` by cProfile (docs/maps.md, "Speed"), so it
+is measured here on its own, side by side in one process: the same rows, every walk in turn within each
+repeat, CPU seconds (medians), and the scores compared to the bit. With ``--old PATH`` (a git worktree of an
+earlier commit) that commit's walk runs beside this one's: its `affordcore/learn/trees.py` is loaded as a
+module of its own (the file imports nothing of the project) and reads the same model documents.
 
     .venv/bin/python benchmarks/bench_trees.py               # about a minute on 2 cores
-    .venv/bin/python benchmarks/bench_trees.py --chunks 256,512,1024 --repeats 9
+    .venv/bin/python benchmarks/bench_trees.py --old /tmp/old-afford --chunks 512,1024 --repeats 9
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import os
 import statistics
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -41,10 +44,23 @@ def rescored_rows(scene, model, settings) -> tuple[np.ndarray, float]:
     return rows, time.process_time() - start
 
 
+def old_ensemble_class(worktree: str):
+    """`TreeEnsemble` as the commit checked out at `worktree` defines it."""
+    import importlib.util
+
+    path = Path(worktree) / "affordcore" / "learn" / "trees.py"
+    spec = importlib.util.spec_from_file_location("old_trees", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while the class is made
+    spec.loader.exec_module(module)
+    return module.TreeEnsemble
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--chunks", default="256,512,1024,2048", help="rows walked at once, comma-separated")
+    parser.add_argument("--old", help="a worktree of the commit whose walk runs beside this one's")
     args = parser.parse_args()
     from affordcore.geometry.gravity import align_to_gravity
     from affordcore.learn.model import load_model, shipped_models
@@ -55,13 +71,15 @@ def main() -> None:
     cloud = room_cloud()
     alignment = align_to_gravity(cloud.points, "auto", settings.gravity)
     scene = prepare_scene(cloud.transformed(alignment.world_from_input), settings, "none")
-    chunks = [None] + [int(c) for c in args.chunks.split(",")]
-    names = ["default"] + [str(c) for c in chunks[1:]]
+    chunks = [None] + [int(c) for c in args.chunks.split(",") if c]
+    names = ["default"] + [f"{c} rows" for c in chunks[1:]] + (["old commit"] if args.old else [])
+    old = old_ensemble_class(args.old) if args.old else None
     print(
         f"the second stage on the 10 m benchmark room, {os.cpu_count()} cores, {args.repeats} repeats, CPU "
-        "seconds (medians); 'default' is `TreeEnsemble.log_odds`' own chunk"
+        "seconds (medians); 'default' is `TreeEnsemble.log_odds` with its own chunk"
+        + (f", 'old commit' the same at {args.old}" if args.old else "")
     )
-    walks = " | ".join(f"walk, {n} rows s" for n in names)
+    walks = " | ".join(f"walk, {n} s" for n in names)
     print(f"| model | rows x trees | features s | {walks} | same scores |")
     print("|---|---|---:|" + "---:|" * len(names) + "---|")
     for model in (load_model(path) for path in shipped_models().values()):
@@ -70,12 +88,15 @@ def main() -> None:
             continue
         rows, features = rescored_rows(scene, model, settings)
         reference = trees.log_odds(rows)
+        walks = [partial(trees.log_odds, rows, chunk=chunk) for chunk in chunks]
+        if old is not None:
+            walks.append(partial(old.from_dict(model.rescorer["trees"]).log_odds, rows))
         seconds = {name: [] for name in names}
         same = True
         for _ in range(args.repeats):
-            for name, chunk in zip(names, chunks, strict=True):
+            for name, walk in zip(names, walks, strict=True):
                 start = time.process_time()
-                scores = trees.log_odds(rows, chunk=chunk)
+                scores = walk()
                 seconds[name].append(time.process_time() - start)
                 same &= bool(np.array_equal(scores, reference))
         walks = " | ".join(f"{statistics.median(seconds[n]):.3f}" for n in names)

@@ -65,24 +65,29 @@ class TreeEnsemble:
         walk = self._walk_complete if self._complete is not None else self._walk_nodes
         for start in range(0, len(X), chunk):
             rows = X[start : start + chunk]
-            leaves = walk(rows.ravel(), (np.arange(len(rows)) * rows.shape[1])[:, None], np.isnan(rows).any())
+            index = np.int32 if rows.size < 2**31 else np.int64  # of a value in the chunk
+            first = (np.arange(len(rows), dtype=index) * rows.shape[1])[:, None]  # each row's first value
+            leaves = walk(rows.ravel(), first, np.isnan(rows).any())
             out[start : start + chunk] = self.baseline + leaves.sum(axis=1)
         return out
 
     def _walk_complete(self, flat: np.ndarray, first: np.ndarray, missing: bool) -> np.ndarray:
-        """(rows, trees) leaf values, every tree walked in its complete layout."""
+        """(rows, trees) leaf values, every tree walked in its complete layout. Positions are absolute (a
+        tree's base plus its own position), so a level is one gather of the splits' (feature, threshold)
+        records, one of the rows' values and in-place arithmetic: the gathers are what a level costs."""
         complete = self._complete
-        threshold = complete.threshold32 if flat.dtype == np.float32 else complete.threshold
-        base = complete.tree_base
-        position = np.zeros((len(first), len(base)), dtype=np.int32)
+        splits = complete.splits32 if flat.dtype == np.float32 else complete.splits64
+        position = np.repeat(complete.tree_base[None], len(first), axis=0)
         for _ in range(self.depth):
-            at = base + position
-            values = flat[first + complete.feature[at]]
-            go_left = values <= threshold[at]
+            split = splits[position]
+            values = flat[split["feature"] + first]
+            go_left = values <= split["threshold"]
             if missing:
-                go_left = np.where(np.isnan(values), complete.missing_left[at], go_left)
-            position = 2 * position + 2 - go_left
-        return complete.value[complete.leaf_base + position]
+                go_left = np.where(np.isnan(values), complete.missing_left[position], go_left)
+            position *= 2  # children of base + p: base + 2p + 1 (left) and base + 2p + 2
+            position += complete.child_step
+            position -= go_left
+        return complete.value[position + complete.leaf_shift]
 
     def _walk_nodes(self, flat: np.ndarray, first: np.ndarray, missing: bool) -> np.ndarray:
         """(rows, trees) leaf values, every tree walked through the node tables: for trees too deep for
@@ -152,21 +157,29 @@ class TreeEnsemble:
         return int(self.feature.max()) + 1 if (self.feature >= 0).any() else 0
 
 
+SPLIT32 = np.dtype([("feature", np.int32), ("threshold", np.float32)])  # a split for float32 rows
+SPLIT64 = np.dtype([("feature", np.int32), ("threshold", np.float64)], align=True)  # ... for float64 rows
+
+
 @dataclass(frozen=True)
 class _Complete:
     """Each tree as a complete binary tree of the ensemble's depth: split positions (trees, 2^depth - 1)
     flattened tree by tree, then leaf values (trees, 2^depth). A walk that ends at position p of the last
     level reads leaf value p - (2^depth - 1) of its tree, the value the node tables' walk reaches: a leaf
     above the last level fills its whole subtree (the node tables' leaves point back at themselves, so
-    both of its children are itself), and a node the tables leave unsplit at the depth holds 0 as there."""
+    both of its children are itself), and a node the tables leave unsplit at the depth holds 0 as there.
+    A split's feature (0 at a carried-down leaf: either side leads to the same value) and threshold are one
+    record, so a level of the walk gathers them at once."""
 
-    feature: np.ndarray  # int32, 0 at a carried-down leaf (either side leads to the same value)
-    threshold: np.ndarray  # float64
-    threshold32: np.ndarray  # float32: the largest float32 at or below the threshold, for float32 rows
+    splits32: np.ndarray  # SPLIT32: thresholds as the largest float32 at or below each, for float32 rows
+    splits64: np.ndarray  # SPLIT64: the thresholds themselves, for float64 rows
     missing_left: np.ndarray  # bool
     value: np.ndarray  # float64 leaf values
     tree_base: np.ndarray  # (trees,) int32: each tree's first split position
-    leaf_base: np.ndarray  # (trees,) int32: each tree's leaf values, less the last level's first position
+    child_step: (
+        np.ndarray
+    )  # (trees,) int32: 2 - tree_base, so a child of absolute position a is 2a + this - left
+    leaf_shift: np.ndarray  # (trees,) int32: added to a last level's position, the index of its leaf value
 
     @classmethod
     def of(cls, trees: TreeEnsemble) -> _Complete:
@@ -175,17 +188,25 @@ class _Complete:
             levels.append(node)
             node = np.stack([trees.left[node], trees.right[node]], axis=-1).reshape(len(node), -1)
         splits = np.concatenate(levels, axis=1) if levels else np.empty((len(node), 0), np.int32)
+        feature = np.maximum(trees.feature[splits], 0).ravel()
         threshold = trees.threshold[splits].ravel()
         threshold32 = threshold.astype(np.float32)
         above = threshold32.astype(np.float64) > threshold  # rounded up: one float32 step down
         threshold32[above] = np.nextafter(threshold32[above], np.float32(-np.inf))
         n_splits, n_leaves = splits.shape[1], node.shape[1]
+        tree_base = (np.arange(len(node)) * n_splits).astype(np.int32)
         return cls(
-            feature=np.maximum(trees.feature[splits], 0).ravel(),
-            threshold=threshold,
-            threshold32=threshold32,
+            splits32=_records(SPLIT32, feature, threshold32),
+            splits64=_records(SPLIT64, feature, threshold),
             missing_left=trees.missing_left[splits].ravel(),
             value=trees.value[node].ravel(),
-            tree_base=(np.arange(len(node)) * n_splits).astype(np.int32),
-            leaf_base=(np.arange(len(node)) * n_leaves - n_splits).astype(np.int32),
+            tree_base=tree_base,
+            child_step=2 - tree_base,
+            leaf_shift=(np.arange(len(node)) * n_leaves - n_splits).astype(np.int32) - tree_base,
         )
+
+
+def _records(dtype: np.dtype, feature: np.ndarray, threshold: np.ndarray) -> np.ndarray:
+    records = np.empty(len(feature), dtype=dtype)
+    records["feature"], records["threshold"] = feature, threshold
+    return records
