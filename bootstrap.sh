@@ -73,11 +73,14 @@ if [ ! -x .venv/bin/python ]; then
   echo "bootstrap: creating .venv with $PY" >&2
   "$PY" -m venv .venv
 fi
-# the tests also install Ray ([cluster]), so tests/test_cluster.py runs a head and a worker node in CI
+# the tests also install Ray ([cluster]), so tests/test_cluster.py runs a head and a worker node in CI; a
+# .venv set up for the tests has everything the demo needs, so `demo` after `test` installs nothing
+stamp_of() { (cat pyproject.toml; echo "$1") | sha256sum | cut -d' ' -f1; }
 extras="all,test"
 [ "$job" = test ] && extras="all,cluster,test"
-stamp=$( (cat pyproject.toml; echo "$extras") | sha256sum | cut -d' ' -f1)
-if [ "$(cat .venv/.afford-stamp 2>/dev/null)" != "$stamp" ]; then
+stamp=$(stamp_of "$extras")
+installed=$(cat .venv/.afford-stamp 2>/dev/null || true)
+if [ "$installed" != "$stamp" ] && [ "$installed" != "$(stamp_of all,cluster,test)" ]; then
   echo "bootstrap: installing affordmap and its dependencies into .venv (a minute or two)" >&2
   .venv/bin/python -m pip install --quiet --upgrade pip
   .venv/bin/python -m pip install --quiet -e ".[$extras]"
