@@ -1,0 +1,127 @@
+"""How much the places a map finds depend on where the room happens to sit on the pose grid.
+
+A robot's map of a room lands on the 10 cm / 0.1 rad pose grid wherever its frame puts it. Each room here is
+mapped as given and again moved rigidly by less than one step of the grid (translated by a quarter, a half and
+three quarters of the 10 cm step, turned by half a theta step either way about its centre), its labels and
+sensor positions moved with it, and each map's places matched against the moved labels (DESIGN.md's place
+tolerances). Every shifted room is the same room: a model whose places move between them is deciding on
+where the grid falls, not on the room. Per room and affordance the table has the places found (and false
+skeletons) at each shift; the totals per shift say how far a place count of one benchmark run can move for
+this reason alone.
+
+Rooms: `afford synth` rooms of a seed no model saw (written once to bench-data/grid-shift), or any folder of
+labelled rooms (`--rooms DIR`). The real rooms of ../shared/data/rooms are a test set: report them
+(`--rooms ../shared/data/rooms`), never choose anything on them.
+
+    .venv/bin/python benchmarks/grid_shift.py                          # 8 generated rooms, about 4 minutes
+    .venv/bin/python benchmarks/grid_shift.py --rooms ../shared/data/rooms
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+GENERATED = ROOT / "bench-data" / "grid-shift"
+
+
+def shifts(step: float, theta_step: float) -> dict[str, tuple[float, float, float]]:
+    """name: (dx, dy, turn in radians), all under one step of the grid."""
+    return {
+        "as given": (0.0, 0.0, 0.0),
+        "+1/4 step": (step / 4, step / 4, 0.0),
+        "+1/2 step": (step / 2, step / 2, 0.0),
+        "+3/4 step": (3 * step / 4, step / 4, 0.0),
+        "+1/2 turn": (0.0, 0.0, theta_step / 2),
+        "-1/2 turn": (0.0, 0.0, -theta_step / 2),
+    }
+
+
+def moved_by(centre: np.ndarray, dx: float, dy: float, turn: float) -> np.ndarray:
+    """The rigid transform turning by `turn` about the vertical through `centre`, then moving by (dx, dy)."""
+    c, s = np.cos(turn), np.sin(turn)
+    transform = np.eye(4)
+    transform[:2, :2] = [[c, -s], [s, c]]
+    transform[:3, 3] = centre - transform[:3, :3] @ centre + np.array([dx, dy, 0.0])
+    return transform
+
+
+def generated_rooms(count: int, seed: int) -> Path:
+    """`count` rooms of every scan style and kind, made once (afford synth is resumable)."""
+    command = [sys.executable, "-m", "affordcli", "synth", "--rooms", str(count), "--seed", str(seed)]
+    subprocess.run(command + ["--out", str(GENERATED), "--quiet"], check=True, cwd=ROOT)
+    return GENERATED
+
+
+def room_places(cloud_path: Path, models: list, settings, named: dict) -> dict[str, dict[str, tuple]]:
+    """{affordance: {shift: (found, labelled, false)}} for one room."""
+    from affordcore.geometry.scene import load_cloud, load_origins, origins_file
+    from affordcore.labels import load_labels, match_places
+    from affordcore.mapping.pipeline import map_affordances, prepare_scene
+
+    cloud = load_cloud(cloud_path)
+    if origins_file(cloud_path).exists():
+        cloud.origins = load_origins(origins_file(cloud_path))
+    labels = load_labels(cloud_path.with_name(cloud_path.stem + ".labels.json"))
+    centre = np.append(np.median(cloud.points[:, :2], axis=0), 0.0)
+    found: dict[str, dict[str, tuple]] = {model.affordance: {} for model in models}
+    for name, (dx, dy, turn) in named.items():
+        transform = moved_by(centre, dx, dy, turn)
+        scene = prepare_scene(cloud.transformed(transform), settings, "none")
+        moved = labels.moved(transform)
+        for affordance, amap in map_affordances(scene.fields, scene.layout, models, settings).items():
+            match = match_places(moved, affordance, amap.skeletons[:, [0, 1, 3]])
+            found[affordance][name] = (int(match.found.sum()), len(match.found), int(match.false.sum()))
+    return found
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rooms", type=Path, help="a folder of <room>.ply and <room>.labels.json")
+    parser.add_argument("--generated", type=int, default=8, help="rooms to generate without --rooms")
+    parser.add_argument("--seed", type=int, default=29, help="their seed (no model saw it)")
+    args = parser.parse_args()
+    from affordcore.learn.model import load_model, shipped_models
+    from affordcore.settings import Settings
+
+    settings = Settings()
+    folder = args.rooms or generated_rooms(args.generated, args.seed)
+    rooms = sorted(folder.glob("*.ply"))
+    if not rooms:
+        sys.exit(f"no <room>.ply in {folder}")
+    models = [load_model(path) for path in shipped_models().values()]
+    named = shifts(settings.grid.step, settings.grid.theta_step)
+    print(
+        "places found of labelled (+ false skeletons) with the room moved by under one grid step "
+        f"({len(rooms)} rooms of {folder.name}; step {settings.grid.step:g} m, theta step "
+        f"{settings.grid.theta_step:g} rad; {os.cpu_count()} cores)\n"
+    )
+    print("| room | affordance | " + " | ".join(named) + " | spread of places found |")
+    print("|---|---|" + "---:|" * len(named) + "---:|")
+    totals = {model.affordance: {name: np.zeros(3, int) for name in named} for model in models}
+    for path in rooms:
+        for affordance, by_shift in room_places(path, models, settings, named).items():
+            counts = np.array([by_shift[name] for name in named])
+            for name in named:
+                totals[affordance][name] += by_shift[name]
+            if counts[0, 1] == 0 and not counts[:, 2].any():
+                continue  # nothing labelled and nothing found: no row
+            cells = " | ".join(f"{f}/{n} +{x}" for f, n, x in counts)
+            print(f"| {path.stem} | {affordance} | {cells} | {counts[:, 0].max() - counts[:, 0].min()} |")
+    print("\nTotals per shift:\n")
+    print("| affordance | " + " | ".join(named) + " | spread of places found |")
+    print("|---|" + "---:|" * len(named) + "---:|")
+    for affordance, by_shift in totals.items():
+        counts = np.array([by_shift[name] for name in named])
+        cells = " | ".join(f"{f}/{n} +{x}" for f, n, x in counts)
+        print(f"| {affordance} | {cells} | {counts[:, 0].max() - counts[:, 0].min()} |")
+
+
+if __name__ == "__main__":
+    main()
