@@ -13,8 +13,13 @@ Rooms: `afford synth` rooms of a seed no model saw (written once to bench-data/g
 labelled rooms (`--rooms DIR`). The real rooms of ../shared/data/rooms are a test set: report them
 (`--rooms ../shared/data/rooms`), never choose anything on them.
 
-    .venv/bin/python benchmarks/grid_shift.py                          # 8 generated rooms, about 4 minutes
+    .venv/bin/python benchmarks/grid_shift.py                          # 8 generated rooms, about 2 minutes
     .venv/bin/python benchmarks/grid_shift.py --rooms ../shared/data/rooms
+    .venv/bin/python benchmarks/grid_shift.py --rooms bench-data/accuracy --held-out   # 8 minutes
+
+With `--held-out`, only the rooms the shipped models hold out as their test rooms (the `held_out_test_rooms`
+their files record; bench-data/accuracy is where `accuracy.py` generates that data set): the rooms behind
+the shipped models' figures in docs/accuracy.md.
 """
 
 from __future__ import annotations
@@ -86,6 +91,7 @@ def main() -> None:
     parser.add_argument("--rooms", type=Path, help="a folder of <room>.ply and <room>.labels.json")
     parser.add_argument("--generated", type=int, default=8, help="rooms to generate without --rooms")
     parser.add_argument("--seed", type=int, default=29, help="their seed (no model saw it)")
+    parser.add_argument("--held-out", action="store_true", help="only the shipped models' test rooms")
     args = parser.parse_args()
     from affordcore.learn.model import load_model, shipped_models
     from affordcore.settings import Settings
@@ -93,9 +99,13 @@ def main() -> None:
     settings = Settings()
     folder = args.rooms or generated_rooms(args.generated, args.seed)
     rooms = sorted(folder.glob("*.ply"))
-    if not rooms:
-        sys.exit(f"no <room>.ply in {folder}")
     models = [load_model(path) for path in shipped_models().values()]
+    if args.held_out:
+        held_out = set(models[0].parameters["data"]["held_out_test_rooms"])
+        rooms = [path for path in rooms if path.stem in held_out]
+    if not rooms:
+        among = " among the shipped models' test rooms" if args.held_out else ""
+        sys.exit(f"no <room>.ply in {folder}{among}")
     named = shifts(settings.grid.step, settings.grid.theta_step)
     print(
         "places found of labelled (+ false skeletons) with the room moved by under one grid step "
