@@ -19,7 +19,8 @@ labelled rooms (`--rooms DIR`). The real rooms of ../shared/data/rooms are a tes
 
 With `--held-out`, only the rooms the shipped models hold out as their test rooms (the `held_out_test_rooms`
 their files record; bench-data/accuracy is where `accuracy.py` generates that data set): the rooms behind
-the shipped models' figures in docs/accuracy.md.
+the shipped models' figures in docs/accuracy.md. `--models DIR` maps with other model files (trained with the
+settings of this process's environment, AFFORD_*).
 """
 
 from __future__ import annotations
@@ -92,14 +93,16 @@ def main() -> None:
     parser.add_argument("--generated", type=int, default=8, help="rooms to generate without --rooms")
     parser.add_argument("--seed", type=int, default=29, help="their seed (no model saw it)")
     parser.add_argument("--held-out", action="store_true", help="only the shipped models' test rooms")
+    parser.add_argument("--models", type=Path, help="a folder of <affordance>.model.json (default: shipped)")
     args = parser.parse_args()
-    from affordcore.learn.model import load_model, shipped_models
+    from affordcore.learn.model import load_model, models_in, shipped_models
     from affordcore.settings import Settings
 
     settings = Settings()
     folder = args.rooms or generated_rooms(args.generated, args.seed)
     rooms = sorted(folder.glob("*.ply"))
-    models = [load_model(path) for path in shipped_models().values()]
+    files = models_in(args.models) if args.models else shipped_models()
+    models = [load_model(path) for path in files.values()]
     if args.held_out:
         held_out = set(models[0].parameters["data"]["held_out_test_rooms"])
         rooms = [path for path in rooms if path.stem in held_out]
