@@ -17,10 +17,10 @@ labelled rooms (`--rooms DIR`). The real rooms of ../shared/data/rooms are a tes
     .venv/bin/python benchmarks/grid_shift.py --rooms ../shared/data/rooms
     .venv/bin/python benchmarks/grid_shift.py --rooms bench-data/accuracy --held-out   # 8 minutes
 
-With `--held-out`, only the rooms the shipped models hold out as their test rooms (the `held_out_test_rooms`
-their files record; bench-data/accuracy is where `accuracy.py` generates that data set): the rooms behind
-the shipped models' figures in docs/accuracy.md. `--models DIR` maps with other model files (trained with the
-settings of this process's environment, AFFORD_*).
+With `--held-out`, only the rooms the models hold out as their test rooms (the `held_out_test_rooms` their
+files record; for the shipped models bench-data/accuracy, where `accuracy.py` generates their data set): the
+rooms behind the models' figures in docs/accuracy.md. `--models DIR` maps with other model files (trained
+with the settings of this process's environment, AFFORD_*).
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ def main() -> None:
     parser.add_argument("--rooms", type=Path, help="a folder of <room>.ply and <room>.labels.json")
     parser.add_argument("--generated", type=int, default=8, help="rooms to generate without --rooms")
     parser.add_argument("--seed", type=int, default=29, help="their seed (no model saw it)")
-    parser.add_argument("--held-out", action="store_true", help="only the shipped models' test rooms")
+    parser.add_argument("--held-out", action="store_true", help="only the models' own test rooms")
     parser.add_argument("--models", type=Path, help="a folder of <affordance>.model.json (default: shipped)")
     args = parser.parse_args()
     from affordcore.learn.model import load_model, models_in, shipped_models
@@ -107,7 +107,7 @@ def main() -> None:
         held_out = set(models[0].parameters["data"]["held_out_test_rooms"])
         rooms = [path for path in rooms if path.stem in held_out]
     if not rooms:
-        among = " among the shipped models' test rooms" if args.held_out else ""
+        among = " among the models' test rooms" if args.held_out else ""
         sys.exit(f"no <room>.ply in {folder}{among}")
     named = shifts(settings.grid.step, settings.grid.theta_step)
     print(
