@@ -51,9 +51,10 @@ def shifts(step: float, theta_step: float) -> dict[str, tuple[float, float, floa
 
 def moved_by(centre: np.ndarray, dx: float, dy: float, turn: float) -> np.ndarray:
     """The rigid transform turning by `turn` about the vertical through `centre`, then moving by (dx, dy)."""
-    c, s = np.cos(turn), np.sin(turn)
+    from affordcore.geometry.skeleton import rotation_z
+
     transform = np.eye(4)
-    transform[:2, :2] = [[c, -s], [s, c]]
+    transform[:3, :3] = rotation_z(turn)
     transform[:3, 3] = centre - transform[:3, :3] @ centre + np.array([dx, dy, 0.0])
     return transform
 
@@ -67,13 +68,11 @@ def generated_rooms(count: int, seed: int) -> Path:
 
 def room_places(cloud_path: Path, models: list, settings, named: dict) -> dict[str, dict[str, tuple]]:
     """{affordance: {shift: (found, labelled, false)}} for one room."""
-    from affordcore.geometry.scene import load_cloud, load_origins, origins_file
+    from affordcore.geometry.scene import load_cloud
     from affordcore.labels import load_labels, match_places
     from affordcore.mapping.pipeline import map_affordances, prepare_scene
 
-    cloud = load_cloud(cloud_path)
-    if origins_file(cloud_path).exists():
-        cloud.origins = load_origins(origins_file(cloud_path))
+    cloud = load_cloud(cloud_path)  # with the sensor positions of a <room>.origins.npy beside it
     labels = load_labels(cloud_path.with_name(cloud_path.stem + ".labels.json"))
     centre = np.append(np.median(cloud.points[:, :2], axis=0), 0.0)
     found: dict[str, dict[str, tuple]] = {model.affordance: {} for model in models}
@@ -125,15 +124,18 @@ def main() -> None:
                 totals[affordance][name] += by_shift[name]
             if counts[0, 1] == 0 and not counts[:, 2].any():
                 continue  # nothing labelled and nothing found: no row
-            cells = " | ".join(f"{f}/{n} +{x}" for f, n, x in counts)
-            print(f"| {path.stem} | {affordance} | {cells} | {counts[:, 0].max() - counts[:, 0].min()} |")
+            print(f"| {path.stem} | {affordance} | {_cells(counts)} |")
     print("\nTotals per shift:\n")
     print("| affordance | " + " | ".join(named) + " | spread of places found |")
     print("|---|" + "---:|" * len(named) + "---:|")
     for affordance, by_shift in totals.items():
-        counts = np.array([by_shift[name] for name in named])
-        cells = " | ".join(f"{f}/{n} +{x}" for f, n, x in counts)
-        print(f"| {affordance} | {cells} | {counts[:, 0].max() - counts[:, 0].min()} |")
+        print(f"| {affordance} | {_cells(np.array([by_shift[name] for name in named]))} |")
+
+
+def _cells(counts: np.ndarray) -> str:
+    """A table row's cells for (found, labelled, false) per shift, then the spread of the places found."""
+    cells = " | ".join(f"{f}/{n} +{x}" for f, n, x in counts)
+    return f"{cells} | {counts[:, 0].max() - counts[:, 0].min()}"
 
 
 if __name__ == "__main__":

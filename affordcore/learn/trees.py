@@ -176,9 +176,7 @@ class _Complete:
     missing_left: np.ndarray  # bool
     value: np.ndarray  # float64 leaf values
     tree_base: np.ndarray  # (trees,) int32: each tree's first split position
-    child_step: (
-        np.ndarray
-    )  # (trees,) int32: 2 - tree_base, so a child of absolute position a is 2a + this - left
+    child_step: np.ndarray  # (trees,) int32, 2 - tree_base: position a's child is 2a + this - go_left
     leaf_shift: np.ndarray  # (trees,) int32: added to a last level's position, the index of its leaf value
 
     @classmethod
