@@ -26,6 +26,12 @@ class VoxelSettings(BaseModel):
     min_height: float = Field(
         2.2, gt=0, description="the fields reach at least this high above the floor (m), even over a low scan"
     )
+    fields: Literal["binary", "soft"] = Field(
+        "binary",
+        description="binary: a voxel is occupied or not, distances run between voxel centres (the paper's, "
+        "the shipped models'); soft: each point weighs on the voxel centres around it by how near it lies, "
+        "so the features change smoothly as the room moves against the lattice (docs/geometry.md)",
+    )
     max_voxels: int = Field(
         10_000_000,
         ge=1000,

@@ -368,6 +368,8 @@ def fields_message(
     )
     if fields.visibility is not None:
         message.visibility = np.ascontiguousarray(fields.visibility, dtype=np.uint8).tobytes()
+    if fields.soft_occupancy is not None:
+        message.soft_occupancy = np.ascontiguousarray(fields.soft_occupancy, dtype="<f4").tobytes()
     message.grid.origin.x, message.grid.origin.y, message.grid.origin.z = (float(v) for v in lattice.origin)
     message.grid.resolution = lattice.resolution
     message.grid.nx, message.grid.ny, message.grid.nz = lattice.shape
@@ -437,7 +439,24 @@ def scene_fields(
         raise MessageError(f"steep_facing {message.steep_facing[:40]!r} is not one of {list(STEEP_FACINGS)}")
     visibility = _visibility(message, occupancy)
     occupancy = occupancy.astype(np.float32)
-    return SceneFields(lattice, occupancy, distance, normals, footprint, facing, visibility)
+    soft = _soft_occupancy(message, shape)
+    return SceneFields(lattice, occupancy, distance, normals, footprint, facing, visibility, soft)
+
+
+def _soft_occupancy(message: SceneFieldsMessage, shape: tuple[int, int, int]) -> np.ndarray | None:
+    """The soft occupancy a SceneFields carries (None for binary fields), checked: one float32 per voxel,
+    each in [0, 1]."""
+    if not message.soft_occupancy:
+        return None
+    n = int(np.prod(shape))
+    if len(message.soft_occupancy) != 4 * n:
+        raise MessageError(
+            f"soft_occupancy holds {len(message.soft_occupancy)} bytes; a {shape} grid needs {4 * n}"
+        )
+    soft = np.frombuffer(message.soft_occupancy, dtype="<f4").reshape(shape)
+    if not ((soft >= 0) & (soft <= 1)).all():  # NaN fails both
+        raise MessageError("soft_occupancy holds values outside [0, 1] (or NaN)")
+    return soft
 
 
 def _visibility(message: SceneFieldsMessage, occupancy: np.ndarray) -> np.ndarray | None:

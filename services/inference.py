@@ -74,6 +74,12 @@ class InferenceService:
                 f"fields at {fields.lattice.resolution} m voxels; the models here need "
                 f"{self.node.settings.voxel.resolution} m (AFFORD_VOXEL__RESOLUTION of the features service)"
             )
+        if (fields.soft_occupancy is not None) != self.layout.soft_fields:
+            kinds = ("binary", "soft") if self.layout.soft_fields else ("soft", "binary")
+            raise messages.MessageError(
+                f"{kinds[0]} fields; the models here were trained on {kinds[1]} ones "
+                "(AFFORD_VOXEL__FIELDS of the features service)"
+            )
         if fields.steep_facing != self.layout.steep_facing:
             raise messages.MessageError(
                 f"fields with steep normals facing '{fields.steep_facing}'; the models here were trained "

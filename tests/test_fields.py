@@ -105,3 +105,75 @@ def test_cell_keys_order_cells_lexicographically_and_give_them_back():
     np.testing.assert_array_equal(cells_of_keys(keys), cells)
     order = np.lexsort(cells.T[::-1])  # by x, then y, then z
     assert np.all(np.diff(keys[order]) >= 0)
+
+
+SOFT = VoxelSettings(margin=0.3, min_height=1.0, fields="soft")
+
+
+def test_soft_occupancy_is_the_nearest_points_trilinear_weight():
+    """A point at a voxel centre weighs 1 there; one on a face 0.5 on both sides; a denser cloud of the same
+    surface does not weigh more (the most of any point, not a sum)."""
+    up = np.array([[0.0, 0.0, 1.0]])
+    centre = np.array([[0.5, 0.5, 0.5]])
+    fields = compute_fields(centre, SOFT, normals=up)
+    at = tuple(fields.lattice.voxel_of(centre)[0])
+    assert fields.soft_occupancy[at] == 1.0
+    assert fields.soft_occupancy.sum() == 1.0
+    face = np.array([[0.55, 0.5, 0.5]])  # half-way between the centres at x = 0.5 and x = 0.6
+    fields = compute_fields(face, SOFT, normals=up)
+    i, j, k = fields.lattice.voxel_of(centre)[0]
+    np.testing.assert_allclose(fields.soft_occupancy[i : i + 2, j, k], [0.5, 0.5], atol=1e-6)
+    np.testing.assert_allclose(fields.soft_occupancy.sum(), 1.0, atol=1e-6)
+    rng = np.random.default_rng(3)
+    sparse = box_surface_points(np.array([0.0, 0.0, 0.42]), np.array([1.0, 1.0, 0.42]), 400, rng)
+    dense = np.concatenate([sparse, sparse])  # every point twice: a sum would double
+    one = compute_fields(sparse, SOFT, normals=np.tile(up, (len(sparse), 1)))
+    two = compute_fields(dense, SOFT, normals=np.tile(up, (len(dense), 1)))
+    np.testing.assert_array_equal(one.soft_occupancy, two.soft_occupancy)
+    # the binary occupancy is the binary fields' own: it still decides what was scanned
+    binary = compute_fields(
+        sparse, VoxelSettings(margin=0.3, min_height=1.0), normals=np.tile(up, (len(sparse), 1))
+    )
+    np.testing.assert_array_equal(one.occupancy, binary.occupancy)
+    assert binary.soft_occupancy is None and binary.collision is binary.occupancy
+
+
+def test_soft_distance_is_the_distance_to_the_nearest_point_near_surfaces():
+    rng = np.random.default_rng(4)
+    points = rng.uniform([0, 0, 0], [1.5, 1.5, 1.0], size=(40, 3))
+    fields = compute_fields(points, SOFT, normals=np.tile([0.0, 0.0, 1.0], (40, 1)))
+    binary = compute_fields(
+        points, VoxelSettings(margin=0.3, min_height=1.0), normals=np.tile([0, 0, 1.0], (40, 1))
+    )
+    every = np.argwhere(np.ones(fields.lattice.shape, bool))
+    brute = np.linalg.norm(fields.lattice.centres(every)[:, None] - points[None], axis=2).min(axis=1)
+    near = binary.distance[tuple(every.T)] <= 0.5
+    assert near.sum() > 1000 and (~near).sum() > 100
+    np.testing.assert_allclose(fields.distance[tuple(every[near].T)], brute[near], atol=1e-5)
+    # beyond the exact reach the binary distance, within a voxel's half-diagonal of the exact one
+    np.testing.assert_array_equal(
+        fields.distance[tuple(every[~near].T)], binary.distance[tuple(every[~near].T)]
+    )
+    assert np.abs(binary.distance[tuple(every.T)] - brute).max() <= np.sqrt(3) / 2 * 0.1 + 1e-6
+
+
+def test_soft_fields_change_smoothly_as_the_room_moves_against_the_lattice():
+    """A wall moved by a fifth of a millimetre across a voxel face changes the binary fields by a whole voxel
+    there, the soft ones (within their exact reach of the wall) by about that fifth of a millimetre."""
+    rng = np.random.default_rng(5)
+    wall = box_surface_points(np.array([0.0, 0.0, 0.0]), np.array([0.0, 1.0, 1.0]), 3000, rng)
+    normals = np.tile([1.0, 0.0, 0.0], (len(wall), 1))
+    changes = {}
+    for style in ("binary", "soft"):
+        settings = VoxelSettings(margin=0.3, min_height=1.0, fields=style)
+        before = compute_fields(wall + [0.0499, 0, 0], settings, normals=normals)
+        after = compute_fields(wall + [0.0501, 0, 0], settings, normals=normals)
+        assert before.lattice.shape == after.lattice.shape
+        near = (before.distance <= 0.4) & (after.distance <= 0.4)
+        changes[style] = [
+            np.abs(after.collision - before.collision).max(),
+            np.abs(after.distance - before.distance)[near].max(),
+            np.abs(after.normals - before.normals).max(),
+        ]
+    assert min(changes["binary"]) > 0.09  # a whole voxel: occupied to empty, 10 cm, a unit normal
+    assert max(changes["soft"]) < 0.01

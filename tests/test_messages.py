@@ -436,6 +436,7 @@ def test_fields_carry_the_world_from_input_they_are_given_else_the_clouds():
         footprint=(0.0, 0.0, 0.1, 0.1),
         steep_facing="centre",
         visibility=None,
+        soft_occupancy=None,
     )
     levelling = _rigid(9)
     given = _wire(messages.fields_message(fields, cloud, levelling))
@@ -520,6 +521,51 @@ def test_scene_fields_round_trip_with_what_the_cloud_carried(small_fields):
     distance = np.frombuffer(message.distance, dtype="<f4")
     assert distance[(i * ny + j) * nz + k] == small_fields.distance[i, j, k]
     assert back.visibility is None and not message.visibility  # no sensor positions, no states
+
+
+@pytest.fixture(scope="module")
+def soft_fields():
+    """`small_fields`' room with soft fields."""
+    from affordcore.geometry.fields import compute_fields
+    from affordcore.settings import VoxelSettings
+
+    rng = np.random.default_rng(7)
+    points = rng.uniform([0, 0, 0], [1.5, 1.0, 1.2], (2000, 3))
+    return compute_fields(points, VoxelSettings(fields="soft"), normals=np.tile([0.0, 0.0, 1.0], (2000, 1)))
+
+
+def test_soft_fields_round_trip_and_binary_ones_carry_none(small_fields, soft_fields):
+    cloud = messages.cloud_message(np.zeros((100, 3)), np.eye(4), "x")
+    back = messages.scene_fields(_wire(messages.fields_message(soft_fields, cloud)))
+    assert 0 < back.soft_occupancy.mean() < 1
+    np.testing.assert_array_equal(back.soft_occupancy, soft_fields.soft_occupancy)
+    np.testing.assert_array_equal(back.collision, soft_fields.soft_occupancy)
+    np.testing.assert_array_equal(back.occupancy, soft_fields.occupancy)
+    np.testing.assert_array_equal(back.distance, soft_fields.distance)
+    binary = _wire(messages.fields_message(small_fields, cloud))
+    assert not binary.soft_occupancy and messages.scene_fields(binary).soft_occupancy is None
+
+
+@pytest.mark.parametrize(
+    ("spoil", "reason"),
+    [
+        (lambda m: setattr(m, "soft_occupancy", m.soft_occupancy[:-4]), r"soft_occupancy holds \d+ bytes"),
+        (
+            lambda m: setattr(m, "soft_occupancy", b"\x00\x00\xc0\x7f" + m.soft_occupancy[4:]),
+            r"outside \[0, 1\]",
+        ),
+        (
+            lambda m: setattr(m, "soft_occupancy", b"\x00\x00\x00\x40" + m.soft_occupancy[4:]),
+            r"outside \[0, 1\]",
+        ),
+    ],
+    ids=["short", "NaN", "2.0"],
+)
+def test_unusable_soft_occupancy_is_refused(soft_fields, spoil, reason):
+    message = messages.fields_message(soft_fields, messages.cloud_message(np.zeros((100, 3)), np.eye(4), "x"))
+    spoil(message)
+    with pytest.raises(MessageError, match=reason):
+        messages.scene_fields(_wire(message))
 
 
 def _seen(fields):

@@ -348,7 +348,7 @@ def test_features_hold_back_the_fields_of_a_map_superseded_while_they_were_compu
     assert "fields held back, their map superseded while computed: 1" in capsys.readouterr().out
 
 
-def test_inference_refuses_fields_at_another_resolution_or_facing(router, client, tmp_path):
+def test_inference_refuses_fields_at_another_resolution_facing_or_kind(router, client, tmp_path):
     from affordcore.geometry.fields import compute_fields
     from affordcore.settings import NormalSettings, VoxelSettings
     from services.inference import InferenceService
@@ -365,6 +365,12 @@ def test_inference_refuses_fields_at_another_resolution_or_facing(router, client
         floor_facing = compute_fields(points, normal_settings=NormalSettings(steep_facing="floor"))
         _send(client, KEYS.fields, messages.fields_message(floor_facing, cloud).SerializeToString(), FIELDS)
         assert "steep normals facing 'floor'" in _next(errors, messages.Error).reason
+        # and on binary fields
+        soft = compute_fields(points, VoxelSettings(fields="soft"))
+        _send(client, KEYS.fields, messages.fields_message(soft, cloud).SerializeToString(), FIELDS)
+        assert (
+            "soft fields; the models here were trained on binary ones" in _next(errors, messages.Error).reason
+        )
     finally:
         running.stop()
 

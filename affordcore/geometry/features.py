@@ -60,6 +60,8 @@ class FeatureLayout:
     distance_cap: float | None = None
     # which way steep normals face (`NormalSettings.steep_facing`): the fields must be computed with the same
     steep_facing: str = "centre"
+    # fields of `VoxelSettings.fields` "soft" (True) or "binary"
+    soft_fields: bool = False
 
     def __post_init__(self) -> None:
         if self.distance_cap is not None and not self.distance_cap > 0:
@@ -79,6 +81,7 @@ class FeatureLayout:
             settings.voxel.resolution,
             features.distance_cap,
             settings.normals.steep_facing,
+            settings.voxel.fields == "soft",
         )
 
     @property
@@ -134,6 +137,8 @@ class FeatureLayout:
         }
         if self.distance_cap is not None:  # absent for the paper's distance: layout-1 fingerprints still hold
             described["distance_cap"] = self.distance_cap
+        if self.soft_fields:  # likewise absent for binary fields
+            described["fields"] = "soft: trilinear point weights, distance to the nearest point"
         return described
 
     @property
@@ -331,7 +336,7 @@ class _SlabSampler:
             # (X, Y, 15); the truncated field is what is interpolated, so a read depends on no distance
             # beyond the cap
             "distance": self._lerp_z(self.fields.distance, joint_heights, self.layout.distance_cap),
-            "occupancy": self._lerp_z(self.fields.occupancy, joint_heights),  # (X, Y, 15)
+            "occupancy": self._lerp_z(self.fields.collision, joint_heights),  # (X, Y, 15)
             # (X, Y, cells, 3)
             "normals": self._cell_heights(self._lerp_z(self.fields.normals, sample_heights)),
         }

@@ -97,6 +97,7 @@ def save_fields(path: Path, fields: SceneFields) -> None:
         footprint=np.asarray(fields.footprint, dtype=np.float64),
         steep_facing=np.str_(fields.steep_facing),
         **({} if fields.visibility is None else {"visibility": fields.visibility}),
+        **({} if fields.soft_occupancy is None else {"soft_occupancy": fields.soft_occupancy}),
     )
 
 
@@ -113,6 +114,7 @@ def load_fields(path: Path) -> SceneFields:
             tuple(float(v) for v in data["footprint"]),
             str(data["steep_facing"]),
             data["visibility"] if "visibility" in data else None,
+            data["soft_occupancy"] if "soft_occupancy" in data else None,
         )
 
 
