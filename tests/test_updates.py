@@ -94,6 +94,24 @@ def test_an_update_of_the_paper_s_layout_is_exact_too():
     np.testing.assert_array_equal(updated, full)
 
 
+def test_an_update_of_soft_fields_is_exact_too():
+    """Soft fields (VoxelSettings.fields): the collision feature reads their own occupancy, which a change
+    alters over more voxels than the binary one; an update still rescores every pose whose score changed."""
+    base = _room(size=6.0)
+    box = box_surface_points(*map(np.array, BOX), 2000, np.random.default_rng(3))
+    settings = (VoxelSettings(fields="soft"), NormalSettings(steep_facing="floor"))
+    rooms = {
+        "base": compute_fields(base, *settings),
+        "box": compute_fields(np.concatenate([base, box]), *settings),
+    }
+    soft = FeatureLayout(1.0, 0.25, 0.10, distance_cap=0.5, steep_facing="floor", soft_fields=True)
+    _, full, updated, stale, report, _ = _update(rooms, "box", soft)
+    assert report.reason == "" and 0 < report.fraction < 0.6
+    np.testing.assert_array_equal(updated, full)
+    with pytest.raises(ValueError, match="fields of the other kind for a layout of binary fields"):
+        RoomMapper([], LAYOUT, Settings()).maps(rooms["base"])
+
+
 def test_a_room_that_grows_beyond_its_footprint_is_updated_exactly(rooms):
     grid, full, updated, stale, report, _ = _update(rooms, "beyond", LAYOUT)
     assert grid.shape != pose_grid(rooms["base"], get_skeleton("sitting-relaxing"), Settings()).shape

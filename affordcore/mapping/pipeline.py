@@ -212,6 +212,9 @@ class RoomMapper:
                 f"fields with steep normals facing '{fields.steep_facing}' for a layout of "
                 f"'{self.layout.steep_facing}' (compute them with the layout's NormalSettings.steep_facing)"
             )
+        if (fields.soft_occupancy is not None) != self.layout.soft_fields:
+            kind = "soft" if self.layout.soft_fields else "binary"
+            raise ValueError(f"fields of the other kind for a layout of {kind} fields (VoxelSettings.fields)")
         self.call += 1
         maps = {}
         for model in self.models if models is None else models:
