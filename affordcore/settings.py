@@ -169,6 +169,12 @@ class MapSettings(BaseModel):
         description="also map the cells whose floor is hidden under a scanned surface (a seat, a table top, "
         "a pushed-in chair): unknown is not empty; false: only cells near scanned floor",
     )
+    rescore_max_poses: int | None = Field(
+        None,
+        ge=1,
+        description="a cascade's trees rescore at most this many poses per affordance, its first stage's "
+        "best; none: the model's own. Fewer is faster, at a cost in places docs/maps.md (Speed) measures",
+    )
     max_points: int = Field(
         5_000_000, ge=1000, description="a larger cloud is thinned (with a warning) to about this many points"
     )

@@ -117,6 +117,26 @@ def test_the_second_stage_takes_the_best_fraction_of_the_candidates_and_at_most_
     assert len(best_poses(np.full(10, RULED_OUT, np.float32), 0.5)) == 0
 
 
+def test_a_map_setting_caps_the_poses_the_trees_rescore_to_the_first_stages_best():
+    from affordcore.example import example_room
+    from affordcore.learn.model import shipped_models
+    from affordcore.mapping.maps import RULED_OUT
+    from affordcore.mapping.pipeline import RoomMapper, prepare_scene
+    from affordcore.settings import Settings
+
+    model = load_model(shipped_models()["sitting-working"])
+    scene = prepare_scene(example_room(), Settings(), "none")
+    rescored = {}
+    for cap in (None, 2000):
+        settings = Settings(map={"rescore_max_poses": cap})
+        _, scores = RoomMapper([model], scene.layout, settings).scores(model, scene.fields)
+        rescored[cap] = scores.ravel()
+    full, capped = (np.flatnonzero(rescored[c] > RULED_OUT) for c in (None, 2000))
+    assert len(full) > 2000 and len(capped) == 2000
+    assert np.isin(capped, full).all()  # a subset, each pose scored by the same trees
+    np.testing.assert_array_equal(rescored[2000][capped], rescored[None][capped])
+
+
 def test_the_place_threshold_maximises_place_f1():
     # room a: two labels found by skeletons scoring 0.9 and 0.4, false skeletons at 0.6 and 0.2
     # room b: no label, one false skeleton at 0.5

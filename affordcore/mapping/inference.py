@@ -189,6 +189,7 @@ def model_scores(
     allowed: np.ndarray | None = None,
     linear: np.ndarray | None = None,
     known: np.ndarray | None = None,
+    max_poses: int | None = None,
 ) -> np.ndarray:
     """A model's score of every pose (z, theta, x, y), float32; poses outside `allowed` (nx, ny) cells hold
     float32's lowest. A linear model scores every pose as above. A cascade's linear first stage scores every
@@ -196,9 +197,9 @@ def model_scores(
     features (log-odds); every other pose holds float32's lowest: the first stage ruled it out.
 
     For updates (affordcore.mapping.updates): `linear` is the first stage's scores when the caller has them,
-    and
-    `known` (shaped like the grid) holds second-stage scores that still hold, float32's lowest elsewhere; a
-    pose of the best set with a known score is not rescored."""
+    and `known` (shaped like the grid) holds second-stage scores that still hold, float32's lowest elsewhere;
+    a pose of the best set with a known score is not rescored. `max_poses` caps the second stage's poses
+    below the model's own (`MapSettings.rescore_max_poses`)."""
     skeleton = model.as_skeleton()
     if linear is None:
         scores = score_poses(fields, skeleton, grid, layout, model.weights, model.bias)
@@ -209,7 +210,8 @@ def model_scores(
     if not model.rescorer:
         return scores
     flat = scores.ravel()
-    best = best_poses(flat, model.rescorer["fraction"], model.rescorer.get("max_poses"))
+    cap = min(filter(None, (model.rescorer.get("max_poses"), max_poses)), default=None)
+    best = best_poses(flat, model.rescorer["fraction"], cap)
     rescored = known.ravel()[best] if known is not None else np.full(len(best), RULED_OUT, np.float32)
     fresh = rescored <= RULED_OUT
     rescored[fresh] = model.trees.log_odds(features_at(fields, skeleton, grid, layout, best[fresh]))

@@ -263,7 +263,8 @@ class RoomMapper:
         )
         known = None if report.reason else known_second_stage(previous, grid, stale)
         self._checkpoint()  # nothing is kept yet: the state below is set only once both stages are done
-        scores = model_scores(model, fields, grid, self.layout, allowed, linear, known)
+        cap = settings.map.rescore_max_poses
+        scores = model_scores(model, fields, grid, self.layout, allowed, linear, known, cap)
         self.states[model.affordance] = ModelState(fields, grid, linear, scores)
         self.scanned[model.affordance] = scanned
         self.reports[model.affordance] = report
