@@ -189,7 +189,7 @@ def distance_to_points(lattice: VoxelLattice, points: np.ndarray, voxel_distance
     """(nx, ny, nz) float32: the distance from each voxel centre within `_EXACT_REACH` of a surface to the
     nearest point (m), the binary fields' distance to the nearest occupied voxel's centre (`voxel_distance`)
     beyond: the joints that touch or near a surface are the ones whose distance decides a pose, and the
-    search's cost grows with its reach (0.3 s at 0.5 m, 5.6 s everywhere, for the 10 m benchmark room)."""
+    search's cost grows steeply with its reach (docs/geometry.md measures it)."""
     from scipy.spatial import cKDTree
 
     distance = voxel_distance.astype(np.float32)
