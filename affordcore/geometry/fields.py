@@ -144,8 +144,9 @@ def compute_fields(
         steep = partial(towards_centre, lattice=lattice, centre=points.mean(axis=0))
     footprint = tuple(float(v) for v in (*points[:, :2].min(axis=0), *points[:, :2].max(axis=0)))
     if voxel.fields == "soft":
-        soft = soft_occupancy(lattice, points)
-        field = _normal_field(lattice, points, normals, steep, spread=True) * soft[..., None]
+        corners = list(_corner_weights(lattice, points))  # what both the occupancy and the normals spread
+        soft = soft_occupancy(lattice, corners)
+        field = _normal_field(lattice, points, normals, steep, corners) * soft[..., None]
         distance = distance_to_points(lattice, points, distance)
         return SceneFields(
             lattice, occupancy, distance, field, footprint, normal_settings.steep_facing, soft_occupancy=soft
@@ -174,13 +175,14 @@ def _corner_weights(lattice: VoxelLattice, points: np.ndarray) -> Iterator[tuple
         yield _flat_index(lattice, base + offset), weight
 
 
-def soft_occupancy(lattice: VoxelLattice, points: np.ndarray) -> np.ndarray:
-    """(nx, ny, nz) float32: per voxel, the largest trilinear weight any point gives its centre, the product
+def soft_occupancy(lattice: VoxelLattice, corners: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """(nx, ny, nz) float32 from the points' `_corner_weights`: per voxel, the largest trilinear weight any
+    point gives its centre, the product
     over the axes of 1 - |offset| in voxels. 1 for a point at the centre, 0.5 for a surface on a face
     between two voxels, falling to 0 a voxel away; the most of any point, so it does not grow with the
     cloud's density as a sum would."""
     occupancy = np.zeros(int(np.prod(lattice.shape)), dtype=np.float64)
-    for flat, weight in _corner_weights(lattice, points):
+    for flat, weight in corners:
         np.maximum.at(occupancy, flat, weight)
     return occupancy.reshape(lattice.shape).astype(np.float32)
 
@@ -265,13 +267,14 @@ def _flat_index(lattice: VoxelLattice, index: np.ndarray) -> np.ndarray:
 
 
 def _normal_field(
-    lattice: VoxelLattice, points: np.ndarray, normals: np.ndarray, steep, spread: bool = False
+    lattice: VoxelLattice, points: np.ndarray, normals: np.ndarray, steep, corners: list | None = None
 ) -> np.ndarray:
     """Per voxel: the principal axis of sum(n n^T) over its points, oriented as the module docstring says
-    (`steep(axis, columns)`: the signs that orient steep axes, `towards_centre` or `towards_floor`). With
-    `spread` (soft fields) each point adds its n n^T to the 8 voxels around it by trilinear weight."""
-    if spread:
-        voxels, scatter = _spread_scatter(lattice, points, normals)
+    (`steep(axis, columns)`: the signs that orient steep axes, `towards_centre` or `towards_floor`). Given the
+    points' `corners` (`_corner_weights`, soft fields) each point adds its n n^T to the 8 voxels around it by
+    trilinear weight."""
+    if corners is not None:
+        voxels, scatter = _spread_scatter(lattice, corners, normals)
     else:
         flat = _flat_index(lattice, lattice.voxel_of(points))
         voxels, inverse = np.unique(flat, return_inverse=True)
@@ -291,12 +294,11 @@ def _normal_field(
 
 
 def _spread_scatter(
-    lattice: VoxelLattice, points: np.ndarray, normals: np.ndarray
+    lattice: VoxelLattice, corners: list, normals: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """(flat indices of the voxels the points weigh on, each one's sum of n n^T over the points around it
     by trilinear weight (voxels, 3, 3)). Sums run over those voxels only, numbered densely: a few times
     the occupied voxels, where the lattice holds ten times more."""
-    corners = list(_corner_weights(lattice, points))
     touched = np.zeros(int(np.prod(lattice.shape)), dtype=bool)
     for flat, weight in corners:
         touched[flat[weight > 0]] = True
