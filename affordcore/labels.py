@@ -30,6 +30,7 @@ from .jsonfile import read_json
 FORMAT = "affordance-labels/1"
 XY_TOLERANCE = 0.15  # m, DESIGN.md
 THETA_TOLERANCE = 0.4  # rad, DESIGN.md
+LOOSE_TOLERANCES = {"xy_tolerance": 0.3, "theta_tolerance": 0.5}  # DESIGN.md's loose variant
 Z_TOLERANCE = 0.1  # m: the torso levels one voxel either side of the label's height count
 _SLACK = 1e-9
 MOVED_TILT_LIMIT = 10.0  # deg: labels move with a cloud levelled by at most this much (LabelSet.moved)

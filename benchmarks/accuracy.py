@@ -37,7 +37,6 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL_ROOMS = ROOT.parent / "shared" / "data" / "rooms"
-LOOSE = {"xy_tolerance": 0.3, "theta_tolerance": 0.5}
 
 
 def main() -> None:
@@ -273,6 +272,7 @@ def generator_version() -> str:
 
 def room_results(model, rooms: list, task, loose: bool = True) -> dict:
     """Per room, scored once: what the summaries need, strict and (with `loose`) loose tolerances."""
+    from affordcore.labels import LOOSE_TOLERANCES
     from affordcore.learn.thresholds import room_scores
     from affordcore.mapping.pipeline import score_model
 
@@ -282,7 +282,7 @@ def room_results(model, rooms: list, task, loose: bool = True) -> dict:
     for room in rooms:
         grid_and_scores = score_model(model, room.fields, task.layout, task.settings)
         results[room.name] = {}
-        for prefix, tolerances in (("", {}), ("loose_", LOOSE)) if loose else (("", {}),):
+        for prefix, tolerances in (("", {}), ("loose_", LOOSE_TOLERANCES)) if loose else (("", {}),):
             r = room_scores(model, room, task.layout, task.settings, grid_and_scores, **tolerances)
             result = {
                 "scores": r.scores,

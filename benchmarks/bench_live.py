@@ -45,7 +45,7 @@ sys.path.insert(0, str(ROOT))
 from affordcore.assembly.assembler import trajectory_errors  # noqa: E402
 from affordcore.assembly.sequence import read_sequence  # noqa: E402
 from affordcore.geometry.scene import load_cloud  # noqa: E402
-from affordcore.labels import load_labels, match_places  # noqa: E402
+from affordcore.labels import LOOSE_TOLERANCES, load_labels, match_places  # noqa: E402
 from affordcore.learn.model import load_model, shipped_models  # noqa: E402
 from affordcore.mapping.pipeline import map_affordances, prepare_scene  # noqa: E402
 from affordcore.settings import Settings  # noqa: E402
@@ -124,10 +124,6 @@ def generated_sources(count: int, seed: int, folder: Path) -> list[Source]:
 # -- scoring -------------------------------------------------------------------------------------------------
 
 
-# DESIGN.md's loose place tolerances: a place found only with them was seen, 0.15-0.3 m off its label
-LOOSE = {"xy_tolerance": 0.3, "theta_tolerance": 0.5}
-
-
 def places(
     labels, affordance: str, skeletons: np.ndarray, room_from_world: np.ndarray
 ) -> tuple[int, int, int, int]:
@@ -137,7 +133,7 @@ def places(
     theta = skeletons[:, 3] + np.arctan2(room_from_world[1, 0], room_from_world[0, 0])
     rows = np.column_stack([xy, theta])
     match = match_places(labels, affordance, rows)
-    loose = match_places(labels, affordance, rows, **LOOSE)
+    loose = match_places(labels, affordance, rows, **LOOSE_TOLERANCES)  # seen, if 0.15-0.3 m off its label
     return int(match.found.sum()), len(match.found), int(match.false.sum()), int(loose.found.sum())
 
 

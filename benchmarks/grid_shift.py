@@ -101,7 +101,7 @@ def main() -> None:
         "--loose", action="store_true", help="match places with DESIGN.md's loose tolerances (0.3 m, 0.5 rad)"
     )
     args = parser.parse_args()
-    tolerances = {"xy_tolerance": 0.3, "theta_tolerance": 0.5} if args.loose else None
+    from affordcore.labels import LOOSE_TOLERANCES
     from affordcore.learn.model import load_model, models_in, shipped_models
     from affordcore.settings import Settings
 
@@ -117,6 +117,7 @@ def main() -> None:
         among = " among the models' test rooms" if args.held_out else ""
         sys.exit(f"no <room>.ply in {folder}{among}")
     named = shifts(settings.grid.step, settings.grid.theta_step)
+    tolerances = LOOSE_TOLERANCES if args.loose else None
     print(
         "places found of labelled (+ false skeletons) with the room moved by under one grid step "
         f"({len(rooms)} rooms of {folder.name}; step {settings.grid.step:g} m, theta step "

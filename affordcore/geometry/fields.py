@@ -177,10 +177,9 @@ def _corner_weights(lattice: VoxelLattice, points: np.ndarray) -> Iterator[tuple
 
 def soft_occupancy(lattice: VoxelLattice, corners: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
     """(nx, ny, nz) float32 from the points' `_corner_weights`: per voxel, the largest trilinear weight any
-    point gives its centre, the product
-    over the axes of 1 - |offset| in voxels. 1 for a point at the centre, 0.5 for a surface on a face
-    between two voxels, falling to 0 a voxel away; the most of any point, so it does not grow with the
-    cloud's density as a sum would."""
+    point gives its centre, the product over the axes of 1 - |offset| in voxels. 1 for a point at the
+    centre, 0.5 for a surface on a face between two voxels, falling to 0 a voxel away; the most of any
+    point, so it does not grow with the cloud's density as a sum would."""
     occupancy = np.zeros(int(np.prod(lattice.shape)), dtype=np.float64)
     for flat, weight in corners:
         np.maximum.at(occupancy, flat, weight)
