@@ -139,6 +139,9 @@ def _message_mutations(message, rng: np.random.Generator) -> list[Callable[[obje
         lambda m: setattr(m.cloud_timestamp, "seconds", 10**11),
         lambda m: setattr(m, "visibility", bytes(rng.integers(0, 256, len(m.visibility), dtype=np.uint8))),
         lambda m: setattr(m, "visibility", m.visibility[: int(rng.integers(1, len(m.visibility)))]),
+        # soft fields' occupancy: unusable values one per voxel, or bytes of any length
+        lambda m: setattr(m, "soft_occupancy", _bad_floats(rng, m.distance)),
+        lambda m: setattr(m, "soft_occupancy", rng.bytes(int(rng.integers(1, len(m.distance) + 8)))),
     ]
     return stamps + pose("world_from_input") + grid
 
