@@ -35,6 +35,11 @@ it is never vendored or downloaded here; build it from its public source (docs/b
     .venv/bin/python benchmarks/bench_ssvm.py --svmperf ~/svm_perf/svm_perf_learn
     .venv/bin/python benchmarks/bench_ssvm.py --svmperf PATH --only 1.3M --solvers cutting-plane --repeats 2
     .venv/bin/python benchmarks/bench_ssvm.py --sweep-c 1e2,1e3,1e4,1e5,1e6   # the default C's choice
+    .venv/bin/python benchmarks/bench_ssvm.py --only 1.3M --solvers cutting-plane --old /tmp/old-afford
+
+With ``--old PATH`` (a git worktree of an earlier commit) every solver also runs as ``old:SOLVER``, that
+commit's code in a process spawned with it on PYTHONPATH, alternating with this one's on the same data; the
+"previous / this" column is then that commit's time to the best model over this one's.
 """
 
 from __future__ import annotations
@@ -42,6 +47,7 @@ from __future__ import annotations
 import argparse
 import multiprocessing
 import os
+import pickle
 import resource
 import statistics
 import subprocess
@@ -141,6 +147,7 @@ def run(
     setup: str, solver: str, c_svmperf: float, cache: Path, svmperf: str | None, quick: bool, limit: float
 ) -> dict:
     """One training run in this (fresh) process: time to the best validation F1 and to the end."""
+    solver = solver.removeprefix("old:")  # the process imported the older commit's code: the same solver
     X, y, Xv, yv = load(setup, cache, quick)
     settings = SSVMSettings(c_svmperf=c_svmperf, max_iterations=300)
     if solver == "svmperf":
@@ -169,6 +176,7 @@ def run(
         "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         # (seconds, validation F1) of every iteration: when it first reaches a given F1
         "trace": [(it.seconds, it.validation_f1) for it in result.iterations],
+        "code": str(Path(sys.modules["affordcore"].__file__).parent.parent),  # which commit's code ran
     }
 
 
@@ -410,6 +418,7 @@ def main() -> None:
     parser.add_argument(
         "--svmperf-limit", type=float, default=1800.0, help="seconds (wall) after which SVMperf is stopped"
     )
+    parser.add_argument("--old", type=Path, help="a worktree of an earlier commit: its solvers side by side")
     args = parser.parse_args()
     if args.sweep_c:
         sweep_c([float(c) for c in args.sweep_c.split(",")], args.rooms, args.cache)
@@ -435,7 +444,8 @@ def main() -> None:
                     f"{args.rooms}: make it with `afford synth --rooms 150 --seed 1 --out {args.rooms}`"
                 )
             room_set(setup.split()[1], args.rooms, args.cache)
-    solvers = args.solvers.split(",") + (["svmperf"] if args.svmperf else [])
+    solvers = args.solvers.split(",")
+    solvers += [f"old:{solver}" for solver in solvers if args.old] + (["svmperf"] if args.svmperf else [])
     context = multiprocessing.get_context("forkserver")  # a fresh small process per run: honest peak memory
     print(
         f"{os.cpu_count()} cores, median of {args.repeats} (solvers alternated within each repeat); "
@@ -453,17 +463,39 @@ def main() -> None:
         runs: dict[str, list[dict]] = {s: [] for s in solvers}
         for _ in range(args.repeats):
             for solver in solvers:
-                with context.Pool(1) as pool:
-                    given = (setup, solver, c_setup, args.cache, args.svmperf, args.quick, args.svmperf_limit)
-                    runs[solver].append(pool.apply(run, given))
+                given = (setup, solver, c_setup, args.cache, args.svmperf, args.quick, args.svmperf_limit)
+                if solver.startswith("old:"):
+                    runs[solver].append(_run_older(given, args.old))
+                else:
+                    with context.Pool(1) as pool:
+                        runs[solver].append(pool.apply(run, given))
                 r = runs[solver][-1]  # each run as it ends, on stderr: a long run's results survive a stop
                 print(
-                    f"{setup} {solver}: {r['to_best']:.1f} s, F1 {r['val_f1']:.3f}",
+                    f"{setup} {solver}: {r['to_best']:.1f} s, F1 {r['val_f1']:.3f}"
+                    + (f" ({r['code']})" if "code" in r else ""),
                     file=sys.stderr,
                     flush=True,
                 )
         for solver in solvers:
             print(f"| {setup} (C={c_setup:g}) | {solver} | " + _row(runs, solver), flush=True)
+
+
+def _run_older(given: tuple, code: Path) -> dict:
+    """`run` in a fresh interpreter that imports the older commit's affordcore from `code` (first on its
+    path); the arguments and the result go through pickle on its standard streams."""
+    script = (
+        "import pickle, sys; sys.path[:0] = sys.argv[1:3]; import affordcore, bench_ssvm; "
+        "sys.stdout.buffer.write(pickle.dumps(bench_ssvm.run(*pickle.loads(sys.stdin.buffer.read()))))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(code), str(Path(__file__).parent)],
+        input=pickle.dumps(given),
+        capture_output=True,
+        cwd=code,
+    )
+    if done.returncode:
+        raise RuntimeError(f"the run with {code}'s code failed:\n{done.stderr.decode(errors='replace')}")
+    return pickle.loads(done.stdout)
 
 
 def _row(runs: dict[str, list[dict]], solver: str) -> str:
@@ -480,7 +512,7 @@ def _row(runs: dict[str, list[dict]], solver: str) -> str:
         f"{statistics.median(x['objective'] for x in rs):.2f}",
         f"{max(x['peak_mb'] for x in rs):,.0f}",
     ]
-    previous = runs.get("previous")
+    previous = runs.get(f"old:{solver}") or runs.get("previous")
     cells.append(f"{statistics.median(x['to_best'] for x in previous) / to_best:.1f}x" if previous else "-")
     stopped = [x for x in runs.get("svmperf", []) if x.get("stopped")]
     if stopped:  # SVMperf did not finish: no F1 of its own, only the CPU seconds it used before it stopped
@@ -501,7 +533,7 @@ def _row(runs: dict[str, list[dict]], solver: str) -> str:
             seconds = statistics.median(reached)
             cells += [
                 f"{seconds:.2f}",
-                f"{statistics.median(x['to_best'] for x in runs['svmperf']) / seconds:.0f}x",
+                f"{statistics.median(x['to_best'] for x in runs['svmperf']) / seconds:.1f}x",
             ]
     return " | ".join(cells) + " |"
 

@@ -7,7 +7,15 @@ import itertools
 import numpy as np
 import pytest
 
-from affordcore.learn.f1_argmax import f1_loss, most_violated, most_violated_double_loop, most_violated_sorted
+from affordcore.learn.f1_argmax import (
+    F1Counter,
+    _highest,
+    f1_at,
+    f1_loss,
+    most_violated,
+    most_violated_double_loop,
+    most_violated_sorted,
+)
 
 
 def _brute_force(scores: np.ndarray, labels: np.ndarray) -> float:
@@ -124,3 +132,41 @@ def test_selection_equals_the_sorted_sweep_at_training_scale():
         new, old = most_violated(scores, labels), most_violated_sorted(scores, labels)
         assert new.objective == pytest.approx(old.objective, rel=1e-12)
         assert (new.true_positives, new.false_positives) == (old.true_positives, old.false_positives)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_highest_values_through_the_guessed_threshold_are_the_sorted_top(seed):
+    """`_highest` filters by a threshold guessed from a sample before its partition: the same values as a full
+    sort, in descending order, with ties at the guess, a guess that lets too few through (all values but a
+    few equal and low), and counts from one to all of them."""
+    rng = np.random.default_rng(seed)
+    for _ in range(30):
+        n = int(rng.integers(1, 300_000))
+        values = rng.normal(size=n)
+        kind = rng.integers(3)
+        if kind == 1:
+            values = np.round(values, 1)  # many ties, also at the guessed threshold
+        elif kind == 2:
+            values[rng.random(n) < 0.999] = -1.0  # almost all equal and low
+        count = int(rng.choice([1, 17, 4096, n // 20 + 1, n]))
+        count = min(count, n)
+        expected = np.sort(values)[::-1][:count]
+        assert np.array_equal(_highest(values, count), expected)
+
+
+def test_f1_counter_is_f1_at_for_vectors_and_columns_with_ties_at_the_threshold():
+    """One vector against `f1_at`; columns of float32 scores against float64 thresholds -b decide as
+    `f1_at` of the float64 sums s + b, also where a score equals -b exactly."""
+    rng = np.random.default_rng(3)
+    labels = np.where(rng.random(5_000) < 0.05, 1, -1)
+    labels[0] = 1
+    counter = F1Counter(labels)
+    scores = rng.normal(size=5_000)
+    for threshold in (0.0, 0.5, -1.0, 10.0):
+        assert float(counter.f1(scores, threshold)) == f1_at(scores, labels, threshold)
+    columns = np.round(rng.normal(size=(5_000, 4)), 2).astype(np.float32)
+    bias = -columns[range(4), range(4)].astype(np.float64)  # each column has scores exactly at its threshold
+    bias[3] = 0.1 + 1e-12  # and one whose threshold is no float32
+    expected = [f1_at(columns[:, k].astype(np.float64) + bias[k], labels) for k in range(4)]
+    assert counter.f1(columns, -bias).tolist() == expected
+    assert float(F1Counter(-np.ones(3)).f1(np.ones(3))) == 0.0  # no positives, all predicted: F1 0

@@ -58,7 +58,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .f1_argmax import f1_at, most_violated
+from .f1_argmax import F1Counter, most_violated
 
 SVMPERF_LABEL = 50.0  # SVMperf's F1 labels are +-SVMPERF_LABEL / n
 DEFAULT_C_SVMPERF = 1.0e4  # SVMperf's -c; the slack weighs 2500 x this (chosen on generated validation rooms)
@@ -177,6 +177,7 @@ def train_ssvm(
     qp = _WorkingSet(dims, weight, persistent=settings.warm_start)
     result = SSVMResult(bias=settings.bias)
     scorer = None if validation is None else _Validation(*validation, settings, result, on_iteration)
+    train_f1 = F1Counter(y)
     start = time.perf_counter()
     # the best point so far (bundle) or the current iterate (cutting planes), its scores and objective
     w_b = np.zeros(dims)
@@ -196,7 +197,7 @@ def train_ssvm(
         iteration = Iteration(
             number,
             w_b.copy(),
-            f1_at(s_b, y),
+            float(train_f1.f1(s_b)),
             None,  # validation F1: filled in by the scorer, a batch of iterations at a time
             violation,
             slack,
@@ -238,7 +239,7 @@ class _Validation:
     Stops the run where the per-iteration check did: at the first iteration `patience` after the best."""
 
     def __init__(self, X, y, settings: SSVMSettings, result: SSVMResult, on_iteration):
-        self.X, self.y = X, np.where(np.asarray(y) > 0, 1, -1).astype(np.int8)
+        self.X, self.counter = X, F1Counter(y)
         self.settings, self.result, self.on_iteration = settings, result, on_iteration
         self.pending: list[Iteration] = []
         self.best: Iteration | None = None
@@ -251,9 +252,12 @@ class _Validation:
             return False
         pending, self.pending = self.pending, []
         weights = np.stack([it.weights for it in pending], axis=1)  # (d + 1, k)
-        scores = self.X @ weights[:-1].astype(self.X.dtype, copy=False) + weights[-1] * self.settings.bias
-        for k, it in enumerate(pending):
-            it.validation_f1 = f1_at(scores[:, k], self.y)
+        # X w > -b w_b rather than X w + b w_b > 0: the same decisions (a float64 sum is 0 only when exact),
+        # without an (n, k) float64 copy of the scores
+        scores = self.X @ weights[:-1].astype(self.X.dtype, copy=False)
+        f1s = self.counter.f1(scores, -weights[-1] * self.settings.bias)
+        for it, f1 in zip(pending, f1s):
+            it.validation_f1 = float(f1)
             if self.best is None or it.validation_f1 > self.best.validation_f1:  # the first maximum, as max
                 self.best = it
             if self.on_iteration:
