@@ -264,11 +264,7 @@ def generated_rooms(args) -> list:
 def test_groups(data: Path, generated: list[str], real: list[str]) -> dict[str, list[str]]:
     """The rooms each row of the table is over: every generated test room, those of each scan style, the real
     rooms together and each one alone."""
-    summary = json.loads((data / "summary.json").read_text())
-    style = {room["room"]: room.get("style", "fused") for room in summary["rooms"]}
-    groups = {"generated": generated}
-    for name in dict.fromkeys(style[n] for n in generated):
-        groups[f"generated/{name}"] = [n for n in generated if style[n] == name]
+    groups = style_groups(data, "generated", generated)
     if real:
         groups["real"] = real
         groups.update({f"real/{name.split('_')[0]}": [name] for name in real})
@@ -278,9 +274,20 @@ def test_groups(data: Path, generated: list[str], real: list[str]) -> dict[str, 
 UNSEEN_SEED = 101  # no data set, test or benchmark of the project uses it
 
 
+def style_groups(data: Path, label: str, names: list[str], prefix: str = "") -> dict[str, list[str]]:
+    """{label: names, "label/STYLE": those of each scan style}, the styles from the data set's summary.json
+    (`prefix`: what the names add to the data set's own room names)."""
+    summary = json.loads((data / "summary.json").read_text())
+    style = {prefix + room["room"]: room.get("style", "fused") for room in summary["rooms"]}
+    groups = {label: names}
+    for name in dict.fromkeys(style[n] for n in names):
+        groups[f"{label}/{name}"] = [n for n in names if style[n] == name]
+    return groups
+
+
 def unseen_rooms(args, settings, cache) -> list:
-    """`--unseen` rooms of `--unseen-seed` (generated once into bench-data/unseen-SEED), named "seed S: room"
-    so that they never share a name with the split's rooms."""
+    """`--unseen` rooms of `--unseen-seed` (generated once into bench-data/unseen-SEED), their names prefixed
+    (`unseen_prefix`) so that they never share a name with the split's rooms."""
     from dataclasses import replace
     from types import SimpleNamespace
 
@@ -293,9 +300,13 @@ def unseen_rooms(args, settings, cache) -> list:
     )
     files = generated_rooms(wanted)
     return [
-        replace(room, name=f"seed {args.unseen_seed}: {room.name}")
+        replace(room, name=unseen_prefix(args) + room.name)
         for room in load_rooms(files, settings, cache=cache)
     ]
+
+
+def unseen_prefix(args) -> str:
+    return f"seed {args.unseen_seed}: "
 
 
 def unseen_folder(args) -> Path:
@@ -306,15 +317,7 @@ def unseen_groups(args, names: list[str]) -> dict[str, list[str]]:
     """The unseen rooms' rows: all of them, and those of each scan style."""
     if not names:
         return {}
-    label = f"unseen seed {args.unseen_seed}"
-    summary = json.loads((unseen_folder(args) / "summary.json").read_text())
-    style = {
-        f"seed {args.unseen_seed}: {room['room']}": room.get("style", "fused") for room in summary["rooms"]
-    }
-    groups = {label: names}
-    for name in dict.fromkeys(style[n] for n in names):
-        groups[f"{label}/{name}"] = [n for n in names if style[n] == name]
-    return groups
+    return style_groups(unseen_folder(args), f"unseen seed {args.unseen_seed}", names, unseen_prefix(args))
 
 
 def generator_version() -> str:

@@ -137,7 +137,7 @@ def places(
     return int(match.found.sum()), len(match.found), int(match.false.sum()), int(loose.found.sum())
 
 
-def offline(source: Source, settings: Settings, models: list) -> dict[str, tuple[int, int, int]]:
+def offline(source: Source, settings: Settings, models: list) -> dict[str, tuple[int, int, int, int]]:
     """`afford map` of the fused room (stored z-up: no levelling), scored in its own frame."""
     labels = load_labels(source.room.with_suffix(".labels.json"))
     scene = prepare_scene(load_cloud(source.room.with_suffix(".ply")), settings, "none")

@@ -154,19 +154,27 @@ def test_highest_values_through_the_guessed_threshold_are_the_sorted_top(seed):
         assert np.array_equal(_highest(values, count), expected)
 
 
-def test_f1_counter_is_f1_at_for_vectors_and_columns_with_ties_at_the_threshold():
-    """One vector against `f1_at`; columns of float32 scores against float64 thresholds -b decide as
-    `f1_at` of the float64 sums s + b, also where a score equals -b exactly."""
+def _f1_by_masks(scores, labels, threshold=0.0) -> float:
+    """F1 from the contingency table of two masks over every example: the reference `F1Counter` counts."""
+    positive, predicted = labels > 0, scores > threshold
+    tp, fp = np.sum(positive & predicted), np.sum(~positive & predicted)
+    return 1.0 - float(f1_loss(tp, fp, positive.sum()))
+
+
+def test_f1_counter_counts_f1_for_vectors_and_columns_with_ties_at_the_threshold():
+    """One vector (and `f1_at`) against the two masks' F1; columns of float32 scores against float64
+    thresholds -b decide as the float64 sums s + b against 0, also where a score equals -b exactly."""
     rng = np.random.default_rng(3)
     labels = np.where(rng.random(5_000) < 0.05, 1, -1)
     labels[0] = 1
     counter = F1Counter(labels)
     scores = rng.normal(size=5_000)
     for threshold in (0.0, 0.5, -1.0, 10.0):
-        assert float(counter.f1(scores, threshold)) == f1_at(scores, labels, threshold)
+        expected = _f1_by_masks(scores, labels, threshold)
+        assert float(counter.f1(scores, threshold)) == expected == f1_at(scores, labels, threshold)
     columns = np.round(rng.normal(size=(5_000, 4)), 2).astype(np.float32)
     bias = -columns[range(4), range(4)].astype(np.float64)  # each column has scores exactly at its threshold
     bias[3] = 0.1 + 1e-12  # and one whose threshold is no float32
-    expected = [f1_at(columns[:, k].astype(np.float64) + bias[k], labels) for k in range(4)]
+    expected = [_f1_by_masks(columns[:, k].astype(np.float64) + bias[k], labels) for k in range(4)]
     assert counter.f1(columns, -bias).tolist() == expected
     assert float(F1Counter(-np.ones(3)).f1(np.ones(3))) == 0.0  # no positives, all predicted: F1 0

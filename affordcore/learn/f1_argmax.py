@@ -47,15 +47,13 @@ def f1_loss(true_positives, false_positives, positives) -> np.ndarray:
 
 def f1_at(scores: np.ndarray, labels: np.ndarray, threshold: float = 0.0) -> float:
     """F1 of predicting positive where the score exceeds the threshold."""
-    positive, predicted = np.asarray(labels) > 0, scores > threshold
-    return 1.0 - float(f1_loss(np.sum(positive & predicted), np.sum(~positive & predicted), positive.sum()))
+    return float(F1Counter(labels).f1(np.asarray(scores), threshold))
 
 
 class F1Counter:
-    """F1 of many score vectors against one labelling, as `f1_at` computes it: the positives' indices kept, so
-    a vector's F1 is one comparison and two counts (false positives are the predicted less the true ones),
-    where `f1_at` combines two masks over every example. The structured SVM scores every iteration's weights
-    this way on the training and the validation set."""
+    """F1 of many score vectors against one labelling (`f1_at` for one): the positives' indices kept, so a
+    vector's F1 is one comparison and two counts (false positives are the predicted less the true ones). The
+    structured SVM scores every iteration's weights this way on the training and the validation set."""
 
     def __init__(self, labels: np.ndarray):
         self.positives = np.flatnonzero(np.asarray(labels) > 0)

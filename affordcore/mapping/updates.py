@@ -158,7 +158,9 @@ def _changed_columns(
     new_part = (slice(i0, i1), slice(j0, j1), slice(k0, k1))
     old_part = tuple(slice(s.start + o, s.stop + o) for s, o in zip(new_part, offset, strict=True))
     differs = np.zeros((i1 - i0, j1 - j0), dtype=bool)
-    for name in ("occupancy", "collision", "distance", "normals"):  # collision: soft fields' own
+    # soft fields' collision field beside the binary occupancy; for binary fields the two are the same array
+    soft = ("collision",) if new.soft_occupancy is not None else ()
+    for name in ("occupancy", *soft, "distance", "normals"):
         a, b = getattr(new, name)[new_part], getattr(old, name)[old_part]
         if name == "distance" and distance_cap is not None:  # the features read the truncated field
             a, b = np.minimum(a, distance_cap), np.minimum(b, distance_cap)
