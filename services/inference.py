@@ -38,6 +38,7 @@ class InferenceService:
 
     def __init__(self, node: Node):
         self.node, self.models = node, node.models
+        self.ids = {model.affordance: model.id for model in self.models}  # once: an id serialises the trees
         self.layout = FeatureLayout.from_settings(node.settings)
         # the robot's room, updated; scored in worker processes when the registry forked them
         self.mapper = getattr(node, "mapper", None) or RoomMapper(self.models, self.layout, node.settings)
@@ -92,10 +93,9 @@ class InferenceService:
         fields = self._fields(message)
         self.node.publish_status(messages.Status.BUSY, f"mapping {len(self.models)} affordances")
         set_time(self.node.recording, messages.seconds(message.cloud_timestamp))
-        ids = {model.affordance: model.id for model in self.models}
 
         def publish(affordance: str, amap) -> None:
-            out = messages.map_message(amap, ids[affordance], message)
+            out = messages.map_message(amap, self.ids[affordance], message)
             self.node.publish(self.node.keys.affordance(affordance), out)
             if self.ros is not None:
                 self.ros.publish(self.node.keys.robot, out)
@@ -119,7 +119,7 @@ class InferenceService:
         self.node.publish_status(
             messages.Status.READY,
             f"published {len(self.models)} maps of a {message.frames}-frame map; "
-            + self.mapper.describe(ids),
+            + self.mapper.describe(self.ids),
         )
 
     def _may_give_up(self) -> bool:
@@ -156,6 +156,7 @@ class ShardedInference(InferenceService):
 
     def __init__(self, node: Node):
         self.node, self.models, self.keys = node, node.models, node.keys
+        self.ids = {model.affordance: model.id for model in self.models}  # once: an id serialises the trees
         self.layout = FeatureLayout.from_settings(node.settings)
         service = node.settings.service
         self.inbox = KeyedInbox(service.max_queue, service.max_queue_bytes)
@@ -315,14 +316,14 @@ class ShardedInference(InferenceService):
             )
             return
         fields = self._fields(message)
-        names = ", ".join(model.affordance for model in todo)
+        affordances = [model.affordance for model in todo]
+        names = ", ".join(affordances)
         self.node.publish_status(messages.Status.BUSY, f"mapping {names} of {robot}")
         recording = self._recording(robot)
         set_time(recording, messages.seconds(message.cloud_timestamp))
-        ids = {model.affordance: model.id for model in todo}
 
         def publish(affordance: str, amap) -> None:
-            out = messages.map_message(amap, ids[affordance], message)
+            out = messages.map_message(amap, self.ids[affordance], message)
             key = keys.affordance(affordance)
             encoding = encoding_of(messages.AffordanceMapMessage)
             self.maps.take(key, stamp, out.SerializeToString(), encoding)  # answered from here on
@@ -336,7 +337,8 @@ class ShardedInference(InferenceService):
         self.mappers[robot].maps(fields, on_map=publish, models=todo)
         self.node.publish_status(
             messages.Status.READY,
-            f"published {names} of {robot} ({message.frames}-frame map; {self.mappers[robot].describe(ids)})",
+            f"published {names} of {robot} ({message.frames}-frame map; "
+            f"{self.mappers[robot].describe(affordances)})",
         )
 
     def _recording(self, robot: str):

@@ -113,3 +113,21 @@ def test_a_new_place_model_is_the_one_the_model_answers_with():
     assert model.places.cut == 0.35 and model.places.intercept == pytest.approx(before.intercept - 1)
     model.place_model = None
     assert model.places is None
+
+
+def test_a_model_s_id_follows_a_replaced_place_model_and_rescorer_and_keeps_the_saved_id(tmp_path):
+    """An id serialises the trees once per rescorer dict (every map names its model): replacing the place
+    model or the rescorer must still change it, and a model read back has the same id."""
+    from affordcore.learn.model import shipped_models
+
+    model = load_model(shipped_models()["sitting-working"])
+    first = model.id
+    assert model.id == first == load_model(model.save(tmp_path / "m.json")).id
+    model.place_model = {**model.place_model, "cut": 0.35}
+    changed = model.id
+    assert changed != first
+    assert changed == load_model(model.save(tmp_path / "n.json")).id  # read back: serialised afresh
+    model.rescorer = {**model.rescorer, "max_poses": 6000}
+    assert model.id not in (first, changed)
+    model.place_model = None
+    assert model.id == load_model(model.save(tmp_path / "o.json")).id

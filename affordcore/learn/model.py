@@ -83,9 +83,9 @@ class AffordanceModel:
         # ids of models without a floor or a place model unchanged
         floor = [] if self.place_floor is None else [self.place_floor]
         floor += [] if self.place_model is None else [self.place_model]
-        second = json.dumps([self.place_threshold, self.rescorer, *floor], sort_keys=True) + (
-            self.place_reference or ""
-        )
+        # json.dumps of the list, item by item (the same text): the trees' item is serialised once per dict
+        items = ", ".join(self._dumped(item) for item in [self.place_threshold, self.rescorer, *floor])
+        second = f"[{items}]" + (self.place_reference or "")
         digest = hashlib.sha256(
             np.asarray(self.weights, dtype=np.float64).tobytes()
             + repr((self.bias, self.threshold)).encode()
@@ -96,6 +96,20 @@ class AffordanceModel:
             )
         )
         return f"{self.affordance}/{self.learner}/{digest.hexdigest()[:12]}"
+
+    def _dumped(self, item) -> str:
+        """json.dumps(item, sort_keys=True); a dict's text is kept while the model holds that dict (the
+        rescorer's thousands of tree nodes take tens of ms, and every map names its model). The rescorer and
+        the place model are replaced, never changed in place."""
+        if not isinstance(item, dict):
+            return json.dumps(item, sort_keys=True)
+        kept = self.__dict__.setdefault("_dumped_dicts", {})  # not a field: asdict and save leave it out
+        if id(item) not in kept:
+            held = {id(self.rescorer), id(self.place_model)}
+            for gone in [key for key in kept if key not in held]:  # dicts the model no longer holds
+                del kept[gone]
+            kept[id(item)] = (item, json.dumps(item, sort_keys=True))  # held, so the id is not reused
+        return kept[id(item)][1]
 
     def as_skeleton(self) -> Skeleton:
         """The skeleton the model was trained with (maps place it, not whatever skeleton file is installed
