@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import pickle
 
 import numpy as np
 import pytest
@@ -131,3 +132,5 @@ def test_a_model_s_id_follows_a_replaced_place_model_and_rescorer_and_keeps_the_
     assert model.id not in (first, changed)
     model.place_model = None
     assert model.id == load_model(model.save(tmp_path / "o.json")).id
+    sent = pickle.loads(pickle.dumps(model))  # to a worker process: the same model, without the kept texts
+    assert "_dumped_dicts" not in vars(sent) and sent.id == model.id

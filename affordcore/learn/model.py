@@ -111,6 +111,10 @@ class AffordanceModel:
             kept[id(item)] = (item, json.dumps(item, sort_keys=True))  # held, so the id is not reused
         return kept[id(item)][1]
 
+    def __getstate__(self) -> dict:
+        """Pickled (to worker processes) without the kept texts: the fields are the model."""
+        return {k: v for k, v in self.__dict__.items() if k != "_dumped_dicts"}
+
     def as_skeleton(self) -> Skeleton:
         """The skeleton the model was trained with (maps place it, not whatever skeleton file is installed
         now)."""
