@@ -37,7 +37,6 @@ from affordcore.assembly.assembler import Assembler, SensorFrame  # noqa: E402
 from affordcore.assembly.depth import DepthImage  # noqa: E402
 from affordcore.assembly.sequence import read_sequence  # noqa: E402
 from affordcore.geometry.scene import Cloud  # noqa: E402
-from affordcore.geometry.visibility import spread_origins  # noqa: E402
 from affordcore.learn import trees  # noqa: E402
 from affordcore.learn.model import load_model, shipped_models  # noqa: E402
 from affordcore.mapping import inference, updates  # noqa: E402
@@ -63,8 +62,7 @@ def map_clouds(source, step: int, earlier: float, settings: Settings) -> list[Cl
         assembler.add(frame, stamp)
         if count in keep:
             points, world_from_odom = assembler.aligned_map(settings)
-            origins = spread_origins(assembler.trajectory.positions, settings.visibility.max_origins)
-            origins = origins @ world_from_odom[:3, :3].T + world_from_odom[:3, 3]
+            origins = assembler.sensor_origins(world_from_odom, settings.visibility.max_origins)
             clouds.append(Cloud(points, origins=origins))
     return clouds
 

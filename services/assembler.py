@@ -111,15 +111,6 @@ class AssemblerService:
         self.store.close()
         return f"checkpointed the map of {self.assembler.frames} frames to {self.store.folder}"
 
-    def sensor_origins(self, world_from_odom: np.ndarray) -> np.ndarray:
-        """Where the sensor stood, spread out to the few the features service carves free space from."""
-        from affordcore.geometry.visibility import spread_origins
-
-        positions = spread_origins(
-            self.assembler.trajectory.positions, self.node.settings.visibility.max_origins
-        )
-        return positions @ world_from_odom[:3, :3].T + world_from_odom[:3, 3]
-
     def publish_map(self) -> None:
         """Align the global map to gravity and publish it; until a floor is in view, there is nothing to
         send."""
@@ -138,7 +129,7 @@ class AssemblerService:
             self.assembler.frames,
             self.last_stamp,
             scans_received=self.inbox.settled(),
-            origins=self.sensor_origins(world_from_odom),
+            origins=self.assembler.sensor_origins(world_from_odom, self.node.settings.visibility.max_origins),
         )
         self.node.publish(self.node.keys.cloud, cloud)
         self.last_published = self.last_attempt = time.monotonic()

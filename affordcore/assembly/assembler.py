@@ -381,6 +381,14 @@ class Assembler:
         """The global map in the odometry frame (the first sensor frame)."""
         return self.global_map.point_cloud() if self.frames else np.empty((0, 3))
 
+    def sensor_origins(self, world_from_odom: np.ndarray, count: int) -> np.ndarray:
+        """Where the sensor stood, at most `count` of its positions spread out (the few the features service
+        carves free space from), in the frame `world_from_odom` takes the map to (`aligned_map`'s)."""
+        from ..geometry.visibility import spread_origins
+
+        positions = spread_origins(self.trajectory.positions, count)
+        return positions @ world_from_odom[:3, :3].T + world_from_odom[:3, 3]
+
     def aligned_map(self, settings: Settings | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(map points in the world frame, world_from_odom), by the same path as every other cloud
         (`pipeline.to_world`), with gravity from the frames when they carried it. Raises ValueError when no
