@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from affordcore.geometry.features import FeatureLayout
-from affordcore.learn.model import AffordanceModel, ModelError, load_model
+from affordcore.learn.model import KEPT_TEXTS, AffordanceModel, ModelError, load_model
 
 
 def _model(layout: FeatureLayout) -> AffordanceModel:
@@ -133,4 +133,4 @@ def test_a_model_s_id_follows_a_replaced_place_model_and_rescorer_and_keeps_the_
     model.place_model = None
     assert model.id == load_model(model.save(tmp_path / "o.json")).id
     sent = pickle.loads(pickle.dumps(model))  # to a worker process: the same model, without the kept texts
-    assert "_dumped_dicts" not in vars(sent) and sent.id == model.id
+    assert not set(KEPT_TEXTS) & set(vars(sent)) and sent.id == model.id

@@ -40,6 +40,13 @@ class ModelError(ValueError):
     """A model file that cannot be used here; the message names the file and the problem."""
 
 
+KEPT_TEXTS = ("_rescorer_json", "_place_json")  # the id's serialised documents, kept beside the model
+
+
+def _json(document) -> str:
+    return json.dumps(document, sort_keys=True)
+
+
 @dataclass
 class AffordanceModel:
     affordance: str
@@ -80,12 +87,13 @@ class AffordanceModel:
     @property
     def id(self) -> str:
         """affordance/learner/hash of the weights: names exactly this model in the maps it makes."""
-        # ids of models without a floor or a place model unchanged
-        floor = [] if self.place_floor is None else [self.place_floor]
-        floor += [] if self.place_model is None else [self.place_model]
-        # json.dumps of the list, item by item (the same text): the trees' item is serialised once per dict
-        items = ", ".join(self._dumped(item) for item in [self.place_threshold, self.rescorer, *floor])
-        second = f"[{items}]" + (self.place_reference or "")
+        # json.dumps([place_threshold, rescorer, floor?, place_model?]) item by item, the same text (ids of
+        # models without a floor or a place model unchanged); the documents' texts are kept (`_made_from`):
+        # the rescorer's tree nodes take tens of ms to serialise, and every map names its model
+        items = [json.dumps(self.place_threshold), self._made_from("_rescorer_json", self.rescorer, _json)]
+        items += [] if self.place_floor is None else [json.dumps(self.place_floor)]
+        items += [] if self.place_model is None else [self._made_from("_place_json", self.place_model, _json)]
+        second = f"[{', '.join(items)}]" + (self.place_reference or "")
         digest = hashlib.sha256(
             np.asarray(self.weights, dtype=np.float64).tobytes()
             + repr((self.bias, self.threshold)).encode()
@@ -97,23 +105,17 @@ class AffordanceModel:
         )
         return f"{self.affordance}/{self.learner}/{digest.hexdigest()[:12]}"
 
-    def _dumped(self, item) -> str:
-        """json.dumps(item, sort_keys=True); a dict's text is kept while the model holds that dict (the
-        rescorer's thousands of tree nodes take tens of ms, and every map names its model). The rescorer and
-        the place model are replaced, never changed in place."""
-        if not isinstance(item, dict):
-            return json.dumps(item, sort_keys=True)
-        kept = self.__dict__.setdefault("_dumped_dicts", {})  # not a field: asdict and save leave it out
-        if id(item) not in kept:
-            held = {id(self.rescorer), id(self.place_model)}
-            for gone in [key for key in kept if key not in held]:  # dicts the model no longer holds
-                del kept[gone]
-            kept[id(item)] = (item, json.dumps(item, sort_keys=True))  # held, so the id is not reused
-        return kept[id(item)][1]
+    def _made_from(self, slot: str, document, make):
+        """`make(document)`, made once while the model holds that document (kept with it in `slot`): a model
+        given a new one (a refit) answers with the new one's."""
+        made = self.__dict__.get(slot)
+        if made is None or made[0] is not document:
+            made = self.__dict__[slot] = (document, make(document))
+        return made[1]
 
     def __getstate__(self) -> dict:
-        """Pickled (to worker processes) without the kept texts: the fields are the model."""
-        return {k: v for k, v in self.__dict__.items() if k != "_dumped_dicts"}
+        """Pickled (to worker processes) without the kept JSON texts (1.3 MB): the fields are the model."""
+        return {k: v for k, v in self.__dict__.items() if k not in KEPT_TEXTS}
 
     def as_skeleton(self) -> Skeleton:
         """The skeleton the model was trained with (maps place it, not whatever skeleton file is installed
@@ -151,10 +153,7 @@ class AffordanceModel:
         once per `place_model` document: a model given a new one (a refit) answers with the new one."""
         if not self.place_model:
             return None
-        made = self.__dict__.get("_places")
-        if made is None or made[0] is not self.place_model:
-            made = self.__dict__["_places"] = (self.place_model, PlaceModel.from_dict(self.place_model))
-        return made[1]
+        return self._made_from("_places", self.place_model, PlaceModel.from_dict)
 
     @cached_property
     def trees(self) -> TreeEnsemble | None:
