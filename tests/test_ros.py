@@ -634,9 +634,16 @@ def ros_stream(sequence, indices, start: float, period: float, frame_id: str = "
         stamp = start + k * period
         sec, nanosec = int(stamp), int(round((stamp - int(stamp)) * 1e9)) % 1_000_000_000
         cloud = cloud_message(organised_cloud(sequence, index), sec=sec, nanosec=nanosec, frame_id=frame_id)
-        down = sequence.gravity(index)
-        imu = imu_message(-G * down, sec=sec, nanosec=nanosec, frame_id=frame_id)
-        yield stamp, cdr(cloud), cdr(imu, ros.IMU)
+        yield stamp, cdr(cloud), imu_reading(sequence, index, stamp, frame_id)
+
+
+def imu_reading(sequence, index: int, stamp: float, frame_id: str = "camera_depth_optical_frame") -> bytes:
+    """What a level IMU on the camera reads at the frame (the specific force: g up, i.e. -g times gravity's
+    direction in the camera frame), as an Imu CDR stamped `stamp`."""
+    sec, nanosec = int(stamp), int(round((stamp - int(stamp)) * 1e9)) % 1_000_000_000
+    return cdr(
+        imu_message(-G * sequence.gravity(index), sec=sec, nanosec=nanosec, frame_id=frame_id), ros.IMU
+    )
 
 
 def odometry_reading(sequence, index: int, stamp: float, child: str = "camera_depth_optical_frame") -> bytes:
@@ -705,12 +712,24 @@ def test_a_ros2_robot_on_rmw_zenoh_keys_gets_affordance_maps(generated_sequence,
             assert eventually_matched(points) and eventually_matched(imu) and eventually_matched(odom), (
                 stack.logs()
             )
-            began = time.monotonic()
-            for k, (stamp, cloud, reading) in enumerate(ros_stream(sequence, indices, time.time(), 1 / 30)):
-                imu.put(reading)  # the IMU's reading just before the cloud, as at 200 Hz
-                odom.put(odometry_reading(sequence, indices[k], stamp))
+            start, began = time.time(), time.monotonic()
+            stamps = [start + k / 30 for k in range(len(indices))]
+            # The IMU and the odometry lead the camera by a frame, as a 200 Hz IMU and a 50 Hz odometry do
+            # beside a driver's clouds: zenoh keeps no order between keys, so a reading put just before its
+            # cloud may reach the assembler after it (the first cloud then has no gravity at all).
+            readings = [
+                (imu_reading(sequence, i, s), odometry_reading(sequence, i, s))
+                for i, s in zip(indices, stamps)
+            ]
+            imu.put(readings[0][0])
+            odom.put(readings[0][1])
+            time.sleep(1 / 30)
+            for k, (_, cloud, _) in enumerate(ros_stream(sequence, indices, start, 1 / 30)):
+                if k + 1 < len(readings):
+                    imu.put(readings[k + 1][0])
+                    odom.put(readings[k + 1][1])
                 points.put(cloud)
-                time.sleep(max(0.0, began + (k + 1) / 30 - time.monotonic()))  # a 30 Hz camera
+                time.sleep(max(0.0, began + (k + 2) / 30 - time.monotonic()))  # a 30 Hz camera
             list(session.get(Keys(stack.robot).key("status", "*"), timeout=10.0))  # behind the samples
         finally:
             session.close()
