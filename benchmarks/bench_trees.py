@@ -1,14 +1,16 @@
 """The cascade's second stage on the 10 m benchmark room: the features of the poses it rescores, and the walk
-of its trees over them at several chunk sizes (rows walked at once), every shipped model.
+of its trees over them (`TreeEnsemble.log_odds`, compiled by numba), every shipped model.
 
-The walk of 450 trees is the largest single cost of `afford map` by cProfile (docs/maps.md, "Speed"), so it
-is measured here on its own, side by side in one process: the same rows, every walk in turn within each
-repeat, CPU seconds (medians), and the scores compared to the bit. With ``--old PATH`` (a git worktree of an
-earlier commit) that commit's walk runs beside this one's: its `affordcore/learn/trees.py` is loaded as a
-module of its own (the file imports nothing of the project) and reads the same model documents.
+The walk of 450 trees is one of the largest costs of a map (docs/maps.md, "Speed"), so it is measured here on
+its own, side by side in one process: the same rows, every walk in turn within each repeat, CPU seconds
+(medians; numba's compilation done before), and the largest difference from this commit's scores. The walks:
+this commit's over the complete layout, and over the node tables (the kernel for trees too deep for that
+layout); with ``--old PATH`` (a git worktree of an earlier commit) that commit's walk too: its
+`affordcore/learn/trees.py` is loaded as a module of its own and reads the same model documents (for commits
+before numba, whose file imports nothing of the project).
 
     .venv/bin/python benchmarks/bench_trees.py               # about a minute on 2 cores
-    .venv/bin/python benchmarks/bench_trees.py --old /tmp/old-afford --chunks 512,1024 --repeats 9
+    .venv/bin/python benchmarks/bench_trees.py --old /tmp/old-afford --repeats 9
 """
 
 from __future__ import annotations
@@ -18,7 +20,6 @@ import os
 import statistics
 import sys
 import time
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -59,11 +60,11 @@ def old_ensemble_class(worktree: str):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--chunks", default="256,512,1024,2048", help="rows walked at once, comma-separated")
     parser.add_argument("--old", help="a worktree of the commit whose walk runs beside this one's")
     args = parser.parse_args()
     from affordcore.geometry.gravity import align_to_gravity
     from affordcore.learn.model import load_model, shipped_models
+    from affordcore.learn.trees import TreeEnsemble, compile_walk
     from affordcore.mapping.pipeline import prepare_scene
     from affordcore.settings import Settings
 
@@ -71,38 +72,39 @@ def main() -> None:
     cloud = room_cloud()
     alignment = align_to_gravity(cloud.points, "auto", settings.gravity)
     scene = prepare_scene(cloud.transformed(alignment.world_from_input), settings, "none")
-    chunks = [None] + [int(c) for c in args.chunks.split(",") if c]
-    names = ["default"] + [f"{c} rows" for c in chunks[1:]] + (["old commit"] if args.old else [])
     old = old_ensemble_class(args.old) if args.old else None
+    names = ["complete layout", "node tables"] + (["old commit"] if old else [])
     print(
         f"the second stage on the 10 m benchmark room, {os.cpu_count()} cores, {args.repeats} repeats, CPU "
-        "seconds (medians); 'default' is `TreeEnsemble.log_odds` with its own chunk"
-        + (f", 'old commit' the same at {args.old}" if args.old else "")
+        "seconds (medians)" + (f"; 'old commit' is the walk at {args.old}" if old else "")
     )
     walks = " | ".join(f"walk, {n} s" for n in names)
-    print(f"| model | rows x trees | features s | {walks} | same scores |")
-    print("|---|---|---:|" + "---:|" * len(names) + "---|")
+    print(f"| model | rows x trees | features s | {walks} | largest difference |")
+    print("|---|---|---:|" + "---:|" * len(names) + "---:|")
+    compile_walk()
     for model in (load_model(path) for path in shipped_models().values()):
         trees = model.trees
         if trees is None:
             continue
         rows, features = rescored_rows(scene, model, settings)
-        reference = trees.log_odds(rows)
-        walks = [partial(trees.log_odds, rows, chunk=chunk) for chunk in chunks]
+        tables = TreeEnsemble.from_dict(model.rescorer["trees"])
+        tables.__dict__["_complete"] = None  # the cached layout: none, so the node tables are walked
+        walks = [trees.log_odds, tables.log_odds]
         if old is not None:
-            walks.append(partial(old.from_dict(model.rescorer["trees"]).log_odds, rows))
+            walks.append(old.from_dict(model.rescorer["trees"]).log_odds)
+        reference = trees.log_odds(rows)
         seconds = {name: [] for name in names}
-        same = True
+        difference = 0.0
         for _ in range(args.repeats):
             for name, walk in zip(names, walks, strict=True):
                 start = time.process_time()
-                scores = walk()
+                scores = walk(rows)
                 seconds[name].append(time.process_time() - start)
-                same &= bool(np.array_equal(scores, reference))
+                difference = max(difference, float(np.abs(scores - reference).max()))
         walks = " | ".join(f"{statistics.median(seconds[n]):.3f}" for n in names)
         print(
             f"| {model.affordance} | {len(rows):,} x {len(trees.roots)} | {features:.2f} | {walks} | "
-            f"{'yes' if same else 'NO'} |"
+            f"{difference:.1e} |"
         )
 
 

@@ -25,7 +25,7 @@ def boosted():
 def test_stored_trees_score_as_scikit_learn(boosted):
     model, X = boosted
     trees = TreeEnsemble.from_dict(TreeEnsemble.from_sklearn(model).to_dict())
-    np.testing.assert_allclose(trees.log_odds(X, chunk=700), model.decision_function(X), atol=1e-9)
+    np.testing.assert_allclose(trees.log_odds(X), model.decision_function(X), atol=1e-9)
     # NaN follows each split's missing-value side, as scikit-learn's does
     X_nan = X[:50].copy()
     X_nan[::3, 0] = np.nan
@@ -52,7 +52,7 @@ def test_the_complete_layout_reaches_the_leaves_the_node_tables_reach(boosted, m
     rows = np.concatenate([rows, X])
     rows[::7, 1] = np.nan
     for sample in (rows, rows.astype(np.float64)):
-        np.testing.assert_array_equal(complete.log_odds(sample, chunk=333), tables.log_odds(sample))
+        np.testing.assert_array_equal(complete.log_odds(sample), tables.log_odds(sample))
     np.testing.assert_allclose(complete.log_odds(rows), model.decision_function(rows), atol=1e-9)
 
 

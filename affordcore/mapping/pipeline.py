@@ -137,11 +137,14 @@ def prepare_scene(
 def preload() -> None:
     """Import now what the fields and the maps import when first needed (scipy's ndimage and spatial, the
     scoring modules: 0.3-1 s on a busy 2-core machine), so that a service's first answer does not wait for
-    it, and workers forked afterwards share it."""
+    it, and workers forked afterwards share it; and compile the second stage's tree walk."""
     import scipy.ndimage  # noqa: F401
     import scipy.spatial  # noqa: F401
 
+    from ..learn.trees import compile_walk
     from . import inference, maps, places, updates  # noqa: F401
+
+    compile_walk()
 
 
 def map_affordances(
