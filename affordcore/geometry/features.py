@@ -213,33 +213,26 @@ def features_at(
     grid: PoseGrid,
     layout: FeatureLayout,
     index: np.ndarray,
-    chunk: int = 2048,
 ) -> np.ndarray:
     """Features of the given poses only (flat grid indices), (len(index), n_features) float32, rows in the
     order given: the same values as the grid's rows from `iter_features` (normals rotated and cells summed
     after the read rather than before, so equal up to float32 rounding).
 
     For the second stage and for sampled training sets, so the cost follows the number of poses asked for,
-    not the grid. Every read is one gather over all poses at once: the bilinear corners and weights of each
-    joint and normal sample depend only on the pose's theta, so they are tabled per theta; the fields,
-    interpolated in z once per torso height that has a pose, are stacked by level and read at flat indices.
-    Poses go `chunk` at a time: the gathers of a chunk (four corners of every normal sample of every pose)
-    stay in the cache, where larger chunks stream them through memory."""
+    not the grid. The bilinear corners and weights of each joint and normal sample depend only on the pose's
+    theta, so they are tabled per theta; the fields, interpolated in z once per torso height that has a pose,
+    are stacked by level, and a compiled kernel reads each pose's row from them (`pose_reads`)."""
     index = np.asarray(index, dtype=np.int64).ravel()
     if len(index) and (index.min() < 0 or index.max() >= grid.size):
         raise IndexError(f"pose indices must lie in [0, {grid.size}) for this grid")
-    out = np.empty((len(index), layout.n_features), dtype=np.float32)
     if not len(index):
-        return out
+        return np.empty((0, layout.n_features), dtype=np.float32)
     sampler = _SlabSampler(fields, grid, layout)
     iz, it, ix, iy = np.unravel_index(index, grid.shape)
     z_used, level_of = np.unique(iz, return_inverse=True)
     theta_used, theta_of = np.unique(it, return_inverse=True)
     reader = _PoseReader(sampler, skeleton, [grid.z[z] for z in z_used], grid.theta[theta_used])
-    for start in range(0, len(index), chunk):
-        rows = slice(start, start + chunk)
-        out[rows] = reader.features(level_of[rows], theta_of[rows], ix[rows], iy[rows])
-    return out
+    return reader.features(level_of, theta_of, ix, iy)
 
 
 class _PoseReader:
@@ -267,35 +260,21 @@ class _PoseReader:
         self.sample_corners = _corner_table(sampler, sample_xy)
 
     def features(self, level: np.ndarray, theta: np.ndarray, ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
-        n_joints, layout = len(JOINTS), self.layout
-        base = level * self.per_level + (ix * self.stride) * self.columns + iy * self.stride  # (n,)
-        out = np.empty((len(base), layout.n_features), dtype=np.float32)
-        joint_of = np.arange(n_joints)
-        out[:, :n_joints] = self._read("distance", self.joint_corners, base, theta, joint_of)
-        out[:, n_joints : 2 * n_joints] = self._read("occupancy", self.joint_corners, base, theta, joint_of)
-        samples = self._read("normals", self.sample_corners, base, theta)  # (n, samples, cells in z * 3)
-        cells, per_cell = layout.cells_per_axis, layout.samples_per_cell
-        cube = samples.reshape(len(base), cells, per_cell, cells, per_cell, cells, 3).mean(axis=(2, 4))
-        # n_skeleton = R^T n_world; for row vectors that is n_world @ R
-        cube = np.matmul(cube.reshape(len(base), -1, 3), self.rotations[theta])
-        out[:, 2 * n_joints :] = cube.reshape(len(base), -1)
-        return out
+        from .pose_reads import read_rows
 
-    def _read(
-        self, name: str, corners: tuple, base: np.ndarray, theta: np.ndarray, column=None
-    ) -> np.ndarray:
-        """Bilinear reads at every offset of a corner table, (n, offsets) for a per-joint field (`column`:
-        the field column each offset reads) or (n, offsets, values) for the normals."""
-        offsets, weights = corners  # (T, offsets, 4) row offsets, (T, offsets, 4) float32 weights
-        field = self.fields[name]
-        total = None
-        for corner in range(4):
-            rows = base[:, None] + offsets[theta, :, corner]  # (n, offsets)
-            values = field[rows, column] if column is not None else field[rows]
-            weight = weights[theta, :, corner]
-            term = values * (weight if column is not None else weight[..., None])
-            total = term if total is None else total + term
-        return total
+        base = level * self.per_level + (ix * self.stride) * self.columns + iy * self.stride  # (n,)
+        out = np.empty((len(base), self.layout.n_features), dtype=np.float32)
+        read_rows(
+            base, theta, self.fields["distance"], self.fields["occupancy"], self.fields["normals"],
+            *self.joint_corners, *self.sample_corners, self.layout.cells_per_axis,
+            self.layout.samples_per_cell, out,
+        )  # fmt: skip
+        # n_skeleton = R^T n_world; for row vectors that is n_world @ R (numpy's matmul, as the grid's slabs)
+        normals = out[:, 2 * len(JOINTS) :]
+        normals[:] = np.matmul(normals.reshape(len(base), -1, 3), self.rotations[theta]).reshape(
+            len(base), -1
+        )
+        return out
 
 
 def _corner_table(sampler: _SlabSampler, offsets_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -465,3 +444,15 @@ class _Slab:
         if per_cell > 1:
             normal_block *= np.float32(1.0 / per_cell**2)
         return out.reshape(n_rows * ny, layout.n_features)
+
+
+def compile_reads() -> None:
+    """Compile `features_at`'s kernel now (or read it from numba's cache), with the argument types its reads
+    pass, so that a service's first map does not wait for it and the workers it forks afterwards share it."""
+    from .pose_reads import read_rows
+
+    index, table = np.zeros(1, np.int64), np.zeros((1, 1, 4), np.int64)
+    field, weights = np.zeros((4, 3), np.float32), np.zeros((1, 1, 4), np.float32)
+    read_rows(
+        index, index, field, field, field, table, weights, table, weights, 1, 1, np.zeros((1, 5), np.float32)
+    )
