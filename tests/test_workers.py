@@ -115,3 +115,19 @@ def test_worker_count():
     assert mapping_workers(3, asked=1) == 1
     assert mapping_workers(3, asked=5) == 3
     assert 1 <= mapping_workers(3) <= 3
+
+
+def test_preload_compiles_the_kernels_a_map_calls(room):
+    """Workers are forked after `preload`: if it compiled the second stage's kernels for other argument types
+    than the maps pass, every worker would compile them again at its first map (about a second each)."""
+    from affordcore.geometry import pose_reads
+    from affordcore.learn import tree_walk
+    from affordcore.mapping.pipeline import preload
+
+    scene, models, settings = room
+    preload()
+    kernels = (pose_reads.read_rows, tree_walk.walk_complete)
+    compiled = [len(kernel.signatures) for kernel in kernels]
+    assert all(compiled)
+    RoomMapper(models, scene.layout, settings).maps(scene.fields)
+    assert [len(kernel.signatures) for kernel in kernels] == compiled
