@@ -269,11 +269,15 @@ class _PoseReader:
             *self.joint_corners, *self.sample_corners, self.layout.cells_per_axis,
             self.layout.samples_per_cell, out,
         )  # fmt: skip
-        # n_skeleton = R^T n_world; for row vectors that is n_world @ R (numpy's matmul, as the grid's slabs)
+        # n_skeleton = R^T n_world; for row vectors that is n_world @ R (numpy's matmul, as the grid's slabs),
+        # a block of rows at a time so that its temporaries stay small however many poses are asked for
         normals = out[:, 2 * len(JOINTS) :]
-        normals[:] = np.matmul(normals.reshape(len(base), -1, 3), self.rotations[theta]).reshape(
-            len(base), -1
-        )
+        for start in range(0, len(base), ROTATED_ROWS):
+            rows = slice(start, start + ROTATED_ROWS)
+            block = normals[rows]
+            block[:] = np.matmul(block.reshape(len(block), -1, 3), self.rotations[theta[rows]]).reshape(
+                len(block), -1
+            )
         return out
 
 
@@ -290,6 +294,7 @@ def _corner_table(sampler: _SlabSampler, offsets_xy: np.ndarray) -> tuple[np.nda
 
 
 CORNERS = ((0, 0), (1, 0), (0, 1), (1, 1))  # bilinear corners, in the order their terms are summed
+ROTATED_ROWS = 4096  # `features_at` turns the normals of this many rows at a time
 
 
 class _SlabSampler:

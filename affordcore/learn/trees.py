@@ -136,9 +136,7 @@ class _Complete:
     above the last level fills its whole subtree (the node tables' leaves point back at themselves, so
     both of its children are itself), and a node the tables leave unsplit at the depth holds 0 as there."""
 
-    feature: (
-        np.ndarray
-    )  # int32 split features (0 at a carried-down leaf: either side leads to the same value)
+    feature: np.ndarray  # int32 (0 at a carried-down leaf: either side leads to the same value)
     threshold32: np.ndarray  # float32: each threshold as the largest float32 at or below it, for float32 rows
     threshold64: np.ndarray  # float64: the thresholds themselves, for float64 rows
     missing_left: np.ndarray  # bool
