@@ -59,7 +59,7 @@ def voxel_states(
     for origin in spread_origins(origins, settings.max_origins):  # a few dozen at most
         image = _range_image(surface - origin, lattice.resolution, settings.angular_step)
         offsets = [axis - np.float32(o) for axis, o in zip(axes, origin)]
-        free |= _in_front(offsets, image, settings.angular_step, lattice.resolution)
+        _in_front(offsets, image, settings.angular_step, lattice.resolution, free)
     state[free & ~occupied] = FREE
     return state
 
@@ -95,10 +95,11 @@ def _range_image(offsets: np.ndarray, resolution: float, step: float) -> np.ndar
     nearest neighbour's range."""
     from scipy import ndimage
 
+    from .range_images import draw_outlines
+
     n_el, n_az = _bins(step)
-    bins, distance = _outlines(offsets, resolution, step)
     image = np.full(n_el * n_az, np.inf)
-    np.minimum.at(image, bins, distance)
+    draw_outlines(*_outlines(offsets, resolution, step), n_az, image)
     image = image.reshape(n_el, n_az)
     gaps = np.isinf(image)
     near = ndimage.minimum_filter(image, size=3, mode=("nearest", "wrap"))
@@ -107,13 +108,12 @@ def _range_image(offsets: np.ndarray, resolution: float, step: float) -> np.ndar
     return image
 
 
-def _outlines(offsets: np.ndarray, resolution: float, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """Every bin (flat index into the range image) each surface voxel's outline covers as the sensor sees it,
-    and the range of the voxel for each: the bins within `_SPLAT_HALF_WIDTH` voxels of its centre across the
-    line of sight, in elevation (that width at its range) and in azimuth (at its distance in plan, so a
-    voxel under the sensor spans many azimuth bins). Bins are worked out per voxel, not per sample point:
-    one rectangle of rows and columns each, expanded without a loop."""
-    n_el, n_az = _bins(step)
+def _outlines(offsets: np.ndarray, resolution: float, step: float) -> tuple[np.ndarray, ...]:
+    """The rectangle of range-image bins each surface voxel's outline covers as the sensor sees it (first
+    row, rows, first column, columns; columns wrap round), and the voxel's range: the bins within
+    `_SPLAT_HALF_WIDTH` voxels of its centre across the line of sight, in elevation (that width at its
+    range) and in azimuth (at its distance in plan, so a voxel under the sensor spans many azimuth bins)."""
+    n_el = _bins(step)[0]
     per_bin = 1.0 / np.radians(step)
     x, y, z = offsets.T
     across = np.hypot(x, y)
@@ -127,12 +127,7 @@ def _outlines(offsets: np.ndarray, resolution: float, step: float) -> tuple[np.n
     rows = np.clip(np.floor(row + half_row), 0, n_el - 1).astype(np.int64) - first_row + 1
     first_column = np.floor(column - half_column).astype(np.int64)
     columns = np.floor(column + half_column).astype(np.int64) - first_column + 1
-    count = rows * columns
-    owner = np.repeat(np.arange(len(count)), count)
-    k = np.arange(owner.size) - np.repeat(np.cumsum(count) - count, count)  # a bin's place in its rectangle
-    width = columns[owner]
-    bins = (first_row[owner] + k // width) * n_az + (first_column[owner] + k % width) % n_az
-    return bins, distance[owner]
+    return first_row, rows, first_column, columns, distance
 
 
 @functools.lru_cache(maxsize=4)
@@ -144,18 +139,19 @@ def _elevation_rows(step: float) -> np.ndarray:
     return np.minimum(rows, _bins(step)[0] - 1).astype(np.int16)
 
 
-def _in_front(offsets: list[np.ndarray], image: np.ndarray, step: float, resolution: float) -> np.ndarray:
-    """(nx, ny, nz): whether each voxel centre of the lattice whose centres lie at the offsets (x, y, z, one
-    array per axis) from the sensor is a voxel or more in front of the surface the range image holds in its
-    direction. A voxel column shares its plan distance and azimuth: those are worked out once per column."""
+def _in_front(
+    offsets: list[np.ndarray], image: np.ndarray, step: float, resolution: float, free: np.ndarray
+) -> None:
+    """Marks in `free` (nx, ny, nz) each voxel centre of the lattice whose centres lie at the offsets (x, y,
+    z, one array per axis) from the sensor that is a voxel or more in front of the surface the range image
+    holds in its direction. A voxel column shares its plan distance and azimuth: those are worked out once
+    per column."""
+    from .range_images import mark_in_front
+
     x, y, z = offsets
     across, column = _plan(x[:, None], y[None, :], step)
-    across = across[:, :, None]
-    distance = np.sqrt(across * across + z * z)
     to_table = np.float32((_SINE_TABLE - 1) / 2)
-    sine = z / np.maximum(distance, np.float32(1e-6))
-    row = _elevation_rows(step)[((sine + 1) * to_table).astype(np.int32)]
-    return distance + resolution <= image[row, column[:, :, None]]
+    mark_in_front(across, column, z, image, _elevation_rows(step), to_table, np.float32(resolution), free)
 
 
 def seen_share(state: np.ndarray, lattice: VoxelLattice, low: float, high: float) -> np.ndarray:
@@ -183,3 +179,11 @@ def body_seen(fields: SceneFields, x: np.ndarray, y: np.ndarray, settings: Visib
     # beyond the lattice nothing was seen: the disc's mean counts it as unseen
     share = ndimage.convolve(share, footprint / footprint.sum(), mode="constant", cval=0.0)
     return at_columns(share, lattice, x, y)
+
+
+def compile_range_images() -> None:
+    """Compile the range images' kernels now (or read them from numba's cache) on a lattice of one occupied
+    voxel, with the argument types `voxel_states` passes, so that a service's first fields do not wait."""
+    occupancy = np.zeros((3, 3, 3), np.uint8)
+    occupancy[1, 1, 1] = 1
+    voxel_states(occupancy, VoxelLattice(np.zeros(3), 0.1, (3, 3, 3)), np.array([[0.0, 0.0, 0.1]]))
