@@ -170,9 +170,9 @@ class _Complete:
 
 
 def compile_walk() -> None:
-    """Compile the trees' walk for float32 and float64 rows now (or read it from numba's cache: 0.3-0.5 s with
-    numba's import, a few seconds the first time), so that a service's first map does not wait for it and
-    the workers it forks afterwards share it."""
+    """Compile the trees' walk for float32 and float64 rows now (or read it from numba's cache; docs/maps.md
+    says what it costs), so that a service's first map does not wait for it and the workers it forks
+    afterwards share it."""
     stump = TreeEnsemble.from_dict(
         {
             "baseline": 0.0,
