@@ -37,13 +37,9 @@ class InferenceService:
         return super().__new__(cls)
 
     def __init__(self, node: Node):
-        self.node, self.models = node, node.models
-        self.ids = {model.affordance: model.id for model in self.models}  # once: an id serialises the trees
-        self.layout = FeatureLayout.from_settings(node.settings)
+        self._take_models(node)
         # the robot's room, updated; scored in worker processes when the registry forked them
         self.mapper = getattr(node, "mapper", None) or RoomMapper(self.models, self.layout, node.settings)
-        preload()  # now, not when the first fields arrive
-        preload_recording()  # the first map's logging imports matplotlib's colours
         self.inbox = node.inbox(latest_only=True)
         # a newer map reaching the features service, or newer fields arriving, while maps are made supersede
         # them: the maps in hand are given up, except right after a call given up, so that at least every
@@ -59,6 +55,14 @@ class InferenceService:
             node.answer_latest(node.keys.affordance(model.affordance))
         self.ros = ros_output(node, self.models, node.keys.robot)
         node.fetch_latest(node.keys.fields, self.inbox)  # fields published before this service (re)started
+
+    def _take_models(self, node: Node) -> None:
+        """What every inference service holds of its models, and loads before the first fields arrive."""
+        self.node, self.models = node, node.models
+        self.ids = {model.affordance: model.id for model in self.models}  # once: an id serialises the trees
+        self.layout = FeatureLayout.from_settings(node.settings)
+        preload()  # the scoring modules and the second stage's kernels, now
+        preload_recording()  # the first map's logging imports matplotlib's colours
 
     def run(self) -> None:
         self.node.run(self.inbox, self.handle, on_stop=self._ros_summary)
@@ -155,9 +159,8 @@ class ShardedInference(InferenceService):
     owner answers a late `get` (afford watch) even for maps a worker now gone published."""
 
     def __init__(self, node: Node):
-        self.node, self.models, self.keys = node, node.models, node.keys
-        self.ids = {model.affordance: model.id for model in self.models}  # once: an id serialises the trees
-        self.layout = FeatureLayout.from_settings(node.settings)
+        self._take_models(node)
+        self.keys = node.keys
         service = node.settings.service
         self.inbox = KeyedInbox(service.max_queue, service.max_queue_bytes)
         self.maps = LatestOutputs()
@@ -165,8 +168,6 @@ class ShardedInference(InferenceService):
         self.robots: set[str] = set()  # every robot whose fields or maps this worker has seen
         self.recordings: dict[str, object] = {}
         self.mappers: dict[str, RoomMapper] = {}  # each robot's room, updated as its fields come
-        preload()
-        preload_recording()
         self.recovered = 0  # inputs fetched again because a worker left
         self._lock = threading.Lock()
         self.members = Membership(self.keys.worker, self._on_members)
