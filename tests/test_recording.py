@@ -311,3 +311,43 @@ def test_an_offline_recording_is_static_named_and_keeps_the_ceiling_out_of_the_f
     # the recording's id is its name: a person recognises it in the viewer
     ids = {(r.application_id, r.recording_id) for r in RrdReader(str(path)).recordings()}
     assert ("affordmap", "example-room map 2026-01-02 03:04:05") in ids
+
+
+def _eyes(path) -> list[list[float]]:
+    """The look target of the 3D eye of every blueprint the recording sent with one (the file's stores come in
+    no particular order)."""
+    reader, targets = RrdReader(str(path)), []
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store).to_chunks():
+            batch = chunk.to_record_batch()
+            if "EyeControls3D:look_target" in batch.schema.names:
+                targets.append(batch.column("EyeControls3D:look_target").to_pylist()[-1][0])
+    return targets
+
+
+def test_the_view_is_framed_anew_when_a_robots_room_grows_beyond_it_and_not_for_every_map(tmp_path):
+    """A live robot's first map is of a corner of its room: a view framed on it alone shows the final room
+    cut off and from too close (docs/figures/recording-services.png once opened that way)."""
+
+    def floor_map(x_end: float, y_end: float):
+        grid = PoseGrid(
+            np.arange(0.05, x_end, 0.1), np.arange(0.05, y_end, 0.1), np.array([0.5]), np.zeros(1)
+        )
+        return build_map(
+            "sitting-relaxing",
+            np.full(grid.shape, -3.0, np.float32),
+            grid,
+            get_skeleton("sitting-relaxing"),
+            threshold=0.1,
+        )
+
+    path = tmp_path / "live.rrd"
+    recording = open_recording(path, ["sitting-relaxing"])
+    for stamp, (x_end, y_end) in enumerate([(1.0, 1.0), (1.3, 1.2), (4.0, 3.0), (4.2, 3.1)]):
+        set_time(recording, float(stamp))
+        log_map(recording, floor_map(x_end, y_end))
+    close_recording(recording)
+    eyes = sorted(np.round(target[:2], 6).tolist() for target in _eyes(path))
+    # framed at the first map (on its middle) and once the floor reached 3 m beyond it (on the grown floor's);
+    # not for the maps within half a metre of the floor framed
+    assert eyes == [[0.5, 0.5], [2.0, 1.5]]

@@ -73,6 +73,7 @@ LEGEND_ROW_SHARE = 0.15  # of the room's span: the rows' spacing in a larger roo
 LEGEND_HEIGHT = 0.12  # m
 LEGEND_LABEL_GAP = 0.04  # m between a colour bar and its label below it
 LEGEND_STEPS = 64
+REFRAME_MARGIN = 0.5  # m a map's floor may reach beyond the one the view frames before it is framed anew
 TRAJECTORY_COLOR = (255, 255, 255)  # white: tab10 has no white, and a pale tint of a colour bar is not white
 SKELETON_RADIUS = 0.03
 TAB10_NAMES = ("blue", "orange", "green", "red", "purple", "brown", "pink", "grey", "olive", "cyan")
@@ -98,7 +99,7 @@ class _State:
     sections: dict[str, list[str]] = field(default_factory=dict)
     notes: dict[str, str] = field(default_factory=dict)  # under the table: what a lower probability would add
     timed: bool = False
-    framed: bool = False
+    framed: tuple[np.ndarray, np.ndarray, int] | None = None  # the floor's (low, high) (x, y) corners, bars
 
 
 def _state(recording) -> _State:
@@ -214,13 +215,22 @@ def legend_row(span: float) -> float:
 
 
 def _frame_room(recording, grid) -> None:
-    """Once per recording, at its first map: make the default blueprint frame the map's floor (the pose
-    grid's) and the colour bars of the affordances it knows."""
+    """Make the default blueprint frame the map's floor (the pose grid's) and the colour bars of the
+    affordances it knows: at the first map, and again whenever a map's floor reaches more than
+    `REFRAME_MARGIN` beyond the floor framed (a robot's room grows as it walks: a view framed on its first
+    map would show the last one cut off, from too close) or an affordance's colour bar is new. Each framing
+    holds every floor framed before."""
     state = _state(recording)
-    if not state.framed:
-        room = (np.array([grid.x[0], grid.y[0]]), np.array([grid.x[-1], grid.y[-1]]), len(state.affordances))
-        recording.send_blueprint(blueprint(room), make_active=True, make_default=True)
-        state.framed = True
+    low, high = np.array([grid.x[0], grid.y[0]]), np.array([grid.x[-1], grid.y[-1]])
+    bars = len(state.affordances)
+    if state.framed is not None:
+        framed_low, framed_high, framed_bars = state.framed
+        grown = max((framed_low - low).max(), (high - framed_high).max()) > REFRAME_MARGIN
+        if not grown and bars == framed_bars:
+            return
+        low, high = np.minimum(low, framed_low), np.maximum(high, framed_high)
+    recording.send_blueprint(blueprint((low, high, bars)), make_active=True, make_default=True)
+    state.framed = (low, high, bars)
 
 
 def log_cloud(recording, points: np.ndarray, max_points: int = 2_000_000) -> None:
