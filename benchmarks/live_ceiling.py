@@ -112,7 +112,7 @@ class Scorer:
 def refined_keyframes(clouds: list[np.ndarray], poses: list[np.ndarray], voxel: float = 0.03) -> np.ndarray:
     """Keyframe poses (odom_from_sensor) after a pose graph over the keyframes' clouds (sensor frame):
     consecutive pairs as odometry edges, and every other pair within `PAIR_REACH` whose clouds overlap (a
-    third of one within the ICP's reach of the other) as a loop edge that the optimisation may prune
+    30 % of one's points within the ICP's reach of the other) as a loop edge that the optimisation may prune
     (open3d's multiway registration)."""
     import open3d as o3d
 
