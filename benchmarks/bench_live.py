@@ -464,7 +464,7 @@ def main() -> None:
     names = [m.affordance for m in models]
     loads = [int(v) for v in args.loads.split(",")]
     print(
-        f"Every {args.step}th frame at {args.rate:g} Hz, {os.cpu_count()} cores; places live / offline "
+        f"One frame in {args.step} at {args.rate:g} Hz, {os.cpu_count()} cores; places live / offline "
         "(found of labelled, + false skeletons; in brackets, found with DESIGN.md's loose tolerances, 0.3 m "
         "and 0.5 rad)\n"
     )

@@ -261,7 +261,7 @@ def main() -> None:
     models = [load_model(path) for path in shipped_models().values()]
     names = [m.affordance for m in models]
     print(
-        f"{os.cpu_count()} cores; every {args.step}th frame streamed; means over {args.shifts} grid "
+        f"{os.cpu_count()} cores; one frame in {args.step} streamed; means over {args.shifts} grid "
         "placements\n"
     )
     rows = []
