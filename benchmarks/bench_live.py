@@ -148,6 +148,17 @@ def offline(source: Source, settings: Settings, models: list) -> dict[str, tuple
 # -- where the live path could lose places ----------------------------------------------------------------
 
 
+def voxel_means(clouds: list[np.ndarray], poses, voxel: float) -> np.ndarray:
+    """Clouds (sensor frame) at their poses, made into one as the assembler's map step makes its map: the
+    mean of every point per `voxel` cell."""
+    from affordcore.assembly.voxelmap import VoxelMeans
+
+    voxel_map = VoxelMeans(voxel)
+    for cloud, pose in zip(clouds, poses):
+        voxel_map.add_points(cloud @ pose[:3, :3].T + pose[:3, 3])
+    return voxel_map.point_cloud()
+
+
 def where(source: Source, indices: list[int], settings: Settings, models: list) -> dict[str, dict]:
     """The same frames made into a room five ways, in this process (every frame taken), each mapped and
     scored: the live path's steps one at a time, from true poses and every pixel to the assembler's map."""
@@ -155,7 +166,6 @@ def where(source: Source, indices: list[int], settings: Settings, models: list) 
 
     from affordcore.assembly.assembler import Assembler, SensorFrame, within_range
     from affordcore.assembly.depth import DepthImage, back_project
-    from affordcore.assembly.voxelmap import VoxelMeans
     from affordcore.geometry.scene import Cloud
 
     sequence, a = read_sequence(source.sequence), settings.assembler
@@ -180,12 +190,6 @@ def where(source: Source, indices: list[int], settings: Settings, models: list) 
 
     def fused(clouds, poses):
         return np.vstack([c @ pose[:3, :3].T + pose[:3, 3] for c, pose in zip(clouds, poses)])
-
-    def means(clouds, poses):  # the assembler's map step, every frame a keyframe
-        voxel_map = VoxelMeans(a.map_voxel)
-        for cloud, pose in zip(clouds, poses):
-            voxel_map.add_points(cloud @ pose[:3, :3].T + pose[:3, 3])
-        return voxel_map.point_cloud()
 
     labels = load_labels(source.room.with_suffix(".labels.json"))
     room = load_cloud(source.room.with_suffix(".ply")).points
@@ -223,7 +227,7 @@ def where(source: Source, indices: list[int], settings: Settings, models: list) 
             voxel_down_sample(fused(blocks, truth), a.map_voxel), np.eye(4)
         ),
         "true poses, the map's blocks (no depth edges), mean per map voxel": scored(
-            means(map_blocks, truth), np.eye(4)
+            voxel_means(map_blocks, truth, a.map_voxel), np.eye(4)
         ),
         "assembler's poses, every pixel": scored(fused(every_pixel, estimated), np.eye(4)),
         "assembler's map, as published": as_published,

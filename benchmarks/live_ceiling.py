@@ -39,12 +39,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_live import Source, add_source_arguments, icp, places, sources  # noqa: E402
+from bench_live import Source, add_source_arguments, icp, places, sources, voxel_means  # noqa: E402
 
 from affordcore.assembly.assembler import Assembler, SensorFrame, trajectory_errors, within_range  # noqa: E402
 from affordcore.assembly.depth import DepthImage, back_project  # noqa: E402
 from affordcore.assembly.sequence import read_sequence  # noqa: E402
-from affordcore.assembly.voxelmap import VoxelMeans  # noqa: E402
 from affordcore.geometry.scene import Cloud, load_cloud  # noqa: E402
 from affordcore.labels import load_labels  # noqa: E402
 from affordcore.learn.model import load_model, shipped_models  # noqa: E402
@@ -155,13 +154,6 @@ def refined_keyframes(clouds: list[np.ndarray], poses: list[np.ndarray], voxel: 
         option,
     )
     return np.array([node.pose for node in graph.nodes])
-
-
-def voxel_means(clouds: list[np.ndarray], poses, voxel: float) -> np.ndarray:
-    voxel_map = VoxelMeans(voxel)
-    for cloud, pose in zip(clouds, poses):
-        voxel_map.add_points(cloud @ pose[:3, :3].T + pose[:3, 3])
-    return voxel_map.point_cloud()
 
 
 def clouds_of(source: Source, step: int, settings: Settings) -> dict[str, tuple[Callable, np.ndarray, bool]]:
