@@ -263,6 +263,28 @@ def test_chairs_at_tables_are_pushed_in_to_varying_depths_pulled_out_turned_or_m
     assert min(pushed) < 0.05 and max(pushed) > 0.30 and len(set(pushed)) > 20  # continuous, not one depth
 
 
+def test_a_table_place_without_a_chair_keeps_its_space_but_carries_no_label():
+    """Nobody can sit where there is no chair (the real rooms label their chairs): such a place is no
+    positive, but nothing else may stand in its space either, so a chair could be brought."""
+    chairless = []
+    for kind, seed in [(kind, seed) for kind in ("office", "living") for seed in range(20)]:
+        room = generate_room(kind, np.random.default_rng(seed), f"{kind}-{seed}")
+        notes = [label["note"] for label in room.labels()["labels"]]
+        assert not any(note.endswith("; no chair") for note in notes)
+        for piece in room.pieces:
+            for anchor in piece.anchors:
+                assert anchor.labelled == (anchor.note != "no chair")
+                if not anchor.labelled:
+                    chairless.append((room, piece, anchor))
+                else:
+                    assert f"{piece.note}; {anchor.note}" in notes
+    assert len(chairless) >= 5
+    for room, piece, anchor in chairless:
+        others = [part for other in room.pieces if other is not piece for part in other.world_parts()]
+        free = [box.placed(piece.x, piece.y, piece.yaw) for box in anchor.clearance]
+        assert free and not any_overlap(free, others)
+
+
 def test_pushed_in_chairs_reach_under_the_top():
     under = 0
     for seed in range(20):

@@ -347,8 +347,9 @@ def dining_chair(rng: np.random.Generator) -> list[Box]:
     ]
 
 
-# How a place at a table is left (shares per place; DESIGN: the label does not depend on it). Real rooms have
-# most chairs pushed in (10 of the 11 in the two real rooms), some places without a chair.
+# How a place at a table is left (shares per place; DESIGN: the label does not depend on the chair's state,
+# but a place without a chair has none). Real rooms have most chairs pushed in (10 of the 11 in the two real
+# rooms), some places without a chair.
 CHAIR_STATES = {"pushed-in": 0.50, "pulled-out": 0.25, "turned": 0.13, "missing": 0.12}
 MAX_PULL = 0.45  # the farthest a pulled-out chair's seat front stands outside the table edge (m)
 STEP_BACK = 0.03  # a chair that hits something is drawn back this far at a time until it fits
@@ -401,22 +402,28 @@ def _deepest_push(chair: list[Box], underside: float) -> float:
 
 
 def _place_anchor(
-    edge_x: float, along: float, turn: float, note: str, torso_height: float | None = None
+    edge_x: float,
+    along: float,
+    turn: float,
+    note: str,
+    torso_height: float | None = None,
+    labelled: bool = True,
 ) -> Anchor:
-    """A place at a table edge at x = edge_x (table on the -x side): labelled where a person who pulled the
-    chair out would sit, 0.25 m outside the edge on the place's line, facing the table, whatever the chair's
-    state; turned by `turn` about the table's centre."""
+    """A place at a table edge at x = edge_x (table on the -x side): where a person who pulled the chair out
+    would sit, 0.25 m outside the edge on the place's line, facing the table, whatever the chair's state;
+    turned by `turn` about the table's centre. `labelled` False: a place without a chair (its space is kept
+    free, but nobody can sit there)."""
     label_x = edge_x + DESK_LABEL_OFFSET
     room = _free_space(edge_x + 0.05, edge_x + 0.75, along - 0.30, along + 0.30, 1.3)
-    anchor = Anchor(DESK_SEAT, (label_x, along), (label_x, along), np.pi, [room], note, torso_height)
+    at = (label_x, along)
+    anchor = Anchor(DESK_SEAT, at, at, np.pi, [room], note, torso_height, labelled)
     return _rotated_anchor(anchor, turn) if turn else anchor
 
 
 def desk(rng: np.random.Generator, place: bool = True, cluttered: bool = False) -> Piece:
-    """A desk against its back (-x) side with a monitor and clutter on top. With `place`, one labelled place
-    in front, its office chair in any of the CHAIR_STATES (missing included); without, nobody works there (no
-    chair, no label: a distractor, which the room program always clutters so that it does not look like a
-    place whose chair is missing)."""
+    """A desk against its back (-x) side with a monitor and clutter on top. With `place`, one place in front,
+    its office chair in any of the CHAIR_STATES (missing: no label); without, nobody works there (no chair,
+    no label, no space kept free: a distractor, which the room program clutters)."""
     length, depth, height = rng.uniform(1.1, 1.8), rng.uniform(0.60, 0.80), rng.uniform(0.70, 0.78)
     parts = table(rng, length, depth, height, _pick(rng, WOOD + LAMINATE[:2]))
     monitor_w = rng.uniform(0.45, 0.70)
@@ -494,11 +501,11 @@ def _add_chair(
     tries: int = 10,
     torso_height: float | None = None,
 ) -> Anchor:
-    """A labelled place at the edge (turned by `turn` about the table's centre) and its chair, added to
-    `parts` (whose first box is the top). A chair that hits something already there (the top, a leg, a
-    pedestal, a neighbour) is drawn back until it fits, as a real one stops where its armrests meet the top;
-    after `tries` draws in which it never fits, the place has no chair. Now and then the chair holds a bag or
-    a laptop: the place stays labelled (a person would move it)."""
+    """A place at the edge (turned by `turn` about the table's centre) and its chair, added to `parts`
+    (whose first box is the top). A chair that hits something already there (the top, a leg, a pedestal, a
+    neighbour) is drawn back until it fits, as a real one stops where its armrests meet the top; after
+    `tries` draws in which it never fits, the place has no chair (and no label). Now and then the chair holds
+    a bag or a laptop: the place stays labelled (a person would move it)."""
     state, push = "missing", 0.0
     # only what is near the place can stop its chair (a top, at most 2.6 m long, has its centre within 2 m)
     place = rot2(turn) @ (edge_x, along)
@@ -520,7 +527,9 @@ def _add_chair(
                 note = _chair_note(state, float(depth), fully and depth == push)
                 return _place_anchor(edge_x, along, turn, note, torso_height)
         state = "missing"
-    return _place_anchor(edge_x, along, turn, _chair_note(state, push), torso_height)
+    # a place without a chair is no place to sit as the room stands (real rooms label their chairs, DESIGN's
+    # pushed-in chair is a chair pulled out); labelled, it taught that a bare table edge is a seat
+    return _place_anchor(edge_x, along, turn, _chair_note(state, push), torso_height, labelled=False)
 
 
 def _rotated_anchor(anchor: Anchor, yaw: float) -> Anchor:
@@ -533,6 +542,7 @@ def _rotated_anchor(anchor: Anchor, yaw: float) -> Anchor:
         [box.placed(0, 0, yaw) for box in anchor.clearance],
         anchor.note,
         anchor.torso_height,
+        anchor.labelled,
     )
 
 

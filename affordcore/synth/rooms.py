@@ -88,7 +88,7 @@ class Room:
                 if region is not None:
                     regions.append({"polygon": region, "note": f"not scanned: {piece.note}"})
                     continue
-            labels += [_label(piece, anchor, roles) for anchor in piece.anchors if anchor.role in roles]
+            labels += [_label(piece, anchor, roles) for anchor in _labelled(piece, roles)]
         for piece in self.pieces:
             for rectangle in piece.unlabelled_seats:
                 region = self._region(piece, np.array(rectangle), SEAT_MARGINS)
@@ -108,11 +108,10 @@ class Room:
         roles = role_affordances()
         points = [np.zeros((0, 2))]
         for piece in self.pieces:
-            for anchor in piece.anchors if piece is not exclude else []:
-                if anchor.role in roles:
-                    start, end = piece.world_point(anchor.start), piece.world_point(anchor.end)
-                    steps = int(np.linalg.norm(end - start) / 0.02) + 2
-                    points.append(start + np.linspace(0, 1, steps)[:, None] * (end - start))
+            for anchor in _labelled(piece, roles) if piece is not exclude else []:
+                start, end = piece.world_point(anchor.start), piece.world_point(anchor.end)
+                steps = int(np.linalg.norm(end - start) / 0.02) + 2
+                points.append(start + np.linspace(0, 1, steps)[:, None] * (end - start))
         return np.vstack(points)
 
     def _region(self, piece: Piece, rectangle: np.ndarray, margins, exclude: Piece | None = None):
@@ -131,8 +130,11 @@ class Room:
     def unseen_pieces(self, points: np.ndarray) -> list[Piece]:
         """Labelled pieces of whose plan less than UNSEEN_SHARE shows any scanned point above 0.1 m."""
         above = points[points[:, 2] > 0.1, :2]
+        roles = role_affordances()
         return [
-            piece for piece in self.pieces if piece.anchors and plan_seen_share(piece, above) < UNSEEN_SHARE
+            piece
+            for piece in self.pieces
+            if _labelled(piece, roles) and plan_seen_share(piece, above) < UNSEEN_SHARE
         ]
 
 
@@ -146,6 +148,11 @@ SEAT_MARGINS = (0.30, 0.25, 0.20, 0.15, 0.10, 0.05, 0.0)
 UNSEEN_MARGINS = (0.15, 0.10, 0.05)
 LABEL_GAP = 0.05  # regions keep at least this far from any label
 UNSEEN_SHARE = 0.2  # a labelled piece with less of its plan seen than this is "not scanned"
+
+
+def _labelled(piece: Piece, roles: dict[str, str]) -> list:
+    """The piece's anchors that carry a label: of a role standing for an affordance, usable as it stands."""
+    return [anchor for anchor in piece.anchors if anchor.role in roles and anchor.labelled]
 
 
 def _label(piece: Piece, anchor, roles: dict[str, str]) -> dict:

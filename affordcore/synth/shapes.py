@@ -113,6 +113,9 @@ class Anchor:
     # The torso's height above the floor when this place is used, where the seat is not at the usual height
     # (a bar stool, a lounge chair); None: the skeleton's own torso height.
     torso_height: float | None = None
+    # False for a place nobody can use as the room stands (a table place whose chair is missing): its space
+    # is kept free like any place's, but it carries no label
+    labelled: bool = True
 
     @property
     def is_point(self) -> bool:
