@@ -29,7 +29,8 @@ def measure(options: SynthOptions) -> list[dict]:
         name = options.room_name(index)
         room = generate_room(options.kinds[index % len(options.kinds)], rng, name)
         drawn = "few" if rng.random() < options.few_views else "full"  # as dataset.make_room draws it
-        row = {"room": name, "drawn": drawn, "labelled": sum(bool(piece.anchors) for piece in room.pieces)}
+        labelled = sum(any(anchor.labelled for anchor in piece.anchors) for piece in room.pieces)
+        row = {"room": name, "drawn": drawn, "labelled": labelled}
         for regime in VIEW_REGIMES:
             start = time.perf_counter()
             points, _ = scan_room(room, copy.deepcopy(rng), regime=regime)

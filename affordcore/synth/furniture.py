@@ -527,8 +527,9 @@ def _add_chair(
                 note = _chair_note(state, float(depth), fully and depth == push)
                 return _place_anchor(edge_x, along, turn, note, torso_height)
         state = "missing"
-    # a place without a chair is no place to sit as the room stands (real rooms label their chairs, DESIGN's
-    # pushed-in chair is a chair pulled out); labelled, it taught that a bare table edge is a seat
+    # a place without a chair is no place to sit as the room stands (real rooms label their chairs; DESIGN
+    # labels a pushed-in chair where it would be pulled out to); labelled, it taught that a bare table edge
+    # is a seat
     return _place_anchor(edge_x, along, turn, _chair_note(state, push), torso_height, labelled=False)
 
 
