@@ -44,7 +44,7 @@ sys.path.insert(0, str(ROOT))
 
 from affordcore.assembly.assembler import trajectory_errors  # noqa: E402
 from affordcore.assembly.sequence import read_sequence  # noqa: E402
-from affordcore.geometry.scene import load_cloud  # noqa: E402
+from affordcore.geometry.scene import Cloud, load_cloud  # noqa: E402
 from affordcore.labels import LOOSE_TOLERANCES, load_labels, match_places  # noqa: E402
 from affordcore.learn.model import load_model, shipped_models  # noqa: E402
 from affordcore.mapping.pipeline import map_affordances, prepare_scene  # noqa: E402
@@ -124,6 +124,37 @@ def generated_sources(count: int, seed: int, folder: Path) -> list[Source]:
 # -- scoring -------------------------------------------------------------------------------------------------
 
 
+class RoomScore:
+    """Maps a cloud of a source's room and scores its places against the room's labels, the cloud brought onto
+    the room's fused cloud by ICP from a guess."""
+
+    def __init__(self, source: Source, settings: Settings, models: list):
+        self.labels = load_labels(source.room.with_suffix(".labels.json"))
+        self.room = load_cloud(source.room.with_suffix(".ply")).points
+        self.settings, self.models = settings, models
+        gravity = settings.gravity.model_copy(update={"up_candidates": ["+z"]})
+        self.z_up = settings.model_copy(update={"gravity": gravity})
+
+    def __call__(
+        self, points: np.ndarray, room_from_input: np.ndarray, level: bool, move: np.ndarray | None = None
+    ) -> tuple[dict[str, tuple[int, int, int, int]], float]:
+        """({affordance: `places`}, the ICP RMSE onto the room in m) of the cloud moved by `move` (a grid
+        placement; undone before scoring). `level`: levelled on the floor found along +z alone, as the
+        assembler levels its map on the floor under the frames' gravity (a search over every axis can take a
+        wall for a partial scan's floor); else mapped as it is (z up, floor at 0). ValueError: no floor."""
+        move = np.zeros(3) if move is None else move
+        cloud = Cloud(points + move)
+        scene = (
+            prepare_scene(cloud, self.z_up, "auto") if level else prepare_scene(cloud, self.settings, "none")
+        )
+        unmoved = np.eye(4)
+        unmoved[:3, 3] = -move
+        guess = room_from_input @ unmoved @ np.linalg.inv(scene.alignment.world_from_input)
+        room_from_world, rmse = icp(scene.cloud.points, self.room, guess)
+        maps = map_affordances(scene.fields, scene.layout, self.models, self.settings)
+        return {n: places(self.labels, n, m.skeletons, room_from_world) for n, m in maps.items()}, rmse
+
+
 def places(
     labels, affordance: str, skeletons: np.ndarray, room_from_world: np.ndarray
 ) -> tuple[int, int, int, int]:
@@ -166,7 +197,6 @@ def where(source: Source, indices: list[int], settings: Settings, models: list) 
 
     from affordcore.assembly.assembler import Assembler, SensorFrame, within_range
     from affordcore.assembly.depth import DepthImage, back_project
-    from affordcore.geometry.scene import Cloud
 
     sequence, a = read_sequence(source.sequence), settings.assembler
     images = [DepthImage(sequence.depth(i), sequence.intrinsics, 0.001, 65535) for i in indices]
@@ -191,30 +221,15 @@ def where(source: Source, indices: list[int], settings: Settings, models: list) 
     def fused(clouds, poses):
         return np.vstack([c @ pose[:3, :3].T + pose[:3, 3] for c, pose in zip(clouds, poses)])
 
-    labels = load_labels(source.room.with_suffix(".labels.json"))
-    room = load_cloud(source.room.with_suffix(".ply")).points
-
-    z_up = settings.model_copy(
-        update={"gravity": settings.gravity.model_copy(update={"up_candidates": ["+z"]})}
-    )
+    score = RoomScore(source, settings, models)
 
     def scored(points: np.ndarray, room_from_input: np.ndarray, levelled: bool = False) -> dict | str:
-        """The cloud's maps scored against the labels. `levelled`: as published, not levelled again; else in
-        the room's frame, z up, levelled on the floor found along +z alone, as the assembler levels its map on
-        the floor under the frames' gravity (a search over every axis can take a wall for a partial scan's
-        floor)."""
+        """The cloud's places. `levelled`: as published, not levelled again; else in the room's frame, z up,
+        levelled as the assembler levels (`RoomScore`)."""
         try:
-            scene = (
-                prepare_scene(Cloud(points), settings, "none")
-                if levelled
-                else prepare_scene(Cloud(points), z_up, "auto")
-            )
+            return score(points, room_from_input, level=not levelled)[0]
         except ValueError as error:  # no floor: what the service would answer with no map at all
             return f"no map: {str(error)[:60]}"
-        guess = room_from_input @ np.linalg.inv(scene.alignment.world_from_input)
-        room_from_world, _ = icp(scene.cloud.points, room, guess)
-        maps = map_affordances(scene.fields, scene.layout, models, settings)
-        return {name: places(labels, name, m.skeletons, room_from_world) for name, m in maps.items()}
 
     try:
         map_points, world_from_odom = assembler.aligned_map(settings)

@@ -39,15 +39,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_live import Source, add_source_arguments, icp, places, sources, voxel_means  # noqa: E402
+from bench_live import RoomScore, Source, add_source_arguments, sources, voxel_means  # noqa: E402
 
 from affordcore.assembly.assembler import Assembler, SensorFrame, trajectory_errors, within_range  # noqa: E402
 from affordcore.assembly.depth import DepthImage, back_project  # noqa: E402
 from affordcore.assembly.sequence import read_sequence  # noqa: E402
-from affordcore.geometry.scene import Cloud, load_cloud  # noqa: E402
-from affordcore.labels import load_labels  # noqa: E402
+from affordcore.geometry.scene import load_cloud  # noqa: E402
 from affordcore.learn.model import load_model, shipped_models  # noqa: E402
-from affordcore.mapping.pipeline import map_affordances, prepare_scene  # noqa: E402
 from affordcore.settings import Settings  # noqa: E402
 
 # the room's README: its frames "fused at 1 to 1.5 cm"
@@ -70,31 +68,14 @@ class Scorer:
     """Maps a cloud at each grid placement and counts its places against the room's labels."""
 
     def __init__(self, source: Source, settings: Settings, models: list, shifts: np.ndarray):
-        self.labels = load_labels(source.room.with_suffix(".labels.json"))
-        self.room = load_cloud(source.room.with_suffix(".ply")).points
-        self.settings, self.models, self.shifts = settings, models, shifts
-        gravity = settings.gravity.model_copy(update={"up_candidates": ["+z"]})
-        self.z_up = settings.model_copy(update={"gravity": gravity})
+        self.score, self.shifts = RoomScore(source, settings, models), shifts
 
     def __call__(self, points: np.ndarray, room_from_input: np.ndarray, level: bool) -> dict:
         """{affordance: (mean found, labelled, mean false, mean found within DESIGN.md's loose tolerances)}
         over the placements, and the mean ICP RMSE onto the room (m). `level`: levelled on the floor found
         along +z (as the assembler levels its map under the frames' gravity); else mapped as it is (already
         z up, floor at 0)."""
-        counts, rmses = [], []
-        for move in self.shifts:
-            scene = (
-                prepare_scene(Cloud(points + move), self.z_up, "auto")
-                if level
-                else prepare_scene(Cloud(points + move), self.settings, "none")
-            )
-            unmoved = np.eye(4)
-            unmoved[:3, 3] = -move
-            guess = room_from_input @ unmoved @ np.linalg.inv(scene.alignment.world_from_input)
-            room_from_world, rmse = icp(scene.cloud.points, self.room, guess)
-            maps = map_affordances(scene.fields, scene.layout, self.models, self.settings)
-            counts.append({n: places(self.labels, n, m.skeletons, room_from_world) for n, m in maps.items()})
-            rmses.append(rmse)
+        counts, rmses = zip(*(self.score(points, room_from_input, level, move) for move in self.shifts))
         means = {
             name: (
                 float(np.mean([c[name][0] for c in counts])),
