@@ -246,6 +246,66 @@ def test_a_seat_region_shrinks_away_from_a_label_next_to_it():
     assert np.ptp(region[:, 1]) < box.local_bounds()[1][1] * 2 + 2 * 0.30 - 1e-6  # but shrank
 
 
+def _lone(piece):
+    """A room holding `piece` alone, at (3, 3), unturned."""
+    room = generate_room("workshop", np.random.default_rng(0), "lone")
+    piece.x, piece.y, piece.yaw = 3.0, 3.0, 0.0
+    room.pieces = [piece]
+    return room
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        F.high_table,
+        F.kitchen_island,
+        F.bar_table,
+        lambda rng: F.workbench(rng, both_sides=True),
+    ],
+)
+def test_a_free_standing_work_surface_s_ends_are_unlabelled_regions(make):
+    """Where a person stands at a free-standing top's narrow end (0.3 m out, on its axis and at its corners)
+    they can work at it, but DESIGN labels the long edges only: neither place nor negative."""
+    for seed in range(4):
+        room = _lone(make(np.random.default_rng(seed)))
+        piece = room.pieces[0]
+        (_, y0), (_, y1) = piece.local_bounds()
+        # where the long edges' standing labels run (x), past the ends (y): a person at a corner
+        xs = [anchor.start[0] for anchor in piece.anchors if anchor.role == F.STANDING_EDGE]
+        ends = [(np.mean(xs), y1 + 0.3), (np.mean(xs), y0 - 0.3), (max(xs), y1 + 0.1), (min(xs), y0 - 0.1)]
+        regions = _regions(room)
+        assert _in_regions(regions, np.array([piece.world_point(p) for p in ends])).all(), piece.note
+        assert not _in_regions(regions, room.label_points()).any()
+        standing = [label for label in room.labels()["labels"] if label["affordance"] == "standing-working"]
+        assert len(standing) == 2, piece.note  # its long edges stay labelled
+
+
+def test_a_cluttered_work_edge_is_an_unlabelled_region_a_tidy_one_a_label():
+    for seed in range(4):
+        tidy, cluttered = (F.counter(np.random.default_rng(seed), cluttered=c) for c in (False, True))
+        front = ((tidy.local_bounds()[1][0] + 0.3, 0.0),)
+        tidy_room, cluttered_room = _lone(tidy), _lone(cluttered)
+        assert cluttered_room.labels()["labels"] == [] and tidy_room.labels()["labels"]
+        assert _in_regions(_regions(cluttered_room), np.array([cluttered.world_point(front[0])])).all()
+        assert not _regions(tidy_room)
+
+
+def test_an_end_region_shrinks_away_from_a_label_past_the_end_rather_than_go():
+    table = F.high_table(np.random.default_rng(3))
+    room = _lone(table)
+    (x0, _), (x1, y1) = table.local_bounds()
+    counter = F.counter(np.random.default_rng(4))
+    # a counter across the table's end, its standing label 0.40 m beyond the end (inside the 0.45 m zone)
+    (_, _), (cx1, _) = counter.local_bounds()
+    counter.yaw = -np.pi / 2  # its front faces -y, toward the table
+    counter.x = table.x
+    counter.y = table.y + y1 + 0.40 + 0.30 + cx1
+    room.pieces = [table, counter]
+    regions = _regions(room)
+    assert not _in_regions(regions, room.label_points()).any()
+    assert _in_regions(regions, np.array([table.world_point(((x0 + x1) / 2, y1 + 0.2))])).all()
+
+
 def test_chairs_at_tables_are_pushed_in_to_varying_depths_pulled_out_turned_or_missing():
     notes = []
     for seed in range(40):

@@ -21,6 +21,9 @@ LOUNGE, DESK_SEAT, STANDING_EDGE = "lounge-seat", "desk-seat", "standing-work-ed
 SEAT_INSET = 0.25  # sofa labels stop this far from each armrest (DESIGN.md)
 DESK_LABEL_OFFSET = 0.25  # a desk seat's label is this far outside the table edge
 STANDING_OFFSET, STANDING_INSET = 0.30, 0.25  # standing labels: in front of the edge, in from its ends
+# how far in front of a work edge a standing person's torso can be: the label's offset plus DESIGN's place
+# tolerance (a skeleton that near the label is standing at that edge)
+STANDING_REACH = STANDING_OFFSET + 0.15
 SEAT_HEIGHT = (0.35, 0.60)  # a flat top in this range, at least 0.30 m across, is somewhere to sit
 # A seated adult's torso above the seat top: the sitting skeletons' torso heights (0.62-0.64 m) over the
 # seats they were fitted to (0.45 m). Places on seats of other heights (bar stools, lounge chairs) carry
@@ -584,9 +587,11 @@ def counter(rng: np.random.Generator, wall_cabinets: bool | None = None, clutter
         tall=cluttered,
     )
     anchors = [] if cluttered else [_standing_edge(x1, length)]
-    return Piece(
+    piece = Piece(
         "counter", parts, anchors, note=f"counter {height:.2f} m" + (", cluttered" if cluttered else "")
     )
+    piece.unlabelled_edges = [_edge_zone(x1, length)] if cluttered else []
+    return piece
 
 
 def workbench(rng: np.random.Generator, both_sides: bool = False, cluttered: bool = False) -> Piece:
@@ -613,21 +618,30 @@ def workbench(rng: np.random.Generator, both_sides: bool = False, cluttered: boo
     anchors = [] if cluttered else [_standing_edge(depth / 2, length)]
     if both_sides and not cluttered:
         anchors.append(_rotated_anchor(_standing_edge(depth / 2, length), np.pi))
-    return Piece(
+    piece = Piece(
         "workbench", parts, anchors, note=f"workbench {height:.2f} m" + (", cluttered" if cluttered else "")
     )
+    if cluttered:
+        piece.unlabelled_edges = [_edge_zone(depth / 2, length)] + (
+            [_edge_zone(-depth / 2, length)] if both_sides else []
+        )
+    if both_sides:
+        piece.unlabelled_edges += _end_zones(-depth / 2, depth / 2, length)
+    return piece
 
 
 def high_table(rng: np.random.Generator) -> Piece:
     """A high lab table (standing height) on legs, worked at from its long sides."""
     length, depth, height = rng.uniform(0.9, 1.5), rng.uniform(0.6, 0.8), rng.uniform(0.90, 1.00)
     parts = table(rng, length, depth, height, _pick(rng, LAMINATE))
-    return Piece(
+    piece = Piece(
         "high-table",
         parts,
         [_standing_edge(depth / 2, length), _rotated_anchor(_standing_edge(depth / 2, length), np.pi)],
         note=f"high table {height:.2f} m",
     )
+    piece.unlabelled_edges = _end_zones(-depth / 2, depth / 2, length)
+    return piece
 
 
 # ---------------------------------------------------------------- counter-height seating
@@ -720,7 +734,9 @@ def kitchen_island(rng: np.random.Generator) -> Piece:
     anchors = _bar_places(rng, parts, edge, length, seat_h)
     anchors += [_standing_edge(edge, length), _rotated_anchor(_standing_edge(-x0, length), np.pi)]
     note = f"kitchen island {height:.2f} m, {len(anchors) - 2} stools at {seat_h:.2f} m"
-    return Piece("kitchen-island", parts, anchors, note=note)
+    piece = Piece("kitchen-island", parts, anchors, note=note)
+    piece.unlabelled_edges = _end_zones(x0, edge, length)
+    return piece
 
 
 def bar_table(rng: np.random.Generator, both_sides: bool = True) -> Piece:
@@ -746,7 +762,9 @@ def bar_table(rng: np.random.Generator, both_sides: bool = True) -> Piece:
     stools = sum(anchor.role == DESK_SEAT for anchor in anchors)
     name = "bar table" if both_sides else "breakfast bar"
     note = f"{name} {height:.2f} m, {stools} places at {seat_h:.2f} m"
-    return Piece(name.replace(" ", "-"), parts, anchors, note=note)
+    piece = Piece(name.replace(" ", "-"), parts, anchors, note=note)
+    piece.unlabelled_edges = _end_zones(-depth / 2, depth / 2, length) if both_sides else []
+    return piece
 
 
 def _standing_edge(edge_x: float, length: float) -> Anchor:
@@ -755,6 +773,23 @@ def _standing_edge(edge_x: float, length: float) -> Anchor:
     half_width = 0.30  # a person's shoulders and elbows reach this far either side of the label
     room = _free_space(edge_x + 0.02, edge_x + 0.65, -reach - half_width, reach + half_width, 1.9)
     return Anchor(STANDING_EDGE, (x, -reach), (x, reach), np.pi, [room], "free edge of a work surface")
+
+
+def _edge_zone(edge_x: float, length: float) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Where a person stands to work at the edge along y at `edge_x` (facing it from outside, +x or -x)."""
+    outside = STANDING_REACH if edge_x >= 0 else -STANDING_REACH
+    (x0, x1) = sorted((edge_x, edge_x + outside))
+    return ((x0, -length / 2), (x1, length / 2))
+
+
+def _end_zones(x0: float, x1: float, length: float) -> list[tuple[tuple[float, float], tuple[float, float]]]:
+    """Where a person stands at either narrow end (y = +-length / 2) of a free-standing top spanning x0..x1,
+    its corners included: one can work there, but DESIGN labels the long edges only."""
+    across = (x0 - STANDING_REACH, x1 + STANDING_REACH)
+    return [
+        ((across[0], length / 2), (across[1], length / 2 + STANDING_REACH)),
+        ((across[0], -length / 2 - STANDING_REACH), (across[1], -length / 2)),
+    ]
 
 
 # ---------------------------------------------------------------- context and distractors

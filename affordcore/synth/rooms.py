@@ -94,6 +94,10 @@ class Room:
                 region = self._region(piece, np.array(rectangle), SEAT_MARGINS)
                 if region is not None:
                     regions.append({"polygon": region, "note": f"a seat with no label: {piece.note}"})
+            for rectangle in piece.unlabelled_edges:
+                region = self._region(piece, np.array(rectangle), EDGE_MARGINS)
+                if region is not None:
+                    regions.append({"polygon": region, "note": f"a work edge with no label: {piece.note}"})
         return {
             "format": "affordance-labels/1",
             "scene": f"{self.name} (procedural {self.kind} room)",
@@ -143,6 +147,11 @@ class Room:
 # that close to a seat is sitting on it), rounded up; smaller ones are tried in turn until the region keeps
 # clear of every label.
 SEAT_MARGINS = (0.30, 0.25, 0.20, 0.15, 0.10, 0.05, 0.0)
+# around where a person stands at an unlabelled work edge (furniture.STANDING_REACH already reaches as far
+# as a standing skeleton can be): a grid step's half, shrunk like SEAT_MARGINS until clear of every label,
+# and on to the band 0.15-0.30 m from the edge where a standing torso is (another piece's label often runs
+# past a table's end: the region shrinks away from it rather than go)
+EDGE_MARGINS = (0.05, 0.0, -0.05, -0.10, -0.15)
 # around an unseen piece and its labels: DESIGN's place tolerance, never less than a grid step's half (the
 # labels must lie inside, not on the edge)
 UNSEEN_MARGINS = (0.15, 0.10, 0.05)

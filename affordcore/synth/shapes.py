@@ -136,6 +136,9 @@ class Piece:
     # Plan rectangles ((x0, y0), (x1, y1)) in the piece's frame where a person could sit although no label
     # says so (a bench, a box, a lone chair, a sofa's corner): the room turns them into unlabelled regions.
     unlabelled_seats: list[tuple[tuple[float, float], tuple[float, float]]] = field(default_factory=list)
+    # Plan rectangles in the piece's frame where a person could stand and work at it although no label says
+    # so (the narrow ends of a free-standing table, the edge of a cluttered top): unlabelled regions too.
+    unlabelled_edges: list[tuple[tuple[float, float], tuple[float, float]]] = field(default_factory=list)
 
     def world_parts(self) -> list[Box]:
         return [part.placed(self.x, self.y, self.yaw) for part in self.parts]
