@@ -587,11 +587,13 @@ def counter(rng: np.random.Generator, wall_cabinets: bool | None = None, clutter
         tall=cluttered,
     )
     anchors = [] if cluttered else [_standing_edge(x1, length)]
-    piece = Piece(
-        "counter", parts, anchors, note=f"counter {height:.2f} m" + (", cluttered" if cluttered else "")
+    return Piece(
+        "counter",
+        parts,
+        anchors,
+        note=f"counter {height:.2f} m" + (", cluttered" if cluttered else ""),
+        unlabelled_edges=[_edge_zone(x1, length)] if cluttered else [],
     )
-    piece.unlabelled_edges = [_edge_zone(x1, length)] if cluttered else []
-    return piece
 
 
 def workbench(rng: np.random.Generator, both_sides: bool = False, cluttered: bool = False) -> Piece:
@@ -618,30 +620,28 @@ def workbench(rng: np.random.Generator, both_sides: bool = False, cluttered: boo
     anchors = [] if cluttered else [_standing_edge(depth / 2, length)]
     if both_sides and not cluttered:
         anchors.append(_rotated_anchor(_standing_edge(depth / 2, length), np.pi))
-    piece = Piece(
-        "workbench", parts, anchors, note=f"workbench {height:.2f} m" + (", cluttered" if cluttered else "")
+    edges = [_edge_zone(x, length) for x in (depth / 2, -depth / 2)[: 2 if both_sides else 1]]
+    return Piece(
+        "workbench",
+        parts,
+        anchors,
+        note=f"workbench {height:.2f} m" + (", cluttered" if cluttered else ""),
+        unlabelled_edges=(edges if cluttered else [])
+        + (_end_zones(-depth / 2, depth / 2, length) if both_sides else []),
     )
-    if cluttered:
-        piece.unlabelled_edges = [_edge_zone(depth / 2, length)] + (
-            [_edge_zone(-depth / 2, length)] if both_sides else []
-        )
-    if both_sides:
-        piece.unlabelled_edges += _end_zones(-depth / 2, depth / 2, length)
-    return piece
 
 
 def high_table(rng: np.random.Generator) -> Piece:
     """A high lab table (standing height) on legs, worked at from its long sides."""
     length, depth, height = rng.uniform(0.9, 1.5), rng.uniform(0.6, 0.8), rng.uniform(0.90, 1.00)
     parts = table(rng, length, depth, height, _pick(rng, LAMINATE))
-    piece = Piece(
+    return Piece(
         "high-table",
         parts,
         [_standing_edge(depth / 2, length), _rotated_anchor(_standing_edge(depth / 2, length), np.pi)],
         note=f"high table {height:.2f} m",
+        unlabelled_edges=_end_zones(-depth / 2, depth / 2, length),
     )
-    piece.unlabelled_edges = _end_zones(-depth / 2, depth / 2, length)
-    return piece
 
 
 # ---------------------------------------------------------------- counter-height seating
@@ -734,9 +734,7 @@ def kitchen_island(rng: np.random.Generator) -> Piece:
     anchors = _bar_places(rng, parts, edge, length, seat_h)
     anchors += [_standing_edge(edge, length), _rotated_anchor(_standing_edge(-x0, length), np.pi)]
     note = f"kitchen island {height:.2f} m, {len(anchors) - 2} stools at {seat_h:.2f} m"
-    piece = Piece("kitchen-island", parts, anchors, note=note)
-    piece.unlabelled_edges = _end_zones(x0, edge, length)
-    return piece
+    return Piece("kitchen-island", parts, anchors, note=note, unlabelled_edges=_end_zones(x0, edge, length))
 
 
 def bar_table(rng: np.random.Generator, both_sides: bool = True) -> Piece:
@@ -762,9 +760,8 @@ def bar_table(rng: np.random.Generator, both_sides: bool = True) -> Piece:
     stools = sum(anchor.role == DESK_SEAT for anchor in anchors)
     name = "bar table" if both_sides else "breakfast bar"
     note = f"{name} {height:.2f} m, {stools} places at {seat_h:.2f} m"
-    piece = Piece(name.replace(" ", "-"), parts, anchors, note=note)
-    piece.unlabelled_edges = _end_zones(-depth / 2, depth / 2, length) if both_sides else []
-    return piece
+    ends = _end_zones(-depth / 2, depth / 2, length) if both_sides else []
+    return Piece(name.replace(" ", "-"), parts, anchors, note=note, unlabelled_edges=ends)
 
 
 def _standing_edge(edge_x: float, length: float) -> Anchor:
@@ -784,7 +781,7 @@ def _edge_zone(edge_x: float, length: float) -> tuple[tuple[float, float], tuple
 
 def _end_zones(x0: float, x1: float, length: float) -> list[tuple[tuple[float, float], tuple[float, float]]]:
     """Where a person stands at either narrow end (y = +-length / 2) of a free-standing top spanning x0..x1,
-    its corners included: one can work there, but DESIGN labels the long edges only."""
+    its corners included: one can work there, but the generator labels the long edges only."""
     across = (x0 - STANDING_REACH, x1 + STANDING_REACH)
     return [
         ((across[0], length / 2), (across[1], length / 2 + STANDING_REACH)),
