@@ -265,7 +265,7 @@ def _lone(piece):
 )
 def test_a_free_standing_work_surface_s_ends_are_unlabelled_regions(make):
     """Where a person stands at a free-standing top's narrow end (0.3 m out, on its axis and at its corners)
-    they can work at it, but DESIGN labels the long edges only: neither place nor negative."""
+    they can work at it, but the generator labels the long edges only: neither place nor negative."""
     for seed in range(4):
         room = _lone(make(np.random.default_rng(seed)))
         piece = room.pieces[0]
@@ -283,10 +283,10 @@ def test_a_free_standing_work_surface_s_ends_are_unlabelled_regions(make):
 def test_a_cluttered_work_edge_is_an_unlabelled_region_a_tidy_one_a_label():
     for seed in range(4):
         tidy, cluttered = (F.counter(np.random.default_rng(seed), cluttered=c) for c in (False, True))
-        front = ((tidy.local_bounds()[1][0] + 0.3, 0.0),)
         tidy_room, cluttered_room = _lone(tidy), _lone(cluttered)
+        front = cluttered.world_point((tidy.local_bounds()[1][0] + 0.3, 0.0))  # where the tidy one's label is
         assert cluttered_room.labels()["labels"] == [] and tidy_room.labels()["labels"]
-        assert _in_regions(_regions(cluttered_room), np.array([cluttered.world_point(front[0])])).all()
+        assert _in_regions(_regions(cluttered_room), front).all()
         assert not _regions(tidy_room)
 
 

@@ -620,7 +620,7 @@ def workbench(rng: np.random.Generator, both_sides: bool = False, cluttered: boo
     anchors = [] if cluttered else [_standing_edge(depth / 2, length)]
     if both_sides and not cluttered:
         anchors.append(_rotated_anchor(_standing_edge(depth / 2, length), np.pi))
-    edges = [_edge_zone(x, length) for x in (depth / 2, -depth / 2)[: 2 if both_sides else 1]]
+    edges = [_edge_zone(depth / 2, length)] + ([_edge_zone(-depth / 2, length)] if both_sides else [])
     return Piece(
         "workbench",
         parts,

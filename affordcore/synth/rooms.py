@@ -90,14 +90,14 @@ class Room:
                     continue
             labels += [_label(piece, anchor, roles) for anchor in _labelled(piece, roles)]
         for piece in self.pieces:
-            for rectangle in piece.unlabelled_seats:
-                region = self._region(piece, np.array(rectangle), SEAT_MARGINS)
-                if region is not None:
-                    regions.append({"polygon": region, "note": f"a seat with no label: {piece.note}"})
-            for rectangle in piece.unlabelled_edges:
-                region = self._region(piece, np.array(rectangle), EDGE_MARGINS)
-                if region is not None:
-                    regions.append({"polygon": region, "note": f"a work edge with no label: {piece.note}"})
+            for rectangles, margins, what in (
+                (piece.unlabelled_seats, SEAT_MARGINS, "a seat"),
+                (piece.unlabelled_edges, EDGE_MARGINS, "a work edge"),
+            ):
+                for rectangle in rectangles:
+                    region = self._region(piece, np.array(rectangle), margins)
+                    if region is not None:
+                        regions.append({"polygon": region, "note": f"{what} with no label: {piece.note}"})
         return {
             "format": "affordance-labels/1",
             "scene": f"{self.name} (procedural {self.kind} room)",
