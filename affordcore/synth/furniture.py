@@ -410,16 +410,16 @@ def _place_anchor(
     turn: float,
     note: str,
     torso_height: float | None = None,
-    labelled: bool = True,
+    chair: list[Box] | None = None,
 ) -> Anchor:
     """A place at a table edge at x = edge_x (table on the -x side): where a person who pulled the chair out
     would sit, 0.25 m outside the edge on the place's line, facing the table, whatever the chair's state;
-    turned by `turn` about the table's centre. `labelled` False: a place without a chair (its space is kept
-    free, but nobody can sit there)."""
+    turned by `turn` about the table's centre. `chair` (its parts, as placed): the place's support; None: a
+    place without a chair, whose space is kept free but which carries no label (nobody can sit there)."""
     label_x = edge_x + DESK_LABEL_OFFSET
     room = _free_space(edge_x + 0.05, edge_x + 0.75, along - 0.30, along + 0.30, 1.3)
     at = (label_x, along)
-    anchor = Anchor(DESK_SEAT, at, at, np.pi, [room], note, torso_height, labelled)
+    anchor = Anchor(DESK_SEAT, at, at, np.pi, [room], note, torso_height, chair is not None, chair or [])
     return _rotated_anchor(anchor, turn) if turn else anchor
 
 
@@ -528,12 +528,14 @@ def _add_chair(
             if not any_overlap(placed, nearby):
                 parts += placed
                 note = _chair_note(state, float(depth), fully and depth == push)
-                return _place_anchor(edge_x, along, turn, note, torso_height)
+                # the anchor is turned with the place: its support is the chair as it stood before the turn
+                unturned = [part.placed(0, 0, -turn) for part in placed]
+                return _place_anchor(edge_x, along, turn, note, torso_height, unturned)
         state = "missing"
     # a place without a chair is no place to sit as the room stands (real rooms label their chairs; DESIGN
     # labels a pushed-in chair where it would be pulled out to); labelled, it taught that a bare table edge
     # is a seat
-    return _place_anchor(edge_x, along, turn, _chair_note(state, push), torso_height, labelled=False)
+    return _place_anchor(edge_x, along, turn, _chair_note(state, push), torso_height)
 
 
 def _rotated_anchor(anchor: Anchor, yaw: float) -> Anchor:
@@ -547,6 +549,7 @@ def _rotated_anchor(anchor: Anchor, yaw: float) -> Anchor:
         anchor.note,
         anchor.torso_height,
         anchor.labelled,
+        [box.placed(0, 0, yaw) for box in anchor.support],
     )
 
 
@@ -586,7 +589,7 @@ def counter(rng: np.random.Generator, wall_cabinets: bool | None = None, clutter
         count=int(rng.integers(10, 18)) if cluttered else int(rng.integers(0, 4)),
         tall=cluttered,
     )
-    anchors = [] if cluttered else [_standing_edge(x1, length)]
+    anchors = [] if cluttered else [_standing_edge(x1, length, height)]
     return Piece(
         "counter",
         parts,
@@ -617,9 +620,9 @@ def workbench(rng: np.random.Generator, both_sides: bool = False, cluttered: boo
         count=int(rng.integers(10, 16)) if cluttered else int(rng.integers(0, 4)),
         tall=cluttered,
     )
-    anchors = [] if cluttered else [_standing_edge(depth / 2, length)]
+    anchors = [] if cluttered else [_standing_edge(depth / 2, length, height)]
     if both_sides and not cluttered:
-        anchors.append(_rotated_anchor(_standing_edge(depth / 2, length), np.pi))
+        anchors.append(_rotated_anchor(_standing_edge(depth / 2, length, height), np.pi))
     edges = [_edge_zone(depth / 2, length)] + ([_edge_zone(-depth / 2, length)] if both_sides else [])
     return Piece(
         "workbench",
@@ -638,7 +641,10 @@ def high_table(rng: np.random.Generator) -> Piece:
     return Piece(
         "high-table",
         parts,
-        [_standing_edge(depth / 2, length), _rotated_anchor(_standing_edge(depth / 2, length), np.pi)],
+        [
+            _standing_edge(depth / 2, length, height),
+            _rotated_anchor(_standing_edge(depth / 2, length, height), np.pi),
+        ],
         note=f"high table {height:.2f} m",
         unlabelled_edges=_end_zones(-depth / 2, depth / 2, length),
     )
@@ -732,7 +738,10 @@ def kitchen_island(rng: np.random.Generator) -> Piece:
     )
     seat_h = bar_seat_height(rng, height)
     anchors = _bar_places(rng, parts, edge, length, seat_h)
-    anchors += [_standing_edge(edge, length), _rotated_anchor(_standing_edge(-x0, length), np.pi)]
+    anchors += [
+        _standing_edge(edge, length, height),
+        _rotated_anchor(_standing_edge(-x0, length, height), np.pi),
+    ]
     note = f"kitchen island {height:.2f} m, {len(anchors) - 2} stools at {seat_h:.2f} m"
     return Piece("kitchen-island", parts, anchors, note=note, unlabelled_edges=_end_zones(x0, edge, length))
 
@@ -753,10 +762,10 @@ def bar_table(rng: np.random.Generator, both_sides: bool = True) -> Piece:
         int(rng.integers(0, 3)),
     )
     seat_h = bar_seat_height(rng, height)
-    anchors = _bar_places(rng, parts, depth / 2, length, seat_h) + [_standing_edge(depth / 2, length)]
+    anchors = _bar_places(rng, parts, depth / 2, length, seat_h) + [_standing_edge(depth / 2, length, height)]
     if both_sides:
         anchors += _bar_places(rng, parts, depth / 2, length, seat_h, np.pi)
-        anchors.append(_rotated_anchor(_standing_edge(depth / 2, length), np.pi))
+        anchors.append(_rotated_anchor(_standing_edge(depth / 2, length, height), np.pi))
     stools = sum(anchor.role == DESK_SEAT for anchor in anchors)
     name = "bar table" if both_sides else "breakfast bar"
     note = f"{name} {height:.2f} m, {stools} places at {seat_h:.2f} m"
@@ -764,12 +773,17 @@ def bar_table(rng: np.random.Generator, both_sides: bool = True) -> Piece:
     return Piece(name.replace(" ", "-"), parts, anchors, note=note, unlabelled_edges=ends)
 
 
-def _standing_edge(edge_x: float, length: float) -> Anchor:
+def _standing_edge(edge_x: float, length: float, height: float) -> Anchor:
+    """The standing place along a top's edge at x = edge_x, `height` up (the top on the -x side). Its support
+    is the strip of the top a person's hands work on, WORK_EDGE_KEEP deep."""
     reach = max(0.0, length / 2 - STANDING_INSET)
     x = edge_x + STANDING_OFFSET
     half_width = 0.30  # a person's shoulders and elbows reach this far either side of the label
     room = _free_space(edge_x + 0.02, edge_x + 0.65, -reach - half_width, reach + half_width, 1.9)
-    return Anchor(STANDING_EDGE, (x, -reach), (x, reach), np.pi, [room], "free edge of a work surface")
+    strip = Box.span((edge_x - WORK_EDGE_KEEP, -reach - 0.15, height - 0.04), (edge_x, reach + 0.15, height))
+    return Anchor(
+        STANDING_EDGE, (x, -reach), (x, reach), np.pi, [room], "free edge of a work surface", support=[strip]
+    )
 
 
 def _edge_zone(edge_x: float, length: float) -> tuple[tuple[float, float], tuple[float, float]]:

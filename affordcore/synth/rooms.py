@@ -15,6 +15,7 @@ a pulled-out chair, a person at a counter) is free of everything else.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,7 +23,7 @@ import numpy as np
 
 from ..labels import polygon_contains
 from . import furniture as F
-from .shapes import Box, Piece, any_overlap, rot2
+from .shapes import Anchor, Box, Piece, any_overlap, rot2
 
 KINDS = ("living", "office", "workshop", "mixed")
 ROLES_FILE = Path(__file__).resolve().parents[1] / "data" / "furniture_roles.json"
@@ -77,18 +78,28 @@ class Room:
         """The room's ground truth in the `affordance-labels/1` format (DESIGN.md).
 
         Seats that carry no label (benches, boxes, lone chairs, a sofa's corner) get unlabelled regions. Given
-        the scanned `points`, a labelled piece the scan barely saw loses its labels to a "not scanned" region
-        (a label on furniture that is not in the cloud would teach that empty space is a place)."""
+        the scanned `points`, a labelled piece the scan barely saw loses its labels to a "not scanned" region,
+        and so does a place whose support (its chair, the strip of top at a standing edge) it barely saw: a
+        label on furniture that is not in the cloud would teach that empty space is a place, and a table place
+        whose chair the scan missed looks like one without a chair, which carries no label."""
         roles = role_affordances()
         unseen = self.unseen_pieces(points) if points is not None else []
         labels, regions = [], []
         for piece in self.pieces:
             if any(piece is p for p in unseen):
-                region = self._region(piece, _labelled_plan(piece), UNSEEN_MARGINS, exclude=piece)
+                region = self._region(piece, _labelled_plan(piece), UNSEEN_MARGINS, skip=piece.anchors)
                 if region is not None:
                     regions.append({"polygon": region, "note": f"not scanned: {piece.note}"})
                     continue
-            labels += [_label(piece, anchor, roles) for anchor in _labelled(piece, roles)]
+            for anchor in _labelled(piece, roles):
+                if points is not None and support_seen_share(piece, anchor, points) < PLACE_SEEN_SHARE:
+                    region = self._region(piece, _label_rectangle(anchor), UNSEEN_MARGINS, skip=[anchor])
+                    if region is not None:
+                        regions.append(
+                            {"polygon": region, "note": f"not scanned: {piece.note}; {anchor.note}"}
+                        )
+                        continue
+                labels.append(_label(piece, anchor, roles))
         for piece in self.pieces:
             for rectangles, margins, what in (
                 (piece.unlabelled_seats, SEAT_MARGINS, "a seat"),
@@ -107,21 +118,23 @@ class Room:
             "unlabelled_regions": regions,
         }
 
-    def label_points(self, exclude: Piece | None = None) -> np.ndarray:
-        """(n, 2) points every 2 cm along every label (of every piece but `exclude`), in the world."""
+    def label_points(self, skip: Sequence[Anchor] = ()) -> np.ndarray:
+        """(n, 2) points every 2 cm along every label (but those of the anchors in `skip`), in the world."""
         roles = role_affordances()
         points = [np.zeros((0, 2))]
         for piece in self.pieces:
-            for anchor in _labelled(piece, roles) if piece is not exclude else []:
+            for anchor in _labelled(piece, roles):
+                if any(anchor is other for other in skip):
+                    continue
                 start, end = piece.world_point(anchor.start), piece.world_point(anchor.end)
                 steps = int(np.linalg.norm(end - start) / 0.02) + 2
                 points.append(start + np.linspace(0, 1, steps)[:, None] * (end - start))
         return np.vstack(points)
 
-    def _region(self, piece: Piece, rectangle: np.ndarray, margins, exclude: Piece | None = None):
+    def _region(self, piece: Piece, rectangle: np.ndarray, margins, skip: Sequence[Anchor] = ()):
         """The piece's plan rectangle ((x0, y0), (x1, y1) in its frame) grown by the first of `margins` that
-        keeps it LABEL_GAP clear of every label (but `exclude`'s), as a world polygon; None if none does."""
-        avoid = self.label_points(exclude)
+        keeps it LABEL_GAP clear of every label but those of `skip`, as a world polygon; None if none does."""
+        avoid = self.label_points(skip)
         for margin in margins:
             grown = rectangle + np.array([[-1.0], [1.0]]) * (margin + LABEL_GAP)
             if not inside_polygon(_rectangle_polygon(piece, grown), avoid).any():
@@ -157,6 +170,9 @@ EDGE_MARGINS = (0.05, 0.0, -0.05, -0.10, -0.15)
 UNSEEN_MARGINS = (0.15, 0.10, 0.05)
 LABEL_GAP = 0.05  # regions keep at least this far from any label
 UNSEEN_SHARE = 0.2  # a labelled piece with less of its plan seen than this is "not scanned"
+# a place with less than this share of its support's 5 cm cells holding a scanned point is "not scanned": a
+# chair pushed in behind a table seen from across it shows the top of its backrest and little else
+PLACE_SEEN_SHARE = 0.15
 
 
 def _labelled(piece: Piece, roles: dict[str, str]) -> list:
@@ -177,6 +193,12 @@ def _label(piece: Piece, anchor, roles: dict[str, str]) -> dict:
         label["z"] = round(float(anchor.torso_height), 3)
     label["note"] = f"{piece.note}; {anchor.note}"
     return label
+
+
+def _label_rectangle(anchor: Anchor) -> np.ndarray:
+    """The plan rectangle ((x0, y0), (x1, y1) in the piece's frame) the anchor's label spans."""
+    ends = np.array([anchor.start, anchor.end])
+    return np.array([ends.min(axis=0), ends.max(axis=0)])
 
 
 def _labelled_plan(piece: Piece) -> np.ndarray:
@@ -205,6 +227,33 @@ def plan_seen_share(piece: Piece, points_xy: np.ndarray, cell: float = 0.05) -> 
     seen = np.zeros(shape, bool)
     seen[index[inside, 0], index[inside, 1]] = True
     return float(seen.reshape(-1)[covered].mean()) if covered.any() else 1.0
+
+
+def support_seen_share(piece: Piece, anchor: Anchor, points: np.ndarray, cell: float = 0.05) -> float:
+    """Of the ~`cell` m cells filling the anchor's support boxes, the share holding one of the scanned
+    `points` (a point up to 2 cm outside a box, sensor noise, counts for its nearest cell); 1 for an anchor
+    with no support of its own."""
+    boxes = [box.placed(piece.x, piece.y, piece.yaw) for box in anchor.support]
+    if not boxes:
+        return 1.0
+    corners = np.vstack([box.corners_xy() for box in boxes])
+    centre = corners.mean(axis=0)
+    points = points[
+        np.linalg.norm(points[:, :2] - centre, axis=1)
+        <= np.linalg.norm(corners - centre, axis=1).max() + 0.05
+    ]
+    seen = cells = 0
+    for box in boxes:
+        size = np.array(box.size)
+        shape = np.maximum(np.round(size / cell).astype(int), 1)
+        # the points in the box's own frame, from its low corner
+        local = np.column_stack([(points[:, :2] - box.centre[:2]) @ rot2(box.yaw), points[:, 2]])
+        local += np.array([*size[:2] / 2, -box.z_range[0]])
+        near = np.all((local >= -0.02) & (local <= size + 0.02), axis=1)
+        index = np.clip(np.floor(local[near] / (size / shape)).astype(int), 0, shape - 1)
+        seen += len(np.unique(np.ravel_multi_index(index.T, shape)))
+        cells += int(np.prod(shape))
+    return seen / cells
 
 
 def _rounded(point) -> list[float]:

@@ -116,6 +116,9 @@ class Anchor:
     # False for a place nobody can use as the room stands (a table place whose chair is missing): its space
     # is kept free like any place's, but it carries no label
     labelled: bool = True
+    # What a scan must show for the place to be known (boxes in the piece's frame): a table place's chair,
+    # the strip of top a standing person works on. Empty: the piece as a whole (a sofa's seats are the sofa).
+    support: list[Box] = field(default_factory=list)
 
     @property
     def is_point(self) -> bool:
