@@ -30,19 +30,19 @@ def measure(options: SynthOptions) -> list[dict]:
         room = generate_room(options.kinds[index % len(options.kinds)], rng, name)
         drawn = "few" if rng.random() < options.few_views else "full"  # as dataset.make_room draws it
         labelled = sum(any(anchor.labelled for anchor in piece.anchors) for piece in room.pieces)
-        row = {"room": name, "drawn": drawn, "labelled": labelled}
+        labels = len(room.labels()["labels"])
+        row = {"room": name, "drawn": drawn, "labelled": labelled, "labels": labels}
         for regime in VIEW_REGIMES:
             start = time.perf_counter()
             points, _ = scan_room(room, copy.deepcopy(rng), regime=regime)
             share, cells = floor_seen_share(room, points)
-            not_scanned = sum(
-                r["note"].startswith("not scanned") for r in room.labels(points)["unlabelled_regions"]
-            )
             row[regime] = {
                 "seen": share,
                 "points": len(points),
                 "seconds": time.perf_counter() - start,
-                "not_scanned": not_scanned,
+                "not_scanned": len(room.unseen_pieces(points)),
+                # a piece's labels, and those of places whose own support the scan missed
+                "labels_lost": labels - len(room.labels(points)["labels"]),
             }
             row["cells"] = cells
         rows.append(row)
@@ -67,7 +67,8 @@ def table(rows: list[dict]) -> str:
             f"{np.mean([row[regime]['points'] for row in rows]):,.0f} points, "
             f"{np.mean([row[regime]['seconds'] for row in rows]):.1f} s per scan, "
             f"{sum(row[regime]['not_scanned'] for row in rows)} of {sum(row['labelled'] for row in rows)} "
-            "labelled pieces not scanned"
+            f"labelled pieces not scanned, {sum(row[regime]['labels_lost'] for row in rows)} of "
+            f"{sum(row['labels'] for row in rows)} labels lost to regions not scanned"
         )
     drawn = [row[row["drawn"]]["seen"] for row in rows if row["cells"]]
     lines.append(f"\nas drawn by `afford synth`: mean {np.mean(drawn):.0%}")
