@@ -121,7 +121,21 @@ class GravitySettings(BaseModel):
     sample_voxel: float = Field(
         0.03, gt=0, description="the cloud is thinned to this voxel size for the search (m)"
     )
+    sensor_heights: tuple[float, float] = Field(
+        (0.05, 2.2),
+        description="where the cloud says where its sensor stood, a floor lies this far under it (m): from a "
+        "robot's lowest lidar to a hand held high; a plane the sensor stands further from is a wall",
+    )
     seed: int = 0
+
+    @model_validator(mode="after")
+    def _heights_in_order(self) -> GravitySettings:
+        low, high = self.sensor_heights
+        if not 0 <= low < high:
+            raise ValueError(
+                f"sensor_heights must be (low, high) with 0 <= low < high, not {self.sensor_heights}"
+            )
+        return self
 
 
 class VisibilitySettings(BaseModel):

@@ -37,21 +37,23 @@ FRAMES = {
 OPPOSITE = {"+y": "-y", "-y": "+y", "+z": "-z"}
 
 
-def choices(path: Path) -> list[str]:
-    """For each frame: "right", "ceiling" (the right axis the wrong way up), "wall" (another axis) or
-    "no floor"."""
+def choices(path: Path) -> dict[str, list[str]]:
+    """For each frame, searched without and with the sensor positions (the room's `.origins.npy`): "right",
+    "ceiling" (the right axis the wrong way up), "wall" (another axis) or "no floor"."""
     from affordcore.geometry.gravity import NoFloorError, align_to_gravity
     from affordcore.geometry.scene import load_cloud
 
-    points = load_cloud(path).points
-    out = []
+    cloud = load_cloud(path)
+    out: dict[str, list[str]] = {"without": [], "with": []}
     for up, rotation in FRAMES.items():
-        try:
-            chosen = align_to_gravity(points @ rotation.T).up_axis
-        except NoFloorError:
-            out.append("no floor")
-            continue
-        out.append("right" if chosen == up else "ceiling" if chosen == OPPOSITE[up] else "wall")
+        for known, origins in (("without", None), ("with", cloud.origins)):
+            try:
+                at = None if origins is None else origins @ rotation.T
+                chosen = align_to_gravity(cloud.points @ rotation.T, origins=at).up_axis
+            except NoFloorError:
+                out[known].append("no floor")
+                continue
+            out[known].append("right" if chosen == up else "ceiling" if chosen == OPPOSITE[up] else "wall")
     return out
 
 
@@ -72,19 +74,20 @@ def main() -> None:
     paths = [args.data / f"{room['room']}.ply" for room in rooms]
     with ProcessPoolExecutor(os.cpu_count()) as pool:
         results = list(pool.map(choices, paths, chunksize=4))
-    counts: dict[str, Counter] = {}
+    counts: dict[tuple[str, str], Counter] = {}
     for room, outcome in zip(rooms, results):
         for style in (room["style"], "every style"):
-            counts.setdefault(style, Counter()).update(outcome)
-    print(f"{len(rooms)} rooms of {args.data}, each z-up, y-up and y-down; {os.cpu_count()} cores\n")
+            for known, chosen in outcome.items():
+                counts.setdefault((style, known), Counter()).update(chosen)
+    print(f"{len(rooms)} rooms of {args.data}, each z-up, y-up and y-down; {os.cpu_count()} cores")
+    print("Each cell: without / with the sensor positions (`afford map` uses them when the cloud has them)\n")
     print("| scan style | clouds | up right | the ceiling taken for the floor | a wall | no floor found |")
     print("|---|---:|---:|---:|---:|---:|")
-    for style, count in sorted(counts.items(), key=lambda item: item[0] == "every style"):
-        total = sum(count.values())
-        print(
-            f"| {style} | {total} | {count['right']} | {count['ceiling']} | {count['wall']} "
-            f"| {count['no floor']} |"
-        )
+    styles = sorted({style for style, _ in counts}, key=lambda style: style == "every style")
+    for style in styles:
+        without, known = counts[(style, "without")], counts[(style, "with")]
+        cells = " | ".join(f"{without[k]} / {known[k]}" for k in ("right", "ceiling", "wall", "no floor"))
+        print(f"| {style} | {sum(without.values())} | {cells} |")
 
 
 if __name__ == "__main__":

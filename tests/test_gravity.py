@@ -3,6 +3,8 @@ clear failures without a floor, and real sensor data (skipped when ../shared is 
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from conftest import SHARED_DATA, needs_shared
@@ -15,6 +17,8 @@ from affordcore.geometry.gravity import (
     check_levelled,
     rotation_between,
 )
+from affordcore.geometry.scene import Cloud
+from affordcore.mapping.pipeline import to_world
 from affordcore.settings import GravitySettings
 
 Z = np.array([0.0, 0.0, 1.0])
@@ -289,6 +293,47 @@ def test_a_few_frames_facing_a_wall_are_levelled_on_the_floor(seed):
     assert len(valid) > 1  # a choice was made: the wall is a valid floor by the area and under-it tests
     assert alignment.up_axis == "+z"
     assert "over -y's" in alignment.describe()  # the user is told what else passed for a floor
+
+
+# --- where the sensor stood --------------------------------------------------------------------------------
+
+
+def test_the_floor_lies_a_carried_height_under_the_sensor(room):
+    """With the sensor 1.4 m over the example room's floor, the floor is found as without; 4 m over it or
+    under it, the floor is no floor, and the error says so (the walls were never floors)."""
+    centre = np.median(room[:, :2], axis=0)
+    assert align_to_gravity(room, origins=np.array([[*centre, 1.4]])).up_axis == "+z"
+    for height in (4.0, -0.5):
+        with pytest.raises(
+            NoFloorError, match=re.escape(f"+z: the sensor would stand {height:+.2f} m over it")
+        ):
+            align_to_gravity(room, origins=np.array([[*centre, height]]))
+    # afford map's path takes the positions a cloud carries
+    cloud = Cloud(room, origins=np.array([[*centre, 4.0]]))
+    with pytest.raises(NoFloorError, match="the sensor would stand"):
+        to_world(cloud)
+
+
+def test_a_few_frames_facing_a_wall_are_levelled_on_the_floor_the_sensor_stands_over():
+    """Raw Kinect frames of a generated living room whose floor search, without the camera positions,
+    takes the wall they face for the floor (up = -y): the cameras stand 2-4 m from that wall, and 1.0-1.7 m
+    over the floor."""
+    from affordcore.synth.rooms import generate_room
+    from affordcore.synth.styles import scan_in_style
+
+    rng = np.random.default_rng(22)
+    scan = scan_in_style("frames", generate_room("living", rng, "frames"), rng)
+    assert align_to_gravity(scan.points).up_axis == "-y"
+    alignment = align_to_gravity(scan.points, origins=scan.origins)
+    assert alignment.up_axis == "+z"
+    wall = next(c for c in alignment.candidates if c.axis == "-y")
+    assert not wall.valid and "the sensor would stand" in wall.reason
+
+
+@pytest.mark.parametrize("heights", [(2.0, 1.0), (-0.1, 2.0), (1.0, 1.0)])
+def test_sensor_heights_must_be_a_range_from_zero_up(heights):
+    with pytest.raises(ValueError, match="sensor_heights"):
+        GravitySettings(sensor_heights=heights)
 
 
 # --- a cloud said to be levelled ---------------------------------------------------------------------------

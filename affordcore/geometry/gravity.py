@@ -4,7 +4,9 @@ Automatic alignment does not know which way the input frame is up. It tries each
 (by default +z for z-up scans, +y for y-up scans, -y for camera frames with y down) and, for each, looks for
 a floor: a plane among the lowest points, leaning at most ``max_tilt_deg`` from that axis, found by RANSAC.
 A candidate's floor is *valid* when it covers at least ``min_floor_area`` and almost nothing lies under it
-(walls fail here: doors, windows and scan noise put points behind them). Among valid floors the one with the
+(walls fail here: doors, windows and scan noise put points behind them). Where the cloud knows where its
+sensor stood (`origins`), a floor must also lie under the sensor at a height a sensor is carried at
+(`sensor_heights`): a wall a few frames saw from across the room does not. Among valid floors the one with the
 strongest floor evidence wins (`_judge_floor`: furniture tops above it, the plane's own extent, and
 nothing behind it). No valid floor is an error (`NoFloorError`) that says, per candidate, why it failed: a
 wrong frame is worse than no frame.
@@ -115,12 +117,16 @@ class Alignment:
 
 
 def align_to_gravity(
-    points: np.ndarray, gravity: str | np.ndarray | None = "auto", settings: GravitySettings | None = None
+    points: np.ndarray,
+    gravity: str | np.ndarray | None = "auto",
+    settings: GravitySettings | None = None,
+    origins: np.ndarray | None = None,
 ) -> Alignment:
     """Find the transform to the z-up, floor-at-zero world frame.
 
     ``gravity``: "auto" (search the candidate axes), "none" or None (the cloud is already aligned), or a
-    3-vector pointing down in the input frame (the floor height is still found from the cloud).
+    3-vector pointing down in the input frame (the floor height is still found from the cloud). ``origins``
+    (M, 3): where the sensor stood, in the points' frame, if known; the search keeps only floors under it.
     """
     settings = settings or GravitySettings()
     if gravity is None or (isinstance(gravity, str) and gravity == "none"):
@@ -129,7 +135,7 @@ def align_to_gravity(
     if isinstance(gravity, str):
         if gravity != "auto":
             raise ValueError(f"gravity must be 'auto', 'none' or a vector, not {gravity!r}")
-        return _auto(sample, settings)
+        return _auto(sample, settings, origins)
     down = np.asarray(gravity, dtype=np.float64).reshape(3)
     if not np.isfinite(down).all() or np.linalg.norm(down) < 1e-9:
         raise ValueError(f"gravity vector {down.tolist()} has no direction")
@@ -203,12 +209,14 @@ def _where_the_floor_is(sample: np.ndarray, settings: GravitySettings) -> str:
     return f"its floor is at z = {floor.offset:+.2f} m, tilted {floor.tilt_deg:.1f} deg"
 
 
-def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
+def _auto(sample: np.ndarray, settings: GravitySettings, origins: np.ndarray | None = None) -> Alignment:
     candidates = []
     for axis in settings.up_candidates:
         if axis not in AXES:
             raise ValueError(f"unknown up candidate {axis!r}; use one of {', '.join(AXES)}")
         candidates.append(_find_floor(sample, np.array(AXES[axis], float), axis, settings))
+        if origins is not None and len(origins):
+            _check_sensor_height(candidates[-1], origins, settings)
     valid = [c for c in candidates if c.valid]
     if not valid:
         reasons = "; ".join(f"{c.axis}: {c.reason}" for c in candidates)
@@ -231,6 +239,20 @@ def _auto(sample: np.ndarray, settings: GravitySettings) -> Alignment:
         best.area,
         candidates,
     )
+
+
+def _check_sensor_height(candidate: FloorCandidate, origins: np.ndarray, settings: GravitySettings) -> None:
+    """Rule out a valid candidate the sensor does not stand over at a height it can be carried at (the median
+    of its positions' heights above the plane: a walk's few low or high frames do not decide)."""
+    if not candidate.valid:
+        return
+    height = float(np.median(origins @ candidate.normal - candidate.offset))
+    low, high = settings.sensor_heights
+    if not low <= height <= high:
+        candidate.valid = False
+        candidate.reason = (
+            f"the sensor would stand {height:+.2f} m over it (a floor lies {low:g}-{high:g} m under it)"
+        )
 
 
 def _ends_of_a_room(floor: FloorCandidate, candidates: list[FloorCandidate]) -> list[FloorCandidate]:

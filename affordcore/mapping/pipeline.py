@@ -88,7 +88,7 @@ def to_world(
     found."""
     settings = settings or Settings()
     cloud, warning = thin_huge_cloud(cloud, settings.map.max_points, settings.map.thin_voxel)
-    alignment = align_to_gravity(cloud.points, gravity, settings.gravity)
+    alignment = align_to_gravity(cloud.points, gravity, settings.gravity, cloud.origins)
     if alignment.method != "none":  # "none" is the identity: no copy of every point for nothing
         cloud = cloud.transformed(alignment.world_from_input)
     return WorldCloud(cloud, alignment, [warning] if warning else [])
