@@ -314,20 +314,20 @@ def test_the_floor_lies_a_carried_height_under_the_sensor(room):
         to_world(cloud)
 
 
-def test_a_few_frames_facing_a_wall_are_levelled_on_the_floor_the_sensor_stands_over():
-    """Raw Kinect frames of a generated living room whose floor search, without the camera positions,
-    takes the wall they face for the floor (up = -y): the cameras stand 2-4 m from that wall, and 1.0-1.7 m
-    over the floor."""
+@pytest.mark.parametrize("seed, wall", [(22, "-y"), (28, "+y")])
+def test_a_few_frames_facing_a_wall_are_levelled_on_the_floor_the_sensor_stands_over(seed, wall):
+    """Raw Kinect frames of generated living rooms whose floor search, without the camera positions, takes
+    the wall they face for the floor: the cameras stand 2-4 m from that wall, and 1.0-1.7 m over the floor
+    (in the second room only once the search looks under the seat and table tops it sees more of)."""
     from affordcore.synth.rooms import generate_room
     from affordcore.synth.styles import scan_in_style
 
-    rng = np.random.default_rng(22)
+    rng = np.random.default_rng(seed)
     scan = scan_in_style("frames", generate_room("living", rng, "frames"), rng)
-    assert align_to_gravity(scan.points).up_axis == "-y"
+    assert align_to_gravity(scan.points).up_axis == wall
     alignment = align_to_gravity(scan.points, origins=scan.origins)
     assert alignment.up_axis == "+z"
-    wall = next(c for c in alignment.candidates if c.axis == "-y")
-    assert not wall.valid and "the sensor would stand" in wall.reason
+    assert not next(c for c in alignment.candidates if c.axis == wall).valid
 
 
 @pytest.mark.parametrize("heights", [(2.0, 1.0), (-0.1, 2.0), (1.0, 1.0)])

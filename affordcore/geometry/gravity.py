@@ -211,11 +211,13 @@ def _where_the_floor_is(sample: np.ndarray, settings: GravitySettings) -> str:
 
 def _auto(sample: np.ndarray, settings: GravitySettings, origins: np.ndarray | None = None) -> Alignment:
     candidates = []
+    # where the sensor stood tells a wall from a floor, so a candidate may descend under the tops it sees
+    known = origins is not None and len(origins) > 0
     for axis in settings.up_candidates:
         if axis not in AXES:
             raise ValueError(f"unknown up candidate {axis!r}; use one of {', '.join(AXES)}")
-        candidates.append(_find_floor(sample, np.array(AXES[axis], float), axis, settings))
-        if origins is not None and len(origins):
+        candidates.append(_find_floor(sample, np.array(AXES[axis], float), axis, settings, descend=known))
+        if known:
             _check_sensor_height(candidates[-1], origins, settings)
     valid = [c for c in candidates if c.valid]
     if not valid:
@@ -284,8 +286,9 @@ def _find_floor(
     offset = float(np.median(band[inliers] @ normal))
     for _ in range(_DESCENTS if descend else 0):
         # A room seen by a few frames can show more seat and table tops than floor: when the biggest plane
-        # has points under it, look for the lowest plane among those. Only under a known gravity: on a wrong
-        # candidate axis the points under a wall are what tells it is a wall.
+        # has points under it, look for the lowest plane among those. Only under a known gravity or a known
+        # sensor position: otherwise, on a wrong candidate axis, the points under a wall are what tells it is
+        # a wall (the sensor stands further from a wall than from a floor: `_check_sensor_height`).
         lower = band[band @ normal - offset < -_BELOW_MARGIN]
         if (
             np.mean(sample @ normal - offset < -_BELOW_MARGIN) <= settings.max_below_fraction
