@@ -12,6 +12,8 @@ on the chair's line, facing the table), ``standing-work-edge`` (a free edge of a
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .shapes import Anchor, Box, Piece, any_overlap, rot2
@@ -245,17 +247,7 @@ def _stop_short_of(anchors: list[Anchor], boundary: float, side: float) -> list[
         )
         if high >= low - 1e-9:
             x = anchor.start[0]
-            kept.append(
-                Anchor(
-                    anchor.role,
-                    (x, low),
-                    (x, high),
-                    anchor.facing,
-                    anchor.clearance,
-                    anchor.note,
-                    anchor.torso_height,
-                )
-            )
+            kept.append(replace(anchor, start=(x, low), end=(x, high)))
     return kept
 
 
