@@ -4,6 +4,8 @@ the map. One test runs the defaults over real Kinect frames (skipped without ../
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from conftest import SHARED_DATA
@@ -223,6 +225,32 @@ def test_the_aligned_map_has_the_floor_at_zero_and_z_up(room_frames, room_run):
     assert np.mean(heights < -0.05) < 0.01
     table = (np.abs(heights - 0.75) < 0.03).sum()
     assert table > 50 and np.mean(heights > 0.1) > 0.3  # furniture stands up from the floor, not down
+
+
+def test_without_the_frames_gravity_the_map_is_levelled_under_where_the_sensor_stood(room_frames):
+    """No IMU: the floor search takes the trajectory's positions as the sensor's (the camera walked 1.4 m up),
+    so a floor the sensor could not have stood over at a carried height is no floor."""
+    from affordcore.geometry.gravity import NoFloorError
+    from affordcore.settings import GravitySettings, Settings
+
+    frames, truth = room_frames
+    assembler = Assembler()
+    for k, points in enumerate(frames):
+        assembler.register(points, k / 30)
+    _, world_from_odom = assembler.aligned_map()
+    assert world_from_odom[2, 3] == pytest.approx(truth[0][2, 3], abs=0.03)  # the first camera, 1.4 m up
+    high = Settings(gravity=GravitySettings(sensor_heights=(2.0, 3.0)))
+    with pytest.raises(NoFloorError, match=re.escape("the sensor would stand +1.4")):
+        _fresh_copy(assembler).aligned_map(high)
+
+
+def _fresh_copy(assembler: Assembler) -> Assembler:
+    """The assembler's state in a new one that has never levelled a map (so a failed search raises)."""
+    copy = Assembler()
+    copy.load_state(
+        {key: value for key, value in assembler.state_arrays().items() if key != "world_from_odom"}
+    )
+    return copy
 
 
 def test_a_map_whose_floor_search_fails_keeps_the_last_levelling_and_a_checkpoint_keeps_it(room_run):

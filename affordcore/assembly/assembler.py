@@ -403,7 +403,9 @@ class Assembler:
         from ..mapping.pipeline import to_world
 
         known = self._gravity_sum if np.linalg.norm(self._gravity_sum) > 0 else "auto"
-        cloud = Cloud(self.map_points(), source="assembler map")
+        # without the frames' gravity, where the sensor stood tells the floor from a wall (gravity.py)
+        origins = self.trajectory.positions if isinstance(known, str) and self.trajectory.poses else None
+        cloud = Cloud(self.map_points(), source="assembler map", origins=origins)
         try:
             world = self._on_floor(to_world(cloud, settings, known))
         except NoFloorError as error:
