@@ -516,13 +516,13 @@ def _add_chair(
         push = _deepest_push(chair, parts[0].z_range[0]) if fully else push
         for depth in np.arange(push, -MAX_PULL - STEP_BACK, -STEP_BACK):
             centre = edge_x + seat_depth / 2 - depth
-            placed = [part.placed(centre, along, np.pi + swivel).placed(0, 0, turn) for part in chair]
+            # the chair at the unturned place (the anchor's support, turned with it), then turned
+            at_place = [part.placed(centre, along, np.pi + swivel) for part in chair]
+            placed = [part.placed(0, 0, turn) for part in at_place]
             if not any_overlap(placed, nearby):
                 parts += placed
                 note = _chair_note(state, float(depth), fully and depth == push)
-                # the anchor is turned with the place: its support is the chair as it stood before the turn
-                unturned = [part.placed(0, 0, -turn) for part in placed]
-                return _place_anchor(edge_x, along, turn, note, torso_height, unturned)
+                return _place_anchor(edge_x, along, turn, note, torso_height, at_place)
         state = "missing"
     # a place without a chair is no place to sit as the room stands (real rooms label their chairs; DESIGN
     # labels a pushed-in chair where it would be pulled out to); labelled, it taught that a bare table edge
@@ -532,16 +532,13 @@ def _add_chair(
 
 def _rotated_anchor(anchor: Anchor, yaw: float) -> Anchor:
     turn = rot2(yaw)
-    return Anchor(
-        anchor.role,
-        tuple(turn @ anchor.start),
-        tuple(turn @ anchor.end),
-        anchor.facing + yaw,
-        [box.placed(0, 0, yaw) for box in anchor.clearance],
-        anchor.note,
-        anchor.torso_height,
-        anchor.labelled,
-        [box.placed(0, 0, yaw) for box in anchor.support],
+    return replace(
+        anchor,
+        start=tuple(turn @ anchor.start),
+        end=tuple(turn @ anchor.end),
+        facing=anchor.facing + yaw,
+        clearance=[box.placed(0, 0, yaw) for box in anchor.clearance],
+        support=[box.placed(0, 0, yaw) for box in anchor.support],
     )
 
 
