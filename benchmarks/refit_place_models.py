@@ -35,6 +35,8 @@ def main() -> None:
     settings = Settings()
     layout = FeatureLayout.from_settings(settings)
     files = {f.name: f for f in data_set_rooms(args.data)}
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
     print("| affordance | cut before | places before | cut after | places after |")
     print("|---|---:|---|---:|---|")
     for name, path in shipped_models().items():
