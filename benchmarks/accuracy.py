@@ -354,6 +354,7 @@ def room_results(model, rooms: list, task, loose: bool = True) -> dict:
                 own = model.places.cut if cut is None else cut
                 radius = task.settings.map.nms_radius
                 result["probability"] = candidates.places(p, own, radius)
+                result["within_reach"] = candidates.within_reach()
                 result["operating"] = [candidates.places(p, c, radius) for c in OPERATING_CUTS]
                 counted = ~candidates.ignored
                 result["reliability"] = (p[counted], candidates.used[counted])
@@ -392,6 +393,7 @@ def summarise(model, results: dict, names: list[str], loose: bool = True) -> dic
         found, _, false = np.sum([r[rule] for r in parts], axis=0)
         cut_found, _, cut_false = np.sum([r["score_cut"] for r in parts], axis=0)
         found_abs, _, false_abs = np.sum([r["absolute"] for r in parts], axis=0)
+        reach = sum(r.get("within_reach", 0) for r in parts)
         row.update(
             {
                 f"{prefix}precision": at["precision"],
@@ -402,6 +404,7 @@ def summarise(model, results: dict, names: list[str], loose: bool = True) -> dic
                 else 0.0,
                 f"{prefix}places": f"{found}/{n_labels}",
                 f"{prefix}place_recall": found / n_labels if n_labels else float("nan"),
+                f"{prefix}within_reach": f"{reach}/{n_labels}" if model.places is not None else "-",
                 f"{prefix}false_per_room": false / len(names),
                 f"{prefix}score_cut_places": f"{cut_found}/{n_labels}",
                 f"{prefix}score_cut_false_per_room": cut_false / len(names),
@@ -521,16 +524,17 @@ def markdown(results: dict, args) -> str:
         f"{place_cuts(results)}; beside them the score cut of the models before (relative to the "
         "room's median, floored).",
         "",
-        "| affordance | learner | rooms | pose P / R / F1 | AP | places found | false / room | "
-        "score cut: places, false / room | loose: F1 | loose: places | loose: false / room | "
+        "| affordance | learner | rooms | pose P / R / F1 | AP | places found | within reach | "
+        "false / room | score cut: places, false / room | loose: F1 | loose: places | loose: false / room | "
         "paper SSVM P / R / F1 |",
-        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|",
+        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in results["rows"]:
         lines.append(
             f"| {r['affordance']} | {r['learner']} | {r['rooms']} ({r['room_count']}) | "
             f"{r['precision']:.2f} / {r['recall']:.2f} / **{r['f1']:.2f}** | {r['ap']:.2f} | {r['places']} | "
-            f"{r['false_per_room']:.1f} | {r['score_cut_places']}, {r['score_cut_false_per_room']:.1f} | "
+            f"{r.get('within_reach', '-')} | {r['false_per_room']:.1f} | "
+            f"{r['score_cut_places']}, {r['score_cut_false_per_room']:.1f} | "
             f"{r['loose_f1']:.2f} | {r['loose_places']} | {r['loose_false_per_room']:.1f} | "
             f"{paper.get(r['affordance'], {}).get('structured_svm', '-')} |"
         )

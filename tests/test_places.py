@@ -307,3 +307,19 @@ def test_a_place_stands_at_the_centre_of_its_strong_poses_not_at_the_rim_of_thei
     rows = np.array([[grid.x[10], grid.y[10], grid.z[1], grid.theta[2], 1.0]])
     np.testing.assert_allclose(centred(lone, grid, np.array([[10, 10]]), rows, 0.0), rows)
     np.testing.assert_allclose(centred(lone, grid, np.array([[10, 10]]), rows, 2.0), rows)  # none above it
+
+
+def test_within_reach_counts_the_labels_an_eligible_candidate_stands_on():
+    from affordcore.learn.thresholds import PlaceCandidates
+
+    # three labels: the first under an eligible candidate, the second only under one whose peak is no
+    # positive pose, the third under none
+    matches = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 0]], bool)
+    xy = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    evidence = np.zeros((3, len(EVIDENCE)))
+    ignored = np.zeros(3, bool)
+    assert PlaceCandidates(evidence, matches, ignored, xy, np.array([True, False, True])).within_reach() == 1
+    assert PlaceCandidates(evidence, matches, ignored, xy).within_reach() == 2  # no eligibility: every one
+    # however low the cut, the map finds no more than is within reach
+    some = PlaceCandidates(evidence, matches, ignored, xy, np.array([True, False, True]))
+    assert some.places(np.ones(3), 0.0, 0.45)[0] == some.within_reach()

@@ -92,6 +92,13 @@ class PlaceCandidates:
         false = kept & ~self.matches.any(axis=0) & ~self.ignored
         return int(self.matches[:, kept].any(axis=1).sum()), int(kept.sum()), int(false.sum())
 
+    def within_reach(self) -> int:
+        """Labelled places some place decision could find: those matched by a candidate that may be a place.
+        Any labelled place beyond that was lost by the pose scores (no eligible candidate on it), not by the
+        place model or its cut."""
+        eligible = np.ones(self.matches.shape[1], bool) if self.eligible is None else self.eligible
+        return int((self.matches & eligible[None]).any(axis=1).sum())
+
     @property
     def used(self) -> np.ndarray:
         """(k,) bool of the candidates that count: a person can use the place (it matches a label)."""
