@@ -258,7 +258,7 @@ def models_rebuild(
     ),
     workers: int = typer.Option(2, "--workers", min=1, help="rooms generated in parallel"),
 ) -> None:
-    """Retrain the default models from generated rooms, reproducibly (the defaults make the shipped ones)."""
+    """Retrain the default models from generated rooms, reproducibly: the shipped models' recipe."""
     with user_errors():
         from affordcore.learn.defaults import rebuild_default_models, winners
         from affordcore.learn.model import MODELS_DIR

@@ -2,8 +2,9 @@
 
 The rooms are `afford synth --rooms 500 --seed 1` (every scan style in turn), dealt by generation index as
 `benchmarks/accuracy.py` deals them: the last `TEST` rooms are held out (the benchmark measures the shipped
-models on them), the `VALIDATION` before them choose the thresholds, the rest train. So the default rebuild
-makes the models whose figures docs/accuracy.md shows.
+models on them), the `VALIDATION` before them choose the thresholds, the rest train: the recipe of the shipped
+models. Two rebuilds make the same files; docs/accuracy.md ("A rebuild on today's labels") compares them
+with the shipped ones.
 """
 
 from __future__ import annotations
