@@ -330,7 +330,8 @@ def watch(
     zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help=ZENOH_CONFIG_HELP),
 ) -> None:
     """Print what the services of a robot publish; exit 0 once every affordance has a map of the newest cloud
-    (never an older cloud's), exit 1 when that cloud is refused or on timeout."""
+    (never an older cloud's), exit 1 when the cloud waited for is refused (another client's refused cloud is
+    shown, not taken as the answer) or on timeout."""
     with user_errors():
         from affordcore.learn.model import shipped_models
         from services.clients import MapWatcher, watch_maps
@@ -343,7 +344,11 @@ def watch(
         service = _settings(zenoh_config).service
         arrived = watch_maps(connect, service.mode, keys, watcher, timeout, service.zenoh_config)
         if watcher.refused is not None:
-            fail(f"the features service refused the cloud: {watcher.refused}", code=1)
+            fail(
+                f"the features service refused the cloud: {watcher.refused} (the cloud waited for: "
+                f"{watcher.refused_cloud})",
+                code=1,
+            )
         if watcher.gave_up is not None:
             fail(watcher.gave_up, code=1)
         for name in sorted(watcher.received):

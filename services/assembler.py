@@ -42,6 +42,7 @@ class AssemblerService:
         if self.store:
             print(f"[assembler] restored {restored} frames from {self.store.folder}", flush=True)
         self.inbox = node.inbox(latest_only=False, skip_when_late=True)
+        self.inbox.check = self._check  # a scan is decoded on arrival: a bad one never waits in line
         node.subscribe(node.keys.scans, self.inbox)
         # ROS 2 clouds (and Imu gravity) too, when AFFORD_ROS__POINTS names a topic (services/ros.py)
         self.ros = RosInput(node, self.inbox) if RosInput.wanted(node.settings.ros) else None
@@ -55,11 +56,17 @@ class AssemblerService:
             if self.ros is not None:
                 print(f"[assembler] {self.ros.summary()}", flush=True)
 
+    def _check(self, item: Inbound, parsed) -> object:
+        """On arrival: the sensor frame a scan holds (a ROS 2 cloud: its decoded points), checked."""
+        if self.ros is not None and self.ros.takes(item):
+            return self.ros.decode(item)
+        return decode_sensor(item.schema, item.payload, self.limits)
+
     def handle(self, item: Inbound) -> None:
         if self.ros is not None and self.ros.takes(item):
-            frame = self.ros.frame(item)
+            frame = self.ros.frame(item, item.checked)
         else:
-            frame = decode_sensor(item.schema, item.payload, self.limits)
+            frame = item.checked
         at = frame.stamp or item.arrived
         # a refused scan changes no map, but the next map says it was received: afford watch waits for the
         # map that covers the last scan published, whatever became of it

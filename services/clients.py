@@ -160,7 +160,7 @@ def describe(key: str, schema: str, payload: bytes) -> str:
         counts = f"taken {message.accepted}, rejected {message.rejected}, published {message.published}"
         return f"{key}: {state} {message.detail} ({counts})"
     if name == "Error":
-        return f"{key}: REJECTED {message.key}: {message.reason}"
+        return f"{key}: REJECTED {refused_input(message)} on {message.key}: {message.reason}"
     if name == "AffordanceMap":
         first = message.skeletons[0] if message.skeletons else None
         best = (
@@ -186,13 +186,24 @@ def describe(key: str, schema: str, payload: bytes) -> str:
     return f"{key}: {name} of {len(payload):,} bytes"
 
 
+def refused_input(error) -> str:
+    """What a refusal says it refused, in words: its source, its stamp and the scans it covered."""
+    what = f"{error.input_source!r}" if error.input_source else "an input"
+    if error.HasField("input_timestamp"):
+        what += f" stamped {error.input_timestamp.seconds}.{error.input_timestamp.nanos:09d}"
+    return what + (f" ({error.input_scans} scans)" if error.input_scans else "")
+
+
 class MapWatcher:
     """Collects the affordance maps of one robot; `done` once every wanted affordance has a map of a cloud no
     older than `since` (nanoseconds since the epoch; `watch` sets it to the newest cloud the features service
     has when 0) that covers at least `min_frames` scans: scans the assembler received, fused or skipped to
-    keep up (a busy assembler skips scans, and a map of every one published would never come). A refusal of
-    that very cloud ends the watch too (`refused` says why), and so does an assembler that has had every scan
-    and no map to give of them (`gave_up` says why)."""
+    keep up (a busy assembler skips scans, and a map of every one published would never come).
+
+    A refusal ends the watch only when it answers the cloud waited for (`refused` says why): the cloud
+    stamped `since`, or, waiting for `min_frames` scans, a cloud of the assembler's covering them. Another
+    client's refused cloud is shown, and the watch goes on. So does an assembler that has had every scan and
+    no map to give of them (`gave_up` says why)."""
 
     def __init__(
         self,
@@ -206,19 +217,21 @@ class MapWatcher:
         self.keys, self.wanted, self.min_frames = keys, set(affordances), min_frames
         self.out, self.echo, self.since = out, echo, since
         self.received: dict[str, dict] = {}
-        self.refused: str | None = None
+        self.refused: str | None = None  # why the cloud waited for was refused
+        self.refused_cloud = ""  # ... and which cloud that was, in words
         self.gave_up: str | None = None
         self.newest_covered = 0  # scans covered by the newest map seen: what a timeout reports
         self.done = threading.Event()
         self._lock = threading.Lock()
 
-    def on_sample(self, sample) -> None:
+    def on_sample(self, sample, live: bool = True) -> None:
+        """A sample on the robot's keys; `live` False: a reply to a get, from before the watch began."""
         key, schema, payload = str(sample.key_expr), schema_of(sample), sample.payload.to_bytes()
         self.echo(describe(key, schema, payload))
         if schema == messages.schema_name(messages.AffordanceMapMessage):
             self._take_map(payload)
-        elif schema == messages.schema_name(messages.Error) and key == self.keys.error("features"):
-            self._take_refusal(payload)
+        elif schema == messages.schema_name(messages.Error) and "/error/features" in key:
+            self._take_refusal(payload, live)
         elif schema == messages.schema_name(messages.Status) and key == self.keys.status("assembler"):
             self._take_assembler_status(payload)
 
@@ -247,13 +260,34 @@ class MapWatcher:
             if self.wanted <= set(self.received):
                 self.done.set()
 
-    def _take_refusal(self, payload: bytes) -> None:
+    def _take_refusal(self, payload: bytes, live: bool) -> None:
         try:
             error = messages.parse(messages.Error, payload)
         except messages.MessageError:
             return
-        if self.since and messages.nanoseconds(error.input_timestamp) == self.since:
+        if self.answers_ours(error, live):
+            self.refused_cloud = refused_input(error)
             self.refuse(error.reason)
+        else:
+            self.echo("  (not the cloud waited for: the watch goes on)")
+
+    def answers_ours(self, error, live: bool = True) -> bool:
+        """Whether a cloud's refusal answers the cloud waited for: the one stamped `since` exactly (as
+        `afford publish --as-map` printed it, or the newest at the start); waiting for `min_frames` scans,
+        also a later cloud of the assembler that covers them, if refused while the watch ran (one kept from
+        before is an earlier stream's)."""
+        if not error.HasField("input_timestamp"):
+            return False  # it names no cloud: nobody's answer
+        stamp = messages.nanoseconds(error.input_timestamp)
+        if self.since and stamp == self.since:
+            return True
+        return (
+            live
+            and self.min_frames > 0
+            and stamp >= self.since
+            and error.input_source == "assembler"
+            and error.input_scans >= self.min_frames
+        )
 
     def _take_assembler_status(self, payload: bytes) -> None:
         """The assembler has every scan waited for settled (taken, refused or passed over) and says its map of
@@ -293,9 +327,9 @@ def covered_scans(message) -> int:
     return max(message.frames, message.scans_received)
 
 
-def newest_cloud(session, keys: Keys, timeout: float = 5.0) -> tuple[int, str]:
-    """(nanoseconds, refusal) of the newest cloud the robot's features service has received, taken or
-    waiting, and why it was refused ("" if not); (0, "") when the service does not answer."""
+def newest_cloud(session, keys: Keys, timeout: float = 5.0) -> int:
+    """Nanoseconds of the newest cloud the robot's features service has received and not refused, taken or
+    waiting; 0 when it has none, or does not answer."""
     for reply in session.get(keys.status("features"), timeout=timeout):
         if reply.ok is None or schema_of(reply.ok) != messages.schema_name(messages.Status):
             continue
@@ -303,22 +337,19 @@ def newest_cloud(session, keys: Keys, timeout: float = 5.0) -> tuple[int, str]:
             status = messages.parse(messages.Status, reply.ok.payload.to_bytes())
         except messages.MessageError:
             continue
-        return messages.nanoseconds(status.newest_input), status.newest_input_refused
-    return 0, ""
+        return messages.nanoseconds(status.newest_input)
+    return 0
 
 
 def watch(session, keys: Keys, watcher: MapWatcher, timeout: float) -> bool:
     """Print everything under the robot's keys and collect maps until `watcher` is done or `timeout` passes.
     Without a `since` of its own, the watcher waits for maps of the newest cloud the features service has
     (never an older cloud's, which the inference service still answers with). Maps published before the
-    watch began are fetched with a get (a late joiner catches up)."""
+    watch began are fetched with a get (a late joiner catches up), and so are the refusals the services still
+    keep: a cloud refused before the watch began ends it as one refused during it."""
     import zenoh
 
-    newest, refused = newest_cloud(session, keys, min(timeout, 5.0))
-    watcher.since = watcher.since or newest
-    if refused and newest == watcher.since:
-        watcher.refuse(refused)
-        return True
+    watcher.since = watcher.since or newest_cloud(session, keys, min(timeout, 5.0))
     watcher.echo(f"waiting for {watcher.waiting_for()}")
     subscriber = session.declare_subscriber(keys.key("**"), watcher.on_sample)
 
@@ -329,9 +360,10 @@ def watch(session, keys: Keys, watcher: MapWatcher, timeout: float) -> bool:
 
     alive = session.liveliness().declare_subscriber(keys.key("status", "*"), on_liveliness, history=True)
     try:
-        for reply in session.get(keys.key("affordance", "*"), timeout=min(timeout, 5.0)):
-            if reply.ok is not None:
-                watcher.on_sample(reply.ok)
+        for selector in (keys.key("error", "*"), keys.key("affordance", "*")):
+            for reply in session.get(selector, timeout=min(timeout, 5.0)):
+                if reply.ok is not None:
+                    watcher.on_sample(reply.ok, live=False)
         return watcher.done.wait(timeout)
     finally:
         alive.undeclare()

@@ -22,7 +22,8 @@ class FeaturesService:
         self.node = node
         self.normals = NormalCache()  # the robot's map comes again and again: estimate only what changed
         preload()  # now, not when the first map arrives
-        self.inbox = node.inbox(latest_only=True)  # a newer map supersedes one not yet worked on
+        self.inbox = node.inbox(latest_only=True)  # a newer map supersedes one not yet worked on ...
+        self.inbox.check = self._check  # ... once it is found sound
         self.held_back, self.held_back_last = 0, False  # fields of superseded maps not published
         node.subscribe(node.keys.cloud, self.inbox)
         node.answer_latest(node.keys.fields)
@@ -35,11 +36,15 @@ class FeaturesService:
             on_stop=lambda: f"fields held back, their map superseded while computed: {self.held_back}",
         )
 
+    def _check(self, item: Inbound, parsed) -> tuple:
+        """On arrival: the cloud, its points and sensor origins, checked against the limits."""
+        cloud = self.node.decode(item, messages.CloudMessage, parsed=parsed)
+        limits = self.node.settings.limits
+        return cloud, messages.cloud_points(cloud, limits), messages.cloud_origins(cloud, limits)
+
     def handle(self, item: Inbound) -> None:
-        cloud = self.node.decode(item, messages.CloudMessage)
+        cloud, points, origins = item.checked
         settings = self.node.settings
-        points = messages.cloud_points(cloud, settings.limits)
-        origins = messages.cloud_origins(cloud, settings.limits)
         levelled = messages.is_levelled(cloud)
         what = (
             "computing the fields"
@@ -56,6 +61,7 @@ class FeaturesService:
             normals=self.normals,
         )
         if self._superseded():
+            self.inbox.set_aside(item)  # back to work if the newer map is refused
             self.held_back, self.held_back_last = self.held_back + 1, True
             self.node.publish_status(
                 messages.Status.READY,

@@ -41,6 +41,7 @@ class InferenceService:
         # the robot's room, updated; scored in worker processes when the registry forked them
         self.mapper = getattr(node, "mapper", None) or RoomMapper(self.models, self.layout, node.settings)
         self.inbox = node.inbox(latest_only=True)
+        self.inbox.check = self._check  # fields are found sound before they supersede any
         # a newer map reaching the features service, or newer fields arriving, while maps are made supersede
         # them: the maps in hand are given up, except right after a call given up, so that at least every
         # other fields message gets its maps
@@ -48,6 +49,8 @@ class InferenceService:
         self.mapping_cloud = 0  # nanoseconds: the time of the map whose fields are being mapped
         self.features_newest = 0  # nanoseconds: the newest map the features service said it received
         self.given_up = 0
+        # the input last given up, set aside: mapped after all if the newer map it yielded to is refused
+        self.given_up_last_item: Inbound | None = None
         self.inbox.on_queued = self._give_up
         node.hold(node.session.declare_subscriber(node.keys.status("features"), self._features_status))
         node.subscribe(node.keys.fields, self.inbox)
@@ -92,9 +95,14 @@ class InferenceService:
             )
         return fields
 
+    def _check(self, item: Inbound, parsed) -> tuple:
+        """On arrival: the fields message and its fields, checked against the limits and the models."""
+        message = self.node.decode(item, messages.SceneFieldsMessage, parsed=parsed)
+        return message, self._fields(message)
+
     def handle(self, item: Inbound) -> None:
-        message = self.node.decode(item, messages.SceneFieldsMessage)
-        fields = self._fields(message)
+        message, fields = item.checked
+        self.given_up_last_item = None
         self.node.publish_status(messages.Status.BUSY, f"mapping {len(self.models)} affordances")
         set_time(self.node.recording, messages.seconds(message.cloud_timestamp))
 
@@ -112,6 +120,8 @@ class InferenceService:
             self.mapper.maps(fields, on_map=publish)
         except Superseded:
             self.gave_up_last, self.given_up = True, self.given_up + 1
+            self.inbox.set_aside(item)  # the newer map may yet be refused
+            self.given_up_last_item = item
             self.node.publish_status(
                 messages.Status.READY,
                 f"gave up the maps of a {message.frames}-frame map for a newer map ({self.given_up} in all)",
@@ -144,9 +154,15 @@ class InferenceService:
             messages.checked_seconds(status.newest_input, self.node.settings.limits, "newest_input")
         except messages.MessageError:
             return
-        self.features_newest = max(self.features_newest, messages.nanoseconds(status.newest_input))
+        # not the largest ever seen: a map the features service refuses is no longer its newest
+        self.features_newest = messages.nanoseconds(status.newest_input)
         if self.mapping and self.features_newest > self.mapping_cloud:
             self._give_up()
+        given_up = self.given_up_last_item
+        if not self.mapping and given_up is not None:
+            cloud = messages.nanoseconds(given_up.checked[0].cloud_timestamp)
+            if self.features_newest <= cloud and self.inbox.recall(given_up):
+                self.given_up_last_item = None  # the map it was given up for was refused: mapped after all
 
 
 class ShardedInference(InferenceService):

@@ -8,6 +8,7 @@ written from one thread, and a bad input is answered on the error key while the 
 
 from __future__ import annotations
 
+import bisect
 import threading
 import time
 import traceback
@@ -32,7 +33,7 @@ from .transport import (
 )
 
 
-@dataclass
+@dataclass(eq=False)  # one input is itself only: set-aside inputs are found by identity
 class Inbound:
     key: str
     schema: str
@@ -41,7 +42,19 @@ class Inbound:
     arrived: float
     is_input: bool = True  # False: the service's own work (idle, stop), answered alike but not counted
     input_timestamp: object = None  # the message's own Timestamp once decoded: a refusal carries it back
+    input_source: str = ""  # ... its own source (a Cloud's source, a scan's frame_id), and
+    input_scans: int = 0  # ... the scans it covers (a Cloud's): so a waiter knows which refusal is its own
+    checked: object = None  # what the inbox's check made of it on arrival (the decoded, validated message)
     taken: bool = False  # counted in Status.accepted while it is worked on; a refusal moves it to rejected
+    passed_over: bool = False  # counted in Status.skipped: superseded, or passed over to keep up
+
+
+# inputs an inbox keeps set aside for a newer one not yet found sound (beside the bound on those waiting)
+SET_ASIDE = 4
+# refusals each service keeps and answers a get on its error key with (a late waiter finds its own)
+REFUSALS_KEPT = 32
+# the timestamps of inputs received and not refused a service keeps, newest last: its Status.newest_input
+STAMPS_KEPT = 256
 
 
 def _own_work(what: str) -> Inbound:
@@ -61,6 +74,17 @@ class BoundedInbox:
         self.skipped = 0
         self.skipped_last: Inbound | None = None
         self.offered = 0  # every input offered, taken or refused
+        # validates each input on arrival (on zenoh's thread), before it may supersede or delay anything: what
+        # it returns is the item's `checked`; a ValueError refuses the input there and then
+        self.check: Callable[[Inbound], object] | None = None
+        # inputs superseded by newer ones not yet found sound (newest last): one comes back when the input
+        # that superseded it is refused, so a bad input never costs a good one its answer
+        self._set_aside: deque[Inbound] = deque(maxlen=SET_ASIDE)
+
+    def count_refused(self) -> None:
+        """An input refused before it was offered (its check failed) is settled too."""
+        with self._ready:
+            self.offered += 1
 
     def settled(self) -> int:
         """How many inputs offered are no longer waiting: taken, passed over, or refused."""
@@ -88,12 +112,52 @@ class BoundedInbox:
     def _pass_over(self, item: Inbound) -> None:
         self.skipped += 1
         self.skipped_last = item
+        item.passed_over = True
+
+    def set_aside(self, item: Inbound) -> None:
+        """Keep `item` (superseded, or worked on and given up for a newer input) until an input newer than it
+        is answered: if that one is refused, `give_back` puts `item` back."""
+        with self._ready:
+            self._set_aside.append(item)
+
+    def settle(self, answered: Inbound) -> None:
+        """`answered` was worked on without a refusal: the inputs of its key set aside before it are no longer
+        wanted (one it set aside itself, given up for a newer input, stays)."""
+        with self._ready:
+            kept = [i for i in self._set_aside if i.key != answered.key or i.arrived >= answered.arrived]
+            self._set_aside = deque(kept, maxlen=SET_ASIDE)
+
+    def give_back(self, refused: Inbound) -> Inbound | None:
+        """After `refused` was refused: the newest input of its key set aside goes back to the worker, unless
+        a newer one waits (which supersedes it anyway). Returns it, or None."""
+        with self._ready:
+            kept = [item for item in self._set_aside if item.key == refused.key and item is not refused]
+            newest = max(kept, key=lambda item: item.arrived, default=None)
+            return newest if newest is not None and self.recall(newest) else None
+
+    def recall(self, item: Inbound) -> bool:
+        """Put `item`, set aside, back in line unless an input of its key waits; whether it was."""
+        with self._ready:
+            if item not in self._set_aside or self.supersedes(item.key):
+                return False
+            self._set_aside.remove(item)
+            if item.passed_over:  # it is worked on after all
+                self.skipped -= 1
+                item.passed_over = False
+            self._put_back(item)
+            self._bytes += len(item.payload)
+            self._ready.notify()
+            return True
+
+    def _put_back(self, item: Inbound) -> None:
+        raise NotImplementedError
 
     def drain(self) -> int:
-        """Empty the inbox; returns how many inputs it held."""
+        """Empty the inbox; returns how many inputs it held (those set aside were counted as skipped)."""
         with self._ready:
             count = len(self._items)
             self._items.clear()
+            self._set_aside.clear()
             self._bytes = 0
             return count
 
@@ -130,10 +194,10 @@ class Inbox(BoundedInbox):
             self.offered += 1
             if refusal := self._too_big(size):
                 return refusal
-            if self.latest_only:  # the one waiting is superseded: passed over, and counted
-                if self._items:
-                    self.skipped += len(self._items)
-                    self.skipped_last = self._items[-1]
+            if self.latest_only:  # the one waiting is superseded: passed over, counted and set aside
+                for waiting in self._items:
+                    self._pass_over(waiting)
+                    self._set_aside.append(waiting)
                 self._items.clear()
                 self._bytes = 0
             elif len(self._items) >= self.limit:
@@ -179,6 +243,9 @@ class Inbox(BoundedInbox):
         """Whether an input waiting here is newer than what a get on `key` brings (latest-only: any is)."""
         return bool(self._items)
 
+    def _put_back(self, item: Inbound) -> None:
+        self._items.appendleft(item)
+
 
 def _inbound(sample) -> Inbound:
     return Inbound(
@@ -223,8 +290,10 @@ class Node:
         stop_on_signals(self.stop_event)  # from the start: a SIGTERM while starting up is a clean stop too
         self.counts = {"accepted": 0, "rejected": 0, "published": 0, "skipped": 0, "dropped": 0}
         self.last_seconds = 0.0
-        self.newest_input = 0  # nanoseconds: the newest timestamp among the inputs received (Status)
-        self.newest_input_refused = ""  # and why that input was refused, if it was
+        # nanoseconds, sorted: the stamps of inputs received and not refused (the last is Status.newest_input)
+        self._stamps: list[int] = []
+        # (error key, Error) of the latest refusals, answered on a get
+        self._refusals: deque[tuple[str, bytes]] = deque(maxlen=REFUSALS_KEPT)
         self.no_output = ""  # why the inputs taken so far make no output (Status; the service sets it)
         self.latest: dict[str, tuple[bytes, object]] = {}  # key: (payload, encoding) answered on get
         self._declared: list = []
@@ -240,6 +309,7 @@ class Node:
         )
         self.state, self.detail = messages.Status.STARTING, "starting"
         self._declared.append(self.session.liveliness().declare_token(self.keys.status(service)))
+        self.answer_refusals()
         self._declared.append(
             self.session.declare_queryable(
                 self.keys.status(service),
@@ -298,70 +368,130 @@ class Node:
         return taken
 
     def _offer(self, inbox: Inbox, item: Inbound) -> bool:
-        refusal = inbox.offer(item)
+        """On zenoh's thread: name the input (so a refusal says what it refused), check it (a bad input is
+        refused here, before it can supersede or delay a good one), and queue it."""
+        message = self._identify(item)
+        refusal = None
+        if inbox.check is not None:
+            try:
+                item.checked = inbox.check(item, message)
+            except Exception as error:  # noqa: BLE001 - whatever a hostile input makes a check raise
+                refusal = str(error) if isinstance(error, ValueError) else f"{type(error).__name__}: {error}"
+        if refusal is not None:
+            inbox.count_refused()
+        refusal = refusal or inbox.offer(item)
         if refusal is not None:
             self.reject(item, refusal)
-        else:
-            self._note_input_time(item)
+        elif item.input_timestamp is not None:
+            self._note_stamp(messages.nanoseconds(item.input_timestamp))
         return refusal is None
 
-    def _note_input_time(self, item: Inbound) -> None:
-        """Keep the newest timestamp of the inputs received, taken or still waiting: a client that just
-        published reads it from the status to know which answer is the newest (afford watch). Read by
-        decoding the message; one that does not decode is refused later, by the worker."""
+    def _identify(self, item: Inbound):
+        """The message the sample's schema names, if it parses (else None), the item named after it: its
+        timestamp (if valid), its source (a Cloud's `source`, a sensor's `frame_id`), the scans it covers."""
         cls = messages.MESSAGE_CLASSES.get(item.schema)
-        if cls is None or "timestamp" not in cls.DESCRIPTOR.fields_by_name:
-            return
+        if cls is None:
+            return None
         try:
-            stamp = messages.parse(cls, item.payload).timestamp
-            messages.checked_seconds(stamp, self.settings.limits)  # a forged far-future time is no bar
-        except ValueError:  # MessageError
-            return
-        with self._lock:
-            if messages.nanoseconds(stamp) > self.newest_input:
-                self.newest_input, self.newest_input_refused = messages.nanoseconds(stamp), ""
+            message = messages.parse(cls, item.payload)
+        except messages.MessageError:
+            return None
+        names = cls.DESCRIPTOR.fields_by_name
+        if "timestamp" in names:
+            try:  # a forged far-future time names nothing: it is refused when checked
+                messages.checked_seconds(message.timestamp, self.settings.limits)
+                item.input_timestamp = message.timestamp
+            except messages.MessageError:
+                pass
+        item.input_source = message.source if "source" in names else getattr(message, "frame_id", "")
+        if "scans_received" in names:
+            item.input_scans = max(message.frames, message.scans_received)
+        return message
 
-    def decode(self, item: Inbound, *message_classes):
-        """The message of the class the sample's schema names, among `message_classes`, or MessageError."""
+    def _note_stamp(self, stamp: int) -> None:
+        """Keep the timestamp of an input received (taken or waiting): a client that just published reads the
+        newest from the status to know which answer is the newest (afford watch)."""
+        with self._lock:
+            bisect.insort(self._stamps, stamp)
+            del self._stamps[:-STAMPS_KEPT]
+
+    @property
+    def newest_input(self) -> int:
+        """Nanoseconds: the newest timestamp among the inputs received and not refused (0: none)."""
+        with self._lock:
+            return self._stamps[-1] if self._stamps else 0
+
+    def decode(self, item: Inbound, *message_classes, parsed=None):
+        """The message of the class the sample's schema names, among `message_classes`, or MessageError;
+        `parsed`: the message already parsed from it (`_identify`), taken as it is."""
         names = {messages.schema_name(cls): cls for cls in message_classes}
         if item.schema not in names:
             raise messages.MessageError(
                 f"expected encoding application/protobuf with schema {' or '.join(names)}, got "
                 f"{item.encoding!r}"
             )
-        message = messages.parse(names[item.schema], item.payload)
+        message = parsed if isinstance(parsed, names[item.schema]) else None
+        message = message or messages.parse(names[item.schema], item.payload)
         if "timestamp" in message.DESCRIPTOR.fields_by_name:
             item.input_timestamp = message.timestamp
         return message
 
-    def reject(self, item: Inbound, reason: str) -> None:
-        """Answer a bad input (or a failure of the service's own work) on error/<service>; the service keeps
-        running. Only inputs count in Status.rejected."""
+    def reject(self, item: Inbound, reason: str, inbox: BoundedInbox | None = None) -> None:
+        """Answer a bad input (or a failure of the service's own work) on error/<service>, naming what was
+        refused; the service keeps running. Only inputs count in Status.rejected. A refused input is no
+        longer the newest received, and what it superseded in `inbox` is given back to the worker."""
         error = messages.Error(
             service=self.service,
             key=item.key,
             encoding=item.encoding,
             payload_bytes=len(item.payload),
             reason=reason,
+            input_source=item.input_source,
+            input_scans=item.input_scans,
         )
         messages.stamp(error.timestamp)
         if item.input_timestamp is not None:
             error.input_timestamp.CopyFrom(item.input_timestamp)
-            with self._lock:
-                if messages.nanoseconds(item.input_timestamp) == self.newest_input:
-                    self.newest_input_refused = reason
+            self._forget_stamp(messages.nanoseconds(item.input_timestamp))
         if item.is_input:
             with self._lock:  # in one step: a status never counts an input both taken and refused
                 self.counts["rejected"] += 1
                 if item.taken:
                     self.counts["accepted"] -= 1
                     item.taken = False
-        put_message(self.session, self.keys.error_of(self.service, item.key), error)
+        error_key = self.keys.error_of(self.service, item.key)
+        with self._lock:
+            self._refusals.append((error_key, error.SerializeToString()))
+        put_message(self.session, error_key, error)
         print(
             f"[{self.service}] {'rejected' if item.is_input else 'failed'} {item.key}: {reason}", flush=True
         )
         what = "rejected an input" if item.is_input else f"failed {item.key}"
         self.publish_status(messages.Status.READY, f"{what}: {reason}")
+        back = inbox.give_back(item) if inbox is not None and item.is_input else None
+        if back is not None:
+            print(f"[{self.service}] took back the input it had superseded, from {back.key}", flush=True)
+
+    def _forget_stamp(self, stamp: int) -> None:
+        with self._lock:
+            index = bisect.bisect_left(self._stamps, stamp)
+            if index < len(self._stamps) and self._stamps[index] == stamp:
+                del self._stamps[index]
+
+    def answer_refusals(self) -> None:
+        """A queryable on the service's error keys that replies with the refusals it still keeps (newest
+        last), each on its own key: a client that starts waiting after its input was refused finds out."""
+        from zenoh import KeyExpr
+
+        def on_query(query) -> None:
+            with self._lock:
+                kept = list(self._refusals)
+            for key, payload in kept:
+                if KeyExpr(key).intersects(query.key_expr):
+                    query.reply(key, payload, encoding=encoding_of(messages.Error))
+
+        for key in self.keys.refusal_keys(self.service):
+            self._declared.append(self.session.declare_queryable(key, on_query))
 
     # -- outputs ---------------------------------------------------------------------------------------------
 
@@ -399,8 +529,8 @@ class Node:
                 version=version(),
                 **self.counts,
             )
-            status.newest_input.FromNanoseconds(self.newest_input)
-            status.newest_input_refused = self.newest_input_refused
+            if self._stamps:  # unset: none yet
+                status.newest_input.FromNanoseconds(self._stamps[-1])
             status.no_output = self.no_output
         messages.stamp(status.timestamp)
         return status
@@ -434,7 +564,7 @@ class Node:
                 item = inbox.take(timeout=0.2)
                 self._note_skipped(inbox)
                 if item is not None:
-                    self._handle(item, handle)
+                    self._handle(item, handle, inbox)
                 elif idle is not None:
                     self._guarded(_own_work("idle"), lambda _: idle())
                 if time.monotonic() - last_status > self.settings.service.status_period:
@@ -454,7 +584,7 @@ class Node:
         with self._lock:
             newly = inbox.skipped - self.counts["skipped"]
             self.counts["skipped"] = inbox.skipped
-        if newly:
+        if newly > 0:  # an input given back after a refusal is no longer skipped
             last = inbox.skipped_last
             self.publish_status(
                 messages.Status.BUSY,
@@ -462,29 +592,33 @@ class Node:
                 f"waited {time.time() - last.arrived:.2f} s (AFFORD_SERVICE__MAX_LAG)",
             )
 
-    def _handle(self, item: Inbound, handle: Callable[[Inbound], None]) -> None:
+    def _handle(self, item: Inbound, handle: Callable[[Inbound], None], inbox: BoundedInbox) -> None:
         with self._lock:  # counted before its outputs go out, so a status read after them includes it
-            self.counts["accepted"] += 1
-            item.taken = True
+            if not item.taken:  # an input given back after it was worked on is counted once
+                self.counts["accepted"] += 1
+                item.taken = True
             self.state, self.detail = messages.Status.BUSY, f"working on an input from {item.key}"
         started = time.perf_counter()
-        if self._guarded(item, handle):  # a refusal moved it from accepted to rejected (`reject`)
+        if self._guarded(item, handle, inbox):  # a refusal moved it from accepted to rejected (`reject`)
             self.last_seconds = time.perf_counter() - started
+            inbox.settle(item)
         with self._lock:  # a handler that said nothing more leaves the service ready
             if self.state == messages.Status.BUSY:
                 self.state, self.detail = messages.Status.READY, "waiting for input"
 
-    def _guarded(self, item: Inbound, work: Callable[[Inbound], None]) -> bool:
+    def _guarded(
+        self, item: Inbound, work: Callable[[Inbound], None], inbox: BoundedInbox | None = None
+    ) -> bool:
         """Run `work`; any exception is answered on the error key (ours by name, anything else with its type:
         that one is a bug to report) and False returned. Only leaving the process gets through."""
         try:
             work(item)
         except (ValueError, MemoryError) as error:  # MessageError, CloudError, ModelError, limits, no floor
-            self.reject(item, str(error) or type(error).__name__)
+            self.reject(item, str(error) or type(error).__name__, inbox)
             return False
         except Exception as error:  # noqa: BLE001 - a service on a shared network must outlive its bugs
             traceback.print_exc()
-            self.reject(item, f"internal error, {type(error).__name__}: {error}")
+            self.reject(item, f"internal error, {type(error).__name__}: {error}", inbox)
             return False
         return True
 

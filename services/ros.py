@@ -169,10 +169,15 @@ class RosInput:
             item = Inbound(str(sample.key_expr), schema, str(sample.encoding), payload, time.time())
             self.node.reject(item, reason)
 
-    def frame(self, item: Inbound) -> SensorFrame:
-        """The SensorFrame of a PointCloud2 sample; MessageError when it is unusable."""
+    def decode(self, item: Inbound):
+        """A PointCloud2 sample's points (on arrival); MessageError when it is unusable."""
         # thinned as the assembler would (AFFORD_ASSEMBLER__MAX_FRAME_POINTS) before the points are converted
         cloud = ros.pointcloud2(item.payload, self.limits, keep=self.node.settings.assembler.max_frame_points)
+        item.input_source = cloud.frame_id
+        return cloud
+
+    def frame(self, item: Inbound, cloud) -> SensorFrame:
+        """The SensorFrame of a decoded PointCloud2 sample, with the gravity and pose guess at its stamp."""
         gravity = self.gravity.at(cloud.stamp, self.settings.imu_max_age) if self.imu_keys else None
         guess = None
         if self.odometry_keys:

@@ -119,6 +119,9 @@ class WorkerKeys:
         robot = robot_of(input_key)
         return Keys(robot).error(service) if robot else self.error(service)
 
+    def refusal_keys(self, service: str) -> list[str]:
+        return [self.error(service), f"{PREFIX}/*/error/{service}"]
+
     def unit_of(self, robot: str, affordance: str) -> str:
         return f"{robot}/{affordance}" if self.unit == "affordance" else robot
 
@@ -187,8 +190,9 @@ class KeyedInbox(BoundedInbox):
             freed = len(old.payload) if old is not None else 0
             if refusal := self._over_bytes(size, freed):
                 return refusal
-            if old is not None:  # superseded: passed over, and counted; the key keeps its place in line
+            if old is not None:  # superseded: passed over, counted and set aside; the key keeps its place
                 self._pass_over(old)
+                self._set_aside.append(old)
             self._items[item.key] = item
             self._bytes += size - freed
             self._ready.notify()
@@ -205,6 +209,10 @@ class KeyedInbox(BoundedInbox):
     def supersedes(self, key: str) -> bool:
         with self._ready:
             return key in self._items
+
+    def _put_back(self, item: Inbound) -> None:
+        self._items[item.key] = item
+        self._items.move_to_end(item.key, last=False)  # it has waited longest
 
 
 class LatestOutputs:

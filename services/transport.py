@@ -66,6 +66,10 @@ class Keys:
         worker serving several robots answers on the input's robot's: services/shard.py)."""
         return self.error(service)
 
+    def refusal_keys(self, service: str) -> list[str]:
+        """Every key `service` answers refusals on (its queryable replies there with the ones it keeps)."""
+        return [self.error(service)]
+
 
 def robot_of(key: str) -> str | None:
     """The robot a concrete key of the afford key space belongs to (`afford/@v1/<robot>/...`), or None for any

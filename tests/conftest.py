@@ -52,6 +52,12 @@ def imbalanced_gaussian(n: int, d: int, ratio: int, shift: float, seed: int):
     return X, y
 
 
+def skeleton_document() -> dict:
+    """A model file's `skeleton` (15 joints, a torso height): what every model file must carry."""
+    joints = np.random.default_rng(15).normal(scale=0.3, size=(15, 3))
+    return {"joints": joints.tolist(), "torso_height": 0.6, "source": "test"}
+
+
 def rrd_verify(path) -> subprocess.CompletedProcess:
     """`rerun rrd verify` on a recording, with this interpreter's rerun (returncode 0: it verifies)."""
     return subprocess.run(

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import skeleton_document
 
 from affordcore.learn.model import AffordanceModel, ModelError, load_model
 from affordcore.learn.thresholds import RoomScores, place_floor, place_threshold
@@ -78,6 +79,7 @@ def _cascade_model(trees: TreeEnsemble, n_features: int) -> AffordanceModel:
         learner="cascade",
         place_threshold=0.7,
         rescorer={"fraction": 0.03, "trees": trees.to_dict()},
+        skeleton=skeleton_document(),
     )
 
 

@@ -92,7 +92,10 @@ def test_an_unlevelled_room_gives_the_maps_of_the_levelled_one_and_a_bad_world_c
             raised = messages.cloud_message(room + [0.0, 0.0, 0.8], np.eye(4), "example")
             publish_map(session, keys, raised, wait=30)
             started = time.monotonic()
-            third = _watch(stack, "--out", str(tmp_path / "raised"))
+            stamp = (
+                f"{raised.timestamp.seconds}.{raised.timestamp.nanos:09d}"  # as publish --as-map prints it
+            )
+            third = _watch(stack, "--since", stamp, "--out", str(tmp_path / "raised"))
             waited = time.monotonic() - started
         finally:
             session.close()

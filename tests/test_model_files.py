@@ -7,6 +7,7 @@ import pickle
 
 import numpy as np
 import pytest
+from conftest import skeleton_document
 
 from affordcore.geometry.features import FeatureLayout
 from affordcore.learn.model import KEPT_TEXTS, AffordanceModel, ModelError, load_model
@@ -25,6 +26,7 @@ def _model(layout: FeatureLayout) -> AffordanceModel:
         parameters={"C": 1e7},
         training={"rooms": ["a", "b"], "class_counts": {"positives": 10, "negatives": 9990}},
         validation={"precision": 0.5, "recall": 0.6, "f1": 0.545},
+        skeleton=skeleton_document(),
     )
 
 
@@ -59,6 +61,20 @@ def test_another_layout_is_refused_with_both_layouts_named(tmp_path):
         (lambda d: d.update(weights=[1.0, 2.0]), "2 weights for a layout of 222"),
         (lambda d: d.update(surprise=1), "malformed"),
         (lambda d: d.update(place_reference="room-mean"), "malformed.*place_reference"),
+        # each field of its type, the wrong one named
+        (lambda d: d.update(bias="abc"), r"malformed model: bias: .*number.*'abc'"),
+        (lambda d: d.update(threshold=None), r"malformed model: threshold: .*number.*None"),
+        (lambda d: d.update(layout=[]), r"malformed model: layout: .*dictionary"),
+        (lambda d: d["layout"].pop("n_features"), r"malformed model: layout.n_features: Field required"),
+        (lambda d: d.update(place_floor=float("nan")), r"malformed model: place_floor: .*finite"),
+        (lambda d: d["weights"].__setitem__(3, "1.5"), r"malformed model: weights.3: .*number"),
+        (lambda d: d["skeleton"]["joints"].pop(), r"malformed model: skeleton.joints: .*15 items"),
+        (lambda d: d["skeleton"]["joints"][2].append(0.0), r"malformed model: skeleton.joints.2: .*3 items"),
+        (
+            lambda d: d["skeleton"].update(torso_height=-1),
+            r"malformed model: skeleton.torso_height: .*greater",
+        ),
+        (lambda d: d.update(rescorer=[]), r"malformed model: rescorer: .*dictionary"),
     ],
 )
 def test_bad_files_are_named_errors(tmp_path, mutate, message):

@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import skeleton_document
 
 from affordcore.geometry.features import FeatureLayout
 from affordcore.geometry.grid import PoseGrid
@@ -157,7 +158,14 @@ def test_the_model_file_carries_its_place_model(tmp_path):
     layout = FeatureLayout(cell_size=0.25)
     place = fit_place_model(*_synthetic_places(800, 0))
     model = AffordanceModel(
-        "leaning", layout.describe(), layout.fingerprint, np.ones(layout.n_features), 0.0, 0.1, "ssvm"
+        "leaning",
+        layout.describe(),
+        layout.fingerprint,
+        np.ones(layout.n_features),
+        0.0,
+        0.1,
+        "ssvm",
+        skeleton=skeleton_document(),
     )
     without = model.id
     model.place_model = place.to_dict()

@@ -400,8 +400,9 @@ def test_a_refused_input_is_never_counted_as_both_taken_and_refused(tmp_path):
 
     node.publish_status = recording_status
     try:
+        inbox = node.inbox(latest_only=False)
         for sent in range(1, 4):
-            node._handle(_item(), refuse if sent != 2 else (lambda item: None))
+            node._handle(_item(), refuse if sent != 2 else (lambda item: None), inbox)
             assert node.counts["accepted"] + node.counts["rejected"] == sent
         assert (node.counts["accepted"], node.counts["rejected"]) == (1, 2)
         first_refusal = seen[0]  # the status the first refusal published, while its input was in hand

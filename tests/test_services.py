@@ -263,8 +263,12 @@ def test_features_level_a_cloud_in_its_own_frame_refuse_a_world_one_without_a_fl
         error = _next(errors, messages.Error)
         assert "floor at z = 0, but its floor is at z = +0.80 m" in error.reason
         assert error.input_timestamp == raised.timestamp, "the refusal names the cloud it answers"
+        assert (error.input_source, error.key) == ("file", KEYS.cloud)
         status = _status(client, "features")
-        assert status.newest_input == raised.timestamp and status.newest_input_refused == error.reason
+        assert not status.HasField("newest_input"), "a refused cloud is not the newest the service has"
+        # a client that starts waiting after the refusal finds it: the service answers a get with it
+        kept = [messages.parse(messages.Error, r.ok.payload.to_bytes()) for r in client.get(KEYS.error("*"))]
+        assert [(e.input_timestamp, e.reason) for e in kept] == [(raised.timestamp, error.reason)]
 
         # the same room y-up with its floor 1.2 m below the frame's origin, sent in its own frame: levelled
         camera_from_world = np.eye(4)
@@ -295,7 +299,7 @@ def test_features_level_a_cloud_in_its_own_frame_refuse_a_world_one_without_a_fl
         assert fields.visibility[tuple(above_seat)] == FREE
         assert fields.visibility[tuple(under_floor)] == UNKNOWN
         status = _status(client, "features")
-        assert status.newest_input == cloud.timestamp and status.newest_input_refused == ""
+        assert status.newest_input == cloud.timestamp
         assert "gravity alignment (auto): up = input +y" in status.detail
 
         assert eventually(lambda: _alive(client) == [KEYS.status("features")]), _alive(client)
@@ -587,3 +591,76 @@ def test_afford_serve_runs_a_service_until_sigterm(router, client, tmp_path):
     assert "[features] stopped: 0 inputs taken, 0 rejected" in output
     verify = rrd_verify(tmp_path / "features.rrd")  # closed whole at the stop: a cut-off file fails here
     assert verify.returncode == 0, verify.stdout + verify.stderr
+
+
+def test_a_cloud_refused_after_it_superseded_a_good_one_gives_that_one_back(router, client, tmp_path):
+    """Validate before any state changes: a malformed cloud is refused on arrival and supersedes nothing; a
+    sound-looking cloud refused later (a 'world' cloud without its floor at 0) gives back the good cloud it
+    superseded, whose fields then come, as they would have without it."""
+    from services.features import FeaturesService
+
+    fields, errors = _listen(client, KEYS.fields), _listen(client, KEYS.error("features"))
+    status = _listen(client, KEYS.status("features"))
+    running = Running(FeaturesService, "features", router, tmp_path / "features.rrd")
+    rng = np.random.default_rng(5)
+    busy = messages.cloud_message(_box_room_scan(rng, 400_000), np.eye(4), "file", at=1_700_000_020.5)
+    good = messages.cloud_message(_box_room_scan(rng), np.eye(4), "good", at=1_700_000_021.5)
+    raised = messages.cloud_message(_box_room_scan(rng) + [0, 0, 0.8], np.eye(4), "bad", at=1_700_000_022.5)
+    malformed = messages.cloud_message(_box_room_scan(rng), np.eye(4), "torn", at=1_700_000_023.5)
+    malformed.data = malformed.data[:-5]
+    try:
+        _send(client, KEYS.cloud, busy.SerializeToString(), messages.CloudMessage)
+        computing = f"computing the fields of {len(messages.cloud_points(busy)):,} points"
+        while _next(status, messages.Status).detail != computing:
+            pass
+        for cloud in (
+            good,
+            malformed,
+            raised,
+        ):  # good waits; the torn one is refused at once; raised supersedes
+            _send(client, KEYS.cloud, cloud.SerializeToString(), messages.CloudMessage)
+        refused = [_next(errors, messages.Error) for _ in range(2)]
+        assert [(e.input_source, e.input_timestamp) for e in refused] == [
+            ("torn", malformed.timestamp),
+            ("bad", raised.timestamp),
+        ]
+        # the busy cloud's fields were held back for a newer cloud; that one was refused: the good one is next
+        assert _next(fields, FIELDS).cloud_timestamp == good.timestamp
+        assert eventually(lambda: _status(client, "features").state == messages.Status.READY)
+        counts = _status(client, "features")
+        assert (counts.accepted, counts.rejected, counts.skipped) == (2, 2, 0), counts
+        assert counts.newest_input == good.timestamp, "the refused clouds are not the newest"
+        assert fields.empty()
+    finally:
+        running.stop()
+
+
+def test_inference_maps_the_fields_it_gave_up_for_a_newer_map_the_features_service_then_refused(
+    router, client, tmp_path
+):
+    from affordcore.geometry.fields import compute_fields
+    from services.inference import InferenceService
+
+    maps = _listen(client, KEYS.affordance("sitting-relaxing"))
+    running = Running(InferenceService, "inference", router, tmp_path / "inference.rrd")
+    try:
+        room = _box_room_scan(np.random.default_rng(6))
+        cloud = messages.cloud_message(room, np.eye(4), "file", at=1_700_000_090.5)
+        publisher = _publisher(client, KEYS.status("features"), messages.Status, wait=10)
+
+        def features_newest(at: float) -> None:  # as the features service says it, on its status key
+            said = messages.Status(service="features", state=messages.Status.BUSY)
+            said.newest_input.FromNanoseconds(int(at * 1e9))
+            publisher.put(said.SerializeToString())
+            assert eventually(lambda: running.service.features_newest == int(at * 1e9), timeout=10)
+
+        features_newest(1_700_000_100.0)  # a newer cloud reached the features service
+        message = messages.fields_message(compute_fields(room), cloud)
+        _send(client, KEYS.fields, message.SerializeToString(), messages.SceneFieldsMessage)
+        assert eventually(lambda: running.service.given_up == 1, timeout=30)
+        assert maps.empty()
+        features_newest(1_700_000_090.5)  # ... and was refused there: these fields are the newest again
+        assert messages.seconds(_next(maps, messages.AffordanceMapMessage).cloud_timestamp) == 1_700_000_090.5
+        publisher.undeclare()
+    finally:
+        running.stop()

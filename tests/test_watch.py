@@ -105,3 +105,77 @@ def test_the_watch_stops_at_once_when_the_assembler_has_every_scan_and_no_map_of
     other = MapWatcher(keys, ["sitting-working"], min_frames=100, out=None, echo=lambda line: None)
     other.on_sample(_Sample(keys.status("features"), _assembler_status(no_map, accepted=100, skipped=0)))
     assert not uncounted.done.is_set() and not other.done.is_set()
+
+
+def _refusal(key_robot: Keys, source: str, at: float | None, scans: int = 0) -> _Sample:
+    """A features service's refusal of a cloud from `source` stamped `at` (None: one that names no cloud)."""
+    error = messages.Error(service="features", key=key_robot.cloud, reason="no floor", input_source=source)
+    error.input_scans = scans
+    if at is not None:
+        error.input_timestamp.FromNanoseconds(int(at * 1e9))
+    return _Sample(key_robot.error("features"), error)
+
+
+def test_a_stream_watch_ends_only_on_the_refusal_of_the_assembler_s_cloud_covering_its_scans():
+    """Another client's refused cloud (the far-off points of a burst of hostile clouds) is shown, not taken as
+    the answer; the assembler's own cloud of the scans waited for, refused, is the answer."""
+    keys, lines = Keys("r1"), []
+    watcher = MapWatcher(
+        keys, ["sitting-working"], min_frames=20, out=None, echo=lines.append, since=int(5e9)
+    )
+    for sample in (
+        _refusal(keys, "fuzz", 9.0),  # someone else's cloud
+        _refusal(keys, "assembler", 9.0, scans=12),  # the assembler's, of fewer scans than waited for
+        _refusal(keys, "assembler", 4.0, scans=30),  # of an older stream than the newest cloud at the start
+        _refusal(keys, "assembler", None, scans=30),  # naming no cloud
+    ):
+        watcher.on_sample(sample)
+    assert not watcher.done.is_set() and watcher.refused is None
+    assert sum("not the cloud waited for" in line for line in lines) == 4
+    assert any(
+        "REJECTED 'fuzz' stamped 9.000000000 on afford/@v1/r1/map/cloud: no floor" in line for line in lines
+    )
+    # a refusal kept from before the watch began is an earlier stream's: shown, not taken
+    watcher.on_sample(_refusal(keys, "assembler", 9.0, scans=20), live=False)
+    assert not watcher.done.is_set()
+    watcher.on_sample(_refusal(keys, "assembler", 9.5, scans=20))
+    assert watcher.done.is_set() and watcher.refused == "no floor"
+    assert watcher.refused_cloud == "'assembler' stamped 9.500000000 (20 scans)"
+
+
+def test_a_watch_of_one_cloud_ends_on_its_refusal_kept_or_live_and_on_no_other():
+    keys = Keys("r1")
+    watcher = MapWatcher(keys, ["sitting-working"], 0, None, echo=lambda line: None, since=int(7.25e9))
+    watcher.on_sample(_refusal(keys, "example", 7.5))
+    watcher.on_sample(_refusal(keys, "example", 7.0), live=False)
+    assert not watcher.done.is_set()
+    watcher.on_sample(
+        _refusal(keys, "example", 7.25), live=False
+    )  # kept by the service, fetched at the start
+    assert watcher.done.is_set() and watcher.refused_cloud.startswith("'example' stamped 7.250000000")
+    # a watch of the newest cloud when the service has none waits for a cloud; no refusal is its answer
+    none_yet = MapWatcher(keys, ["sitting-working"], 0, None, echo=lambda line: None)
+    none_yet.on_sample(_refusal(keys, "example", 7.25))
+    assert not none_yet.done.is_set()
+
+
+def test_a_latest_only_inbox_gives_back_the_input_a_refused_one_superseded():
+    inbox = Inbox(latest_only=True, limit=8, max_bytes=10**6)
+    good, bad, later = _item(), _item(), _item()
+    inbox.offer(good)
+    inbox.offer(bad)  # supersedes the good one, which is set aside
+    assert inbox.skipped == 1 and inbox.take(0.05) is bad
+    assert inbox.give_back(bad) is good  # bad was refused: good is worked on after all
+    assert inbox.skipped == 0 and inbox.take(0.05) is good and inbox.take(0.01) is None
+    # once an input is answered, what was set aside before it is not wanted
+    inbox.offer(bad)
+    inbox.offer(later)
+    assert inbox.take(0.05) is later
+    inbox.settle(later)
+    assert inbox.give_back(later) is None
+    # nor is anything given back while a newer input waits: that one supersedes it anyway
+    inbox.offer(good)
+    inbox.offer(bad)
+    assert inbox.take(0.05) is bad
+    inbox.offer(later)
+    assert inbox.give_back(bad) is None and inbox.take(0.05) is later

@@ -20,8 +20,10 @@ import json
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ..geometry.features import FeatureLayout
 from ..geometry.skeleton import Skeleton
@@ -178,8 +180,71 @@ class AffordanceModel:
         return path
 
 
+class _Strict(BaseModel):
+    # a model file is input like any other: numbers are numbers (no "1.5" strings), finite, and no field
+    # is unknown (a misspelt one would be ignored silently)
+    model_config = ConfigDict(strict=True, extra="forbid", allow_inf_nan=False)
+
+
+class _Layout(BaseModel):
+    model_config = ConfigDict(
+        strict=True, extra="allow"
+    )  # the rest is FeatureLayout.describe()'s, fingerprinted
+    n_features: int = Field(gt=0)
+
+
+class _Skeleton(_Strict):
+    joints: list[Annotated[list[float], Field(min_length=3, max_length=3)]] = Field(
+        min_length=15, max_length=15
+    )
+    torso_height: float = Field(gt=0)
+    source: str = ""
+    torso_reach_above: float = Field(0.0, ge=0)
+
+
+class _ModelFile(_Strict):
+    """What a model file must hold, type by type (checked before anything is built from it)."""
+
+    format: str
+    affordance: str = Field(min_length=1)
+    layout: _Layout
+    fingerprint: str = Field(min_length=1)
+    weights: list[float] = Field(min_length=1)
+    bias: float
+    threshold: float
+    learner: str = Field(min_length=1)
+    parameters: dict = {}
+    skeleton: _Skeleton
+    grid: dict = {}
+    training: dict = {}
+    validation: dict = {}
+    place_threshold: float | None = None
+    rescorer: dict | None = None
+    place_reference: Literal[PLACE_REFERENCES] | None = None
+    place_floor: float | None = None
+    place_model: dict | None = None
+
+
+def _checked(path: Path, document: dict) -> dict:
+    """The file's fields, each of its type; a ModelError naming the first field that is not."""
+    try:
+        checked = _ModelFile.model_validate(document)
+    except ValidationError as error:
+        first = error.errors()[0]
+        where = ".".join(str(part) for part in first["loc"]) or "the file"
+        raise ModelError(
+            f"{path}: malformed model: {where}: {first['msg']} (got {first.get('input')!r:.60})"
+            + (f"; {error.error_count() - 1} more problems" if error.error_count() > 1 else "")
+        ) from None
+    fields = checked.model_dump(exclude={"format"})
+    fields["layout"] = document["layout"]  # as written: its fingerprint is of the whole document
+    fields["skeleton"] = document["skeleton"]  # as written (one that predates torso_reach_above keeps none)
+    return fields
+
+
 def load_model(path: str | Path, layout: FeatureLayout | None = None) -> AffordanceModel:
-    """Read a model file; with `layout`, refuse a model made for another feature layout."""
+    """Read a model file, every field checked for its type and shape (a ModelError names the one that is
+    wrong); with `layout`, refuse a model made for another feature layout."""
     path = Path(path)
     document = read_json(path, ModelError)
     if not isinstance(document, dict) or document.get("format") not in READABLE:
@@ -187,10 +252,10 @@ def load_model(path: str | Path, layout: FeatureLayout | None = None) -> Afforda
             f"{path}: not an {FORMAT} file (format "
             f"{document.get('format') if isinstance(document, dict) else None!r})"
         )
+    fields = _checked(path, document)
     try:
-        document.pop("format")
-        weights = np.asarray(document.pop("weights"), dtype=np.float64)
-        model = AffordanceModel(weights=weights, **document)
+        weights = np.asarray(fields.pop("weights"), dtype=np.float64)
+        model = AffordanceModel(weights=weights, **fields)
         _ = model.trees, model.places  # a malformed second stage fails here, not in the middle of a map
     except (KeyError, TypeError, ValueError) as error:
         raise ModelError(f"{path}: malformed model ({error})") from error

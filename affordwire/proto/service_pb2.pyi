@@ -10,7 +10,7 @@ from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 DESCRIPTOR: _descriptor.FileDescriptor
 
 class Status(_message.Message):
-    __slots__ = ("timestamp", "service", "robot", "state", "detail", "accepted", "rejected", "published", "last_seconds", "version", "skipped", "dropped", "newest_input", "newest_input_refused", "no_output")
+    __slots__ = ("timestamp", "service", "robot", "state", "detail", "accepted", "rejected", "published", "last_seconds", "version", "skipped", "dropped", "newest_input", "no_output")
     class State(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         UNKNOWN: _ClassVar[Status.State]
@@ -36,7 +36,6 @@ class Status(_message.Message):
     SKIPPED_FIELD_NUMBER: _ClassVar[int]
     DROPPED_FIELD_NUMBER: _ClassVar[int]
     NEWEST_INPUT_FIELD_NUMBER: _ClassVar[int]
-    NEWEST_INPUT_REFUSED_FIELD_NUMBER: _ClassVar[int]
     NO_OUTPUT_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     service: str
@@ -51,12 +50,11 @@ class Status(_message.Message):
     skipped: int
     dropped: int
     newest_input: _timestamp_pb2.Timestamp
-    newest_input_refused: str
     no_output: str
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., service: _Optional[str] = ..., robot: _Optional[str] = ..., state: _Optional[_Union[Status.State, str]] = ..., detail: _Optional[str] = ..., accepted: _Optional[int] = ..., rejected: _Optional[int] = ..., published: _Optional[int] = ..., last_seconds: _Optional[float] = ..., version: _Optional[str] = ..., skipped: _Optional[int] = ..., dropped: _Optional[int] = ..., newest_input: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., newest_input_refused: _Optional[str] = ..., no_output: _Optional[str] = ...) -> None: ...
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., service: _Optional[str] = ..., robot: _Optional[str] = ..., state: _Optional[_Union[Status.State, str]] = ..., detail: _Optional[str] = ..., accepted: _Optional[int] = ..., rejected: _Optional[int] = ..., published: _Optional[int] = ..., last_seconds: _Optional[float] = ..., version: _Optional[str] = ..., skipped: _Optional[int] = ..., dropped: _Optional[int] = ..., newest_input: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., no_output: _Optional[str] = ...) -> None: ...
 
 class Error(_message.Message):
-    __slots__ = ("timestamp", "service", "key", "encoding", "payload_bytes", "reason", "input_timestamp")
+    __slots__ = ("timestamp", "service", "key", "encoding", "payload_bytes", "reason", "input_timestamp", "input_source", "input_scans")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     SERVICE_FIELD_NUMBER: _ClassVar[int]
     KEY_FIELD_NUMBER: _ClassVar[int]
@@ -64,6 +62,8 @@ class Error(_message.Message):
     PAYLOAD_BYTES_FIELD_NUMBER: _ClassVar[int]
     REASON_FIELD_NUMBER: _ClassVar[int]
     INPUT_TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
+    INPUT_SOURCE_FIELD_NUMBER: _ClassVar[int]
+    INPUT_SCANS_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     service: str
     key: str
@@ -71,4 +71,6 @@ class Error(_message.Message):
     payload_bytes: int
     reason: str
     input_timestamp: _timestamp_pb2.Timestamp
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., service: _Optional[str] = ..., key: _Optional[str] = ..., encoding: _Optional[str] = ..., payload_bytes: _Optional[int] = ..., reason: _Optional[str] = ..., input_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ...) -> None: ...
+    input_source: str
+    input_scans: int
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., service: _Optional[str] = ..., key: _Optional[str] = ..., encoding: _Optional[str] = ..., payload_bytes: _Optional[int] = ..., reason: _Optional[str] = ..., input_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., input_source: _Optional[str] = ..., input_scans: _Optional[int] = ...) -> None: ...

@@ -169,9 +169,11 @@ def main() -> int:
         if str(sample.encoding) != "application/protobuf;afford.v1.Error":
             return
         error = service_pb2.Error.FromString(sample.payload.to_bytes())
-        if error.input_timestamp == cloud.timestamp:  # the refusal of our cloud
+        if error.input_timestamp == cloud.timestamp and error.input_source == cloud.source:  # of our cloud
             refusals.append(error)
             answered.set()
+        elif error.HasField("input_timestamp"):  # another client's input: shown, not our answer
+            print(f"(another input refused, {error.input_source!r} on {error.key}: {error.reason})")
 
     deadline = time.monotonic() + args.timeout
     with zenoh.open(config) as session:
