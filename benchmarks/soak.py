@@ -3,7 +3,7 @@ default settings (a late frame is passed over, never two in a row). Per minute: 
 over (skipped) and refused by the assembler, how far behind the sensor its poses come out (lag: a pose's
 arrival minus its frame's stamp), maps published, and each process's resident memory.
 
-    .venv/bin/python benchmarks/soak.py [--minutes 10] [--rate 15]
+    .venv/bin/python benchmarks/soak.py [--minutes 10] [--rate 15] [--hogs 2]
 
 Streams the real 7-Scenes kitchen frames (../shared) back and forth (0..299, 298..1, ...: the camera never
 jumps, and the room stays the same size, so memory should stay flat), else a generated living room's.
@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 
 from affordwire import messages  # noqa: E402
 from services.clients import publish_sequence, sequence_messages  # noqa: E402
-from services.launch import Stack  # noqa: E402
+from services.launch import Stack, cpu_hogs  # noqa: E402
 from services.transport import Keys, open_session  # noqa: E402
 
 KITCHEN = ROOT.parent / "shared" / "data" / "sequences" / "7scenes_redkitchen_frames_000000-000299"
@@ -95,9 +95,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--rate", type=float, default=15.0)
+    parser.add_argument("--hogs", type=int, default=0, help="processes keeping a core busy meanwhile")
     args = parser.parse_args()
+    print(f"{os.cpu_count()} cores, {args.hogs} CPU hogs, {args.rate:g} Hz for {args.minutes:g} minutes")
 
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, cpu_hogs(args.hogs):
         folder = KITCHEN
         if not folder.is_dir():
             from bench_services import generated_sequence

@@ -297,7 +297,8 @@ class MapWatcher:
             status = messages.parse(messages.Status, payload)
         except messages.MessageError:
             return
-        settled = status.accepted + status.rejected + status.skipped
+        # messages refused on arrival are no scans (another client's garbage): the maps do not count them
+        settled = status.accepted + status.rejected - status.refused_on_arrival + status.skipped
         if self.min_frames and settled >= self.min_frames and status.no_output:
             self.gave_up = (
                 f"the assembler has settled all {settled} scans and has no map of them ({status.no_output}); "

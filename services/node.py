@@ -81,11 +81,6 @@ class BoundedInbox:
         # that superseded it is refused, so a bad input never costs a good one its answer
         self._set_aside: deque[Inbound] = deque(maxlen=SET_ASIDE)
 
-    def count_refused(self) -> None:
-        """An input refused before it was offered (its check failed) is settled too."""
-        with self._ready:
-            self.offered += 1
-
     def settled(self) -> int:
         """How many inputs offered are no longer waiting: taken, passed over, or refused."""
         with self._ready:
@@ -289,6 +284,7 @@ class Node:
         self.stop_event = threading.Event()
         stop_on_signals(self.stop_event)  # from the start: a SIGTERM while starting up is a clean stop too
         self.counts = {"accepted": 0, "rejected": 0, "published": 0, "skipped": 0, "dropped": 0}
+        self.counts["refused_on_arrival"] = 0
         self.last_seconds = 0.0
         # nanoseconds, sorted: the stamps of inputs received and not refused (the last is Status.newest_input)
         self._stamps: list[int] = []
@@ -377,8 +373,9 @@ class Node:
                 item.checked = inbox.check(item, message)
             except Exception as error:  # noqa: BLE001 - whatever a hostile input makes a check raise
                 refusal = str(error) if isinstance(error, ValueError) else f"{type(error).__name__}: {error}"
-        if refusal is not None:
-            inbox.count_refused()
+        if refusal is not None:  # not offered: the inbox never counts it among the inputs it settled
+            with self._lock:
+                self.counts["refused_on_arrival"] += 1
         refusal = refusal or inbox.offer(item)
         if refusal is not None:
             self.reject(item, refusal)

@@ -179,8 +179,8 @@ def hostile_inputs(
 # -- firing at the services ----------------------------------------------------------------------------------
 
 
-def _status(session, service: str) -> messages.Status:
-    for reply in session.get(KEYS.status(service), timeout=5):
+def _status(session, service: str, keys: Keys = KEYS) -> messages.Status:
+    for reply in session.get(keys.status(service), timeout=5):
         if reply.ok is not None:
             return messages.parse(messages.Status, reply.ok.payload.to_bytes())
     raise AssertionError(f"{service} did not answer a get on its status")
@@ -239,12 +239,12 @@ def _fire(session, stack: Stack, service: str, key: str, inputs, output: str) ->
     }
 
 
-def _settle(session, quiet: float = 2.0, timeout: float = 120.0) -> None:
+def _settle(session, quiet: float = 2.0, timeout: float = 120.0, keys: Keys = KEYS) -> None:
     """Until no service has worked for `quiet` seconds: what an earlier phase set off (the assembler's map of
     the frames it took goes on to features and inference) must not be counted as this phase's answers."""
 
     def snapshot():
-        states = [_status(session, name) for name in ("assembler", "features", "inference")]
+        states = [_status(session, name, keys) for name in ("assembler", "features", "inference")]
         return [(s.state, _answered(s), s.published) for s in states]
 
     deadline = time.monotonic() + timeout
