@@ -68,9 +68,9 @@ class AssemblerService:
         else:
             frame = item.checked
         at = frame.stamp or item.arrived
-        # a scan refused from here on (a pose jump, ...) changes no map, but the next map says it was received:
-        # afford watch waits for the map that covers the last scan published, whatever became of it (a message
-        # refused on arrival, undecodable, is no scan: it is not counted)
+        # a scan refused from here on (a pose jump, ...) changes no map, but the next map says it was
+        # received: afford watch waits for the map that covers the last scan published, whatever became of
+        # it (a message refused on arrival, undecodable, is no scan: it is not counted)
         self.pending = True
         # with scans waiting, a cheaper registration: more frames taken, fewer skipped to keep up
         busy = len(self.inbox) > 0

@@ -76,7 +76,7 @@ class BoundedInbox:
         self.offered = 0  # every input offered, taken or refused
         # validates each input on arrival (on zenoh's thread), before it may supersede or delay anything: what
         # it returns is the item's `checked`; a ValueError refuses the input there and then
-        self.check: Callable[[Inbound], object] | None = None
+        self.check: Callable[[Inbound, object], object] | None = None  # (input, its message if it parsed)
         # inputs superseded by newer ones not yet found sound (newest last): one comes back when the input
         # that superseded it is refused, so a bad input never costs a good one its answer
         self._set_aside: deque[Inbound] = deque(maxlen=SET_ASIDE)
@@ -412,12 +412,6 @@ class Node:
             bisect.insort(self._stamps, stamp)
             del self._stamps[:-STAMPS_KEPT]
 
-    @property
-    def newest_input(self) -> int:
-        """Nanoseconds: the newest timestamp among the inputs received and not refused (0: none)."""
-        with self._lock:
-            return self._stamps[-1] if self._stamps else 0
-
     def decode(self, item: Inbound, *message_classes, parsed=None):
         """The message of the class the sample's schema names, among `message_classes`, or MessageError;
         `parsed`: the message already parsed from it (`_identify`), taken as it is."""
@@ -427,8 +421,8 @@ class Node:
                 f"expected encoding application/protobuf with schema {' or '.join(names)}, got "
                 f"{item.encoding!r}"
             )
-        message = parsed if isinstance(parsed, names[item.schema]) else None
-        message = message or messages.parse(names[item.schema], item.payload)
+        cls = names[item.schema]
+        message = parsed if isinstance(parsed, cls) else messages.parse(cls, item.payload)
         if "timestamp" in message.DESCRIPTOR.fields_by_name:
             item.input_timestamp = message.timestamp
         return message
