@@ -66,6 +66,12 @@ def certs(
     viewer: list[str] = typer.Option(
         ["viewer"], "--viewer", help="a read-only client, e.g. for afford watch (repeatable)"
     ),
+    operator: list[str] = typer.Option(
+        ["operator"],
+        "--operator",
+        help="a client that may reset a robot's map and state (afford reset): NAME@ROBOT that robot's only, "
+        "a plain NAME every robot's; no other identity may (repeatable)",
+    ),
     router_host: list[str] = typer.Option(
         ["localhost", "127.0.0.1"],
         "--router-host",
@@ -85,7 +91,7 @@ def certs(
     with user_errors():
         from services.security import Site, write_site
 
-        site = Site(sensor, mapper, viewer, router_host, connect, listen, robots=robot)
+        site = Site(sensor, mapper, viewer, operator, router_host, connect, listen, robots=robot)
         write_site(site, out, mount, days)
         typer.echo(
             f"site in {out}: router.json5 for afford router, <name>.json5 for each of "
@@ -359,6 +365,39 @@ def watch(
             )
         if not arrived:
             fail(f"timed out after {timeout:.0f} s waiting for {watcher.waiting_for()}", code=1)
+
+
+@app.command(rich_help_panel=PANEL)
+def reset(
+    connect: list[str] = typer.Option(..., "--connect", help=CONNECT_HELP),
+    robot: str = typer.Option(..., "--robot", help=ROBOT_HELP),
+    reason: str = typer.Option("", "--reason", help="why, in words: the services' logs and status say it"),
+    operator: str = typer.Option(
+        "operator", "--as", help="who asks, in words (the site's access control knows the identity)"
+    ),
+    timeout: float = typer.Option(30.0, "--timeout", min=0, help="give up (exit 1) after this many seconds"),
+    zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help=ZENOH_CONFIG_HELP),
+) -> None:
+    """Clear one robot's map and state: each service drops what waits, forgets its map (the assembler its
+    trajectory and state folder too) and starts afresh with the next scan. Exit 0 once all three say they
+    did; on a secured site only an operator identity (afford certs --operator) may."""
+    with user_errors():
+        from services.clients import NoSubscriber, connected, reset_robot
+        from services.transport import Keys
+
+        keys, service = Keys(robot), _settings(zenoh_config).service
+        try:
+            with connected(connect, service.mode, service.zenoh_config) as session:
+                done, silent = reset_robot(session, keys, operator, reason, timeout)
+        except NoSubscriber as error:
+            raise UserError(str(error)) from None
+        if silent:
+            fail(
+                f"reset robot {robot}: {', '.join(done) or 'no service'} reset, {', '.join(silent)} did not "
+                f"say so within {timeout:.0f} s (on a secured site: is this identity an operator?)",
+                code=1,
+            )
+        typer.echo(f"reset robot {robot}: {', '.join(done)} start afresh with the next scan")
 
 
 def _nanoseconds(text: str) -> int:

@@ -27,6 +27,7 @@ AffordanceMapMessage = maps_pb2.AffordanceMap
 Pose = geometry_pb2.Pose
 Status = service_pb2.Status
 Error = service_pb2.Error
+Reset = service_pb2.Reset
 
 WORLD = "world"
 _Field = geometry_pb2.PackedElementField
@@ -45,7 +46,17 @@ _NUMPY_TYPES = {
 # every message class, by the schema name its encoding carries
 MESSAGE_CLASSES = {
     cls.DESCRIPTOR.full_name: cls
-    for cls in (Scan, DepthFrame, CloudMessage, Pose, SceneFieldsMessage, AffordanceMapMessage, Status, Error)
+    for cls in (
+        Scan,
+        DepthFrame,
+        CloudMessage,
+        Pose,
+        SceneFieldsMessage,
+        AffordanceMapMessage,
+        Status,
+        Error,
+        Reset,
+    )
 }
 
 

@@ -48,6 +48,16 @@ class AssemblerService:
         self.ros = RosInput(node, self.inbox) if RosInput.wanted(node.settings.ros) else None
         for key in (node.keys.cloud, node.keys.pose):
             node.answer_latest(key)
+        node.on_reset = self.forget
+
+    def forget(self) -> None:
+        """At an operator's reset: a new map, no trajectory, an empty state folder."""
+        self.assembler = Assembler(self.settings, self.limits)
+        if self.store:
+            self.store.clear()
+        self.last_published = self.last_attempt = -np.inf
+        self.first_scan, self.last_scan, self.last_stamp = None, 0.0, 0.0
+        self.pending = self.behind = False
 
     def run(self) -> None:
         try:

@@ -371,6 +371,32 @@ def watch(session, keys: Keys, watcher: MapWatcher, timeout: float) -> bool:
         subscriber.undeclare()
 
 
+def reset_robot(
+    session, keys: Keys, operator: str, reason: str, timeout: float
+) -> tuple[list[str], list[str]]:
+    """Ask the robot's services to forget its map and state (control/reset) and wait until each says it did
+    (its Status.last_reset is this reset's stamp): (services reset, services that did not say so in time).
+    Under a secured site only an operator identity may put it: a put the router denies reaches nobody."""
+    from .launch import query_status
+    from .security import SERVICES
+
+    reset = messages.Reset(operator=operator, reason=reason)
+    messages.stamp(reset.timestamp)
+    publisher = _publisher(session, keys.reset, messages.Reset, min(timeout, 10.0))
+    publisher.put(reset.SerializeToString())
+    publisher.undeclare()
+    deadline, done = time.monotonic() + timeout, []
+    while time.monotonic() < deadline:
+        statuses = query_status(session, keys.robot)
+        done = [
+            name for name in SERVICES if name in statuses and statuses[name].last_reset == reset.timestamp
+        ]
+        if len(done) == len(SERVICES):
+            break
+        time.sleep(0.2)
+    return done, [name for name in SERVICES if name not in done]
+
+
 def load_as_map(path: Path, gravity: str, settings) -> tuple[messages.CloudMessage, list[str]]:
     """A finished room scan from a file, brought to the world frame by the library's one path (thinned when
     huge, gravity-aligned), so map/cloud always holds world-frame points; and the warnings to show."""

@@ -28,6 +28,12 @@ class FeaturesService:
         node.subscribe(node.keys.cloud, self.inbox)
         node.answer_latest(node.keys.fields)
         node.fetch_latest(node.keys.cloud, self.inbox)  # a map published before this service (re)started
+        node.on_reset = self.forget
+
+    def forget(self) -> None:
+        """At an operator's reset: no normals of the old room are kept."""
+        self.normals = NormalCache()
+        self.held_back_last = False
 
     def run(self) -> None:
         self.node.run(

@@ -58,6 +58,12 @@ class InferenceService:
             node.answer_latest(node.keys.affordance(model.affordance))
         self.ros = ros_output(node, self.models, node.keys.robot)
         node.fetch_latest(node.keys.fields, self.inbox)  # fields published before this service (re)started
+        node.on_reset = self.forget
+
+    def forget(self) -> None:
+        """At an operator's reset: the old room's scores are not kept to update from."""
+        self.mapper.forget()
+        self.given_up_last_item, self.gave_up_last = None, False
 
     def _take_models(self, node: Node) -> None:
         """What every inference service holds of its models, and loads before the first fields arrive."""

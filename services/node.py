@@ -156,6 +156,13 @@ class BoundedInbox:
             self._bytes = 0
             return count
 
+    def forget(self) -> int:
+        """`drain`, and count the inputs settled from here on only (a map after a reset covers none)."""
+        with self._ready:
+            count = self.drain()
+            self.offered = 0
+            return count
+
     def __len__(self) -> int:
         return len(self._items)
 
@@ -291,6 +298,9 @@ class Node:
         # (error key, Error) of the latest refusals, answered on a get
         self._refusals: deque[tuple[str, bytes]] = deque(maxlen=REFUSALS_KEPT)
         self.no_output = ""  # why the inputs taken so far make no output (Status; the service sets it)
+        self.on_reset: Callable[[], None] | None = None  # what the service forgets at an operator's reset
+        self._reset: messages.Reset | None = None  # a reset asked for, carried out by the worker
+        self.last_reset = None  # the Timestamp of the last reset carried out (Status.last_reset)
         self.latest: dict[str, tuple[bytes, object]] = {}  # key: (payload, encoding) answered on get
         self._declared: list = []
         self._lock = threading.Lock()
@@ -306,6 +316,8 @@ class Node:
         self.state, self.detail = messages.Status.STARTING, "starting"
         self._declared.append(self.session.liveliness().declare_token(self.keys.status(service)))
         self.answer_refusals()
+        if isinstance(self.keys, Keys):  # one robot's service (a sharded worker serves many: not reset)
+            self._declared.append(self.session.declare_subscriber(self.keys.reset, self._on_reset))
         self._declared.append(
             self.session.declare_queryable(
                 self.keys.status(service),
@@ -522,6 +534,8 @@ class Node:
             )
             if self._stamps:  # unset: none yet
                 status.newest_input.FromNanoseconds(self._stamps[-1])
+            if self.last_reset is not None:
+                status.last_reset.CopyFrom(self.last_reset)
             status.no_output = self.no_output
         messages.stamp(status.timestamp)
         return status
@@ -552,6 +566,8 @@ class Node:
         last_status = time.monotonic()
         try:
             while not self.stop_event.is_set():
+                if self._reset is not None:
+                    self._carry_out_reset(inbox)
                 item = inbox.take(timeout=0.2)
                 self._note_skipped(inbox)
                 if item is not None:
@@ -570,6 +586,39 @@ class Node:
                     lambda _: print(f"[{self.service}] {on_stop()}", flush=True),
                 )
             self.close()
+
+    def _on_reset(self, sample) -> None:
+        """On zenoh's thread: an operator's Reset, checked; the worker carries it out between inputs."""
+        item = _inbound(sample)
+        try:
+            reset = self.decode(item, messages.Reset)
+            messages.checked_seconds(reset.timestamp, self.settings.limits)
+        except messages.MessageError as error:
+            self.reject(item, str(error))
+            return
+        with self._lock:
+            self._reset = reset
+
+    def _carry_out_reset(self, inbox: BoundedInbox) -> None:
+        """Forget the robot's map and state: the inputs waiting, the outputs a get answers with, what the
+        service holds (`on_reset`); the status says who reset it and when."""
+        with self._lock:
+            reset, self._reset = self._reset, None
+        dropped = inbox.forget()
+        with self._lock:
+            self.counts["dropped"] += dropped
+            self.latest.clear()
+            self._stamps.clear()
+            self.no_output = ""
+            self.last_reset = reset.timestamp
+        if self.on_reset is not None:
+            self._guarded(_own_work("reset"), lambda _: self.on_reset())
+        by = reset.operator or "an operator"
+        print(f"[{self.service}] reset by {by} ({reset.reason or 'no reason given'})", flush=True)
+        self.publish_status(
+            messages.Status.READY,
+            f"reset by {by}" + (f" ({reset.reason})" if reset.reason else "") + f"; {dropped} inputs dropped",
+        )
 
     def _note_skipped(self, inbox: Inbox) -> None:
         with self._lock:

@@ -9,6 +9,7 @@ What this module writes is the policy (docs/security.md):
 * each service may write (put, answer queries, assert liveliness) only its own keys: the assembler
   `map/cloud` and `map/pose`, features `fields`, inference `affordance/*`, each its `status/` and `error/`;
 * sensors (listed clients) may put `scan/**`; mappers (listed clients) may put a finished `map/cloud`;
+  operators (listed clients) may put `control/**`: a reset of a robot's map and state (no one else may);
 * one identity per robot: a sensor or mapper named `NAME@ROBOT`, and the services of a robot given with
   `robots` (`assembler@ROBOT`, ...), write only under `afford/@v1/<ROBOT>/`; a plain `NAME` (and the plain
   `assembler`, `features`, `inference`) writes under every robot's name, as a single-robot site needs;
@@ -55,14 +56,16 @@ def _check_name(what: str, name: str) -> None:
 @dataclass
 class Site:
     """Who is in a secured site: the services, the sensors that may publish scans, the mappers that may
-    publish a finished room, and read-only viewers (`afford watch`).
+    publish a finished room, the operators that may reset a robot (`afford reset`), and read-only viewers
+    (`afford watch`).
 
-    A sensor or mapper `NAME@ROBOT` is bound to ROBOT; each robot in `robots`, and each a sensor or mapper
-    is bound to, also gets its own service identities (`assembler@ROBOT`, ...) bound likewise."""
+    A sensor, mapper or operator `NAME@ROBOT` is bound to ROBOT; each robot in `robots`, and each a sensor or
+    mapper is bound to, also gets its own service identities (`assembler@ROBOT`, ...) bound likewise."""
 
     sensors: list[str] = field(default_factory=lambda: ["robot"])
     mappers: list[str] = field(default_factory=list)
     viewers: list[str] = field(default_factory=lambda: ["viewer"])
+    operators: list[str] = field(default_factory=lambda: ["operator"])
     router_names: list[str] = field(default_factory=lambda: ["localhost", "127.0.0.1"])
     router_endpoint: str = "tls/localhost:7447"
     listen: str = "tls/0.0.0.0:7447"
@@ -77,7 +80,7 @@ class Site:
                 )
         for robot in self.robots:
             _check_name("robot name", robot)
-        for identity in [*self.sensors, *self.mappers, *self.viewers]:
+        for identity in [*self.sensors, *self.mappers, *self.operators, *self.viewers]:
             name, robot = bound(identity)
             _check_name(f"identity {identity!r}: name" if robot is not None else "identity name", name)
             if robot is not None:
@@ -94,7 +97,7 @@ class Site:
 
     def clients(self) -> list[str]:
         services = [f"{service}@{robot}" for robot in self.robot_names() for service in SERVICES]
-        return [*SERVICES, *services, *self.sensors, *self.mappers, *self.viewers]
+        return [*SERVICES, *services, *self.sensors, *self.mappers, *self.operators, *self.viewers]
 
     def writes(self) -> dict[str, list[str]]:
         """{identity: key expressions it alone may write}."""
@@ -112,6 +115,8 @@ class Site:
             writes[identity] = [under(bound(identity)[1], "scan/**")]
         for identity in self.mappers:
             writes.setdefault(identity, []).append(under(bound(identity)[1], "map/cloud"))
+        for identity in self.operators:
+            writes.setdefault(identity, []).append(under(bound(identity)[1], "control/**"))
         # sharded inference workers (docs/deploy.md), which serve many robots and so run as the site-wide
         # `inference`: refusals on error/inference-<worker>, their tokens and status under `@workers`
         writes["inference"] += [f"{PREFIX}/*/error/inference-$*", f"{WORKERS}/inference-$*/**"]

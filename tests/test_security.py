@@ -222,3 +222,73 @@ def test_a_mapper_publishes_a_room_and_a_viewer_gets_its_maps(stack, site, tmp_p
         assert got["affordance"] == name
         np.testing.assert_allclose(place_rows(got), place_rows(want), atol=1e-3, err_msg=name)
         assert len(got["positives"]) == len(want["positives"]), name
+
+
+def _kept(stack, site) -> dict[str, int]:
+    """How many replies a viewer's get has on the robot's map keys (the latest outputs the services keep)."""
+    viewer = stack.session(identity="viewer")
+    try:
+        keys = {"cloud": KEYS.cloud, "fields": KEYS.fields, "maps": KEYS.affordance("*")}
+        return {
+            name: sum(r.ok is not None for r in viewer.get(key, timeout=3.0)) for name, key in keys.items()
+        }
+    finally:
+        viewer.close()
+
+
+def test_only_an_operator_resets_a_robot_and_it_maps_afresh_after(stack, site, tmp_path):
+    """Run after the mapper's room is mapped: a sensor's reset is denied by the router (the maps stay); an
+    operator's clears every service's map and state, and the next room is mapped as usual."""
+    from affordcore.example import example_room
+    from affordcore.geometry.scene import save_cloud
+
+    afford = [sys.executable, "-m", "affordcli"]
+    endpoint = ["--connect", stack.endpoint, "--robot", ROBOT]
+
+    def reset(identity: str) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [
+                *afford,
+                "reset",
+                *endpoint,
+                "--zenoh-config",
+                str(site / f"{identity}.json5"),
+                "--timeout",
+                "10",
+            ]
+            + ["--reason", f"test by {identity}"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+
+    before = _kept(stack, site)
+    assert before == {"cloud": 0, "fields": 1, "maps": 3}, before  # a mapper's room: no assembler map
+    denied = reset("robot")
+    assert denied.returncode != 0, denied.stdout
+    assert _kept(stack, site) == before, "a sensor cannot reset the robot"
+    done = reset("operator")
+    assert done.returncode == 0, done.stdout + done.stderr + stack.logs()
+    assert "assembler, features, inference start afresh" in done.stdout
+    assert _kept(stack, site) == {"cloud": 0, "fields": 0, "maps": 0}
+    assert "reset by operator (test by operator)" in (stack.folder / "inference.log").read_text()
+
+    room = tmp_path / "example.ply"
+    save_cloud(room, example_room())
+    watch = subprocess.Popen(
+        [*afford, "watch", *endpoint, "--zenoh-config", str(site / "viewer.json5"), "--timeout", "240", "-q"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(2.0)
+    published = subprocess.run(
+        [*afford, "publish", str(room), "--as-map", *endpoint, "--zenoh-config", str(site / "mapper.json5")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert published.returncode == 0, published.stderr
+    out, err = watch.communicate(timeout=300)
+    assert watch.returncode == 0, (out, err)
+    assert _kept(stack, site) == before

@@ -115,6 +115,12 @@ class AssemblerStore:
         self.close()
         self.journal_path.write_bytes(b"")  # all of it is in the snapshot (a kill before this: see restore)
 
+    def clear(self) -> None:
+        """Forget the state: no snapshot, an empty journal (a restart then begins a new map)."""
+        self.close()
+        self.snapshot_path.unlink(missing_ok=True)
+        self.journal_path.write_bytes(b"")
+
     def close(self) -> None:
         if self._journal is not None:
             self._journal.close()

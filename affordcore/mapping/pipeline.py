@@ -187,6 +187,10 @@ class RoomMapper:
         # whether the call in hand was given up: a forked worker asks its parent's shared flag instead
         self.superseded: Callable[[], bool] = lambda: self.cancelled_through >= self.call
 
+    def forget(self) -> None:
+        """Keep nothing of the room mapped so far: the next call scores every pose afresh."""
+        self.states, self.scanned, self.reports = {}, {}, {}
+
     def cancel(self) -> None:
         """Give up the call of `maps` in hand, if any (it raises `Superseded`); the next call is not
         affected."""

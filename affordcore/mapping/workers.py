@@ -32,6 +32,9 @@ def mapping_workers(n_models: int, asked: int = 0) -> int:
     return max(1, min(n_models, 8))
 
 
+FORGET = "forget"  # what a worker is sent to forget its room (`RoomMapper.forget`)
+
+
 class ForkedRoomMapper:
     """`RoomMapper`'s `maps`, `describe` and `reports`, with the models scored in `workers` forked processes
     (dealt out in turn: with as many workers as models, one each). `close` ends the workers (they also end
@@ -68,6 +71,12 @@ class ForkedRoomMapper:
 
     def describe(self, affordances) -> str:
         return RoomMapper.describe(self, affordances)  # it reads only `reports`, which the workers fill
+
+    def forget(self) -> None:
+        """`RoomMapper.forget`, in every worker."""
+        self.reports = {}
+        for connection in self.connections:
+            connection.send(FORGET)
 
     def cancel(self) -> None:
         """`RoomMapper.cancel`: every worker gives up the call in hand at its next checkpoint."""
@@ -141,9 +150,13 @@ def _worker(
     mapper.superseded = lambda: cancelled_through.value >= call
     while True:
         try:
-            fields, asked, call = connection.recv()
+            asked_for = connection.recv()
         except EOFError:
             return
+        if asked_for == FORGET:
+            mapper.forget()
+            continue
+        fields, asked, call = asked_for
         try:
             for affordance in asked:
                 amap = mapper.maps(fields, models=[by_name[affordance]])[affordance]

@@ -10,7 +10,7 @@ from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 DESCRIPTOR: _descriptor.FileDescriptor
 
 class Status(_message.Message):
-    __slots__ = ("timestamp", "service", "robot", "state", "detail", "accepted", "rejected", "published", "last_seconds", "version", "skipped", "dropped", "newest_input", "no_output", "refused_on_arrival")
+    __slots__ = ("timestamp", "service", "robot", "state", "detail", "accepted", "rejected", "published", "last_seconds", "version", "skipped", "dropped", "newest_input", "no_output", "last_reset", "refused_on_arrival")
     class State(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
         __slots__ = ()
         UNKNOWN: _ClassVar[Status.State]
@@ -37,6 +37,7 @@ class Status(_message.Message):
     DROPPED_FIELD_NUMBER: _ClassVar[int]
     NEWEST_INPUT_FIELD_NUMBER: _ClassVar[int]
     NO_OUTPUT_FIELD_NUMBER: _ClassVar[int]
+    LAST_RESET_FIELD_NUMBER: _ClassVar[int]
     REFUSED_ON_ARRIVAL_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     service: str
@@ -52,8 +53,9 @@ class Status(_message.Message):
     dropped: int
     newest_input: _timestamp_pb2.Timestamp
     no_output: str
+    last_reset: _timestamp_pb2.Timestamp
     refused_on_arrival: int
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., service: _Optional[str] = ..., robot: _Optional[str] = ..., state: _Optional[_Union[Status.State, str]] = ..., detail: _Optional[str] = ..., accepted: _Optional[int] = ..., rejected: _Optional[int] = ..., published: _Optional[int] = ..., last_seconds: _Optional[float] = ..., version: _Optional[str] = ..., skipped: _Optional[int] = ..., dropped: _Optional[int] = ..., newest_input: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., no_output: _Optional[str] = ..., refused_on_arrival: _Optional[int] = ...) -> None: ...
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., service: _Optional[str] = ..., robot: _Optional[str] = ..., state: _Optional[_Union[Status.State, str]] = ..., detail: _Optional[str] = ..., accepted: _Optional[int] = ..., rejected: _Optional[int] = ..., published: _Optional[int] = ..., last_seconds: _Optional[float] = ..., version: _Optional[str] = ..., skipped: _Optional[int] = ..., dropped: _Optional[int] = ..., newest_input: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., no_output: _Optional[str] = ..., last_reset: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., refused_on_arrival: _Optional[int] = ...) -> None: ...
 
 class Error(_message.Message):
     __slots__ = ("timestamp", "service", "key", "encoding", "payload_bytes", "reason", "input_timestamp", "input_source", "input_scans")
@@ -76,3 +78,13 @@ class Error(_message.Message):
     input_source: str
     input_scans: int
     def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., service: _Optional[str] = ..., key: _Optional[str] = ..., encoding: _Optional[str] = ..., payload_bytes: _Optional[int] = ..., reason: _Optional[str] = ..., input_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., input_source: _Optional[str] = ..., input_scans: _Optional[int] = ...) -> None: ...
+
+class Reset(_message.Message):
+    __slots__ = ("timestamp", "operator", "reason")
+    TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
+    OPERATOR_FIELD_NUMBER: _ClassVar[int]
+    REASON_FIELD_NUMBER: _ClassVar[int]
+    timestamp: _timestamp_pb2.Timestamp
+    operator: str
+    reason: str
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., operator: _Optional[str] = ..., reason: _Optional[str] = ...) -> None: ...
