@@ -38,6 +38,7 @@ AFFORDANCES = ["sitting-relaxing", "sitting-working", "standing-working"]
 ROS_ENV = {"AFFORD_ROS__POINTS": "/points", "AFFORD_ROS__IMU": "/imu", "AFFORD_ROS__ODOMETRY": "/odom"}
 LIMITS = LimitSettings()
 CLIENTS = 3  # hostile client sessions, sending at once
+QUIET = 0.8  # seconds after each frame's pose: the assembler publishes after 0.5 s without a scan
 
 
 def _ros_key(topic: str, typename: str) -> str:
@@ -156,6 +157,7 @@ class Outcome:
     refused: dict[str, int] = field(default_factory=dict)  # Error messages seen, per service
     sent: dict[str, int] = field(default_factory=dict)  # hostile messages sent, per service
     exited: dict[str, int] = field(default_factory=dict)
+    poses: list = field(default_factory=list)  # odom_from_sensor of each frame, as the assembler said it
 
 
 def _places(document: dict) -> list:
@@ -179,28 +181,45 @@ def _watcher(session, frames: int, timeout: float, result: list) -> threading.Th
 
 
 def run_stream(
-    folder: Path, run: Path, frames: int, plan: list[list[Hostile]] | None = None, timeout: float = 240.0
+    folder: Path,
+    run: Path,
+    frames: int,
+    plan: list[list[Hostile]] | None = None,
+    kills: dict[int, tuple[str, float]] | None = None,
+    timeout: float = 240.0,
 ) -> Outcome:
-    """The stream of `frames` frames (every 3rd of the folder's), with `plan[i]` sent beside frame i (half
-    just before it, half just after, spread over the client sessions), into a fresh stack."""
+    """The stream of `frames` frames (every 3rd of the folder's) into a fresh stack, with `plan[i]` sent
+    beside frame i (half just before it, half just after, spread over the client sessions) and
+    `plan[frames]` as the last map is made; `kills[i] = (service, delay)`: that service killed with SIGKILL
+    `delay` seconds after frame i went out (`frames`: after the last map went out) and started again. The
+    sensor here is a careful one: a frame that got neither a pose nor a refusal (its assembler died with it)
+    is sent again, the same message, once the assembler is back."""
     outcome = Outcome()
-    stack = Stack(run, robot=ROBOT, env=ROS_ENV).start()
+    stack = Stack(run, robot=ROBOT, env=ROS_ENV, state=run / "state").start()
     pids = {name: process.pid for name, process in stack.processes.items()}
-    sessions = [stack.session() for _ in range(CLIENTS + 2)]
-    main, watch_session, hostile = sessions[0], sessions[1], sessions[2:]
+    sessions = [stack.session() for _ in range(CLIENTS + 3)]
+    main, watch_session, late_session, hostile = sessions[0], sessions[1], sessions[2], sessions[3:]
+    kills = kills or {}
     try:
-        poses, lock = [0], threading.Lock()
+        # microsecond stamps of the frames answered (a pose, or a refusal), and of those sent again
+        answered, resent, lock = set(), set(), threading.Lock()
+        last_map = threading.Event()  # the assembler's map of the whole stream went out
 
         def on_error(sample) -> None:
             service = str(sample.key_expr).rsplit("/", 1)[-1]
+            error = messages.parse(messages.Error, sample.payload.to_bytes())
+            stamp = round(messages.nanoseconds(error.input_timestamp) / 1e3)
             with lock:
+                if error.key == KEYS.scan("camera") and stamp in resent:  # a repeat of a journaled frame
+                    answered.add(stamp)
+                    return
                 outcome.refused[service] = outcome.refused.get(service, 0) + 1
 
-        def on_pose(_sample) -> None:
+        def on_pose(sample) -> None:
+            pose = messages.parse(messages.Pose, sample.payload.to_bytes())
             with lock:
-                poses[0] += 1
-
-        last_map = threading.Event()  # the assembler's map of the whole stream went out
+                answered.add(round(messages.seconds(pose.timestamp) * 1e6))
+                outcome.poses.append(messages.pose_matrix(pose))
 
         def on_cloud(sample) -> None:
             try:
@@ -216,30 +235,47 @@ def run_stream(
             main.declare_subscriber(KEYS.cloud, on_cloud),
         ]
         _, valid, count = folder_frames(folder, 0, frames, 3, imu=True)
-        valid_frames = list(valid)
+        valid_frames = [message for _, message in valid]
         watched: list[dict] = []
         early = _watcher(watch_session, count, timeout, watched)
-        publisher = None
-        for index, (_, message) in enumerate(valid_frames):
+        publisher = declare_publisher(main, KEYS.scan("camera"), type(valid_frames[0]))
+        for index, message in enumerate(valid_frames):
             batch = plan[index] if plan else []
             _send_hostile(hostile, batch[: len(batch) // 2], outcome)
-            if publisher is None:
-                publisher = declare_publisher(main, KEYS.scan("camera"), type(message))
             messages.stamp(message.timestamp)
+            stamp = round(messages.nanoseconds(message.timestamp) / 1e3)
             publisher.put(message.SerializeToString())
             _send_hostile(hostile, batch[len(batch) // 2 :], outcome)
-            deadline = time.monotonic() + 60
-            while poses[0] <= index:  # paced as a sensor the assembler keeps up with: no frame passed over
+            if index in kills:
+                _kill(stack, *kills[index])
+            deadline, again = time.monotonic() + 60, time.monotonic() + 2.0
+            # paced as a sensor the assembler keeps up with: none passed over (a pose's stamp went through a
+            # float of seconds: to the microsecond, give or take one)
+            while not answered & {stamp - 1, stamp, stamp + 1}:
                 assert time.monotonic() < deadline, f"frame {index} got no pose; {stack.logs()}"
+                if index in kills and time.monotonic() > again:
+                    # the assembler died with the frame in hand: the same message again (refused as a
+                    # repeat if it was journaled before the kill)
+                    with lock:
+                        resent.add(stamp)
+                    publisher.put(message.SerializeToString())
+                    again += 2.0
                 time.sleep(0.01)
-        tail = plan[len(valid_frames) :] if plan else []
-        trickle = threading.Thread(
-            target=_trickle, args=(hostile, [h for batch in tail for h in batch], outcome)
-        )
-        trickle.start()  # while the assembler's last map goes to features and inference
+            # and a pause in which the assembler tries a map of the frames so far (0.5 s without a scan):
+            # the maps it publishes, whose levelling each next one keeps unless it moved, are the same in
+            # every run whatever the timing, a restart's pause included
+            time.sleep(QUIET)
+        tail = [h for batch in plan[len(valid_frames) :] for h in batch] if plan else []
+        last_map.wait(timeout)
+        # at once, as the last map reaches the features service, then spread while it is made
+        _send_hostile(hostile, [h for h in tail if h.late], outcome)
+        trickle = threading.Thread(target=_trickle, args=(hostile, [h for h in tail if not h.late], outcome))
+        trickle.start()
+        if frames in kills:
+            _kill(stack, *kills[frames])
         early.join(timeout)
         trickle.join()
-        late = _watcher(sessions[-1], count, timeout, watched)
+        late = _watcher(late_session, count, timeout, watched)
         late.join(timeout)
         outcome.watched = watched
         _settle(main, keys=KEYS)
@@ -269,6 +305,13 @@ def run_stream(
             session.close()
         stack.stop()
     return outcome
+
+
+def _kill(stack: Stack, service: str, delay: float) -> None:
+    """SIGKILL `service` after `delay` seconds (mid-work, if it is working), and start it again."""
+    time.sleep(delay)
+    stack.kill(service)
+    stack.restart(service)
 
 
 def _trickle(sessions, hostile: list[Hostile], outcome: Outcome, seconds: float = 4.0) -> None:

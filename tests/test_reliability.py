@@ -189,6 +189,27 @@ def test_a_restored_assembler_has_every_journaled_frame_and_goes_on(room, tmp_pa
     np.testing.assert_allclose(record.pose[:3, 3], [0.4, 0, 0], atol=0.02)
 
 
+def test_a_restored_assembler_levels_as_the_last_map_was_and_a_cleared_store_holds_nothing(room, tmp_path):
+    """The world frame of the last map published outlives a kill (the snapshot before it had an older one, or
+    none): the first map after a restart is levelled as the last map before it, so the robot's world frame
+    does not move. A reset's `clear` leaves a new map to begin."""
+    live = Assembler()
+    store = AssemblerStore(tmp_path)
+    _walk(live, room, range(4), store=store)
+    store.snapshot(live)  # no map published yet: no world frame in it
+    _walk(live, room, range(4, 6), store=store)
+    world_from_odom = np.eye(4)
+    world_from_odom[:3, 3] = [0.1, -0.2, 1.3]  # as a map published after the snapshot levelled it
+    store.save_alignment(world_from_odom)
+    store.close()
+    restored = Assembler()
+    assert AssemblerStore(tmp_path).restore(restored) == 6
+    np.testing.assert_array_equal(restored.world_from_odom, world_from_odom)
+    AssemblerStore(tmp_path).clear()
+    fresh = Assembler()
+    assert AssemblerStore(tmp_path).restore(fresh) == 0 and fresh.world_from_odom is None
+
+
 def test_a_journal_cut_short_by_a_kill_loses_only_the_unfinished_frame(room, tmp_path):
     live = Assembler()
     store = AssemblerStore(tmp_path)

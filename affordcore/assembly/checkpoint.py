@@ -79,6 +79,9 @@ class AssemblerStore:
         self.folder.mkdir(parents=True, exist_ok=True)
         self.snapshot_path = self.folder / "state.npz"
         self.journal_path = self.folder / "journal.bin"
+        # the world frame of the last map published (world_from_odom), kept as it changes: a restart levels
+        # its first map as the last one was, not anew, so the robot's world frame does not move
+        self.alignment_path = self.folder / "world_from_odom.npy"
         self._journal = None
 
     def restore(self, assembler: Assembler) -> int:
@@ -94,8 +97,16 @@ class AssemblerStore:
                 assembler.apply(record)
         if assembler.frames:
             assembler.resume()
+            if self.alignment_path.exists():
+                assembler.world_from_odom = np.load(self.alignment_path)
         self._rewrite_journal(records)  # the same records without a cut-short tail
         return assembler.frames
+
+    def save_alignment(self, world_from_odom: np.ndarray) -> None:
+        """Keep the world frame of the map just published (atomically: a kill leaves the old or the new)."""
+        temporary = self.alignment_path.with_suffix(".tmp.npy")
+        np.save(temporary, np.asarray(world_from_odom, dtype=np.float64))
+        os.replace(temporary, self.alignment_path)
 
     def append(self, record: FrameRecord) -> None:
         """Journal one accepted frame (flushed: it survives a kill of this process)."""
@@ -119,6 +130,7 @@ class AssemblerStore:
         """Forget the state: no snapshot, an empty journal (a restart then begins a new map)."""
         self.close()
         self.snapshot_path.unlink(missing_ok=True)
+        self.alignment_path.unlink(missing_ok=True)
         self.journal_path.write_bytes(b"")
 
     def close(self) -> None:
