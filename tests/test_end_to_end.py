@@ -264,3 +264,61 @@ def test_the_real_kitchen_frames_become_affordance_maps_through_the_three_servic
     assert cloud.frames == 100
     _assert_same_as_afford_map(cloud, _check_maps(tmp_path / "maps", 100, watched))
     _check_recordings(tmp_path / "run", f"afford-{stack.robot}")
+
+
+def _hostile_clouds(rng: np.random.Generator) -> list[bytes]:
+    """Another client's bad clouds, as a client built from schemas/ alone would send them: stamped far in the
+    future and before 1970, with NaN points, random bytes, 500 points spread over +-50 km, and a room whose
+    floor is 0.8 m above the z = 0 its 'world' frame claims (the one refused only once worked on)."""
+    from affordwire import messages
+
+    room = np.column_stack([rng.uniform(0, 3, 3000), rng.uniform(0, 3, 3000), np.zeros(3000)])
+    future, past, nan, far, raised = (
+        messages.cloud_message(points, np.eye(4), "other-client")
+        for points in (room, room, room, rng.uniform(-5e4, 5e4, (500, 3)), room + [0, 0, 0.8])
+    )
+    future.timestamp.seconds = 17_000_000_000  # the year 2508
+    past.timestamp.seconds = -86_400
+    values = np.frombuffer(nan.data, "<f4").copy()
+    values[::7] = np.nan
+    nan.data = values.tobytes()
+    return [m.SerializeToString() for m in (future, past, nan, far, raised)] + [rng.bytes(2000)]
+
+
+def test_another_client_s_refused_clouds_never_end_the_operator_s_watch(generated_sequence, tmp_path):
+    """The sequence of a new user's report: a burst of another client's hostile clouds, then the robot's
+    stream and at once `afford watch --frames N`: the watch shows the refusals and prints the stream's maps;
+    a watch started after the stream prints them too."""
+    from affordwire import messages
+    from services.transport import Keys, encoding_of, put
+
+    stack = Stack(tmp_path / "run", env=EVERY_FRAME).start()
+    try:
+        session = stack.session()
+        for payload in _hostile_clouds(np.random.default_rng(5)):
+            put(session, Keys(stack.robot).cloud, payload, encoding_of(messages.CloudMessage))
+        publish = subprocess.Popen(
+            AFFORD
+            + ["publish", str(generated_sequence), "--connect", stack.endpoint, "--robot", stack.robot]
+            + ["--rate", "10", "--step", "3", "--frames", "20", "-q"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        endpoint = ["--connect", stack.endpoint, "--robot", stack.robot, "--frames", "20", "--timeout", "240"]
+        at_once = _afford("watch", *endpoint, timeout=300)
+        published, _ = publish.communicate(timeout=120)
+        later = _afford("watch", *endpoint, timeout=300)
+        session.close()
+    finally:
+        codes = stack.stop()
+    assert codes == {"assembler": 0, "features": 0, "inference": 0, "router": 0}, stack.logs()
+    assert publish.returncode == 0, published
+    for watch in (at_once, later):
+        assert watch.returncode == 0, watch.stdout[-3000:] + watch.stderr
+        assert all(f"{name:<18}" in watch.stdout for name in AFFORDANCES), watch.stdout[-2000:]
+    # the refusals the watch started at once saw or fetched were shown, named, and not taken as its answer
+    assert "REJECTED 'other-client'" in at_once.stdout and "not the cloud waited for" in at_once.stdout
+    # five refused; the NaN points' cloud is taken with those points dropped (schemas/), and its maps, which
+    # cover no scan of the stream, were not taken as the stream's either
+    assert "5 rejected" in (tmp_path / "run" / "features.log").read_text()
