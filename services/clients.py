@@ -361,10 +361,13 @@ def watch(session, keys: Keys, watcher: MapWatcher, timeout: float) -> bool:
 
     alive = session.liveliness().declare_subscriber(keys.key("status", "*"), on_liveliness, history=True)
     try:
-        for selector in (keys.key("error", "*"), keys.key("affordance", "*")):
-            for reply in session.get(selector, timeout=min(timeout, 5.0)):
-                if reply.ok is not None:
-                    watcher.on_sample(reply.ok, live=False)
+        # every refusal kept, not the latest per key (zenoh's default consolidation): they share their key
+        kept = session.get(
+            keys.key("error", "*"), timeout=min(timeout, 5.0), consolidation=zenoh.ConsolidationMode.NONE
+        )
+        for reply in [*kept, *session.get(keys.key("affordance", "*"), timeout=min(timeout, 5.0))]:
+            if reply.ok is not None:
+                watcher.on_sample(reply.ok, live=False)
         return watcher.done.wait(timeout)
     finally:
         alive.undeclare()

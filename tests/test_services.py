@@ -267,7 +267,11 @@ def test_features_level_a_cloud_in_its_own_frame_refuse_a_world_one_without_a_fl
         status = _status(client, "features")
         assert not status.HasField("newest_input"), "a refused cloud is not the newest the service has"
         # a client that starts waiting after the refusal finds it: the service answers a get with it
-        kept = [messages.parse(messages.Error, r.ok.payload.to_bytes()) for r in client.get(KEYS.error("*"))]
+        import zenoh
+
+        every = zenoh.ConsolidationMode.NONE
+        replies = client.get(KEYS.error("*"), consolidation=every)
+        kept = [messages.parse(messages.Error, r.ok.payload.to_bytes()) for r in replies]
         assert [(e.input_timestamp, e.reason) for e in kept] == [(raised.timestamp, error.reason)]
 
         # the same room y-up with its floor 1.2 m below the frame's origin, sent in its own frame: levelled
