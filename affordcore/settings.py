@@ -115,6 +115,13 @@ class GravitySettings(BaseModel):
     ransac_threshold: float = Field(0.03, gt=0, description="plane inlier distance (m)")
     ransac_iterations: int = Field(1000, ge=10)
     min_floor_area: float = Field(1.0, gt=0, description="a floor must cover at least this much area (m^2)")
+    min_patch_area: float = Field(
+        0.2,
+        gt=0,
+        description="... or, where no plane does, the lowest plane with almost nothing under it is taken as "
+        "a less sure floor when it covers this much (m^2): under a given gravity, or under the sensor where "
+        "the cloud says where it stood (a single frame seldom shows a square metre of one floor plane)",
+    )
     max_below_fraction: float = Field(
         0.02, ge=0, le=1, description="at most this fraction of points may lie more than 5 cm under a floor"
     )

@@ -1,16 +1,22 @@
-"""The shipped models on the real rooms with hand-made labels (../shared/data/rooms): the report of issue 5.
+"""The shipped models on the real validation rooms (../shared/data/rooms and ../shared/data/validation): per
+room and per affordance, and in all.
 
-For each room and each affordance it labels: pose-level precision / recall / F1 at the model's threshold
-(DESIGN.md, "Metrics"), the F1 an oracle threshold would reach on that room (how well the scores rank poses,
-apart from where the threshold sits), and place-level recall with the count of false skeletons. Figures of
-the maps with the labels go to docs/figures/real-rooms/. Needs ../shared beside the project.
+For each room and each affordance: pose-level precision / recall / F1 at the model's threshold (DESIGN.md,
+"Metrics"), the F1 an oracle threshold would reach on that room (how well the scores rank poses, apart from
+where the threshold sits), place-level recall with the count of false skeletons, and each place's probability.
+Then per affordance over every room, the false skeletons per room, and a reliability table of the place
+probabilities (predicted against how often such a place matched a label). Figures of the maps with the
+labels go to docs/figures/real-rooms/. Needs ../shared beside the project; the ScanNet meeting room's cloud,
+which its terms keep out of ../shared, is read from --rebuilt (made by ../shared/data/rebuild/scannet0470.py)
+and reported as not rebuilt when absent.
 
-    .venv/bin/python benchmarks/real_rooms.py            # about a minute on 2 cores
-    .venv/bin/python benchmarks/real_rooms.py --rooms DIR --figures none   # any folder of labelled clouds
+    .venv/bin/python benchmarks/real_rooms.py                         # about a minute on 2 cores
+    .venv/bin/python benchmarks/real_rooms.py --gravity 0,0,-1        # levelled by a floor search under -z
+    .venv/bin/python benchmarks/real_rooms.py --rooms DIR --figures none   # any folders of labelled clouds
 
 With `--rooms`, any folder of `<room>.ply` beside `<room>.labels.json` (`afford synth`'s output) is scored the
-same way (with the sensor positions of a `<room>.origins.npy` beside it, as `afford map` reads them), with
-each affordance's totals at the end; `--models DIR` scores other model files than the shipped ones.
+same way (with the sensor positions of a `<room>.origins.npy` beside it, as `afford map` reads them);
+`--models DIR` scores other model files than the shipped ones.
 """
 
 from __future__ import annotations
@@ -26,12 +32,26 @@ from affordcore.labels import ground_truth, load_labels, match_places
 from affordcore.learn.baselines import tune_threshold
 from affordcore.learn.model import load_model, models_in, shipped_models
 from affordcore.learn.train import metrics
-from affordcore.mapping.pipeline import map_affordances, prepare_scene
+from affordcore.mapping.pipeline import map_affordances, parse_gravity, prepare_scene
 from affordcore.mapping.plots import plot_map
 from affordcore.settings import Settings
 
-ROOMS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "rooms"
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+VALIDATION = [SHARED / "rooms", SHARED / "validation"]
+REBUILT = Path(__file__).resolve().parents[1] / "bench-data" / "validation"
 FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures" / "real-rooms"
+BINS = np.array([0.0, 0.2, 0.4, 0.6, 0.8, 1.0])  # of the reliability table
+
+
+def rooms_of(folders: list[Path], rebuilt: Path) -> list[tuple[str, Path | None, Path]]:
+    """(name, cloud or None when it is not there, labels) of every labelled room in the folders."""
+    rooms = []
+    for folder in folders:
+        for labels in sorted(folder.glob("*.labels.json")):
+            stem = labels.name.removesuffix(".labels.json")
+            cloud = next((f / f"{stem}.ply" for f in (folder, rebuilt) if (f / f"{stem}.ply").exists()), None)
+            rooms.append((stem, cloud, labels))
+    return rooms
 
 
 def main() -> None:
@@ -39,34 +59,44 @@ def main() -> None:
     parser.add_argument(
         "--gravity",
         default="none",
-        help="none: the rooms are z-up already; auto: find the floor as for any cloud",
+        help="none: the rooms are z-up already; auto: find the floor as for any cloud; X,Y,Z: gravity given",
     )
-    parser.add_argument("--rooms", type=Path, default=ROOMS, help="a folder of <room>.ply and its labels")
+    parser.add_argument("--rooms", type=Path, action="append", help="a folder of <room>.ply and its labels")
+    parser.add_argument("--rebuilt", type=Path, default=REBUILT, help="where rebuilt clouds are (ScanNet's)")
     parser.add_argument("--models", type=Path, help="a folder of <affordance>.model.json (default: shipped)")
     parser.add_argument("--figures", default=str(FIGURES), help="where the plan views go; none: no figures")
     args = parser.parse_args()
-    if not args.rooms.is_dir():
-        where = "../shared/data/rooms beside the project" if args.rooms == ROOMS else "labelled rooms"
-        sys.exit(f"{args.rooms} not found: this report needs {where}")
+    folders = args.rooms or VALIDATION
+    missing = [folder for folder in folders if not folder.is_dir()]
+    if missing:
+        sys.exit(f"{', '.join(map(str, missing))} not found: this report needs labelled rooms (../shared)")
     figures = None if args.figures == "none" else Path(args.figures)
     settings = Settings()
     files = models_in(args.models) if args.models else shipped_models()
     models = {name: load_model(path) for name, path in files.items()}
     if figures is not None:
         figures.mkdir(parents=True, exist_ok=True)
+    gravity = parse_gravity(args.gravity)
     totals = {name: np.zeros(3, np.int64) for name in models}  # places found, labelled, false skeletons
+    false_per_room, calibration = {}, []  # (probability, matched a label) of every place
+    print(f"gravity {args.gravity}\n")
     print(
         "| room | affordance | labels | positive poses | P / R / F1 at the threshold "
         "| oracle-threshold F1 | places found | false skeletons | probabilities of the places |"
     )
     print("|---|---|---:|---:|---|---:|---:|---:|---|")
-    for cloud_path in sorted(args.rooms.glob("*.ply")):
-        labels = load_labels(cloud_path.with_name(cloud_path.stem + ".labels.json"))
-        scene = prepare_scene(load_cloud(cloud_path), settings, args.gravity)
+    for name, cloud_path, labels_path in rooms_of(folders, args.rebuilt):
+        short = "_".join(name.split("_")[:2])
+        if cloud_path is None:
+            print(f"| {short} | (not rebuilt: ../shared/data/rebuild) | | | | | | | |")
+            continue
+        labels = load_labels(labels_path)
+        scene = prepare_scene(load_cloud(cloud_path), settings, gravity)
+        labels = labels.moved(scene.alignment.world_from_input)
         # every affordance in every room: a skeleton where the room labels none of its affordance is false
         chosen = list(models.values())
         maps = map_affordances(scene.fields, scene.layout, chosen, settings)
-        short = cloud_path.stem.split("_")[0]
+        false_per_room[short] = 0
         for model in chosen:
             amap = maps[model.affordance]
             truth = ground_truth(
@@ -86,11 +116,30 @@ def main() -> None:
                 f"{', '.join(amap.place_labels()) or '-'} |"
             )
             totals[model.affordance] += [places.found.sum(), len(places.found), places.false.sum()]
+            false_per_room[short] += int(places.false.sum())
+            kept = ~places.ignored  # a place in an unlabelled region is neither found nor false
+            calibration += list(zip(amap.probabilities[kept], ~places.false[kept]))
             if figures is not None:
                 plot_map(scene.cloud.points, amap, figures / f"{short}-{model.affordance}.png", labels=labels)
-    rooms = len(list(args.rooms.glob("*.ply")))
+    rooms = len(false_per_room)
     for name, (found, labelled, false) in totals.items():
         print(f"| all {rooms} rooms | {name} | {labelled} | | | | {found} / {labelled} | {false} | |")
+    print(
+        "\nfalse skeletons per room (every affordance): "
+        + ", ".join(f"{r} {n}" for r, n in false_per_room.items())
+    )
+    _reliability(calibration)
+
+
+def _reliability(calibration: list[tuple[float, bool]]) -> None:
+    """Predicted probability against how often a place of that probability matched a label."""
+    pairs = np.array([(p, m) for p, m in calibration if np.isfinite(p)], dtype=np.float64).reshape(-1, 2)
+    print("\n| place probability | places | matched a label | observed frequency |\n|---|---:|---:|---:|")
+    for low, high in zip(BINS[:-1], BINS[1:]):
+        inside = (pairs[:, 0] >= low) & ((pairs[:, 0] < high) | (high == BINS[-1]))
+        count, matched = int(inside.sum()), int(pairs[inside, 1].sum())
+        observed = f"{matched / count:.2f}" if count else "-"
+        print(f"| {low:.1f}-{high:.1f} | {count} | {matched} | {observed} |")
 
 
 if __name__ == "__main__":

@@ -260,7 +260,8 @@ def test_a_map_whose_floor_search_fails_keeps_the_last_levelling_and_a_checkpoin
     assembler, _ = room_run
     points, levelled = assembler.aligned_map()
     assert assembler.levelling_kept == ""
-    blind = Settings(gravity=GravitySettings(min_floor_area=1e4))  # no floor in view is this big
+    # no floor in view is this big, nor a patch of one
+    blind = Settings(gravity=GravitySettings(min_floor_area=1e4, min_patch_area=1e4))
     kept_points, kept = assembler.aligned_map(blind)
     np.testing.assert_array_equal(kept, levelled)
     np.testing.assert_allclose(kept_points, points, atol=1e-9)

@@ -43,6 +43,7 @@ _LEVEL_SLAB = 0.25  # check_levelled looks for the floor among points this close
 # check_levelled lets a floor be half as big and have twice as much under it as the search that levels a
 # cloud does: its own sample of the same map falls either side of those limits when the leveller's was close
 _CHECK_SLACK = 2.0
+_PATCH_INTERIOR = 0.05  # a floor patch has at least this much inside it (m^2; `_interior_area`)
 
 AXES = {
     "+x": (1, 0, 0),
@@ -70,6 +71,7 @@ class FloorCandidate:
     below_fraction: float = float("nan")
     score: float = float("nan")  # `_judge_floor`'s floor evidence; scored only when several floors are valid
     tops: float = float("nan")  # `_judge_floor`'s share of points on furniture tops above it (likewise)
+    patch: bool = False  # not valid for its area alone, and at least `min_patch_area`: a less sure floor
 
 
 @dataclass
@@ -83,6 +85,7 @@ class Alignment:
     floor_offset: float  # where the floor was along the up direction in the input frame (m)
     floor_area: float = 0.0
     candidates: list[FloorCandidate] = field(default_factory=list)
+    floor_note: str = ""  # why the floor is less sure than a search's usual floor ("": it is not)
 
     def describe(self) -> str:
         if self.method == "none":
@@ -91,7 +94,7 @@ class Alignment:
         return (
             f"gravity alignment ({self.method}): {how}{self._runners_up()}, floor tilted "
             f"{self.tilt_deg:.2f} deg from it, floor at {self.floor_offset:+.3f} m moved to z = 0, "
-            f"floor area {self.floor_area:.1f} m^2"
+            f"floor area {self.floor_area:.2f} m^2" + (f" ({self.floor_note})" if self.floor_note else "")
         )
 
     def _runners_up(self) -> str:
@@ -112,6 +115,7 @@ class Alignment:
             "tilt_deg": round(self.tilt_deg, 4),
             "floor_offset": round(self.floor_offset, 4),
             "floor_area": round(self.floor_area, 2),
+            "floor_note": self.floor_note,
             "world_from_input": self.world_from_input.round(9).tolist(),
         }
 
@@ -143,14 +147,41 @@ def align_to_gravity(
     # Trust the given direction; only the floor's height comes from the cloud.
     strict = settings.model_copy(update={"max_tilt_deg": min(settings.max_tilt_deg, 10.0)})
     candidate = _find_floor(sample, up, "given", strict, descend=True)
-    if not candidate.valid:
+    if origins is not None and len(origins) and (candidate.valid or candidate.patch):
+        _check_sensor_height(candidate, origins, settings)
+    if not (candidate.valid or candidate.patch):
         raise NoFloorError(
-            f"no floor found under the given gravity {down.round(4).tolist()}: {candidate.reason}"
+            f"no floor found under the given gravity {down.round(4).tolist()}: {candidate.reason}. "
+            + _what_to_pass(settings)
         )
     on_floor = np.abs(sample @ candidate.normal - candidate.offset) < settings.ransac_threshold
     offset = float(np.median(sample[on_floor] @ up))
     return Alignment(
-        _world_from(up, offset), "gravity", "given", candidate.tilt_deg, offset, candidate.area, [candidate]
+        _world_from(up, offset),
+        "gravity",
+        "given",
+        candidate.tilt_deg,
+        offset,
+        candidate.area,
+        [candidate],
+        _patch_note(candidate, settings),
+    )
+
+
+def _patch_note(candidate: FloorCandidate, settings: GravitySettings) -> str:
+    """What a floor taken from a patch says of itself ("" for a floor of the usual area)."""
+    if candidate.valid:
+        return ""
+    return (
+        f"less sure: the lowest plane, {candidate.area:.2f} m^2 with almost nothing under it, under "
+        f"{settings.min_floor_area:g} m^2 of floor"
+    )
+
+
+def _what_to_pass(settings: GravitySettings) -> str:
+    return (
+        "A cloud already levelled (z up, floor at z = 0) maps with --gravity none; otherwise scan more of "
+        f"the floor (at least {settings.min_patch_area:g} m^2 of it in one plane)"
     )
 
 
@@ -220,6 +251,8 @@ def _auto(sample: np.ndarray, settings: GravitySettings, origins: np.ndarray | N
         if known:
             _check_sensor_height(candidates[-1], origins, settings)
     valid = [c for c in candidates if c.valid]
+    if not valid and known:  # a patch under where the sensor stood: less sure, but a single frame's floor
+        valid = [c for c in candidates if c.patch]
     if not valid:
         reasons = "; ".join(f"{c.axis}: {c.reason}" for c in candidates)
         raise NoFloorError(
@@ -240,18 +273,19 @@ def _auto(sample: np.ndarray, settings: GravitySettings, origins: np.ndarray | N
         best.offset,
         best.area,
         candidates,
+        _patch_note(best, settings),
     )
 
 
 def _check_sensor_height(candidate: FloorCandidate, origins: np.ndarray, settings: GravitySettings) -> None:
     """Rule out a valid candidate the sensor does not stand over at a height it can be carried at (the median
     of its positions' heights above the plane: a walk's few low or high frames do not decide)."""
-    if not candidate.valid:
+    if not (candidate.valid or candidate.patch):
         return
     height = float(np.median(origins @ candidate.normal - candidate.offset))
     low, high = settings.sensor_heights
     if not low <= height <= high:
-        candidate.valid = False
+        candidate.valid = candidate.patch = False
         candidate.reason = (
             f"the sensor would stand {height:+.2f} m over it (a floor lies {low:g}-{high:g} m under it)"
         )
@@ -308,6 +342,11 @@ def _find_floor(
     candidate = FloorCandidate(axis, True, "ok", normal, offset, tilt, area, below)
     if area < settings.min_floor_area:
         candidate.valid, candidate.reason = False, f"lowest plane covers only {area:.2f} m^2"
+        candidate.patch = (
+            area >= settings.min_patch_area
+            and below <= settings.max_below_fraction
+            and _interior_area(band[inliers], normal) >= _PATCH_INTERIOR
+        )
     elif below > settings.max_below_fraction:
         candidate.valid, candidate.reason = (
             False,
@@ -413,6 +452,21 @@ def _area(points: np.ndarray, normal: np.ndarray) -> float:
         return 0.0
     cells -= cells.min(axis=0)  # one key per cell: a 1-D unique, 5x faster than unique rows
     return len(np.unique(cells[:, 0] * (cells[:, 1].max() + 1) + cells[:, 1])) * _AREA_CELL**2
+
+
+def _interior_area(points: np.ndarray, normal: np.ndarray) -> float:
+    """The area of a plane's 10 cm cells whose eight neighbours hold its points too (m^2): a patch of floor
+    has an inside; the strip or ring where walls meet a plane below the view has none."""
+    from scipy.ndimage import binary_erosion
+
+    if len(points) == 0:
+        return 0.0
+    flat = (points @ rotation_between(normal, np.array([0.0, 0.0, 1.0])).T)[:, :2]
+    cells = np.floor(flat / _AREA_CELL).astype(np.int64)
+    cells -= cells.min(axis=0)
+    grid = np.zeros(cells.max(axis=0) + 1, dtype=bool)
+    grid[cells[:, 0], cells[:, 1]] = True
+    return float(binary_erosion(grid, np.ones((3, 3), bool)).sum()) * _AREA_CELL**2
 
 
 def _estimate_normals(points: np.ndarray, radius: float = 0.1, at: np.ndarray | None = None) -> np.ndarray:

@@ -91,7 +91,10 @@ def to_world(
     alignment = align_to_gravity(cloud.points, gravity, settings.gravity, cloud.origins)
     if alignment.method != "none":  # "none" is the identity: no copy of every point for nothing
         cloud = cloud.transformed(alignment.world_from_input)
-    return WorldCloud(cloud, alignment, [warning] if warning else [])
+    notes = [warning] if warning else []
+    if alignment.floor_note:
+        notes.append(f"the floor is {alignment.floor_note}: heights above it may be off")
+    return WorldCloud(cloud, alignment, notes)
 
 
 def prepare_scene(
