@@ -119,7 +119,7 @@ def main() -> None:
             false_per_room[short] += int(places.false.sum())
             kept = ~places.ignored  # a place in an unlabelled region is neither found nor false
             calibration += list(zip(amap.probabilities[kept], ~places.false[kept]))
-            if figures is not None:
+            if figures is not None and cloud_path.parent != args.rebuilt:  # a rebuilt room's data stays out
                 plot_map(scene.cloud.points, amap, figures / f"{short}-{model.affordance}.png", labels=labels)
     rooms = len(false_per_room)
     for name, (found, labelled, false) in totals.items():
