@@ -28,11 +28,20 @@ from pathlib import Path
 import numpy as np
 
 from affordcore.geometry.scene import load_cloud
-from affordcore.labels import ground_truth, load_labels, match_places
+from affordcore.labels import (
+    THETA_TOLERANCE,
+    XY_TOLERANCE,
+    angle_gap,
+    ground_truth,
+    load_labels,
+    match_places,
+)
 from affordcore.learn.baselines import tune_threshold
 from affordcore.learn.model import load_model, models_in, shipped_models
 from affordcore.learn.train import metrics
-from affordcore.mapping.pipeline import map_affordances, parse_gravity, prepare_scene
+from affordcore.mapping.maps import RULED_OUT
+from affordcore.mapping.pipeline import RoomMapper, parse_gravity, prepare_scene
+from affordcore.mapping.places import above_threshold, place_candidates
 from affordcore.mapping.plots import plot_map
 from affordcore.settings import Settings
 
@@ -79,6 +88,7 @@ def main() -> None:
     gravity = parse_gravity(args.gravity)
     totals = {name: np.zeros(3, np.int64) for name in models}  # places found, labelled, false skeletons
     false_per_room, calibration = {}, []  # (probability, matched a label) of every place
+    why: list[str] = []  # a row per place missed and per false skeleton: where, and which step lost it
     print(f"gravity {args.gravity}\n")
     print(
         "| room | affordance | labels | positive poses | P / R / F1 at the threshold "
@@ -95,7 +105,8 @@ def main() -> None:
         labels = labels.moved(scene.alignment.world_from_input)
         # every affordance in every room: a skeleton where the room labels none of its affordance is false
         chosen = list(models.values())
-        maps = map_affordances(scene.fields, scene.layout, chosen, settings)
+        mapper = RoomMapper(chosen, scene.layout, settings)
+        maps = mapper.maps(scene.fields)
         false_per_room[short] = 0
         for model in chosen:
             amap = maps[model.affordance]
@@ -117,6 +128,7 @@ def main() -> None:
             )
             totals[model.affordance] += [places.found.sum(), len(places.found), places.false.sum()]
             false_per_room[short] += int(places.false.sum())
+            why += explain(short, labels, model, amap, places, mapper.scanned[model.affordance])
             kept = ~places.ignored  # a place in an unlabelled region is neither found nor false
             calibration += list(zip(amap.probabilities[kept], ~places.false[kept]))
             if figures is not None and cloud_path.parent != args.rebuilt:  # a rebuilt room's data stays out
@@ -129,6 +141,88 @@ def main() -> None:
         + ", ".join(f"{r} {n}" for r, n in false_per_room.items())
     )
     _reliability(calibration)
+    print("\n| room | affordance | place | where (x, y, facing) | lost at |\n|---|---|---|---|---|")
+    print("\n".join(why))
+
+
+def explain(short: str, labels, model, amap, places, scanned) -> list[str]:
+    """Which step lost each labelled place the map missed, and what each false skeleton is: the pose scores
+    (no pose on the label beats the threshold), the candidates (no candidate peak on the label: a stronger
+    neighbour's took its cell), or the place model (a candidate on it, below the cut); a false skeleton is a
+    candidate the place model put above the cut."""
+    rows = []
+    grid, threshold = amap.grid, model.threshold
+    chosen = labels.of(model.affordance)
+    spacing = model.places.candidate_spacing if model.places else 0.25
+    candidates = place_candidates(amap.scores, grid, threshold, spacing, scanned)
+    probabilities = model.places.probability(candidates.evidence) if model.places else candidates.rows[:, 4]
+    cut = settings_cut(model)
+    eligible = above_threshold(candidates.rows, threshold)
+    for label, found in zip(chosen, places.found):
+        if found:
+            continue
+        near = label.distance(candidates.rows[:, :2]) <= XY_TOLERANCE
+        near &= angle_gap(candidates.rows[:, 3], label.facing) <= THETA_TOLERANCE
+        best = _best_pose(amap.scores, grid, label)
+        if best == float("-inf"):
+            lost = "fields: no pose on it is scored (its cells were never seen, nor a surface over them)"
+        elif best <= threshold:
+            lost = f"pose scores: the best pose on it scores {best:.2f}, under the threshold {threshold:.2f}"
+        elif not (near & eligible).any():
+            peaks = candidates.rows[eligible]
+            off = label.distance(peaks[:, :2])
+            turned = np.degrees(angle_gap(peaks[off.argmin(), 3], label.facing)) if len(peaks) else 0.0
+            nearest = (
+                f"; the nearest candidate peak stands {off.min():.2f} m off, facing {turned:.0f} deg off"
+                if len(peaks)
+                else ""
+            )
+            lost = f"candidates: a pose on it scores {best:.2f}, but no candidate peak is on it{nearest}"
+        else:
+            top = probabilities[near & eligible].max()
+            lost = f"place model: its candidate's probability {top:.2f} is under the cut {cut:.2f}"
+        rows.append(
+            f"| {short} | {model.affordance} | missed: {_short(label.note)} | {_where(label)} | {lost} |"
+        )
+    for skeleton, false, probability in zip(amap.skeletons, places.false, amap.probabilities):
+        if false:
+            x, y, theta = skeleton[0], skeleton[1], skeleton[3]
+            rows.append(
+                f"| {short} | {model.affordance} | false, p {probability:.2f} | ({x:.2f}, {y:.2f}, "
+                f"{np.degrees(theta):.0f} deg) | place model: a candidate above the cut {cut:.2f} |"
+            )
+    return rows
+
+
+def settings_cut(model) -> float:
+    """The probability a place must reach (the place model's cut, or the setting over it)."""
+    chosen = Settings().map.place_probability
+    return chosen if chosen is not None else (model.places.cut if model.places else float("nan"))
+
+
+def _best_pose(scores: np.ndarray, grid, label) -> float:
+    """The best score of a pose within DESIGN.md's tolerance of a label (any z level)."""
+    xx, yy = np.meshgrid(grid.x, grid.y, indexing="ij")
+    near_xy = label.distance(np.column_stack([xx.ravel(), yy.ravel()])).reshape(xx.shape) <= XY_TOLERANCE
+    near_theta = angle_gap(grid.theta, label.facing) <= THETA_TOLERANCE
+    on = scores[:, near_theta][:, :, near_xy]
+    on = on[on > RULED_OUT]
+    return float(on.max()) if on.size else float("-inf")
+
+
+def _short(note: str | None) -> str:
+    """A label's note, its first clause (without the labeller's confidence)."""
+    import re
+
+    text = re.sub(r"\[confidence:[^\]]*\]\s*", "", note or "labelled place")
+    return text.split(":")[0].split(";")[0].split("(")[0].strip()[:60]
+
+
+def _where(label) -> str:
+    """A label's middle in plan, and its facing."""
+    ends = [label.at] if label.at is not None else [label.start, label.end]
+    x, y = np.mean(np.array(ends, dtype=float), axis=0)
+    return f"({x:.2f}, {y:.2f}, {np.degrees(label.facing):.0f} deg)"
 
 
 def _reliability(calibration: list[tuple[float, bool]]) -> None:
