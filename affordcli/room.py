@@ -29,6 +29,8 @@ def map_command(
     ),
     gravity: str = typer.Option("auto", "--gravity", help=GRAVITY_HELP),
     rrd: Path | None = typer.Option(None, "--rrd", help="the Rerun recording (default: OUT/map.rrd)"),
+    no_png: bool = typer.Option(False, "--no-png", help="no plan-view PNGs (matplotlib is not loaded)"),
+    no_rrd: bool = typer.Option(False, "--no-rrd", help="no Rerun recording (rerun is not loaded)"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
     timings: bool = typer.Option(False, "--timings", help="say on stderr how long each stage took"),
     origins: Path | None = typer.Option(
@@ -46,17 +48,20 @@ def map_command(
 ) -> None:
     """Map where people can sit, relax, work and stand in a room: skeleton map, confidence map, positives."""
     with user_errors():
+        if no_rrd and rrd is not None:
+            raise UserError("--rrd names a recording and --no-rrd asks for none: give one of them")
         map_room(
             cloud,
             out,
             model or [],
             affordance or [],
             gravity,
-            rrd or out / "map.rrd",
+            None if no_rrd else rrd or out / "map.rrd",
             quiet,
             timings,
             origins,
             labels,
+            png=not no_png,
         )
 
 
@@ -66,11 +71,12 @@ def map_room(
     model_files: list[Path],
     affordances: list[str],
     gravity: str,
-    rrd: Path,
+    rrd: Path | None,
     quiet: bool,
     timings: bool = False,
     origins: Path | None = None,
     labels_file: Path | None = None,
+    png: bool = True,
 ) -> list[Path]:
     """load -> align -> fields -> score -> map -> write, each one call into the library (the maps in worker
     processes and the files in a writer process started first, `outputs.map_and_write`), on one BLAS thread
@@ -98,7 +104,7 @@ def map_room(
     # the workers are forked inside the BLAS limit, and keep it
     with (
         threadpool_limits(1, user_api="blas"),
-        OutputWriter() if workers > 1 else nullcontext() as writer,
+        OutputWriter(png, rrd is not None) if workers > 1 else nullcontext() as writer,
     ):
         loading = time.perf_counter()
         cloud = _loaded(cloud_path, origins)
@@ -125,6 +131,7 @@ def map_room(
                 seconds,
                 writer,
                 labels,
+                png,
             )
         seconds["maps and outputs (wall)"] = time.perf_counter() - mapping
     for amap in maps.values():

@@ -92,6 +92,29 @@ def test_map_writes_json_png_and_a_verified_recording(mapped):
         assert f"/world/{affordance}/skeletons/{count}" not in entities
 
 
+def test_json_only_maps_are_the_same_maps_and_load_neither_matplotlib_nor_rerun(example, mapped, tmp_path):
+    """`--no-png --no-rrd`, for a robot that wants the JSON alone: the same JSON files as a full run, nothing
+    else written, and the command's own process never imports matplotlib or rerun."""
+    script = (
+        "import sys; from pathlib import Path; from affordcli.room import map_room\n"
+        f"map_room(Path({str(example)!r}), Path({str(tmp_path)!r}), [], [], 'auto', None, True, png=False)\n"
+        "print(sorted(m for m in ('matplotlib', 'rerun') if m in sys.modules))\n"
+    )
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip().splitlines()[-1] == "[]", run.stdout
+    assert sorted(path.name for path in tmp_path.iterdir()) == [f"{name}.json" for name in AFFORDANCES]
+    out, _ = mapped
+    for name in AFFORDANCES:
+        assert json.loads((tmp_path / f"{name}.json").read_text()) == json.loads(
+            (out / f"{name}.json").read_text()
+        )
+    cli = afford("map", example, "--out", tmp_path / "cli", "--no-png", "--no-rrd", "-q")
+    assert cli.returncode == 0 and sorted(p.suffix for p in (tmp_path / "cli").iterdir()) == [".json"] * 3
+    both = afford("map", example, "--out", tmp_path / "both", "--no-rrd", "--rrd", tmp_path / "x.rrd")
+    assert both.returncode == 2 and "--no-rrd" in both.stderr
+
+
 def test_the_example_sofa_is_found(mapped):
     """The built-in room's sofa (x 0.05-0.95, y 1.2-3.4, facing +x) must hold sitting-relaxing skeletons."""
     out, _ = mapped

@@ -25,15 +25,20 @@ _JOB: tuple | None = None  # (scene, models, settings): what forked workers read
 
 
 def write_map_outputs(
-    scene, maps: dict, models: list[AffordanceModel], out: Path, rrd: Path | None, labels=None
+    scene,
+    maps: dict,
+    models: list[AffordanceModel],
+    out: Path,
+    rrd: Path | None,
+    labels=None,
+    png: bool = True,
 ) -> list[Path]:
-    """DIR/<affordance>.json and .png for every map of a `PreparedScene`, and the recording; returns the
-    paths. `labels` (a `LabelSet` in the world frame): drawn on the PNGs."""
-    from .plots import plan_heights
-
+    """DIR/<affordance>.json and (with `png`) .png for every map of a `PreparedScene`, and the recording
+    (unless `rrd` is None); returns the paths. `labels` (a `LabelSet` in the world frame): drawn on the
+    PNGs."""
     out.mkdir(parents=True, exist_ok=True)
     ids = {model.affordance: model.id for model in models}
-    plan = plan_heights(scene.cloud.points)
+    plan = _plan(scene.cloud.points, png)
     written = []
     for affordance, amap in maps.items():
         written += _json_and_png(
@@ -57,6 +62,7 @@ def map_and_write(
     timings: dict[str, float] | None = None,
     writer: OutputWriter | None = None,
     labels=None,
+    png: bool = True,
 ) -> tuple[dict, list[Path]]:
     """Every model's map of a `PreparedScene` (`pipeline.map_affordances`, one model at a time) and the
     outputs of `write_map_outputs`; returns ({affordance: map} in the models' order, the paths written).
@@ -66,14 +72,15 @@ def map_and_write(
     `OutputWriter` started early; one is started here when not given) meanwhile; ``on_map(affordance,
     map)`` hears of each map as it comes back. ``timings`` gets each stage's seconds: per affordance its
     scoring and map (in its worker) and its JSON and PNG (in the writer), and the recording's. `labels` (a
-    `LabelSet` in the world frame) are drawn on the PNGs."""
+    `LabelSet` in the world frame) are drawn on the PNGs; `png` False: JSON only (and the recording unless
+    `rrd` is None), and matplotlib is never imported."""
     global _JOB
 
     out.mkdir(parents=True, exist_ok=True)
     timings = {} if timings is None else timings
     workers = default_workers(len(models)) if workers is None else max(1, min(workers, len(models)))
     if workers == 1:
-        return _map_and_write_here(scene, models, settings, out, rrd, on_map, timings, labels)
+        return _map_and_write_here(scene, models, settings, out, rrd, on_map, timings, labels, png)
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
@@ -81,7 +88,7 @@ def map_and_write(
 
     preload()  # the scoring modules imported once here, not once in every worker
     own_writer = writer is None
-    writer = writer or OutputWriter()
+    writer = writer or OutputWriter(png, rrd is not None)
     _JOB = (scene, models, settings)
     maps: dict[int, object] = {}
     try:
@@ -110,13 +117,12 @@ def map_and_write(
 
 
 def _map_and_write_here(
-    scene, models, settings, out, rrd, on_map, timings, labels=None
+    scene, models, settings, out, rrd, on_map, timings, labels=None, png: bool = True
 ) -> tuple[dict, list[Path]]:
     """`map_and_write` in this process alone, model after model."""
     from .pipeline import map_affordances
-    from .plots import plan_heights
 
-    plan = plan_heights(scene.cloud.points)
+    plan = _plan(scene.cloud.points, png)
     maps, written = {}, []
     for model in models:
         start = time.perf_counter()
@@ -158,12 +164,22 @@ def _map_one(index: int) -> tuple:
     return amap, time.perf_counter() - start
 
 
-def _json_and_png(points, world_from_input, amap, model_id: str, out: Path, plan, labels=None) -> list[Path]:
-    from .plots import plot_map
+def _plan(points, png: bool):
+    """The room from above for the PNGs (`plots.plan_heights`), or None when none is drawn."""
+    from .plots import plan_heights
 
+    return plan_heights(points) if png else None
+
+
+def _json_and_png(points, world_from_input, amap, model_id: str, out: Path, plan, labels=None) -> list[Path]:
+    """The map's JSON, and its PNG unless `plan` is None (no PNGs asked for)."""
     document = amap.to_json(model_id, world_from_input)
     path = out / f"{amap.affordance}.json"
     path.write_text(json.dumps(document) + "\n")
+    if plan is None:
+        return [path]
+    from .plots import plot_map
+
     return [path, plot_map(points, amap, out / f"{amap.affordance}.png", labels=labels, plan=plan)]
 
 
@@ -206,12 +222,14 @@ class OutputWriter:
     seconds). An error in it is raised here, at `finish`. A context manager; `close` ends it if it is still
     running."""
 
-    def __init__(self):
+    def __init__(self, png: bool = True, recording: bool = True):
+        """`png`, `recording`: whether it will draw PNGs and write a recording (it imports matplotlib and
+        rerun only for them)."""
         import multiprocessing
 
         context = multiprocessing.get_context("fork")
         self._connection, theirs = context.Pipe()
-        self._process = context.Process(target=_writer_main, args=(theirs,), daemon=True)
+        self._process = context.Process(target=_writer_main, args=(theirs, png, recording), daemon=True)
         self._process.start()
         theirs.close()
         self.has_scene, self._sending, self._send_error = False, None, None
@@ -291,16 +309,19 @@ class OutputWriter:
             self._process.join()
 
 
-def _writer_main(connection) -> None:
-    """The `OutputWriter` process: import what drawing and recording need, then serve the requests; after
-    an error, only `finish` is answered (with the error)."""
+def _writer_main(connection, png: bool = True, recording: bool = True) -> None:
+    """The `OutputWriter` process: import what drawing and recording need (only what is asked for), then
+    serve the requests; after an error, only `finish` is answered (with the error)."""
     start = time.perf_counter()
-    from .plots import pyplot
-    from .recording import import_rerun
+    if png:
+        from .plots import pyplot
 
-    pyplot()
-    import_rerun()  # now, while the command loads and levels the room, not once the maps are scored
-    state = {"seconds": {"writer: importing matplotlib and rerun": time.perf_counter() - start}}
+        pyplot()
+    if recording:  # now, while the command loads and levels the room, not once the maps are scored
+        from .recording import import_rerun
+
+        import_rerun()
+    state = {"seconds": {"writer: importing matplotlib and rerun": time.perf_counter() - start}, "png": png}
     error = None
     while True:
         try:
@@ -328,8 +349,6 @@ def _writer_main(connection) -> None:
 
 def _serve(state: dict, request: tuple) -> None:
     """One `OutputWriter` request: the room (the recording opened, the cloud logged) or a map (JSON, PNG)."""
-    from .plots import plan_heights
-
     start, seconds = time.perf_counter(), state["seconds"]
     if request[0] == "scene":
         _, points, source, world_from_input, affordances, out, rrd = request
@@ -343,7 +362,7 @@ def _serve(state: dict, request: tuple) -> None:
             drawers={},
         )
         state["recording"] = _open_with_cloud(rrd, affordances, points, source) if rrd is not None else None
-        state["plan"] = plan_heights(points)
+        state["plan"] = _plan(points, state["png"])
         seconds["recording: the cloud"] = time.perf_counter() - start
     elif request[0] == "labels":
         from .recording import log_labels
