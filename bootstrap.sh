@@ -4,10 +4,10 @@
 #   bash bootstrap.sh demo [ARGS]   sets up, then maps the built-in example room (afford demo)
 #   bash bootstrap.sh test [ARGS]   sets up, then runs ruff, the import contracts and the whole test suite (CI)
 #
-# Needs only Python >= 3.11. Missing system libraries (open3d needs libGL, libEGL and libusb) are
-# installed with apt-get when running as root; otherwise the script stops and prints the line to run. As root,
-# `test` also installs protoc, the protobuf C++ headers, g++ and pkg-config (the C++ client test, which then
-# must run: it fails rather than skips).
+# Needs only Python >= 3.11. Missing system libraries (open3d, afford synth's ray caster in the learn extra,
+# needs libGL, libEGL and libusb) are installed with apt-get when running as root; otherwise the script stops
+# and prints the line to run. As root, `test` also installs protoc, the protobuf C++ headers, g++ and
+# pkg-config (the C++ client test, which then must run: it fails rather than skips).
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -30,7 +30,7 @@ find_python() {
 }
 PY=$(find_python)
 
-# System packages: shared libraries open3d loads, and venv support (Debian ships it separately).
+# System packages: shared libraries open3d loads (the learn extra's, which .[all] installs), and venv support.
 missing=()
 have_lib() { { /sbin/ldconfig -p 2>/dev/null || ldconfig -p 2>/dev/null; } | grep -q "$1"; }
 have_lib 'libGL.so.1 '        || missing+=(libgl1)

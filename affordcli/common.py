@@ -28,7 +28,7 @@ ZENOH_CONFIG_HELP = (
 EXTRAS = {
     "services": ("zenoh", "google.protobuf", "kiss_icp", "cryptography"),
     "ros": ("rosbags",),
-    "learn": ("sklearn", "osqp"),
+    "learn": ("sklearn", "osqp", "open3d"),
     "cluster": ("ray",),
 }
 

@@ -122,6 +122,28 @@ def test_pcd_without_colours(tmp_path, points):
     _check(load_cloud(path), points, None, atol=1e-5)
 
 
+def test_pcd_files_are_read_and_written_without_open3d(tmp_path, points, colors255):
+    """open3d is afford synth's alone (the learn extra): a PCD goes in and out of a core install, colours and
+    all, and open3d reads what it writes."""
+    import subprocess
+    import sys
+
+    from affordcore.geometry.scene import Cloud, save_cloud
+
+    path = tmp_path / "room.pcd"
+    save_cloud(path, Cloud(points, colors255.astype(np.float32) / 255))
+    script = (
+        "import sys; from affordcore.geometry.scene import load_cloud; "
+        f"c = load_cloud({str(path)!r}); print(len(c.points), c.colors.shape, 'open3d' in sys.modules)"
+    )
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and run.stdout.split()[-1] == "False", run.stdout + run.stderr
+    _check(load_cloud(path), points, colors255 / 255.0, atol=1e-5, color_atol=0.5 / 255 + 1e-6)
+    import open3d as o3d
+
+    np.testing.assert_allclose(np.asarray(o3d.io.read_point_cloud(str(path)).points), points, atol=1e-5)
+
+
 def test_xyz_three_columns(tmp_path, points):
     path = tmp_path / "room.xyz"
     _write_table(path, points)

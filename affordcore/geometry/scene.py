@@ -2,7 +2,7 @@
 
 Formats: PLY (binary through plyfile, memory-mapped; ASCII through a vectorised numpy reader that checks
 the file's structure first, with plyfile for any file it does not take: both fail loudly on a truncated or
-malformed file, where open3d returns the header's number of points filled with zeros), PCD (open3d;
+malformed file, where open3d returns the header's number of points filled with zeros), PCD (pypcd4;
 binary, ASCII, binary_compressed), XYZ / PTS / TXT text (``x y z``, ``x y z r g b``, or PTS ``x y z
 intensity r g b`` with an optional point-count first line), NPY (an (N, 3) or (N, 6) array) and raw
 little-endian float32 BIN (``x y z`` or ``x y z r g b`` per point). Colours come back as floats in [0, 1].
@@ -284,16 +284,29 @@ def _read_ascii_ply_vertices(path: Path) -> dict[str, np.ndarray] | None:
 
 
 def _read_pcd(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    import open3d as o3d
+    """A PCD file's x, y, z (and rgb), ascii, binary or binary_compressed (pypcd4: the points and colours
+    open3d reads, to the bit, on the PCL office frame; tests/test_ply_reader.py)."""
+    from pypcd4 import PointCloud
 
     _check_header(path)
-    pcd = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
-    points = np.asarray(pcd.points)
+    try:
+        pcd = PointCloud.from_path(path)
+        points = pcd.numpy(("x", "y", "z")).astype(np.float64)
+    except Exception as error:  # noqa: BLE001 - a malformed file raises whatever its parser meets first
+        raise CloudError(
+            f"{path}: not a readable PCD file: truncated or malformed ({type(error).__name__}: {error})"
+        ) from None
+    if len(points) != pcd.metadata.points:
+        raise CloudError(
+            f"{path}: truncated: its header says {pcd.metadata.points:,} points, it holds {len(points):,}"
+        )
     if len(points) == 0:
         raise CloudError(
             f"{path}: no points could be read (the file is empty, truncated or not a point cloud)"
         )
-    colors = np.asarray(pcd.colors, dtype=np.float32) if pcd.has_colors() else None
+    colors = None
+    if "rgb" in pcd.fields:
+        colors = (PointCloud.decode_rgb(pcd.numpy(("rgb",)).ravel()) / 255.0).astype(np.float32)
     return points, colors
 
 
@@ -428,13 +441,15 @@ def save_cloud(path: str | os.PathLike, cloud: Cloud) -> None:
                 vertices[channel] = rgb[:, k]
         PlyData([PlyElement.describe(vertices, "vertex")], byte_order="<").write(str(path))
     elif suffix == ".pcd":
-        import open3d as o3d
+        from pypcd4 import PointCloud
 
-        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points))
+        # float32 x, y, z (and PCL's packed rgb), as PCL and every PCD reader expect them
+        columns = [np.asarray(cloud.points, dtype=np.float32)]
         if cloud.colors is not None:
-            pcd.colors = o3d.utility.Vector3dVector(cloud.colors.astype(np.float64))
-        if not o3d.io.write_point_cloud(str(path), pcd, write_ascii=False):
-            raise CloudError(f"{path}: could not write the cloud")
+            rgb = np.clip(np.round(cloud.colors * 255), 0, 255).astype(np.uint8)
+            columns.append(PointCloud.encode_rgb(rgb).reshape(-1, 1))
+        names = ("x", "y", "z", "rgb")[: 3 + (cloud.colors is not None)]
+        PointCloud.from_points(np.hstack(columns), names, (np.float32,) * len(names)).save(path)  # binary
     else:
         raise CloudError(f"{path}: can only write .ply, .pcd or .npy")
 
