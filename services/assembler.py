@@ -32,7 +32,6 @@ class AssemblerService:
         self.store = None if state is None else AssemblerStore(state)
         restored = self.store.restore(self.assembler) if self.store else 0
         self.last_checkpoint = time.monotonic()
-        self.saved_alignment = self.assembler.world_from_odom
         self.last_published = -np.inf  # the last map that went out
         self.last_attempt = -np.inf  # ... or that did not, for want of a floor
         self.first_scan: float | None = None  # when this run's first scan was taken
@@ -59,7 +58,6 @@ class AssemblerService:
         self.last_published = self.last_attempt = -np.inf
         self.first_scan, self.last_scan, self.last_stamp = None, 0.0, 0.0
         self.pending = self.behind = False
-        self.saved_alignment = None
 
     def run(self) -> None:
         try:
@@ -142,9 +140,8 @@ class AssemblerService:
             self.last_attempt = time.monotonic()
             self.pending = False
             return
-        if self.store and world_from_odom is not self.saved_alignment:
+        if self.store:
             self.store.save_alignment(world_from_odom)  # the world frame survives a restart as it is
-            self.saved_alignment = world_from_odom
         cloud = messages.cloud_message(
             points,
             world_from_odom,

@@ -82,6 +82,7 @@ class AssemblerStore:
         # the world frame of the last map published (world_from_odom), kept as it changes: a restart levels
         # its first map as the last one was, not anew, so the robot's world frame does not move
         self.alignment_path = self.folder / "world_from_odom.npy"
+        self._saved_alignment = None  # the world_from_odom in that file (the same object: not written again)
         self._journal = None
 
     def restore(self, assembler: Assembler) -> int:
@@ -98,15 +99,19 @@ class AssemblerStore:
         if assembler.frames:
             assembler.resume()
             if self.alignment_path.exists():
-                assembler.world_from_odom = np.load(self.alignment_path)
+                assembler.world_from_odom = self._saved_alignment = np.load(self.alignment_path)
         self._rewrite_journal(records)  # the same records without a cut-short tail
         return assembler.frames
 
     def save_alignment(self, world_from_odom: np.ndarray) -> None:
-        """Keep the world frame of the map just published (atomically: a kill leaves the old or the new)."""
+        """Keep the world frame of the map just published (atomically: a kill leaves the old or the new); a
+        map levelled as the last one was (the same matrix) writes nothing."""
+        if world_from_odom is self._saved_alignment:
+            return
         temporary = self.alignment_path.with_suffix(".tmp.npy")
         np.save(temporary, np.asarray(world_from_odom, dtype=np.float64))
         os.replace(temporary, self.alignment_path)
+        self._saved_alignment = world_from_odom
 
     def append(self, record: FrameRecord) -> None:
         """Journal one accepted frame (flushed: it survives a kill of this process)."""
@@ -131,6 +136,7 @@ class AssemblerStore:
         self.close()
         self.snapshot_path.unlink(missing_ok=True)
         self.alignment_path.unlink(missing_ok=True)
+        self._saved_alignment = None
         self.journal_path.write_bytes(b"")
 
     def close(self) -> None:
