@@ -444,13 +444,18 @@ def _fit_normal(points: np.ndarray, up: np.ndarray) -> np.ndarray:
     return normal * np.sign(normal @ up)
 
 
-def _area(points: np.ndarray, normal: np.ndarray) -> float:
-    basis = rotation_between(normal, np.array([0.0, 0.0, 1.0]))
-    flat = (points @ basis.T)[:, :2]
+def _plane_cells(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """(n, 2) indices of the `_AREA_CELL` cells of a plane its points fall in, counted from 0 in the plane."""
+    flat = (points @ rotation_between(normal, np.array([0.0, 0.0, 1.0])).T)[:, :2]
     cells = np.floor(flat / _AREA_CELL).astype(np.int64)
+    return cells - cells.min(axis=0) if len(cells) else cells
+
+
+def _area(points: np.ndarray, normal: np.ndarray) -> float:
+    cells = _plane_cells(points, normal)
     if len(cells) == 0:
         return 0.0
-    cells -= cells.min(axis=0)  # one key per cell: a 1-D unique, 5x faster than unique rows
+    # one key per cell: a 1-D unique, 5x faster than unique rows
     return len(np.unique(cells[:, 0] * (cells[:, 1].max() + 1) + cells[:, 1])) * _AREA_CELL**2
 
 
@@ -459,11 +464,9 @@ def _interior_area(points: np.ndarray, normal: np.ndarray) -> float:
     has an inside; the strip or ring where walls meet a plane below the view has none."""
     from scipy.ndimage import binary_erosion
 
-    if len(points) == 0:
+    cells = _plane_cells(points, normal)
+    if len(cells) == 0:
         return 0.0
-    flat = (points @ rotation_between(normal, np.array([0.0, 0.0, 1.0])).T)[:, :2]
-    cells = np.floor(flat / _AREA_CELL).astype(np.int64)
-    cells -= cells.min(axis=0)
     grid = np.zeros(cells.max(axis=0) + 1, dtype=bool)
     grid[cells[:, 0], cells[:, 1]] = True
     return float(binary_erosion(grid, np.ones((3, 3), bool)).sum()) * _AREA_CELL**2
