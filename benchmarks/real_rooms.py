@@ -35,6 +35,7 @@ from affordcore.labels import (
     ground_truth,
     load_labels,
     match_places,
+    place_matches,
 )
 from affordcore.learn.baselines import tune_threshold
 from affordcore.learn.model import load_model, models_in, shipped_models
@@ -128,7 +129,7 @@ def main() -> None:
             )
             totals[model.affordance] += [places.found.sum(), len(places.found), places.false.sum()]
             false_per_room[short] += int(places.false.sum())
-            why += explain(short, labels, model, amap, places, mapper.scanned[model.affordance])
+            why += explain(short, labels, model, amap, places, mapper.scanned[model.affordance], settings)
             kept = ~places.ignored  # a place in an unlabelled region is neither found nor false
             calibration += list(zip(amap.probabilities[kept], ~places.false[kept]))
             if figures is not None and cloud_path.parent != args.rebuilt:  # a rebuilt room's data stays out
@@ -145,7 +146,7 @@ def main() -> None:
     print("\n".join(why))
 
 
-def explain(short: str, labels, model, amap, places, scanned) -> list[str]:
+def explain(short: str, labels, model, amap, places, scanned, settings: Settings) -> list[str]:
     """Which step lost each labelled place the map missed, and what each false skeleton is: the pose scores
     (no pose on the label beats the threshold), the candidates (no candidate peak on the label: a stronger
     neighbour's took its cell), or the place model (a candidate on it, below the cut); a false skeleton is a
@@ -156,13 +157,12 @@ def explain(short: str, labels, model, amap, places, scanned) -> list[str]:
     spacing = model.places.candidate_spacing if model.places else 0.25
     candidates = place_candidates(amap.scores, grid, threshold, spacing, scanned)
     probabilities = model.places.probability(candidates.evidence) if model.places else candidates.rows[:, 4]
-    cut = settings_cut(model)
+    cut = place_cut(model, settings)
     eligible = above_threshold(candidates.rows, threshold)
-    for label, found in zip(chosen, places.found):
+    on_label, _ = place_matches(labels, model.affordance, candidates.rows[:, [0, 1, 3]])  # as the map matches
+    for label, found, near in zip(chosen, places.found, on_label):
         if found:
             continue
-        near = label.distance(candidates.rows[:, :2]) <= XY_TOLERANCE
-        near &= angle_gap(candidates.rows[:, 3], label.facing) <= THETA_TOLERANCE
         best = _best_pose(amap.scores, grid, label)
         if best == float("-inf"):
             lost = "fields: no pose on it is scored (its cells were never seen, nor a surface over them)"
@@ -194,9 +194,9 @@ def explain(short: str, labels, model, amap, places, scanned) -> list[str]:
     return rows
 
 
-def settings_cut(model) -> float:
+def place_cut(model, settings: Settings) -> float:
     """The probability a place must reach (the place model's cut, or the setting over it)."""
-    chosen = Settings().map.place_probability
+    chosen = settings.map.place_probability
     return chosen if chosen is not None else (model.places.cut if model.places else float("nan"))
 
 
