@@ -74,6 +74,21 @@ def floor_off(centre: np.ndarray, lift: float, tilt_deg: float) -> np.ndarray:
     return transform
 
 
+def moved(step: float, theta_step: float) -> dict:
+    """name: the transform of a room moved by one of `shifts`, given its centre."""
+    return {
+        name: (lambda centre, change=change: moved_by(centre, *change))
+        for name, change in shifts(step, theta_step).items()
+    }
+
+
+def lifted() -> dict:
+    """name: the transform of a room with its floor off by one of `FLOOR_OFF`, given its centre."""
+    return {
+        name: (lambda centre, change=change: floor_off(centre, *change)) for name, change in FLOOR_OFF.items()
+    }
+
+
 def moved_by(centre: np.ndarray, dx: float, dy: float, turn: float) -> np.ndarray:
     """The rigid transform turning by `turn` about the vertical through `centre`, then moving by (dx, dy)."""
     from affordcore.geometry.skeleton import rotation_z
@@ -100,7 +115,7 @@ def room_places(
     labels_path: Path | None = None,
 ) -> dict[str, dict[str, tuple]]:
     """{affordance: {shift: (found, labelled, false)}} for one room (`tolerances`: `match_places`' own, or
-    other ones; `named`: name -> (dx, dy, turn), or name -> (lift, tilt) of `FLOOR_OFF`)."""
+    other ones; `named`: name -> the room's transform, given its centre: `moved`'s or `lifted`'s)."""
     from affordcore.geometry.scene import load_cloud
     from affordcore.labels import load_labels, match_places
     from affordcore.mapping.pipeline import map_affordances, prepare_scene
@@ -109,8 +124,8 @@ def room_places(
     labels = load_labels(labels_path or cloud_path.with_name(cloud_path.stem + ".labels.json"))
     centre = np.append(np.median(cloud.points[:, :2], axis=0), 0.0)
     found: dict[str, dict[str, tuple]] = {model.affordance: {} for model in models}
-    for name, change in named.items():
-        transform = floor_off(centre, *change) if len(change) == 2 else moved_by(centre, *change)
+    for name, moving in named.items():
+        transform = moving(centre)
         scene = prepare_scene(cloud.transformed(transform), settings, "none")
         moved = labels.moved(transform)
         for affordance, amap in map_affordances(scene.fields, scene.layout, models, settings).items():
@@ -153,11 +168,11 @@ def main() -> None:
     if not rooms:
         among = " among the models' test rooms" if args.held_out else ""
         sys.exit(f"no <room>.ply in {folder}{among}")
-    named = FLOOR_OFF if args.floor else shifts(settings.grid.step, settings.grid.theta_step)
+    named = lifted() if args.floor else moved(settings.grid.step, settings.grid.theta_step)
     tolerances = LOOSE_TOLERANCES if args.loose else None
-    moved = "with its floor off" if args.floor else "moved by under one grid step"
+    how = "with its floor off" if args.floor else "moved by under one grid step"
     print(
-        f"places found of labelled (+ false skeletons) with the room {moved} "
+        f"places found of labelled (+ false skeletons) with the room {how} "
         f"({len(rooms)} rooms of {folder.name}; step {settings.grid.step:g} m, theta step "
         f"{settings.grid.theta_step:g} rad; {os.cpu_count()} cores"
         + ("; places matched with the loose tolerances, 0.3 m and 0.5 rad" if args.loose else "")
