@@ -285,7 +285,7 @@ def _read_ascii_ply_vertices(path: Path) -> dict[str, np.ndarray] | None:
 
 def _read_pcd(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     """A PCD file's x, y, z (and rgb), ascii, binary or binary_compressed (pypcd4: the points and colours
-    open3d reads, to the bit, on the PCL office frame; tests/test_ply_reader.py)."""
+    open3d reads, to the bit, on the PCL office frame; tests/test_scene.py)."""
     from pypcd4 import PointCloud
 
     _check_header(path)
