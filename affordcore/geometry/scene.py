@@ -284,8 +284,8 @@ def _read_ascii_ply_vertices(path: Path) -> dict[str, np.ndarray] | None:
 
 
 def _read_pcd(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """A PCD file's x, y, z (and rgb), ascii, binary or binary_compressed (pypcd4: the points and colours
-    open3d reads, to the bit, on the PCL office frame; tests/test_scene.py)."""
+    """A PCD file's x, y, z (and rgb), ascii, binary or binary_compressed, through pypcd4 (tests/test_scene.py
+    reads open3d's PCD files of every encoding)."""
     from pypcd4 import PointCloud
 
     _check_header(path)
