@@ -45,6 +45,10 @@ class VoxelSettings(BaseModel):
 # with more scanned floor
 SteepFacing = Literal["centre", "floor"]
 STEEP_FACINGS = get_args(SteepFacing)
+# how a point's normal is estimated (affordcore.geometry.normals): from its nearest neighbours within the
+# radius, or from the points of the radius-sided cube around the lattice vertex nearest it
+NormalEstimator = Literal["nearest", "cube"]
+NORMAL_ESTIMATORS = get_args(NormalEstimator)
 
 
 class NormalSettings(BaseModel):
@@ -54,8 +58,16 @@ class NormalSettings(BaseModel):
         description="voxel size the cloud is thinned to before normals are estimated (m); 0 keeps every "
         "point",
     )
-    radius: float = Field(0.10, gt=0, description="neighbourhood radius for normal estimation (m)")
-    max_neighbours: int = Field(30, ge=3, description="at most this many neighbours per normal")
+    estimator: NormalEstimator = Field(
+        "nearest",
+        description="nearest: the max_neighbours nearest points within radius (open3d's estimate_normals); "
+        "cube: the points of the cube of side radius around the lattice vertex nearest the point, a fifth of "
+        "the time (docs/geometry.md)",
+    )
+    radius: float = Field(
+        0.10, gt=0, description="neighbourhood radius for normal estimation, or the cube's side (m)"
+    )
+    max_neighbours: int = Field(30, ge=3, description="at most this many neighbours per normal (nearest)")
     steep_facing: SteepFacing = Field(
         "centre",
         description="which way normals steeper than 60 deg face: the cloud's mean point in plan (centre, the "

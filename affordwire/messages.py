@@ -15,7 +15,7 @@ import numpy as np
 
 from affordcore.assembly.depth import DepthImage
 from affordcore.geometry.skeleton import JOINTS
-from affordcore.settings import STEEP_FACINGS, LimitSettings
+from affordcore.settings import NORMAL_ESTIMATORS, STEEP_FACINGS, LimitSettings
 
 from .proto import geometry_pb2, maps_pb2, sensing_pb2, service_pb2
 
@@ -376,6 +376,7 @@ def fields_message(
         distance=np.ascontiguousarray(fields.distance, dtype="<f4").tobytes(),
         normals=np.ascontiguousarray(fields.normals, dtype="<f4").tobytes(),
         steep_facing=fields.steep_facing,
+        normal_estimator=fields.normal_estimator,
     )
     if fields.visibility is not None:
         message.visibility = np.ascontiguousarray(fields.visibility, dtype=np.uint8).tobytes()
@@ -448,10 +449,15 @@ def scene_fields(
     facing = message.steep_facing or "centre"
     if facing not in STEEP_FACINGS:
         raise MessageError(f"steep_facing {message.steep_facing[:40]!r} is not one of {list(STEEP_FACINGS)}")
+    estimator = message.normal_estimator or "nearest"
+    if estimator not in NORMAL_ESTIMATORS:
+        raise MessageError(
+            f"normal_estimator {message.normal_estimator[:40]!r} is not one of {list(NORMAL_ESTIMATORS)}"
+        )
     visibility = _visibility(message, occupancy)
     occupancy = occupancy.astype(np.float32)
     soft = _soft_occupancy(message, shape)
-    return SceneFields(lattice, occupancy, distance, normals, footprint, facing, visibility, soft)
+    return SceneFields(lattice, occupancy, distance, normals, footprint, facing, visibility, soft, estimator)
 
 
 def _soft_occupancy(message: SceneFieldsMessage, shape: tuple[int, int, int]) -> np.ndarray | None:

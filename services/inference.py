@@ -94,6 +94,11 @@ class InferenceService:
                 f"{kinds[0]} fields; the models here were trained on {kinds[1]} ones "
                 "(AFFORD_VOXEL__FIELDS of the features service)"
             )
+        if fields.normal_estimator != self.layout.normal_estimator:
+            raise messages.MessageError(
+                f"fields with normals by '{fields.normal_estimator}'; the models here were trained with "
+                f"'{self.layout.normal_estimator}' (AFFORD_NORMALS__ESTIMATOR of the features service)"
+            )
         if fields.steep_facing != self.layout.steep_facing:
             raise messages.MessageError(
                 f"fields with steep normals facing '{fields.steep_facing}'; the models here were trained "

@@ -437,6 +437,7 @@ def test_fields_carry_the_world_from_input_they_are_given_else_the_clouds():
         steep_facing="centre",
         visibility=None,
         soft_occupancy=None,
+        normal_estimator="nearest",
     )
     levelling = _rigid(9)
     given = _wire(messages.fields_message(fields, cloud, levelling))
@@ -513,6 +514,11 @@ def test_scene_fields_round_trip_with_what_the_cloud_carried(small_fields):
     assert message.steep_facing == "centre" and back.steep_facing == "centre"
     message.ClearField("steep_facing")  # a client that does not set it means the default
     assert messages.scene_fields(message).steep_facing == "centre"
+    assert message.normal_estimator == back.normal_estimator == small_fields.normal_estimator
+    message.normal_estimator = "cube"
+    assert messages.scene_fields(message).normal_estimator == "cube"
+    message.ClearField("normal_estimator")  # unset: the nearest neighbours', as before the field
+    assert messages.scene_fields(message).normal_estimator == "nearest"
     # the voxel order is the one the schema states: voxel (i, j, k) is element (i * ny + j) * nz + k
     nx, ny, nz = lattice.shape
     occupied = np.argwhere(small_fields.occupancy > 0)
@@ -623,6 +629,7 @@ def test_unusable_voxel_states_are_refused(small_fields, spoil, reason):
         (lambda m: setattr(m, "x_max", m.x_min - 1), r"empty floor footprint"),
         (lambda m: setattr(m, "y_max", m.y_max + 60), r"floor footprint .* reaches beyond the voxel grid"),
         (lambda m: setattr(m, "steep_facing", "sideways"), r"steep_facing 'sideways' is not one of"),
+        (lambda m: setattr(m, "normal_estimator", "guess"), r"normal_estimator 'guess' is not one of"),
     ],
     ids=[
         "occupancy short",
@@ -634,6 +641,7 @@ def test_unusable_voxel_states_are_refused(small_fields, spoil, reason):
         "footprint",
         "footprint beyond the grid",
         "unknown facing",
+        "unknown normals",
     ],
 )
 def test_unusable_scene_fields_are_refused(small_fields, spoil, reason):

@@ -356,9 +356,9 @@ def test_features_hold_back_the_fields_of_a_map_superseded_while_they_were_compu
     assert "fields held back, their map superseded while computed: 1" in capsys.readouterr().out
 
 
-def test_inference_refuses_fields_at_another_resolution_facing_or_kind(router, client, tmp_path):
+def test_inference_refuses_fields_at_another_resolution_facing_kind_or_normals(router, client, tmp_path):
     from affordcore.geometry.fields import compute_fields
-    from affordcore.settings import NormalSettings, VoxelSettings
+    from affordcore.settings import NORMAL_ESTIMATORS, NormalSettings, Settings, VoxelSettings
     from services.inference import InferenceService
 
     errors = _listen(client, KEYS.error("inference"))
@@ -379,6 +379,11 @@ def test_inference_refuses_fields_at_another_resolution_facing_or_kind(router, c
         assert (
             "soft fields; the models here were trained on binary ones" in _next(errors, messages.Error).reason
         )
+        # and on the normals of one estimator
+        (other,) = set(NORMAL_ESTIMATORS) - {Settings().normals.estimator}
+        estimated = compute_fields(points, normal_settings=NormalSettings(estimator=other))
+        _send(client, KEYS.fields, messages.fields_message(estimated, cloud).SerializeToString(), FIELDS)
+        assert f"fields with normals by '{other}'" in _next(errors, messages.Error).reason
     finally:
         running.stop()
 

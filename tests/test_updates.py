@@ -171,23 +171,31 @@ def test_thinning_for_normals_keeps_every_other_point_when_a_point_lands_beyond_
     assert all(tuple(p) in kept for p in before.tolist())
 
 
-def test_a_normal_cache_estimates_only_near_a_change_and_gives_the_fields_of_a_fresh_estimate(rooms):
+@pytest.mark.parametrize("estimator", ["nearest", "cube"])
+def test_a_normal_cache_estimates_only_near_a_change_and_gives_the_fields_of_a_fresh_estimate(
+    rooms, estimator
+):
     from affordcore.mapping.updates import NormalCache
 
     rng = np.random.default_rng(3)
+    normal_settings = NormalSettings(estimator=estimator)
     base = _room(size=6.0)
     with_box = np.concatenate([base, box_surface_points(*map(np.array, BOX), 2000, rng)])
     cache = NormalCache()
-    compute_fields(base, VoxelSettings(), NormalSettings(), estimator=cache)
+    compute_fields(base, VoxelSettings(), normal_settings, estimator=cache)
     assert cache.estimated == len(cache.points)  # the first cloud: every normal
-    cached = compute_fields(with_box, VoxelSettings(), NormalSettings(), estimator=cache)
+    cached = compute_fields(with_box, VoxelSettings(), normal_settings, estimator=cache)
     assert 0 < cache.estimated < 0.1 * len(cache.points)
-    fresh = compute_fields(with_box, VoxelSettings(), NormalSettings())
+    fresh = compute_fields(with_box, VoxelSettings(), normal_settings)
     np.testing.assert_array_equal(cached.occupancy, fresh.occupancy)
     np.testing.assert_allclose(cached.normals, fresh.normals, atol=1e-5)
     # the same cloud in another order (an assembler's map listed anew) less one point: little to estimate,
     # and still the fields of a fresh estimate
     shuffled = rng.permutation(with_box)[:-1]
-    cached = compute_fields(shuffled, VoxelSettings(), NormalSettings(), estimator=cache)
+    cached = compute_fields(shuffled, VoxelSettings(), normal_settings, estimator=cache)
     assert cache.estimated < 0.01 * len(cache.points)
-    np.testing.assert_allclose(cached.normals, compute_fields(shuffled).normals, atol=1e-5)
+    fresh = compute_fields(shuffled, VoxelSettings(), normal_settings).normals
+    differ = ~np.isclose(cached.normals, fresh, rtol=0, atol=1e-5)
+    # a cube's points are those of its cells: a mean summed in another order that lands on a cell's face by
+    # its last bit falls in the next cell, so a voxel or two may carry the other side's normal
+    assert differ.sum() <= (0 if estimator == "nearest" else 1e-5 * differ.size)

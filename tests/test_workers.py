@@ -66,6 +66,9 @@ def test_an_error_comes_back_and_the_next_call_starts_clean(room):
         other = "floor" if scene.layout.steep_facing != "floor" else "centre"
         with pytest.raises(ValueError, match="steep normals"):  # raised in the workers
             mapper.maps(dataclasses.replace(scene.fields, steep_facing=other))
+        estimator = "cube" if scene.layout.normal_estimator != "cube" else "nearest"
+        with pytest.raises(ValueError, match="normals by"):
+            mapper.maps(dataclasses.replace(scene.fields, normal_estimator=estimator))
         maps = mapper.maps(scene.fields)  # the pipes hold nothing left over from the failures
         assert list(maps) == [m.affordance for m in models[:2]]
     finally:

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..settings import STEEP_FACINGS, Settings
+from ..settings import NORMAL_ESTIMATORS, STEEP_FACINGS, Settings
 from .fields import SceneFields
 from .grid import PoseGrid
 from .skeleton import JOINTS, Skeleton, rotation_z
@@ -62,12 +62,18 @@ class FeatureLayout:
     steep_facing: str = "centre"
     # fields of `VoxelSettings.fields` "soft" (True) or "binary"
     soft_fields: bool = False
+    # how the normals are estimated (`NormalSettings.estimator`)
+    normal_estimator: str = "nearest"
 
     def __post_init__(self) -> None:
         if self.distance_cap is not None and not self.distance_cap > 0:
             raise ValueError(f"distance_cap must be positive or None, not {self.distance_cap}")
         if self.steep_facing not in STEEP_FACINGS:
             raise ValueError(f"steep_facing is one of {list(STEEP_FACINGS)}, not {self.steep_facing!r}")
+        if self.normal_estimator not in NORMAL_ESTIMATORS:
+            raise ValueError(
+                f"normal_estimator is one of {list(NORMAL_ESTIMATORS)}, not {self.normal_estimator!r}"
+            )
         cells = self.cube_size / self.cell_size
         if abs(cells - round(cells)) > 1e-6 or round(cells) < 1:
             raise ValueError(f"cube_size {self.cube_size} is not a whole number of cells of {self.cell_size}")
@@ -82,6 +88,7 @@ class FeatureLayout:
             features.distance_cap,
             settings.normals.steep_facing,
             settings.voxel.fields == "soft",
+            settings.normals.estimator,
         )
 
     @property
@@ -139,6 +146,8 @@ class FeatureLayout:
             described["distance_cap"] = self.distance_cap
         if self.soft_fields:  # likewise absent for binary fields
             described["fields"] = "soft: trilinear point weights, distance to the nearest point"
+        if self.normal_estimator == "cube":  # and for the nearest neighbours' normals
+            described["normal_estimator"] = "cube of the radius around the nearest lattice vertex"
         return described
 
     @property

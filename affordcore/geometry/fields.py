@@ -71,6 +71,7 @@ class SceneFields:
     # comes to each voxel centre, what the collision feature reads; `occupancy` stays the binary state that
     # decides where the floor was seen and what was scanned
     soft_occupancy: np.ndarray | None = None
+    normal_estimator: str = "nearest"  # how the normals were estimated (`NormalSettings.estimator`)
 
     @property
     def nbytes(self) -> int:
@@ -149,12 +150,14 @@ def compute_fields(
         field = _normal_field(lattice, points, normals, steep, corners) * soft[..., None]
         distance = distance_to_points(lattice, points, distance)
         return SceneFields(
-            lattice, occupancy, distance, field, footprint, normal_settings.steep_facing, soft_occupancy=soft
-        )
+            lattice, occupancy, distance, field, footprint, normal_settings.steep_facing,
+            soft_occupancy=soft, normal_estimator=normal_settings.estimator,
+        )  # fmt: skip
     field = _normal_field(lattice, points, normals, steep)
     return SceneFields(
-        lattice, occupancy, distance.astype(np.float32), field, footprint, normal_settings.steep_facing
-    )
+        lattice, occupancy, distance.astype(np.float32), field, footprint, normal_settings.steep_facing,
+        normal_estimator=normal_settings.estimator,
+    )  # fmt: skip
 
 
 # Soft fields (`VoxelSettings.fields = "soft"`). Binary fields quantise the room to the lattice: a table's
@@ -212,10 +215,14 @@ def estimate_normals(points: np.ndarray, settings: NormalSettings) -> tuple[np.n
 
 
 def normals_at(points: np.ndarray, settings: NormalSettings) -> np.ndarray:
-    """Unit normals (unsigned) of a cloud at its points: the principal axes of each point's nearest
-    `max_neighbours` within `radius`, as open3d's `estimate_normals` computes them (`normals.pca_normals`)."""
-    from .normals import pca_normals
+    """Unit normals (unsigned) of a cloud at its points, by `settings.estimator`: the principal axes of each
+    point's nearest `max_neighbours` within `radius` as open3d's `estimate_normals` computes them
+    (`normals.pca_normals`), or of the points of the cube around its nearest lattice vertex
+    (`normals.cube_normals`)."""
+    from .normals import cube_normals, pca_normals
 
+    if settings.estimator == "cube":
+        return cube_normals(points, settings.radius)
     return pca_normals(points, settings.radius, settings.max_neighbours)
 
 

@@ -96,6 +96,7 @@ def save_fields(path: Path, fields: SceneFields) -> None:
         normals=fields.normals,
         footprint=np.asarray(fields.footprint, dtype=np.float64),
         steep_facing=np.str_(fields.steep_facing),
+        normal_estimator=np.str_(fields.normal_estimator),
         **({} if fields.visibility is None else {"visibility": fields.visibility}),
         **({} if fields.soft_occupancy is None else {"soft_occupancy": fields.soft_occupancy}),
     )
@@ -115,6 +116,7 @@ def load_fields(path: Path) -> SceneFields:
             str(data["steep_facing"]),
             data["visibility"] if "visibility" in data else None,
             data["soft_occupancy"] if "soft_occupancy" in data else None,
+            str(data["normal_estimator"]),
         )
 
 

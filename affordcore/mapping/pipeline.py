@@ -227,6 +227,11 @@ class RoomMapper:
                 f"fields with steep normals facing '{fields.steep_facing}' for a layout of "
                 f"'{self.layout.steep_facing}' (compute them with the layout's NormalSettings.steep_facing)"
             )
+        if fields.normal_estimator != self.layout.normal_estimator:
+            raise ValueError(
+                f"fields with normals by '{fields.normal_estimator}' for a layout of "
+                f"'{self.layout.normal_estimator}' (compute them with the layout's NormalSettings.estimator)"
+            )
         if (fields.soft_occupancy is not None) != self.layout.soft_fields:
             kind = "soft" if self.layout.soft_fields else "binary"
             raise ValueError(f"fields of the other kind for a layout of {kind} fields (VoxelSettings.fields)")

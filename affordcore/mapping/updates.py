@@ -221,6 +221,7 @@ def _fields_around(fields: SceneFields, window: PoseGrid, reach: int) -> SceneFi
         fields.footprint,
         fields.steep_facing,
         soft_occupancy=None if fields.soft_occupancy is None else fields.soft_occupancy[part],
+        normal_estimator=fields.normal_estimator,
     )
 
 
@@ -244,7 +245,7 @@ class NormalCache:
             self.key, self.estimated = None, len(points)
             return estimate_normals(points, settings)
         thinned, cells = thin_cells(points, settings.downsample)
-        key = (settings.downsample, settings.radius, settings.max_neighbours)
+        key = (settings.estimator, settings.downsample, settings.radius, settings.max_neighbours)
         if key != self.key:
             normals = normals_at(thinned, settings)
             self.estimated = len(thinned)
