@@ -257,10 +257,18 @@ def models_rebuild(
         None, "--out", help="folder for the model files (default: the package's own)"
     ),
     workers: int = typer.Option(2, "--workers", min=1, help="rooms generated in parallel"),
+    real: list[Path] = typer.Option(
+        [],
+        "--real",
+        help="a folder of real labelled rooms (<room>.labels.json, its <room>.ply beside it or in another "
+        "--real folder) that calibrate the place models beside the generated validation rooms, weighing "
+        "AFFORD_LEARN__REAL_SHARE of them; never trained on. Repeatable",
+    ),
 ) -> None:
     """Retrain the default models from generated rooms, reproducibly: the shipped models' recipe."""
     with user_errors():
         from affordcore.learn.defaults import rebuild_default_models, winners
+        from affordcore.learn.examples import labelled_rooms, missing_clouds
         from affordcore.learn.model import MODELS_DIR
         from affordcore.settings import Settings
 
@@ -268,9 +276,17 @@ def models_rebuild(
 
         require_extra("learn")
         output_folder(out or MODELS_DIR, "--out" if out else "--out (default: the package's model folder)")
+        for folder in real:
+            if not folder.is_dir():
+                raise UserError(f"--real {folder}: no such folder")
+        real_rooms = labelled_rooms(real)
+        if real and not real_rooms:
+            raise UserError(f"--real: no labelled room with its cloud in {', '.join(map(str, real))}")
+        for name in missing_clouds(real):
+            typer.echo(f"--real: {name} has labels but no cloud in any --real folder; left out", err=True)
         chosen = winners(evaluation) if evaluation else learner
         with cluster_jobs(Settings()):
             written = rebuild_default_models(
-                out or MODELS_DIR, chosen, rooms, seed, workers, on_step=typer.echo
+                out or MODELS_DIR, chosen, rooms, seed, workers, on_step=typer.echo, real=real_rooms
             )
         typer.echo("written: " + ", ".join(str(p) for p in written))

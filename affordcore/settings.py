@@ -438,6 +438,13 @@ class LearnSettings(BaseModel):
         "validation rooms, scored by place models fitted without them, keep at most this many false places "
         "per room (docs/maps.md)",
     )
+    real_share: float = Field(
+        0.5,
+        gt=0,
+        lt=1,
+        description="where real labelled rooms calibrate the place models beside the generated validation "
+        "rooms (afford models rebuild --real), the share of the weight they hold together",
+    )
     cache_dir: Path | None = Field(
         None,
         description="where training and evaluation keep each room's voxel fields and sampled feature rows, "

@@ -1,10 +1,13 @@
 """How right the maps are: learners trained on generated rooms, tested on held-out generated rooms and on the
-two real rooms, every pose scored as `afford map` scores it.
+real validation rooms, every pose scored as `afford map` scores it.
 
 One fixed split by seed: `afford synth --rooms N --seed S` (generated once into --data, reused after), rooms
 taken in generation order (kinds alternate) and dealt by index: the last `--test` are test rooms, the
-`--validation` before them choose thresholds (and the structured SVM's iteration), the rest train. Test
-rooms and the real rooms in ../shared/data/rooms are never trained or tuned on. Per affordance and learner:
+`--validation` before them choose thresholds (and the structured SVM's iteration), the rest train. The real
+validation rooms (../shared/data/rooms and validation/, the ScanNet cloud rebuilt into bench-data/validation)
+are never trained on; they calibrate the place models beside the generated validation rooms (weighing
+AFFORD_LEARN__REAL_SHARE of them; `--no-real-calibration`: not), so their rows are in-sample for the
+place models and cuts. Test rooms are never trained or tuned on. Per affordance and learner:
 
 * pose precision / recall / F1 at the model's threshold (the paper's metric) and average precision;
 * place recall (labelled places with a skeleton on them) and false skeletons per room, for the skeleton map
@@ -42,7 +45,10 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-REAL_ROOMS = ROOT.parent / "shared" / "data" / "rooms"
+# the real validation rooms (ScanNet's cloud rebuilt into bench-data/validation, its labels in shared)
+REAL_ROOMS = [ROOT.parent / "shared" / "data" / d for d in ("rooms", "validation")] + [
+    ROOT / "bench-data" / "validation"
+]
 
 
 def main() -> None:
@@ -77,12 +83,18 @@ def main() -> None:
         "--unseen", type=int, default=48, help="also score on this many rooms of another seed (0: none)"
     )
     parser.add_argument("--unseen-seed", type=int, default=UNSEEN_SEED, help="that seed")
+    parser.add_argument(
+        "--no-real-calibration",
+        action="store_true",
+        help="fit the place models on the generated validation rooms alone, not on the real ones beside them "
+        "(afford models rebuild without --real)",
+    )
     args = parser.parse_args()
 
     from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.cache import RoomCache
     from affordcore.learn.defaults import data_record, data_set_styles, split_by_index
-    from affordcore.learn.examples import Task, data_set_rooms, load_rooms, split_examples
+    from affordcore.learn.examples import Task, labelled_rooms, load_rooms, split_examples
     from affordcore.learn.train import train_on_rooms
     from affordcore.settings import Settings
 
@@ -100,7 +112,9 @@ def main() -> None:
     # rooms hold their labels; fields and sampled rows are read from the cache one room at a time
     needed = test if args.shipped else list(files.values())  # the shipped models need no training rooms
     rooms = {r.name: r for r in load_rooms(needed, settings, cache=cache)}
-    real = load_rooms(data_set_rooms(REAL_ROOMS), settings, cache=cache) if REAL_ROOMS.is_dir() else []
+    real_folders = [folder for folder in REAL_ROOMS if folder.is_dir()]
+    real = load_rooms(labelled_rooms(real_folders), settings, cache=cache)
+    calibrating = [] if args.no_real_calibration else real
     train_names, validation_names = [f.name for f in train], [f.name for f in validation]
     results: dict = {
         "split": {"train": train_names, "validation": validation_names, "test": [f.name for f in test]}
@@ -117,7 +131,7 @@ def main() -> None:
         for learner in args.learners.split(","):
             t0 = time.perf_counter()
             model = shipped.get(affordance) or train_on_rooms(
-                examples, train_names, validation_names, task, learner, seed=args.seed
+                examples, train_names, validation_names, task, learner, seed=args.seed, real=calibrating
             )
             seconds = time.perf_counter() - t0
             models[(affordance, learner)] = model
@@ -157,7 +171,13 @@ def main() -> None:
             for learner in args.curve_learners.split(","):
                 model = models.get((affordance, learner)) if n == len(train_names) else None
                 model = model or train_on_rooms(
-                    examples, train_names[:n], validation_names, task, learner, seed=args.seed
+                    examples,
+                    train_names[:n],
+                    validation_names,
+                    task,
+                    learner,
+                    seed=args.seed,
+                    real=calibrating,
                 )
                 test_names = [f.name for f in test]
                 row = summarise(

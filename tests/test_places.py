@@ -218,9 +218,9 @@ def test_candidates_are_denser_than_places_and_the_spacing_travels_with_the_mode
     assert PlaceModel.from_dict(model.to_dict()).candidate_spacing == CANDIDATE_SPACING
 
 
-def _rooms_of_candidates(rooms: int, seed: int, overlap: float) -> list:
+def _rooms_of_candidates(rooms: int, seed: int, overlap: float, column: int = 0) -> list:
     """Rooms of candidate places 1 m apart (no two suppress each other): two true places and twenty false
-    ones each, the true ones' peak score `overlap` sigmas above the false ones' (evidence column 0)."""
+    ones each, the true ones `overlap` sigmas above the false ones in evidence `column` (the peak score)."""
     from affordcore.learn.thresholds import PlaceCandidates
 
     rng = np.random.default_rng(seed)
@@ -228,7 +228,7 @@ def _rooms_of_candidates(rooms: int, seed: int, overlap: float) -> list:
     for _ in range(rooms):
         used = np.r_[np.ones(2, bool), np.zeros(20, bool)]
         evidence = rng.normal(size=(len(used), len(EVIDENCE)))
-        evidence[:, 0] += overlap * used
+        evidence[:, column] += overlap * used
         matches = np.zeros((2, len(used)), bool)
         matches[[0, 1], [0, 1]] = True
         xy = np.column_stack([np.arange(len(used), dtype=float), np.zeros(len(used))])
@@ -259,6 +259,44 @@ def test_the_place_cut_is_the_lowest_that_keeps_false_places_within_the_budget_o
     noise = _rooms_of_candidates(20, 2, overlap=0.0)
     cut, model = place_cut(noise, 0.3, 0.45), _fit_on(noise)
     assert sum(c.places(model.probability(c.evidence), cut, 0.45)[1] for c in noise) <= 0.3 * len(noise)
+
+
+def test_real_rooms_weigh_their_share_of_the_place_model_and_hold_its_cut_to_the_budget():
+    """Generated rooms whose places stand out by their score, real ones whose places stand out by another
+    evidence (a scan that shifts scores): fitted with the real rooms at half the weight, the model finds the
+    places of fresh real rooms it would miss without them; and a cut must keep the real rooms within the
+    budget too."""
+    from affordcore.learn.thresholds import _fit_on, place_cut, room_weights
+
+    is_real = np.r_[np.zeros(40, bool), np.ones(5, bool)]
+    weights = room_weights(is_real, 0.5)
+    assert weights[is_real].sum() == pytest.approx(weights[~is_real].sum())
+    assert np.all(weights[~is_real] == 1) and np.all(room_weights(is_real, 0.2)[is_real] == 2.0)
+    assert np.all(room_weights(np.zeros(3, bool), 0.5) == 1)
+
+    generated = _rooms_of_candidates(40, 3, overlap=3.0, column=0)
+    real = _rooms_of_candidates(5, 4, overlap=3.0, column=1)
+    fresh_real = _rooms_of_candidates(100, 5, overlap=3.0, column=1)
+    fresh_generated = _rooms_of_candidates(100, 6, overlap=3.0, column=0)
+
+    def found(model, rooms, cut=0.3):
+        return np.sum([c.places(model.probability(c.evidence), cut, 0.45) for c in rooms], axis=0)
+
+    alone, both = _fit_on(generated), _fit_on([*generated, *real], is_real, 0.5)
+    lightly = _fit_on([*generated, *real], is_real, 0.1)
+    # the real rooms' places, all but lost without them, and found more the more the real rooms weigh
+    assert found(alone, fresh_real)[0] < 20 < 2 * found(lightly, fresh_real)[0] < found(both, fresh_real)[0]
+    # at the price of some of the generated ones, where the two kinds of room disagree this much
+    assert (
+        found(alone, fresh_generated)[0]
+        > found(both, fresh_generated)[0]
+        > 0.5 * found(alone, fresh_generated)[0]
+    )
+    # real rooms full of phantoms (places no better than noise) stop the walk where generated ones would not
+    noisy_real = _rooms_of_candidates(5, 7, overlap=0.0, column=1)
+    # (the budget judged on the real rooms apart: pooled with the generated ones they would pass lower)
+    apart = place_cut([*generated, *noisy_real], 1.0, 0.45, is_real=is_real, real_share=0.5)
+    assert place_cut(generated, 1.0, 0.45) == 0.2 < place_cut([*generated, *noisy_real], 1.0, 0.45) < apart
 
 
 def test_the_map_keeps_the_places_at_the_place_models_own_cut_unless_told_otherwise():

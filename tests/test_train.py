@@ -299,6 +299,32 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
     np.testing.assert_allclose(amap.skeletons, candidates.rows[kept])
 
 
+def test_real_rooms_calibrate_the_place_model_beside_the_validation_rooms(data_set, cache):
+    """`calibrate` with real rooms: the place model is fitted on both (and says so), the report holds the real
+    rooms' own figures, and calibrating again on the validation rooms alone gives back the model trained so."""
+    from affordcore.geometry.features import FeatureLayout
+    from affordcore.learn.examples import Task, data_set_rooms, load_rooms
+    from affordcore.learn.train import calibrate
+
+    settings = _settings()
+    affordance = _affordance(data_set)
+    model = train(data_set, affordance, "linear-tuned", settings, seed=0, cache=cache)
+    rooms = {room.name: room for room in load_rooms(data_set_rooms(data_set), settings, cache=cache)}
+    validation = [rooms[name] for name in model.validation["rooms"]]
+    real = [rooms[name] for name in model.training["rooms"]][:1]  # any labelled room the models may see
+    task = Task(affordance, settings, FeatureLayout.from_settings(settings))
+    alone = model.place_model
+    calibrated = calibrate(dataclasses.replace(model), validation, task, real=real)
+    assert calibrated.place_model["trained_on"]["real_rooms"] == 1
+    assert calibrated.place_model["trained_on"]["real_share"] == settings.learn.real_share
+    assert calibrated.place_model["coef"] != alone["coef"]
+    assert calibrated.validation["real"]["rooms"] == [real[0].name]
+    assert 0 <= calibrated.validation["real"]["probability_place_recall"] <= 1
+    assert calibrated.validation["learner_threshold"] == model.validation["learner_threshold"]
+    again = calibrate(dataclasses.replace(calibrated), validation, task)
+    assert again.place_model == alone and again.threshold == model.threshold
+
+
 def test_split_by_index_deals_rooms_in_generation_order_and_refuses_too_few():
     from affordcore.learn.defaults import split_by_index
 

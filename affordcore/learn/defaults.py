@@ -76,8 +76,10 @@ def rebuild_default_models(
     seed: int = SEED,
     workers: int = 1,
     on_step: Callable[[str], None] | None = None,
+    real: list | None = None,
 ) -> list[Path]:
-    """`learners`: one learner for every affordance, or {affordance: learner} (say, from `winners`)."""
+    """`learners`: one learner for every affordance, or {affordance: learner} (say, from `winners`); `real`:
+    labelled real rooms (`examples.RoomFiles`) that calibrate the place models beside the validation rooms."""
     from ..synth.batch import synthesize
     from ..synth.dataset import SynthOptions
 
@@ -87,7 +89,7 @@ def rebuild_default_models(
             on_step(f"{rooms} rooms generated")
         # the rooms' cache goes with them: nobody trains on these files again
         return train_default_models(
-            Path(data), out, learners, seed, on_step, cache=RoomCache(Path(data) / "cache")
+            Path(data), out, learners, seed, on_step, cache=RoomCache(Path(data) / "cache"), real=real
         )
 
 
@@ -100,9 +102,11 @@ def train_default_models(
     validation: int = VALIDATION,
     test: int = TEST,
     cache: RoomCache | None = None,
+    real: list | None = None,
 ) -> list[Path]:
     """Train every affordance on a generated data set split by `split_by_index`, write the model files;
-    rooms are read one at a time from `cache` (default `learn.cache_dir`)."""
+    rooms are read one at a time from `cache` (default `learn.cache_dir`). `real` rooms (`RoomFiles`)
+    calibrate the place models beside the validation rooms (`train.calibrate`); never trained on."""
     from ..geometry.features import FeatureLayout
     from .examples import Task, data_set_rooms, load_rooms, split_examples
     from .train import train_on_rooms
@@ -111,6 +115,7 @@ def train_default_models(
     cache = cache or RoomCache.from_settings(settings)
     layout = FeatureLayout.from_settings(settings)
     rooms = {room.name: room for room in load_rooms(data_set_rooms(data), settings, cache=cache)}
+    real_rooms = load_rooms(real, settings, cache=cache) if real else []
     train_names, validation_names, test_names = split_by_index(list(rooms), validation, test)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -118,7 +123,9 @@ def train_default_models(
         learner = learners if isinstance(learners, str) else learners.get(affordance, LEARNER)
         task = Task(affordance, settings, layout)
         examples = split_examples(rooms, train_names, validation_names, task, cache)
-        model = train_on_rooms(examples, train_names, validation_names, task, learner, seed=seed)
+        model = train_on_rooms(
+            examples, train_names, validation_names, task, learner, seed=seed, real=real_rooms
+        )
         model.parameters["data"] = data_record(len(rooms), seed, test_names, data_set_styles(data))
         written.append(model.save(out / f"{affordance}.model.json"))
         if on_step:
@@ -126,5 +133,11 @@ def train_default_models(
             on_step(
                 f"{affordance} ({learner}): validation pose F1 {v['f1']:.3f}, place recall "
                 f"{v['place_recall']:.2f}, {v['false_per_room']:.1f} false skeletons per room"
+                + (
+                    f"; real rooms: place recall {v['real']['probability_place_recall']:.2f}, "
+                    f"{v['real']['probability_false_per_room']:.1f} false per room"
+                    if "real" in v
+                    else ""
+                )
             )
     return written

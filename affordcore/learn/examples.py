@@ -136,6 +136,36 @@ def data_set_rooms(folder: str | Path) -> list[RoomFiles]:
     return rooms
 
 
+def labelled_rooms(folders: list[Path]) -> list[RoomFiles]:
+    """Every label file `<room>.labels.json` in the folders with its cloud `<room>.ply`, beside it or in any
+    other of the folders (a cloud rebuilt apart from its labels, as ScanNet's terms require), sorted by name;
+    labels whose cloud is nowhere are left out (`missing_clouds` names them)."""
+    rooms = []
+    for labels in sorted(p for folder in folders for p in Path(folder).glob("*.labels.json")):
+        cloud = _cloud_of(labels, folders)
+        if cloud is not None:
+            rooms.append(RoomFiles(labels.name.removesuffix(".labels.json"), cloud, labels))
+    return sorted(rooms)
+
+
+def missing_clouds(folders: list[Path]) -> list[str]:
+    """The rooms of label files in the folders whose cloud is in none of them."""
+    labels = (p for folder in folders for p in Path(folder).glob("*.labels.json"))
+    return sorted(p.name.removesuffix(".labels.json") for p in labels if _cloud_of(p, folders) is None)
+
+
+def _cloud_of(labels: Path, folders: list[Path]) -> Path | None:
+    stem = labels.name.removesuffix(".labels.json")
+    return next(
+        (
+            c
+            for c in [labels.with_name(f"{stem}.ply"), *(Path(f) / f"{stem}.ply" for f in folders)]
+            if c.exists()
+        ),
+        None,
+    )
+
+
 def load_room(files: RoomFiles, settings: Settings, cache: RoomCache | None = None) -> Room:
     """The room with its fields held, or (with `cache`) read from the cache, computed and written first
     when missing."""

@@ -106,50 +106,87 @@ class PlaceCandidates:
 
 
 def fit_places(
-    rooms: list[RoomScores], threshold: float, false_budget: float | None = None, nms_radius: float = 0.45
+    rooms: list[RoomScores],
+    threshold: float,
+    false_budget: float | None = None,
+    nms_radius: float = 0.45,
+    real: list[RoomScores] = (),
+    real_share: float = 0.5,
 ) -> PlaceModel | None:
     """The place model fitted on the rooms' candidates (None when they hold no place, or only places), with
     its cut chosen under `false_budget` false places per room for maps of places `nms_radius` apart
-    (`place_cut`; None: 0.5)."""
-    candidates = [room.candidates(threshold) for room in rooms]
-    model = _fit_on(candidates)
+    (`place_cut`; None: 0.5). `real` rooms (scanned rooms with labels, never trained on) join the generated
+    ones, together weighing `real_share` of all (`room_weights`), and the cut must keep both kinds of room
+    within the budget."""
+    candidates = [room.candidates(threshold) for room in [*rooms, *real]]
+    is_real = np.arange(len(candidates)) >= len(rooms)
+    model = _fit_on(candidates, is_real, real_share)
     if model is not None:
         model.trained_on["rooms"] = len(rooms)
+        if len(real):
+            model.trained_on.update(real_rooms=len(real), real_share=real_share)
         if false_budget is not None:
-            model.cut = place_cut(candidates, false_budget, nms_radius)
+            model.cut = place_cut(
+                candidates, false_budget, nms_radius, is_real=is_real, real_share=real_share
+            )
     return model
 
 
-def _fit_on(candidates: list[PlaceCandidates]) -> PlaceModel | None:
+def room_weights(is_real: np.ndarray, real_share: float) -> np.ndarray:
+    """A weight per room: 1 for a generated room, and for a real one what makes the real rooms together
+    `real_share` of the total. Few real rooms against many generated ones would otherwise barely move a
+    model fitted on all their candidates; weighed so, the probabilities answer to both kinds of scan, while
+    the generated rooms' many kinds of place keep a handful of real rooms from deciding alone."""
+    n_real = int(np.sum(is_real))
+    n_generated = len(is_real) - n_real
+    if n_real == 0 or n_generated == 0:
+        return np.ones(len(is_real))
+    return np.where(is_real, real_share / (1 - real_share) * n_generated / n_real, 1.0)
+
+
+def _fit_on(
+    candidates: list[PlaceCandidates], is_real: np.ndarray | None = None, real_share: float = 0.5
+) -> PlaceModel | None:
+    rooms = room_weights(np.zeros(len(candidates), bool) if is_real is None else is_real, real_share)
     evidence = np.concatenate([c.evidence[~c.ignored] for c in candidates])
     used = np.concatenate([c.used[~c.ignored] for c in candidates])
+    weight = np.concatenate([np.full(int((~c.ignored).sum()), w) for c, w in zip(candidates, rooms)])
     if used.all() or not used.any():
         return None
-    return fit_place_model(evidence, used)
+    return fit_place_model(evidence, used, weight=None if np.all(weight == 1) else weight)
 
 
 PLACE_CUTS = np.round(np.arange(0.5, 0.199, -0.05), 2)  # 0.5 down to 0.2: the cuts place_cut walks
 
 
-def place_cut(candidates: list[PlaceCandidates], false_budget: float, radius: float, folds: int = 5) -> float:
+def place_cut(
+    candidates: list[PlaceCandidates],
+    false_budget: float,
+    radius: float,
+    folds: int = 5,
+    is_real: np.ndarray | None = None,
+    real_share: float = 0.5,
+) -> float:
     """The probability a place must reach: walking down from a calibrated 0.5, the lowest of `PLACE_CUTS`
-    before the rooms' false places per room exceed `false_budget`. Each room's probabilities come from a place
-    model fitted on the other folds of rooms (dealt in turn), so the cut is judged on rooms its model did not
-    see, as a map's rooms will be. Why lower than 0.5 at all: where a kind of place has weak evidence (a chair
-    pushed under a table scores low), the true places gather at 0.2-0.5 and a map at 0.5 misses most of them.
-    Why not below 0.2: a place shown to a robot should be one in five likely or better."""
+    before the rooms' false places per room exceed `false_budget` (the generated rooms' and, apart, the real
+    ones' of `is_real`). Each room's probabilities come from a place model fitted on the other folds of rooms
+    (dealt in turn), so the cut is judged on rooms its model did not see, as a map's rooms will be. Why lower
+    than 0.5 at all: where a kind of place has weak evidence (a chair pushed under a table scores low), the
+    true places gather at 0.2-0.5 and a map at 0.5 misses most of them. Why not below 0.2: a place shown to a
+    robot should be one in five likely or better."""
+    is_real = np.zeros(len(candidates), bool) if is_real is None else np.asarray(is_real, bool)
     held_out = [None] * len(candidates)
     for fold in range(min(folds, len(candidates))):
-        inside = [c for k, c in enumerate(candidates) if k % folds != fold]
-        model = _fit_on(inside) if inside else None
+        inside = [k for k in range(len(candidates)) if k % folds != fold]
+        model = _fit_on([candidates[k] for k in inside], is_real[inside], real_share) if inside else None
         if model is None:
             return 0.5  # a fold without both kinds of candidate: nothing to judge a lower cut on
         for k in range(fold, len(candidates), folds):
             held_out[k] = model.probability(candidates[k].evidence)
     chosen = 0.5
     for cut in PLACE_CUTS:
-        false = sum(c.places(p, cut, radius)[2] for c, p in zip(candidates, held_out))
-        if false > false_budget * len(candidates):
+        false = np.array([c.places(p, cut, radius)[2] for c, p in zip(candidates, held_out)])
+        if any(false[kind].sum() > false_budget * kind.sum() for kind in (~is_real, is_real) if kind.any()):
             break
         chosen = float(cut)
     return chosen

@@ -18,7 +18,7 @@ from ..geometry.features import FeatureLayout
 from ..settings import Settings
 from .baselines import undersampled_indices
 from .cache import RoomCache
-from .examples import ExampleSet, RoomExamples, Task, data_set_rooms, example_set, load_rooms, stack
+from .examples import ExampleSet, Room, RoomExamples, Task, data_set_rooms, example_set, load_rooms, stack
 from .f1_argmax import f1_loss
 from .fitted import Fitted
 from .learners import get_learner
@@ -118,11 +118,13 @@ def train_on_rooms(
     seed: int = 0,
     negatives_per_positive: float | None = None,
     own_threshold: bool = False,
+    real: list[Room] = (),
 ) -> AffordanceModel:
     """Fit on the training rooms' examples, then choose the pose and place thresholds on the validation
-    rooms scored as `afford map` scores them (`thresholds.py`). `negatives_per_positive` undersamples the
+    rooms scored as `afford map` scores them (`calibrate`). `negatives_per_positive` undersamples the
     training examples further, and `own_threshold` keeps the learner's own pose threshold: the paper's
-    imbalance test, which is about how each learner's own decision rule bears the imbalance."""
+    imbalance test, which is about how each learner's own decision rule bears the imbalance. `real` rooms
+    calibrate the place model beside the validation rooms."""
     examples = ExampleSet.of(examples)
     # at most learn.max_negatives and max_positives: memory stops growing with the number of training rooms
     learn = task.settings.learn
@@ -155,10 +157,21 @@ def train_on_rooms(
         },
         rescorer=fitted.rescorer,
     )
-    scored = [
-        room_scores(model, examples.room(name), task.layout, task.settings) for name in validation_names
-    ]
-    if not own_threshold:
+    validation_rooms = [examples.room(name) for name in validation_names]
+    return calibrate(model, validation_rooms, task, not own_threshold, real)
+
+
+def calibrate(
+    model: AffordanceModel, validation: list[Room], task: Task, pose: bool = True, real: list[Room] = ()
+) -> AffordanceModel:
+    """The model's pose threshold (with `pose`), place thresholds and place model chosen on the validation
+    rooms scored as `afford map` scores them (`thresholds.py`), the place model and its cut on the `real`
+    rooms too (weighed by `learn.real_share`); its validation report. Changes `model`; a model calibrated
+    again keeps its learner's own threshold in the report."""
+    settings = task.settings
+    learner_threshold = (model.validation or {}).get("learner_threshold", float(model.threshold))
+    scored = [room_scores(model, room, task.layout, settings) for room in validation]
+    if pose:
         model.threshold = pose_threshold(scored)
     # places count from each room's own median score, so the threshold survives scans unlike the training
     # rooms; the absolute threshold's choice is kept for the comparison (benchmarks/accuracy.py)
@@ -169,16 +182,25 @@ def train_on_rooms(
     # places has a low median, and the relative cut alone lets its best non-places through
     model.place_floor, places = place_floor(scored, model.place_threshold)
     # ... and the place model that replaces those cuts: each candidate place's probability from its evidence
+    real_scored = [room_scores(model, room, task.layout, settings) for room in real]
     place_model = fit_places(
-        scored, model.threshold, task.settings.learn.place_false_budget, task.settings.map.nms_radius
+        scored,
+        model.threshold,
+        settings.learn.place_false_budget,
+        settings.map.nms_radius,
+        real_scored,
+        settings.learn.real_share,
     )
     model.place_model = place_model.to_dict() if place_model else None
     if place_model:
-        places.update(place_model_report(scored, model, task.settings))
+        places.update(place_model_report(scored, model, settings))
+        if real_scored:
+            real_report = place_model_report(real_scored, model, settings)
+            places["real"] = {"rooms": [room.name for room in real], **real_report}
     positives = sum(int((r.labels > 0).sum()) for r in scored)
     model.validation = {
-        "rooms": validation_names,
-        "learner_threshold": float(fitted.threshold),
+        "rooms": [room.name for room in validation],
+        "learner_threshold": learner_threshold,
         **metrics(
             np.concatenate([r.scores for r in scored]),
             np.concatenate([r.labels for r in scored]),

@@ -253,16 +253,21 @@ class PlaceModel:
         )
 
 
-def fit_place_model(evidence: np.ndarray, used: np.ndarray, regularisation: float = 1.0) -> PlaceModel:
+def fit_place_model(
+    evidence: np.ndarray, used: np.ndarray, regularisation: float = 1.0, weight: np.ndarray | None = None
+) -> PlaceModel:
     """Logistic regression of `used` (k,) bool (the candidate matched a labelled place) on `evidence` (k, F).
-    Unweighted: the candidates' own base rate is what the probabilities must reproduce."""
+    Not reweighted by class: the candidates' own base rate is what the probabilities must reproduce;
+    `weight` (k,) weighs whole rooms against each other (`thresholds.room_weights`)."""
     from sklearn.linear_model import LogisticRegression
 
     if used.all() or not used.any():
         raise ValueError("a place model needs candidates that are places and candidates that are not")
     mean, scale = evidence.mean(axis=0), evidence.std(axis=0)
     scale = np.where(scale > 1e-9, scale, 1.0)
-    fitted = LogisticRegression(C=regularisation, max_iter=1000).fit((evidence - mean) / scale, used)
+    fitted = LogisticRegression(C=regularisation, max_iter=1000).fit(
+        (evidence - mean) / scale, used, sample_weight=weight
+    )
     return PlaceModel(
         EVIDENCE,
         mean,
