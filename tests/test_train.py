@@ -300,8 +300,9 @@ def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set,
 
 
 def test_real_rooms_calibrate_the_place_model_beside_the_validation_rooms(data_set, cache):
-    """`calibrate` with real rooms: the place model is fitted on both (and says so), the report holds the real
-    rooms' own figures, and calibrating again on the validation rooms alone gives back the model trained so."""
+    """`calibrate` with real rooms: the place model is fitted on both (and says so), the report holds the
+    real rooms' own figures, and calibrating again on the validation rooms alone gives back the model trained
+    so."""
     from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.examples import Task, data_set_rooms, load_rooms
     from affordcore.learn.train import calibrate
