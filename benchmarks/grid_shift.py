@@ -153,10 +153,12 @@ def main() -> None:
 
     settings = Settings()
     if args.real:
-        from real_rooms import REBUILT, VALIDATION, rooms_of
+        from real_rooms import REBUILT, VALIDATION
+
+        from affordcore.learn.examples import labelled_rooms
 
         folder = VALIDATION[-1].parent
-        rooms = [(cloud, labels) for _, cloud, labels in rooms_of(VALIDATION, REBUILT) if cloud is not None]
+        rooms = [(cloud, labels) for _, cloud, labels in labelled_rooms([*VALIDATION, REBUILT])]
     else:
         folder = args.rooms or generated_rooms(args.generated, args.seed)
         rooms = [(cloud, None) for cloud in sorted(folder.glob("*.ply"))]

@@ -38,6 +38,7 @@ from affordcore.labels import (
     place_matches,
 )
 from affordcore.learn.baselines import tune_threshold
+from affordcore.learn.examples import labelled_rooms, missing_clouds
 from affordcore.learn.model import load_model, models_in, shipped_models
 from affordcore.learn.train import metrics
 from affordcore.mapping.maps import RULED_OUT
@@ -51,17 +52,6 @@ VALIDATION = [SHARED / "rooms", SHARED / "validation"]
 REBUILT = Path(__file__).resolve().parents[1] / "bench-data" / "validation"
 FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures" / "real-rooms"
 BINS = np.array([0.0, 0.2, 0.4, 0.6, 0.8, 1.0])  # of the reliability table
-
-
-def rooms_of(folders: list[Path], rebuilt: Path) -> list[tuple[str, Path | None, Path]]:
-    """(name, cloud or None when it is not there, labels) of every labelled room in the folders."""
-    rooms = []
-    for folder in folders:
-        for labels in sorted(folder.glob("*.labels.json")):
-            stem = labels.name.removesuffix(".labels.json")
-            cloud = next((f / f"{stem}.ply" for f in (folder, rebuilt) if (f / f"{stem}.ply").exists()), None)
-            rooms.append((stem, cloud, labels))
-    return rooms
 
 
 def main() -> None:
@@ -96,11 +86,10 @@ def main() -> None:
         "| oracle-threshold F1 | places found | false skeletons | probabilities of the places |"
     )
     print("|---|---|---:|---:|---|---:|---:|---:|---|")
-    for name, cloud_path, labels_path in rooms_of(folders, args.rebuilt):
+    for name in missing_clouds([*folders, args.rebuilt]):
+        print(f"| {'_'.join(name.split('_')[:2])} | (not rebuilt: ../shared/data/rebuild) | | | | | | | |")
+    for name, cloud_path, labels_path in labelled_rooms([*folders, args.rebuilt]):
         short = "_".join(name.split("_")[:2])
-        if cloud_path is None:
-            print(f"| {short} | (not rebuilt: ../shared/data/rebuild) | | | | | | | |")
-            continue
         labels = load_labels(labels_path)
         scene = prepare_scene(load_cloud(cloud_path), settings, gravity)
         labels = labels.moved(scene.alignment.world_from_input)
