@@ -369,7 +369,7 @@ def room_results(model, rooms: list, task, loose: bool = True) -> dict:
                 "absolute": r.places(absolute),
             }
             if model.places is not None:
-                candidates = r.candidates(model.threshold, model.places.candidate_spacing)
+                candidates = r.model_candidates(model)
                 p = model.places.probability(candidates.evidence)
                 own = model.places.cut if cut is None else cut
                 radius = task.settings.map.nms_radius

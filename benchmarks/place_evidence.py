@@ -150,7 +150,7 @@ def collect(args) -> list[dict]:
         model = load_model(path, layout)
         for room in rooms:
             scored = room_scores(model, room, layout, settings)
-            c = scored.candidates(model.threshold, model.places.candidate_spacing)
+            c = scored.model_candidates(model)
             found.append(
                 {"affordance": name, "style": style[room.name], "part": part[room.name], "candidates": c}
             )

@@ -142,12 +142,13 @@ def explain(short: str, labels, model, amap, places, scanned, settings: Settings
     candidate the place model put above the cut."""
     rows = []
     grid, threshold = amap.grid, model.threshold
+    margin = model.places.eligible_margin if model.places else 0.0  # how far under it a place may peak
     chosen = labels.of(model.affordance)
     spacing = model.places.candidate_spacing if model.places else 0.25
     candidates = place_candidates(amap.scores, grid, threshold, spacing, scanned)
     probabilities = model.places.probability(candidates.evidence) if model.places else candidates.rows[:, 4]
     cut = place_cut(model, settings)
-    eligible = above_threshold(candidates.rows, threshold)
+    eligible = (model.places.eligible if model.places else above_threshold)(candidates.rows, threshold)
     on_label, _ = place_matches(labels, model.affordance, candidates.rows[:, [0, 1, 3]])  # as the map matches
     for label, found, near in zip(chosen, places.found, on_label):
         if found:
@@ -155,8 +156,9 @@ def explain(short: str, labels, model, amap, places, scanned, settings: Settings
         best = _best_pose(amap.scores, grid, label)
         if best == float("-inf"):
             lost = "fields: no pose on it is scored (its cells were never seen, nor a surface over them)"
-        elif best <= threshold:
-            lost = f"pose scores: the best pose on it scores {best:.2f}, under the threshold {threshold:.2f}"
+        elif best <= threshold - margin:
+            under = f"the threshold {threshold:.2f}" + (f" less the margin {margin:.2f}" if margin else "")
+            lost = f"pose scores: the best pose on it scores {best:.2f}, under {under}"
         elif not (near & eligible).any():
             peaks = candidates.rows[eligible]
             off = label.distance(peaks[:, :2])

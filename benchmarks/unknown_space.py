@@ -178,9 +178,7 @@ def score(rooms, shares):
         for name, path in shipped_models().items():
             model = load_model(path, layout)
             for room in rooms:
-                c = room_scores(model, room, layout, settings).candidates(
-                    model.threshold, model.places.candidate_spacing
-                )
+                c = room_scores(model, room, layout, settings).model_candidates(model)
                 found, _, false = c.places(
                     model.places.probability(c.evidence), model.places.cut, settings.map.nms_radius
                 )

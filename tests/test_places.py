@@ -315,6 +315,37 @@ def test_the_map_keeps_the_places_at_the_place_models_own_cut_unless_told_otherw
     assert PlaceModel.from_dict(model.to_dict()).cut == 0.3
     older = {k: v for k, v in model.to_dict().items() if k != "cut"}
     assert PlaceModel.from_dict(older).cut == 0.5
+    # a place model with an eligible margin lets a peak that far under the pose threshold be a place
+    model.eligible_margin = 0.4
+    below = build_map("a", scores, grid, skeleton, 2.2, place_model=model)
+    assert len(below.skeletons) == 2
+    assert PlaceModel.from_dict(model.to_dict()).eligible_margin == 0.4
+    assert "eligible_margin" not in older and PlaceModel.from_dict(older).eligible_margin == 0.0
+    for hostile in (-0.1, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="eligible_margin"):
+            PlaceModel.from_dict({**model.to_dict(), "eligible_margin": hostile})
+
+
+def test_places_whose_peaks_fall_just_under_the_pose_threshold_are_let_in_when_that_finds_more():
+    """Candidates whose true places stand out by their evidence but whose peaks score under the pose
+    threshold: the decision lets them in by the margin that finds them, within the false budget; where the
+    candidates under the threshold are all false, it keeps the margin at 0."""
+    from affordcore.learn.thresholds import ELIGIBLE_MARGINS, place_decision
+
+    threshold = 1.0
+
+    def rooms(seed: int, true_peak: float, false_low: float) -> list:
+        found = _rooms_of_candidates(40, seed, overlap=4.0, column=1)
+        rng = np.random.default_rng(seed)
+        for c in found:
+            c.peaks = np.where(c.used, true_peak, rng.uniform(false_low, 2.0, len(c.used)))
+            c.eligible = c.peaks > threshold
+        return found
+
+    margin, cut = place_decision(rooms(1, true_peak=0.6, false_low=1.1), threshold, 0.4, 0.45)
+    assert margin == min(m for m in ELIGIBLE_MARGINS if m > 0.4) and 0.2 <= cut <= 0.5
+    # the places above the threshold already: a margin would let in false candidates only
+    assert place_decision(rooms(2, true_peak=1.5, false_low=-1.0), threshold, 0.4, 0.45)[0] == 0.0
 
 
 def test_place_probability_setting_overrides_or_defers(monkeypatch):

@@ -16,7 +16,7 @@ room's: this step puts every learner's threshold back on the real distribution.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -71,9 +71,17 @@ class RoomScores:
         matches, ignored = place_matches(
             self.label_set, self.affordance, found.rows[:, [0, 1, 3]], **self.tolerances
         )
+        eligible = above_threshold(found.rows, threshold)
         return PlaceCandidates(
-            found.evidence, matches, ignored, found.rows[:, :2], above_threshold(found.rows, threshold)
+            found.evidence, matches, ignored, found.rows[:, :2], eligible, found.rows[:, 4]
         )
+
+    def model_candidates(self, model) -> PlaceCandidates:
+        """The candidates as a map of `model` (one with a place model) takes them: its spacing, and those its
+        place model lets be places (`PlaceModel.eligible`)."""
+        places = model.places
+        found = self.candidates(model.threshold, places.candidate_spacing)
+        return found.eligible_from(model.threshold - places.eligible_margin)
 
 
 @dataclass
@@ -83,6 +91,11 @@ class PlaceCandidates:
     ignored: np.ndarray  # (k,) bool: in an unlabelled region (neither a place nor a false one)
     xy: np.ndarray  # (k, 2) where they stand
     eligible: np.ndarray | None = None  # (k,) bool: can be a place (its peak is a positive pose); None: all
+    peaks: np.ndarray | None = None  # (k,) their peak scores (what `eligible` was decided from)
+
+    def eligible_from(self, score: float) -> PlaceCandidates:
+        """The same candidates, those whose peak scores above `score` eligible."""
+        return replace(self, eligible=self.peaks > score)
 
     def places(self, probabilities: np.ndarray, cut: float, radius: float) -> tuple[int, int, int]:
         """(labelled places found, skeletons kept, false skeletons) of the skeleton map that keeps the places
@@ -159,6 +172,37 @@ def _fit_on(
 PLACE_CUTS = np.round(np.arange(0.5, 0.199, -0.05), 2)  # 0.5 down to 0.2: the cuts place_cut walks
 
 
+# score margins under the pose threshold a place's peak may have (`place_decision`): the pose threshold is
+# the best for pose F1, and a place is judged by its evidence, so a place whose best pose scores a little
+# under it (a chair pushed in, a seat seen from one side) may still be one
+ELIGIBLE_MARGINS = (0.0, 0.25, 0.5, 0.75, 1.0)
+
+
+def place_decision(
+    candidates: list[PlaceCandidates],
+    threshold: float,
+    false_budget: float,
+    radius: float,
+    folds: int = 5,
+    is_real: np.ndarray | None = None,
+    real_share: float = 0.5,
+) -> tuple[float, float]:
+    """(eligible margin, cut): of `ELIGIBLE_MARGINS`, the one whose `place_cut` finds the most labelled places
+    within the false budget (the smaller on a tie), judged as `place_cut` judges, on probabilities of place
+    models fitted without each room."""
+    is_real = np.zeros(len(candidates), bool) if is_real is None else np.asarray(is_real, bool)
+    held_out = _held_out(candidates, folds, is_real, real_share)
+    if held_out is None:
+        return 0.0, 0.5
+    best = (-1, 0.0, 0.5)
+    for margin in ELIGIBLE_MARGINS:
+        eligible = [c.eligible_from(threshold - margin) for c in candidates]
+        cut, found = _walk(eligible, held_out, false_budget, radius, is_real)
+        if found > best[0]:
+            best = (found, margin, cut)
+    return best[1], best[2]
+
+
 def place_cut(
     candidates: list[PlaceCandidates],
     false_budget: float,
@@ -175,21 +219,44 @@ def place_cut(
     true places gather at 0.2-0.5 and a map at 0.5 misses most of them. Why not below 0.2: a place shown to a
     robot should be one in five likely or better."""
     is_real = np.zeros(len(candidates), bool) if is_real is None else np.asarray(is_real, bool)
+    held_out = _held_out(candidates, folds, is_real, real_share)
+    return 0.5 if held_out is None else _walk(candidates, held_out, false_budget, radius, is_real)[0]
+
+
+def _held_out(
+    candidates: list[PlaceCandidates], folds: int, is_real: np.ndarray, real_share: float
+) -> list[np.ndarray] | None:
+    """Each room's candidate probabilities from a place model fitted on the other folds of rooms (dealt in
+    turn); None when a fold lacks either kind of candidate (nothing to judge a lower cut on)."""
     held_out = [None] * len(candidates)
     for fold in range(min(folds, len(candidates))):
         inside = [k for k in range(len(candidates)) if k % folds != fold]
         model = _fit_on([candidates[k] for k in inside], is_real[inside], real_share) if inside else None
         if model is None:
-            return 0.5  # a fold without both kinds of candidate: nothing to judge a lower cut on
+            return None
         for k in range(fold, len(candidates), folds):
             held_out[k] = model.probability(candidates[k].evidence)
-    chosen = 0.5
+    return held_out
+
+
+def _walk(
+    candidates: list[PlaceCandidates],
+    held_out: list[np.ndarray],
+    false_budget: float,
+    radius: float,
+    is_real: np.ndarray,
+) -> tuple[float, int]:
+    """(the lowest cut of `PLACE_CUTS` within the budget on each kind of room, the places found there)."""
+    chosen, found = 0.5, None
     for cut in PLACE_CUTS:
-        false = np.array([c.places(p, cut, radius)[2] for c, p in zip(candidates, held_out)])
+        counts = np.array([c.places(p, cut, radius) for c, p in zip(candidates, held_out)]).reshape(-1, 3)
+        false = counts[:, 2]
         if any(false[kind].sum() > false_budget * kind.sum() for kind in (~is_real, is_real) if kind.any()):
             break
-        chosen = float(cut)
-    return chosen
+        chosen, found = float(cut), int(counts[:, 0].sum())
+    if found is None:  # even 0.5 breaks the budget: 0.5 all the same, with what it finds
+        found = sum(c.places(p, 0.5, radius)[0] for c, p in zip(candidates, held_out))
+    return chosen, found
 
 
 def room_scores(

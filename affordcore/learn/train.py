@@ -67,7 +67,7 @@ def place_model_report(scored: list, model: AffordanceModel, settings: Settings)
     counts = np.sum(
         [
             c.places(model.places.probability(c.evidence), cut, settings.map.nms_radius)
-            for c in (r.candidates(model.threshold, model.places.candidate_spacing) for r in scored)
+            for c in (r.model_candidates(model) for r in scored)
         ],
         axis=0,
     )

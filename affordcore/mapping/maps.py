@@ -22,7 +22,6 @@ from ..geometry.skeleton import Skeleton, place_joints
 from .places import (
     RULED_OUT,
     PlaceModel,
-    above_threshold,
     best_slabs,
     choose_places,
     peak_cells,
@@ -163,7 +162,7 @@ def build_map(
         candidates = place_candidates(scores, grid, threshold, place_model.candidate_spacing, scanned)
         probabilities = place_model.probability(candidates.evidence)
         place_probability = place_model.cut if place_probability is None else place_probability
-        eligible = above_threshold(candidates.rows, threshold)
+        eligible = place_model.eligible(candidates.rows, threshold)
         xy = candidates.rows[:, :2]
         kept = choose_places(xy, probabilities, place_probability, nms_radius, eligible)
         lower = min(UNSURE_PROBABILITY, place_probability)

@@ -219,6 +219,12 @@ class PlaceModel:
     trained_on: dict  # what it was fitted on: candidates, places, rooms
     candidate_spacing: float = CANDIDATE_SPACING  # the candidates it was fitted on were this far apart (m)
     cut: float = 0.5  # the probability a place must reach to be kept (learn.thresholds.place_cut)
+    # a place's peak may score this far under the model's pose threshold (learn.thresholds.place_decision)
+    eligible_margin: float = 0.0
+
+    def eligible(self, rows: np.ndarray, threshold: float) -> np.ndarray:
+        """(k,) bool: the candidates (rows of x, y, z, theta, peak score) that may be places."""
+        return above_threshold(rows, threshold - self.eligible_margin)
 
     def probability(self, evidence: np.ndarray) -> np.ndarray:
         if tuple(self.evidence) != EVIDENCE:
@@ -236,6 +242,7 @@ class PlaceModel:
             "trained_on": self.trained_on,
             "candidate_spacing": self.candidate_spacing,
             "cut": self.cut,
+            **({"eligible_margin": self.eligible_margin} if self.eligible_margin else {}),
         }
 
     @classmethod
@@ -243,6 +250,8 @@ class PlaceModel:
         arrays = [np.asarray(document[k], np.float64) for k in ("mean", "scale", "coef")]
         if any(a.shape != (len(document["evidence"]),) for a in arrays):
             raise ValueError("a place model's mean, scale and coef must each hold one value per evidence")
+        if not 0 <= float(document.get("eligible_margin", 0.0)) < np.inf:
+            raise ValueError("a place model's eligible_margin must be a finite score margin >= 0")
         return cls(
             tuple(document["evidence"]),
             *arrays,
@@ -250,6 +259,7 @@ class PlaceModel:
             document["trained_on"],
             float(document.get("candidate_spacing", CANDIDATE_SPACING)),
             float(document.get("cut", 0.5)),  # models before the cut was chosen kept places at 0.5
+            float(document.get("eligible_margin", 0.0)),  # and before the margin, none
         )
 
 
