@@ -287,7 +287,7 @@ def test_groups(data: Path, generated: list[str], real: list[str]) -> dict[str, 
     groups = style_groups(data, "generated", generated)
     if real:
         groups["real"] = real
-        groups.update({f"real/{name.split('_')[0]}": [name] for name in real})
+        groups.update({f"real/{'_'.join(name.split('_')[:2])}": [name] for name in real})
     return groups
 
 
