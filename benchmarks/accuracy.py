@@ -75,6 +75,11 @@ def main() -> None:
         "--shipped", action="store_true", help="score the shipped models on their own split, no training"
     )
     parser.add_argument(
+        "--trained",
+        type=Path,
+        help="as --shipped, for the models in this folder (an afford models rebuild --out, or --models)",
+    )
+    parser.add_argument(
         "--cache",
         type=Path,
         help="the room cache (default: learn.cache_dir); rooms are read from it one at a time",
@@ -90,6 +95,7 @@ def main() -> None:
         "(afford models rebuild without --real)",
     )
     args = parser.parse_args()
+    args.shipped = args.shipped or args.trained is not None
 
     from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.cache import RoomCache
@@ -238,14 +244,14 @@ def shipped_models_for(args, test_names: list[str]) -> dict:
     """{affordance: the shipped cascade model}, refused (SystemExit naming the difference) unless each was
     trained for this benchmark's data set and split: scoring it on rooms it trained on would flatter it."""
     from affordcore.learn.defaults import data_record, data_set_styles
-    from affordcore.learn.model import load_model, shipped_models
+    from affordcore.learn.model import load_model, models_in, shipped_models
 
     if args.learners != "cascade":
         raise SystemExit(f"--shipped scores the shipped cascade models; --learners {args.learners} cannot")
     wanted = data_record(args.rooms, args.seed, test_names, data_set_styles(args.data))
     models = {}
     for affordance in args.affordances.split(","):
-        path = shipped_models().get(affordance)
+        path = (models_in(args.trained) if args.trained else shipped_models()).get(affordance)
         if path is None:
             raise SystemExit(f"--shipped: no shipped model for {affordance}")
         model = load_model(path)
@@ -536,7 +542,7 @@ def markdown(results: dict, args) -> str:
     lines = [
         f"Command: `.venv/bin/python benchmarks/accuracy.py --rooms {args.rooms} --seed {args.seed} --test "
         f"{args.test} --validation {args.validation} --curve {args.curve} --learners {args.learners}"
-        f"{' --shipped' if args.shipped else ''}"
+        f"{f' --trained {args.trained}' if args.trained else ' --shipped' if args.shipped else ''}"
         f"{f' --unseen {args.unseen} --unseen-seed {args.unseen_seed}' if args.unseen else ''}`; "
         f"{len(split['train'])} training, {len(split['validation'])} validation, {len(split['test'])} "
         f"generated test rooms; {results['seconds'] / 60:.0f} min, peak RSS {results['peak_rss_gb']:.1f} GB, "
