@@ -275,13 +275,13 @@ def models_rebuild(
         from .cluster import cluster_jobs
 
         require_extra("learn")
-        output_folder(out or MODELS_DIR, "--out" if out else "--out (default: the package's model folder)")
         for folder in real:
             if not folder.is_dir():
                 raise UserError(f"--real {folder}: no such folder")
         real_rooms = labelled_rooms(real)
         if real and not real_rooms:
             raise UserError(f"--real: no labelled room with its cloud in {', '.join(map(str, real))}")
+        output_folder(out or MODELS_DIR, "--out" if out else "--out (default: the package's model folder)")
         for name in missing_clouds(real):
             typer.echo(f"--real: {name} has labels but no cloud in any --real folder; left out", err=True)
         chosen = winners(evaluation) if evaluation else learner

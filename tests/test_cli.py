@@ -166,6 +166,18 @@ def test_out_is_checked_before_the_work(tmp_path, args, message):
     assert not list(folder.iterdir())
 
 
+def test_rebuild_refuses_real_rooms_it_cannot_find_before_generating_anything(tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for real, message in (
+        (tmp_path / "nowhere", f"--real {tmp_path / 'nowhere'}: no such folder"),
+        (empty, f"--real: no labelled room with its cloud in {empty}"),
+    ):
+        result = afford("models", "rebuild", "--out", str(tmp_path / "models"), "--real", str(real))
+        assert result.returncode == 2 and message in result.stderr, result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty"]  # no models, no rooms
+
+
 # Imported at the start of the afford process (sitecustomize): making any folder under one named "locked"
 # is refused as a read-only folder refuses it. A mode would not do: root (CI, containers) writes anyway.
 LOCKED_FOLDER = """

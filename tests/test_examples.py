@@ -153,3 +153,25 @@ def test_a_stack_caps_the_positives_too_weighted_up_and_draws_the_same_negatives
     np.testing.assert_array_equal(roomy.weights, negatives_only.weights)
     only_positives = stack(examples, ["a", "bb"], max_positives=60, rng=np.random.default_rng(3))
     assert int((only_positives.y > 0).sum()) == 60 and int((only_positives.y < 0).sum()) == 400
+
+
+def test_labelled_rooms_find_each_cloud_beside_its_labels_or_in_another_folder(tmp_path):
+    """Real rooms as the rebuild's --real finds them: a cloud beside its labels, or rebuilt into another of
+    the folders (ScanNet's, whose terms keep the cloud out of the data set); labels with no cloud anywhere
+    are left out and named."""
+    from affordcore.learn.examples import labelled_rooms, missing_clouds
+
+    shared, rebuilt = tmp_path / "shared", tmp_path / "rebuilt"
+    shared.mkdir(), rebuilt.mkdir()
+    for name in ("kitchen", "meeting", "lost"):
+        (shared / f"{name}.labels.json").write_text("{}")
+    (shared / "kitchen.ply").write_text("")
+    (rebuilt / "meeting.ply").write_text("")
+    (rebuilt / "unlabelled.ply").write_text("")
+    rooms = labelled_rooms([shared, rebuilt])
+    assert [(r.name, r.cloud, r.labels) for r in rooms] == [
+        ("kitchen", shared / "kitchen.ply", shared / "kitchen.labels.json"),
+        ("meeting", rebuilt / "meeting.ply", shared / "meeting.labels.json"),
+    ]
+    assert missing_clouds([shared, rebuilt]) == ["lost"]
+    assert labelled_rooms([shared]) == rooms[:1] and missing_clouds([shared]) == ["lost", "meeting"]
