@@ -326,6 +326,23 @@ def test_the_map_keeps_the_places_at_the_place_models_own_cut_unless_told_otherw
             PlaceModel.from_dict({**model.to_dict(), "eligible_margin": hostile})
 
 
+def test_a_false_budget_met_exactly_lets_the_cut_walk_on():
+    """Two rooms, a budget of 0.5 false places a room: one false place in all is within it, two are not. The
+    walk goes on past the cut that meets the budget exactly and stops before the one that breaks it."""
+    from affordcore.learn.thresholds import PlaceCandidates, _walk
+
+    def room(false_probability: float):
+        evidence = np.zeros((2, len(EVIDENCE)))
+        matches = np.array([[True, False]])
+        xy = np.array([[0.0, 0.0], [5.0, 0.0]])  # too far apart to suppress each other
+        return PlaceCandidates(evidence, matches, np.zeros(2, bool), xy), np.array([0.9, false_probability])
+
+    (a, pa), (b, pb) = room(0.42), room(0.27)
+    cut, found = _walk([a, b], [pa, pb], 0.5, 0.45, np.zeros(2, bool))
+    assert (cut, found) == (0.3, 2)  # 0.4 and 0.3 keep one false place (the budget); 0.25 keeps two
+    assert _walk([a, b], [pa, pb], 0.49, 0.45, np.zeros(2, bool))[0] == 0.45  # under it: before 0.4
+
+
 def test_places_whose_peaks_fall_just_under_the_pose_threshold_are_let_in_when_that_finds_more():
     """Candidates whose true places stand out by their evidence but whose peaks score under the pose
     threshold: the decision lets them in by the margin that finds them, within the false budget; where the
