@@ -59,10 +59,10 @@ class NormalSettings(BaseModel):
         "point",
     )
     estimator: NormalEstimator = Field(
-        "nearest",
-        description="nearest: the max_neighbours nearest points within radius (open3d's estimate_normals); "
-        "cube: the points of the cube of side radius around the lattice vertex nearest the point, a fifth of "
-        "the time (docs/geometry.md)",
+        "cube",
+        description="cube: the points of the cube of side radius around the lattice vertex nearest the point "
+        "(the shipped models'); nearest: the max_neighbours nearest points within radius, as open3d's "
+        "estimate_normals, five times the time (docs/geometry.md)",
     )
     radius: float = Field(
         0.10, gt=0, description="neighbourhood radius for normal estimation, or the cube's side (m)"

@@ -128,7 +128,7 @@ def test_features_match_slow_reference_on_random_poses(affordance, cube_size, ce
         reference[:, :15].max() > 0.29
         and (cap is None or (fields.distance.max() > cap and reference[:, :15].max() <= cap + 1e-6))
         and reference[:, 15:30].max() > 0.5
-        and np.abs(reference[:, 30:]).max() > 0.5
+        and np.abs(reference[:, 30:]).max() > 0.4
     )
     np.testing.assert_allclose(fast, reference, atol=2e-5, rtol=1e-5)
     # the same poses asked for one by one, in any order (shuffled, one repeated): the same rows
@@ -154,17 +154,21 @@ def test_place_joints_is_translation_plus_rotation_about_z():
     assert quarter[hand, 1] > 0.3 and quarter[shoulder, 0] < -0.1
 
 
-def test_features_turn_with_the_skeleton():
+@pytest.mark.parametrize("estimator", ["nearest", "cube"])
+def test_features_turn_with_the_skeleton(estimator):
     """Rotating the room and the pose together by a quarter turn leaves every feature unchanged.
 
     The room is shifted off the voxel faces: a point exactly on a face belongs to the voxel above it, which
-    no rotation preserves."""
+    no rotation preserves. The cube's normals read world-anchored 5 cm cells, whose faces a turn maps onto
+    faces of the other side: a thinned point within a rounding error of one (its mean summed in another
+    order) changes cell, so a few values move, by a fraction of a degree of normal."""
     points = _room(seed=3, shift=0.013)
     turned = points @ np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1]], float).T
     skeleton = get_skeleton("sitting-working")
-    layout = FeatureLayout()
+    layout = FeatureLayout(normal_estimator=estimator)
     theta = 0.7
-    plain, rotated = compute_fields(points), compute_fields(turned)
+    normals = NormalSettings(estimator=estimator)
+    plain, rotated = (compute_fields(p, VoxelSettings(), normals) for p in (points, turned))
     # Pose positions on the half-step lattice map onto it under (x, y) -> (-y, x).
     x, y = np.array([1.25, 1.55, 1.85]), np.array([0.85, 1.15])
     grid_a = PoseGrid(x, y, np.array([skeleton.torso_height]), np.array([theta]))
@@ -173,7 +177,11 @@ def test_features_turn_with_the_skeleton():
     b = compute_features(rotated, skeleton, grid_b, layout).reshape(len(y), len(x), -1)
     b = b[::-1].transpose(1, 0, 2)
     np.testing.assert_allclose(a[..., :30], b[..., :30], atol=1e-5)
-    np.testing.assert_allclose(a[..., 30:], b[..., 30:], atol=1e-5)
+    if estimator == "nearest":
+        np.testing.assert_allclose(a[..., 30:], b[..., 30:], atol=1e-5)
+    else:
+        gap = np.abs(a[..., 30:] - b[..., 30:])
+        assert gap.max() < 1e-3 and np.mean(gap > 1e-5) < 1e-3, (gap.max(), np.mean(gap > 1e-5))
 
 
 def test_a_wall_ahead_faces_the_skeleton():

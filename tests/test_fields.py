@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from affordcore.example import box_surface_points
+from affordcore.geometry.cells import cell_keys, cells_of_keys
 from affordcore.geometry.fields import (
-    cell_keys,
-    cells_of_keys,
     compute_fields,
     lattice_around,
     orientation_signs,

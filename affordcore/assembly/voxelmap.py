@@ -6,7 +6,7 @@ voxel, the map before issue 25) keeps that first error for good, one noisy sampl
 of every observation is the surface the frames agree on, as the fused room of the offline path is
 (docs/services.md has the measurements).
 
-Voxels are keyed as `fields.cell_keys` keys (cells centred on multiples of the voxel, as `voxel_down_sample`'s
+Voxels are keyed as `cells.cell_keys` keys (cells centred on multiples of the voxel, as `voxel_down_sample`'s
 are). Each frame's points are reduced to its cells' sums and counts, kept aside, and merged into the sorted
 store once they reach a quarter of it: each point is sorted a bounded number of times, not once per frame.
 """
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry.fields import cell_keys
+from ..geometry.cells import cell_keys
 
 # points kept aside before a merge, at least: below this a merge is cheap whatever the store's size
 _MIN_PENDING = 50_000

@@ -62,8 +62,8 @@ class FeatureLayout:
     steep_facing: str = "centre"
     # fields of `VoxelSettings.fields` "soft" (True) or "binary"
     soft_fields: bool = False
-    # how the normals are estimated (`NormalSettings.estimator`)
-    normal_estimator: str = "nearest"
+    # how the normals are estimated (`NormalSettings.estimator`; its default)
+    normal_estimator: str = "cube"
 
     def __post_init__(self) -> None:
         if self.distance_cap is not None and not self.distance_cap > 0:

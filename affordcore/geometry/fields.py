@@ -26,6 +26,7 @@ from functools import partial
 import numpy as np
 
 from ..settings import NormalSettings, VoxelSettings
+from .cells import cell_keys
 
 _UP_FACING_NZ = 0.5  # |n_z| above this (within 60 deg of vertical) means "faces up"
 # a steep surface faces the side whose disc of this radius (m), this far out (m), holds more scanned floor
@@ -71,7 +72,7 @@ class SceneFields:
     # comes to each voxel centre, what the collision feature reads; `occupancy` stays the binary state that
     # decides where the floor was seen and what was scanned
     soft_occupancy: np.ndarray | None = None
-    normal_estimator: str = "nearest"  # how the normals were estimated (`NormalSettings.estimator`)
+    normal_estimator: str = "cube"  # how the normals were estimated (`NormalSettings.estimator`)
 
     @property
     def nbytes(self) -> int:
@@ -245,25 +246,6 @@ def thin_cells(points: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray
     unique, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
     means = np.stack([np.bincount(inverse, points[:, k]) for k in range(3)], axis=1) / counts[:, None]
     return means, unique
-
-
-_KEY_BITS = 21  # per axis: +-2^20 cells, 26 km at 2.5 cm
-
-
-def cell_keys(cells: np.ndarray) -> np.ndarray:
-    """One int64 per integer cell (n, 3), ordered as the cells are lexicographically."""
-    half = 1 << (_KEY_BITS - 1)
-    if cells.size and (cells.min() < -half or cells.max() >= half):
-        raise ValueError("cells beyond the key range (a cloud tens of kilometres across)")
-    shifted = cells + half
-    return (shifted[:, 0] << (2 * _KEY_BITS)) | (shifted[:, 1] << _KEY_BITS) | shifted[:, 2]
-
-
-def cells_of_keys(keys: np.ndarray) -> np.ndarray:
-    """The integer cells (n, 3) of `cell_keys`."""
-    half, mask = 1 << (_KEY_BITS - 1), (1 << _KEY_BITS) - 1
-    axes = [(keys >> (2 * _KEY_BITS)) & mask, (keys >> _KEY_BITS) & mask, keys & mask]
-    return np.stack(axes, axis=1) - half
 
 
 def _flat_index(lattice: VoxelLattice, index: np.ndarray) -> np.ndarray:

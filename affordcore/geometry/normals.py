@@ -28,6 +28,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ..parallel import cores
+from .cells import cell_keys, cells_of_keys
 
 # points per neighbour query: bounds memory, and the chunk's arrays (12 MB of neighbours) are small enough for
 # the allocator to reuse them chunk after chunk rather than map fresh pages (a third of the CPU in page
@@ -72,7 +73,6 @@ def cube_normals(points: np.ndarray, side: float, at: np.ndarray | None = None) 
     """(n, 3) unit normals (unsigned) of a cloud at its points (or at the rows `at` of them): the axis of
     least spread of the points in the cube of `side` around the vertex of a world-anchored lattice (spacing
     side / 2) nearest each point; (0, 0, 1) where the cube holds fewer than 3 points (open3d's rule)."""
-    from .fields import cell_keys, cells_of_keys
     from .smallest_axes import smallest_axes
 
     points = np.asarray(points, dtype=np.float64)

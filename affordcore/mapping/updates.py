@@ -29,12 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.cells import cell_keys, cells_of_keys
 from ..geometry.features import FeatureLayout
 from ..geometry.fields import (
     SceneFields,
     VoxelLattice,
-    cell_keys,
-    cells_of_keys,
     disc,
     estimate_normals,
     normals_at,
