@@ -127,10 +127,10 @@ def fit_places(
     real_share: float = 0.5,
 ) -> PlaceModel | None:
     """The place model fitted on the rooms' candidates (None when they hold no place, or only places), with
-    its cut chosen under `false_budget` false places per room for maps of places `nms_radius` apart
-    (`place_cut`; None: 0.5). `real` rooms (scanned rooms with labels, never trained on) join the generated
-    ones, together weighing `real_share` of all (`room_weights`), and the cut must keep both kinds of room
-    within the budget."""
+    its eligible margin and cut chosen under `false_budget` false places per room for maps of places
+    `nms_radius` apart (`place_decision`; None: 0 and 0.5). `real` rooms (scanned rooms with labels, never
+    trained on) join the generated ones, together weighing `real_share` of all (`room_weights`), and the
+    cut must keep both kinds of room within the budget."""
     candidates = [room.candidates(threshold) for room in [*rooms, *real]]
     is_real = np.arange(len(candidates)) >= len(rooms)
     model = _fit_on(candidates, is_real, real_share)
@@ -139,8 +139,8 @@ def fit_places(
         if len(real):
             model.trained_on.update(real_rooms=len(real), real_share=real_share)
         if false_budget is not None:
-            model.cut = place_cut(
-                candidates, false_budget, nms_radius, is_real=is_real, real_share=real_share
+            model.eligible_margin, model.cut = place_decision(
+                candidates, threshold, false_budget, nms_radius, is_real=is_real, real_share=real_share
             )
     return model
 
