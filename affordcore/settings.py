@@ -62,7 +62,7 @@ class NormalSettings(BaseModel):
         "cube",
         description="cube: the points of the cube of side radius around the lattice vertex nearest the point "
         "(the shipped models'); nearest: the max_neighbours nearest points within radius, as open3d's "
-        "estimate_normals, five times the time (docs/geometry.md)",
+        "estimate_normals, slower (docs/geometry.md measures both)",
     )
     radius: float = Field(
         0.10, gt=0, description="neighbourhood radius for normal estimation, or the cube's side (m)"

@@ -3,9 +3,8 @@
 Two estimators (`NormalSettings.estimator`), one eigensolver:
 
 * `cube_normals`: the points in the cube of side `radius` centred on the lattice vertex (spacing radius / 2)
-  nearest the point. Per-cell sums and eight lookups per vertex, no neighbour search: a tenth of the time,
-  and a normal changes only where the points of its cube do. A point's cube reaches 3/4 of `radius` from it
-  along each axis.
+  nearest the point. Per-cell sums and eight lookups per vertex, no neighbour search, and a normal changes
+  only where the points of its cube do. A point's cube reaches 3/4 of `radius` from it along each axis.
 * `pca_normals`: the point's `max_neighbours` nearest within `radius`, as open3d computes them, below.
 
 What open3d's `PointCloud.estimate_normals(KDTreeSearchParamHybrid(radius, max_nn))` computes, step for step,

@@ -2,10 +2,10 @@
 `geometry/normals.py`).
 
 One group at a time in scalar code: numpy's version held a dozen arrays the size of the groups through each
-step of the eigensolver, half of the time of the neighbour-free normals. The solver is the closed form
-open3d's `estimate_normals` uses (D. Eberly, "A Robust Eigensolver for 3x3 Symmetric Matrices"), operation for
-operation, so the normals are open3d's to the last bit or nearly. Imported where normals are first estimated
-(affordcore.compiled).
+step of the eigensolver, and those passes over memory were much of the neighbour-free normals' time. The
+solver is the closed form open3d's `estimate_normals` uses (D. Eberly, "A Robust Eigensolver for 3x3 Symmetric
+Matrices"), operation for operation, so the normals are open3d's to the last bit or nearly. Imported where
+normals are first estimated (affordcore.compiled).
 """
 
 from __future__ import annotations
