@@ -161,8 +161,11 @@ class AffordanceModel:
     def trees(self) -> TreeEnsemble | None:
         return TreeEnsemble.from_dict(self.rescorer["trees"]) if self.rescorer else None
 
-    def check_layout(self, layout: FeatureLayout, source: str = "model") -> None:
+    def check_layout(self, layout: FeatureLayout, source: str | None = None) -> None:
+        """Raise ModelError unless the model's features are the layout's; `source` names the model in the
+        message (its `id` when not given, worked out only then: the first id serialises the trees)."""
         if layout.fingerprint != self.fingerprint:
+            source = source or f"model {self.id}"
             raise ModelError(
                 f"{source}: trained on feature layout {self.fingerprint} ({_summary(self.layout)}), but the "
                 f"running code computes {layout.fingerprint} ({_summary(layout.describe())}); retrain it or "

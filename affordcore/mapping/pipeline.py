@@ -144,6 +144,10 @@ def preload() -> None:
     the second stage (its features' reads and its trees' walk)."""
     import scipy.ndimage  # noqa: F401
     import scipy.spatial  # noqa: F401
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1, user_api="blas"):  # the first limit finds the BLAS libraries (15 ms)
+        pass
 
     from ..geometry.features import compile_reads
     from ..geometry.visibility import compile_range_images
@@ -238,7 +242,7 @@ class RoomMapper:
         self.call += 1
         maps = {}
         for model in self.models if models is None else models:
-            model.check_layout(self.layout, f"model {model.id}")
+            model.check_layout(self.layout)
             self._checkpoint()
             grid, scores = self.scores(model, fields)
             maps[model.affordance] = build_map(

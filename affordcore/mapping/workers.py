@@ -46,6 +46,8 @@ class ForkedRoomMapper:
         import multiprocessing
 
         preload()  # once here, not once per worker at its first map
+        for model in models:  # what a model makes once, made here for every worker to share
+            model.trees, model.places  # noqa: B018
         context = multiprocessing.get_context("fork")
         self.models, self.reports = list(models), {}
         # `cancel` writes the call to give up here; the workers read it at their checkpoints (shared memory,
