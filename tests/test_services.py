@@ -266,6 +266,8 @@ def test_features_level_a_cloud_in_its_own_frame_refuse_a_world_one_without_a_fl
         assert (error.input_source, error.key) == ("file", KEYS.cloud)
         status = _status(client, "features")
         assert not status.HasField("newest_input"), "a refused cloud is not the newest the service has"
+        # its fields were made beside the check, with a copy of the normals: none of them is kept
+        assert len(running.service.normals.points) == 0
         # a client that starts waiting after the refusal finds it: the service answers a get with it
         import zenoh
 
