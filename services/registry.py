@@ -97,6 +97,7 @@ def run_service(
         workers = mapping_workers(len(models), settings.service.map_workers)
         if workers > 1:
             mapper = ForkedRoomMapper(models, FeatureLayout.from_settings(settings), settings, workers)
+            mapper.warm_up()
     node = Node(name, robot, endpoints, settings, rrd, viewer, affordances, listen, models, keys=keys)
     node.mapper = mapper
     spec.service_class()(node).run()

@@ -38,9 +38,12 @@ def test_workers_map_as_one_process(room):
     serial = RoomMapper(models, scene.layout, settings).maps(scene.fields)
     mapper = ForkedRoomMapper(models, scene.layout, settings, workers=2)  # 3 models dealt to 2 workers
     try:
+        mapper.warm_up()  # a made-up room, mapped and forgotten: nothing of it is updated from
+        assert mapper.reports == {}
         heard = []
         maps = mapper.maps(scene.fields, on_map=lambda affordance, _: heard.append(affordance))
         assert list(maps) == list(serial) and sorted(heard) == sorted(serial)
+        assert mapper.describe(list(maps)).startswith("scored in full"), mapper.describe(list(maps))
         for affordance in serial:
             assert_same_map(maps[affordance], serial[affordance])
         # the same fields again: an update in each worker, nothing rescored, the same maps

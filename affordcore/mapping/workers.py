@@ -16,6 +16,8 @@ import os
 import sys
 from collections.abc import Callable
 
+import numpy as np
+
 from ..geometry.features import FeatureLayout
 from ..geometry.fields import SceneFields
 from ..settings import Settings
@@ -49,7 +51,7 @@ class ForkedRoomMapper:
         for model in models:  # what a model makes once, made here for every worker to share
             model.trees, model.places  # noqa: B018
         context = multiprocessing.get_context("fork")
-        self.models, self.reports = list(models), {}
+        self.models, self.reports, self.settings = list(models), {}, settings or Settings()
         # `cancel` writes the call to give up here; the workers read it at their checkpoints (shared memory,
         # no lock: one writer, and a stale read only gives up a checkpoint later)
         self.call, self.cancelled_through = 0, context.RawValue("q", -1)
@@ -63,13 +65,19 @@ class ForkedRoomMapper:
             elders = [*self.connections, ours]
             process = context.Process(
                 target=_worker,
-                args=(theirs, share, layout, settings or Settings(), elders, self.cancelled_through),
+                args=(theirs, share, layout, self.settings, elders, self.cancelled_through),
                 daemon=True,
             )
             process.start()
             theirs.close()
             self.connections.append(ours)
             self.processes.append(process)
+
+    def warm_up(self) -> None:
+        """Map a small made-up room once, and forget it: a fresh worker's first map pays for its first
+        allocations, which a service would otherwise add to its first robot's first maps."""
+        self.maps(_warm_up_fields(self.settings))
+        self.forget()
 
     def describe(self, affordances) -> str:
         return RoomMapper.describe(self, affordances)  # it reads only `reports`, which the workers fill
@@ -169,3 +177,17 @@ def _worker(
                 connection.send(("error", error))
             except Exception:  # an exception that does not pickle: its text
                 connection.send(("error", RuntimeError(f"mapping in a worker process: {error!r}")))
+
+
+def _warm_up_fields(settings: Settings) -> SceneFields:
+    """The fields of a 2.5 m square of floor with a seat-high and a table-high top on it."""
+    from ..geometry.scene import Cloud
+    from .pipeline import prepare_scene
+
+    def square(low: float, high: float, z: float) -> np.ndarray:
+        axis = np.arange(low, high, 0.02)
+        xy = np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2)
+        return np.column_stack([xy, np.full(len(xy), z)])
+
+    points = np.vstack([square(0.0, 2.5, 0.0), square(0.4, 0.9, 0.45), square(1.4, 2.2, 0.75)])
+    return prepare_scene(Cloud(points, source="warm-up"), settings, gravity="none").fields
