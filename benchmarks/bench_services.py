@@ -2,6 +2,7 @@
 from all the scans, with the router and the three services as separate processes on this machine.
 
     .venv/bin/python benchmarks/bench_services.py [--frames 100] [--step 3] [--rate 30] [--repeats 3]
+        [--hogs 2]
     .venv/bin/python benchmarks/bench_services.py --as-map [--repeats 5] [--hogs 2]
 
 Streams the real 7-Scenes kitchen frames (../shared) when present, else a generated living room's. Each
@@ -112,6 +113,9 @@ def one_run(folder: Path, indices: list[int], rate: float, workdir: Path) -> dic
     result["frames taken (of those published)"] = arrivals.poses
     result["every map"] = max(v for k, v in result.items() if k.startswith("affordance/"))
     result["every map, after the last map/cloud"] = result["every map"] - result["map/cloud"]
+    # where that goes, service by service (arrivals on the router, so each includes its messages)
+    result["features: the last map/cloud to its fields"] = result["fields"] - result["map/cloud"]
+    result["inference: those fields to every map"] = result["every map"] - result["fields"]
     return result
 
 
@@ -277,22 +281,24 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=30.0)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--as-map", action="store_true", help="a finished room's first maps instead")
-    parser.add_argument("--hogs", type=int, default=0, help="--as-map: CPU hogs beside the stack")
+    parser.add_argument("--hogs", type=int, default=0, help="CPU hogs beside the stack")
     args = parser.parse_args()
     if args.as_map:
         as_map_table(args)
         return
+    load = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         folder = (
             KITCHEN if KITCHEN.is_dir() else generated_sequence(Path(tmp) / "seq", args.frames * args.step)
         )
         indices = list(range(0, len(read_sequence(folder).frames), args.step))[: args.frames]
-        runs = [one_run(folder, indices, args.rate, Path(tmp) / f"run{k}") for k in range(args.repeats)]
+        with cpu_hogs(args.hogs):
+            runs = [one_run(folder, indices, args.rate, Path(tmp) / f"run{k}") for k in range(args.repeats)]
     source = "7-Scenes redkitchen (real)" if folder == KITCHEN else "generated living room"
     print(
         f"\n{source}: {len(indices)} frames (every {args.step} of the sequence) at {args.rate:g} Hz, "
-        f"{args.repeats} runs, "
-        f"{os.cpu_count()} cores; services as processes on one machine\n"
+        f"{args.repeats} runs, {os.cpu_count()} cores, {args.hogs} CPU hogs, load average {load:.1f} "
+        f"before, {os.getloadavg()[0]:.1f} after; services as processes on one machine\n"
     )
     print("| from the last scan published to ... | median (s) | runs (s) |\n|---|---:|---|")
     for key in runs[0]:
