@@ -50,9 +50,10 @@ def test_the_complete_layout_reaches_the_leaves_the_node_tables_reach(boosted, m
     for k, step in enumerate((-np.inf, None, np.inf)):  # below, at (rounded to float32), above
         near = edges if step is None else np.nextafter(edges, np.float32(step))
         rows[k * len(splits) + np.arange(len(splits)), complete.feature[splits]] = near
-    rows = np.concatenate([rows, X])
+    finite = np.concatenate([rows, X])  # walked without reading the splits' missing sides
+    rows = finite.copy()
     rows[::7, 1] = np.nan
-    for sample in (rows, rows.astype(np.float64)):
+    for sample in (finite, rows, finite.astype(np.float64), rows.astype(np.float64)):
         np.testing.assert_array_equal(complete.log_odds(sample), tables.log_odds(sample))
     np.testing.assert_allclose(complete.log_odds(rows), model.decision_function(rows), atol=1e-9)
 
