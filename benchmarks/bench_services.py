@@ -12,7 +12,8 @@ With ``--as-map``: a finished room, the built-in 6 m x 5 m example room as `affo
 (levelled by the client), put on map/cloud of a fresh stack, timed from the put to the fields and to each
 affordance map (first maps: every map of that cloud). Then where the time goes: the services' steps one by
 one in this process (decoding, the levelling check, the fields, encoding; per affordance the scoring and
-map and its message; the recordings' logging), medians over the repeats.
+map and its message; the recordings' logging), medians over the repeats; and the three maps of the same
+fields made in turn, on threads and in forked workers (the service's way), side by side.
 """
 
 from __future__ import annotations
@@ -252,6 +253,53 @@ def as_map_steps(repeats: int) -> dict[str, list[float]]:
     return steps
 
 
+def worker_rounds(repeats: int) -> dict[str, list[float]]:
+    """Every map of the example room's fields, as the inference service could make them: one model after
+    another in one process, the models on threads of one process, and in forked workers (the service's
+    way), each from scratch, rounds alternating."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from threadpoolctl import threadpool_limits
+
+    from affordcore.example import example_room
+    from affordcore.geometry.features import FeatureLayout
+    from affordcore.learn.model import load_model
+    from affordcore.mapping.pipeline import RoomMapper, preload, prepare_scene
+    from affordcore.mapping.workers import ForkedRoomMapper
+    from affordcore.settings import Settings
+
+    settings = Settings()
+    models = [load_model(path) for path in shipped_models().values()]
+    layout = FeatureLayout.from_settings(settings)
+    fields = prepare_scene(example_room(), settings, "auto").fields
+    with threadpool_limits(1, user_api="blas"):  # as the services run (AFFORD_SERVICE__BLAS_THREADS)
+        forked = ForkedRoomMapper(models, layout, settings)
+        forked.warm_up()
+        preload()
+        alone = [RoomMapper([model], layout, settings) for model in models]
+
+        def afresh(mapper) -> None:
+            mapper.maps(fields)
+            mapper.forget()
+
+        ways = {
+            "in turn, one process": lambda: [afresh(mapper) for mapper in alone],
+            "on threads, one per model": lambda: list(threads.map(afresh, alone)),
+            "in forked workers, one per model": lambda: afresh(forked),
+        }
+        rounds: dict[str, list[float]] = {name: [] for name in ways}
+        with ThreadPoolExecutor(len(models)) as threads:
+            for mapper in alone:
+                afresh(mapper)  # the first maps of this process, not timed
+            for _ in range(repeats):
+                for name, way in ways.items():
+                    start = time.perf_counter()
+                    way()
+                    rounds[name].append(time.perf_counter() - start)
+        forked.close()
+    return rounds
+
+
 def as_map_table(args) -> None:
     load = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp, cpu_hogs(args.hogs):
@@ -270,6 +318,11 @@ def as_map_table(args) -> None:
     print("| step | median (s) |\n|---|---:|")
     for name, values in steps.items():
         print(f"| {name} | {statistics.median(values):.3f} |")
+    rounds = worker_rounds(max(args.repeats, 5))
+    print("\nthe three maps of those fields, every pose scored, in this process's forks and threads\n")
+    print("| scored | median (s) | runs (s) |\n|---|---:|---|")
+    for name, values in rounds.items():
+        print(f"| {name} | {statistics.median(values):.3f} | {', '.join(f'{v:.2f}' for v in values)} |")
 
 
 def main() -> None:
