@@ -417,3 +417,36 @@ def test_within_reach_counts_the_labels_an_eligible_candidate_stands_on():
     # however low the cut, the map finds no more than is within reach
     some = PlaceCandidates(evidence, matches, ignored, xy, np.array([True, False, True]))
     assert some.places(np.ones(3), 0.0, 0.45)[0] == some.within_reach()
+
+
+class _Counted:
+    """A room's candidates reduced to what the cut's walk reads: (found, labels, false) at each cut."""
+
+    def __init__(self, false_below: float | None, found_below: float):
+        self.false_below, self.found_below = false_below, found_below
+
+    def places(self, probabilities, cut: float, radius: float) -> tuple[int, int, int]:
+        false = int(self.false_below is not None and cut <= self.false_below + 1e-9)
+        return int(cut <= self.found_below + 1e-9), 1, false
+
+
+def test_a_cut_whose_false_places_meet_the_budget_exactly_is_taken_and_the_walk_goes_on():
+    """Five rooms at a budget of 0.4 a room allow 2 false places: the cuts that give exactly 2 are within it,
+    the first that gives 3 is not."""
+    from affordcore.learn.thresholds import _walk
+
+    rooms = [
+        _Counted(0.3, 0.5),
+        _Counted(0.3, 0.4),
+        _Counted(0.2, 0.25),
+        _Counted(None, 0.2),
+        _Counted(None, 0.5),
+    ]
+    held_out = [np.zeros(1)] * len(rooms)
+    # 0 false down to 0.35, 2 at 0.3 and 0.25 (the budget met exactly), 3 at 0.2
+    assert _walk(rooms, held_out, 0.4, 0.45, np.zeros(len(rooms), bool)) == (0.25, 4)
+    # a budget a hair smaller stops before the first false place
+    assert _walk(rooms, held_out, 0.39, 0.45, np.zeros(len(rooms), bool)) == (0.35, 3)
+    # the real rooms are held to the budget apart: the same false places in two real rooms of the five
+    is_real = np.array([True, True, False, False, False])
+    assert _walk(rooms, held_out, 0.4, 0.45, is_real)[0] == 0.35

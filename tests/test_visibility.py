@@ -236,3 +236,21 @@ def test_the_compiled_range_images_give_numpy_states_to_the_bit():
         len(range_images.draw_outlines.signatures),
         len(range_images.mark_in_front.signatures),
     ] == compiled
+
+
+def test_a_sensor_facing_one_wall_leaves_the_open_side_behind_it_unknown():
+    """Directions in which the sensor saw no surface say nothing of the space along them: a wall ahead frees
+    the air before it, and the air behind the sensor, where nothing was seen, stays unknown (not free all
+    the way to the lattice's edge)."""
+    y, z = np.meshgrid(np.arange(0, 3, SPACING), np.arange(0, 2.4, SPACING), indexing="ij")
+    wall = np.column_stack([np.full(y.size, 3.0), y.ravel(), z.ravel()])
+    x, y = np.meshgrid(np.arange(2.0, 3.0, SPACING), np.arange(0, 3, SPACING), indexing="ij")
+    floor = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    fields = _fields(np.concatenate([wall, floor]))
+    state = voxel_states(fields.occupancy, fields.lattice, np.array([[2.2, 1.5, 1.2]]))
+    behind = np.array([[1.4, 1.5, 1.2], [1.2, 0.8, 1.8], [1.2, 2.2, 0.6]])
+    assert np.all(fields.lattice.voxel_of(behind) > 0), "the lattice reaches behind the sensor"
+    for xyz in behind:
+        assert _state_at(fields, state, xyz) == UNKNOWN, xyz
+    for xyz in [(2.6, 1.5, 1.2), (2.8, 1.2, 0.9), (2.6, 1.9, 1.5)]:  # between the sensor and the wall
+        assert _state_at(fields, state, xyz) == FREE, xyz
