@@ -27,7 +27,7 @@ full run's without its training (minutes, not the better part of an hour); no le
 `--unseen N` (48; 0: none) also scores the models on N generated rooms of another seed (`--unseen-seed`,
 one no data set of the project uses; generated once into bench-data/unseen-SEED), every scan style dealt in
 turn: rows "unseen seed S" and one per style, beside the test rooms of the split. Rooms of a seed the models
-never saw are what issue 24 sets its generated-room targets on; the split's test rooms share the training
+never saw are what the generated-room targets are set on; the split's test rooms share the training
 rooms' seed.
 
 Writes results.json, results.md and figures to --out (default docs/accuracy) and prints the table.
@@ -609,8 +609,8 @@ def operating_table(rows: list[dict]) -> list[str]:
         "",
         "Operating curve of the place probability (`AFFORD_MAP__PLACE_PROBABILITY`): places found, false "
         "skeletons per room, at each probability; the model's own cut in the last column but one; the last, "
-        "the most places found at any probability with at most 1 false skeleton per room (issue 24's "
-        "budget):",
+        "the most places found at any probability with at most 1 false skeleton per room (the "
+        "targets' budget):",
         "",
         "| affordance | rooms | "
         + " | ".join(f"p >= {c}" for c in TABLE_CUTS)
@@ -659,8 +659,8 @@ def _affordance_panels(rows: list[dict], height: float):
 def plot_operating(rows: list[dict], path: Path) -> None:
     """Place recall against false skeletons per room as the place probability a map asks for falls: one panel
     per affordance, the generated test rooms (black), each scan style (thin) and the real rooms (red); the
-    model's own cut is circled, and the grey lines are issue 24's budget of 1 false skeleton per room and its
-    target of 0.9 of the places."""
+    model's own cut is circled, and the grey lines are the targets' budget of 1 false skeleton per room and
+    their 0.9 of the places."""
     plt, figure, panels = _affordance_panels(rows, 4.4)
     if figure is None:
         return

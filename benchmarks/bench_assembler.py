@@ -1,6 +1,6 @@
 """Scan assembly on real depth frames: what a depth frame costs the assembler against bare KISS-ICP on the
-same points, under the settings before issue 15 and today's defaults, side by side in one run, and how far
-each trajectory is from the ground truth.
+same points, under the first settings it shipped with and today's defaults, side by side in one run, and
+how far each trajectory is from the ground truth.
 
 Microsoft 7-Scenes redkitchen, frames 0 to 299 (Kinect v1, 640 x 480, a 2.11 m hand-held path; in
 ../shared/data/sequences/). The depth images are decoded before anything is timed.
@@ -33,9 +33,9 @@ errors is how far a change of settings has to move them to mean anything.
     .venv/bin/python benchmarks/bench_assembler.py --step 3 --hogs 2 --repeats 1   # a 10 Hz walk, busy robot
     .venv/bin/python benchmarks/bench_assembler.py --against MAX_POINTS_PER_VOXEL=20   # other settings beside
 
-Three settings side by side: before issue 15, today's defaults, and the registration a busy assembler uses
-(scans waiting in its inbox: one point per `busy_registration_voxels` registered; bare KISS-ICP beside it
-registers as always, so its ratio is below 1).
+Three settings side by side: the first settings it shipped with, today's defaults, and the registration a
+busy assembler uses (scans waiting in its inbox: one point per `busy_registration_voxels` registered; bare
+KISS-ICP beside it registers as always, so its ratio is below 1).
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ SEQUENCE = (
     / "7scenes_redkitchen_frames_000000-000299"
 )
 GROUND_TRUTH_JUMP = 122  # the first frame after the ground truth's unsupported 3.5 cm step (see above)
-# the assembler's settings before issue 15, as explicit values (everything else as today's defaults)
+# the assembler's first settings, as explicit values (everything else as today's defaults)
 BEFORE = {
     "pixel_step": 2,
     "block_stride": 1,
@@ -373,9 +373,9 @@ def run(args) -> None:
 
 
 def map_step(images: list[DepthImage], defaults: Pipelines) -> None:
-    """What a keyframe costs the global map, the map before issue 25 and today's side by side on the same
-    keyframes at the same poses (the defaults' first repeat), taking turns: before, the registration's block
-    means thinned to one point per map voxel (KISS-ICP's voxel_down_sample: the first point) into a
+    """What a keyframe costs the global map, the first-point map it replaced and today's side by side on the
+    same keyframes at the same poses (the defaults' first repeat), taking turns: before, the registration's
+    block means thinned to one point per map voxel (KISS-ICP's voxel_down_sample: the first point) into a
     VoxelHashMap of one point per voxel; today, the blocks back-projected again without those across depth
     edges, moved, reduced to sums per cell and merged into the running means (`VoxelMeans`)."""
     from kiss_icp.mapping import VoxelHashMap
@@ -407,7 +407,7 @@ def map_step(images: list[DepthImage], defaults: Pipelines) -> None:
 
 
 def _map_before(voxel_map, image: DepthImage, pose: np.ndarray, settings: AssemblerSettings) -> float:
-    """Seconds the map before issue 25 took for a keyframe."""
+    """Seconds the first-point map (one point per voxel, the first seen) took for a keyframe."""
     from kiss_icp.voxelization import voxel_down_sample
 
     # the registration's block means, already made for registration: not the map's cost

@@ -1,4 +1,4 @@
-"""Rooms per minute in local processes and on a Ray cluster, side by side in one run (issue 27 item 4).
+"""Rooms per minute in local processes and on a Ray cluster, side by side in one run.
 
 Two steps of the learning loop, each over the same rooms: generating and scanning them (`afford synth`'s
 `synth.batch.synthesize`, default depth scanner and styles), then featurising them (each room's voxel fields

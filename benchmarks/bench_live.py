@@ -1,4 +1,4 @@
-"""Live maps against offline ones, on an idle and on a busy computer (issue 25).
+"""Live maps against offline ones, on an idle and on a busy computer.
 
 For each source, a depth sequence with true poses and the room's fused cloud with labels (the real 7-Scenes
 kitchen of ../shared, and generated rooms of `afford synth --sequences`), the sequence is streamed through
@@ -238,7 +238,7 @@ def where(source: Source, indices: list[int], settings: Settings, models: list) 
         as_published = f"no map: {str(error)[:60]}"
     return {
         "true poses, every pixel": scored(fused(every_pixel, truth), np.eye(4)),
-        "true poses, block means, first point per map voxel (the map before issue 25)": scored(
+        "true poses, block means, first point per map voxel (the first-point map)": scored(
             voxel_down_sample(fused(blocks, truth), a.map_voxel), np.eye(4)
         ),
         "true poses, the map's blocks (no depth edges), mean per map voxel": scored(

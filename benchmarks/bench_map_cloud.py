@@ -1,8 +1,8 @@
-"""The assembler's map cloud against the fused room, without the labels (issue 25): what chose its settings.
+"""The assembler's map cloud against the fused room, without the labels: what chose its settings.
 
 For each source of benchmarks/bench_live.py (the real 7-Scenes kitchen and generated `afford synth
 --sequences` rooms), every --step-th depth frame is made into a map cloud at the true poses, the ways the
-assembler's map could make it: every pixel (a reference), the map before issue 25 (2 x 2 block means, the
+assembler's map could make it: every pixel (a reference), the first-point map (2 x 2 block means, the
 first point per 2 cm voxel) and today's (block means, running mean per voxel) with blocks across a depth edge
 left out at several `map_edge_spread`s. Each is compared with the room's fused cloud in 10 cm cells, the size
 of the fields: cells the map fills that the room leaves empty (surfaces that are not there: flying pixels, the
@@ -11,7 +11,7 @@ blocks that straddle an edge) and cells of the room within reach of the frames t
 A second table runs the assembler itself (its own poses, the frames' gravity as an IMU would report it) and
 says how level the map it publishes is: the tilt of its floor plane, and for generated rooms (their z is
 true up) the angle between the published z and the true up, levelled on the frames' gravity alone
-(`floor_level_max_deg` 0, before issue 25) and on the floor found under it (today).
+(`floor_level_max_deg` 0, as the assembler first did) and on the floor found under it (today).
 
     .venv/bin/python benchmarks/bench_map_cloud.py                  # the kitchen + 3 generated rooms, ~10 min
     .venv/bin/python benchmarks/bench_map_cloud.py --generated 0    # the kitchen only

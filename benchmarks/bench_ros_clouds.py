@@ -1,4 +1,4 @@
-"""Dense ROS 2 clouds at a robot's rate (issue 25): full-resolution sensor_msgs/PointCloud2 with Imu, on
+"""Dense ROS 2 clouds at a robot's rate: full-resolution sensor_msgs/PointCloud2 with Imu, on
 rmw_zenoh keys, through the router and the three services, idle and with a CPU hog on each core.
 
 The real 7-Scenes kitchen (../shared/data/sequences), --frames of its frames every --step-th (40 of every

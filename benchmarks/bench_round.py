@@ -1,4 +1,4 @@
-"""Where the CPU of a live map's last round goes (issue 25): the steps of the features and inference services
+"""Where the CPU of a live map's last round goes: the steps of the features and inference services
 in one process, without transport or load, so that a change to one step is measured on its own.
 
 For each source of benchmarks/bench_live.py (the real 7-Scenes kitchen and generated `afford synth

@@ -1,6 +1,6 @@
 """How many of a room's places the live path could find at best, each figure a mean over grid placements.
 
-Issue 25 wants the live maps of a stream to find 90 % of the places `afford map` finds in the room's fused
+The target: the live maps of a stream to find 90 % of the places `afford map` finds in the room's fused
 cloud. One map's count moves by a place or two with where the 10 cm pose grid happens to fall on the room
 (docs/accuracy.md): so every cloud below is mapped `--shifts` times, moved by a different sub-cell amount
 each time (the first not at all), and the places are the mean over those maps. The clouds, from the offline

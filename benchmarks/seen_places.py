@@ -1,4 +1,4 @@
-"""Which places the scans show (issue 24): the shipped models' place recall on the generated test rooms,
+"""Which places the scans show: the shipped models' place recall on the generated test rooms,
 split by how much of each labelled place's body the sensors saw.
 
 A place's body is where a person using it would be: the 15 joints of its affordance's skeleton at the label

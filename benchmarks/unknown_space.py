@@ -1,4 +1,4 @@
-"""Unknown is not empty (issue 24, item 4): the shipped models' places on generated rooms with the sensor
+"""Unknown is not empty: the shipped models' places on generated rooms with the sensor
 positions each room was scanned from, with the rule that a place's body space must have been seen
 (`visibility.min_seen`) at several shares, against no such rule.
 

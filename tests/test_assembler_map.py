@@ -1,4 +1,4 @@
-"""The assembler's global map (issue 25): per voxel the mean of every observation, and no depth-edge blocks.
+"""The assembler's global map: per voxel the mean of every observation, and no depth-edge blocks.
 
 A noisy synthetic depth walk through a furnished room (Kinect v1 noise, depth steps and flying pixels) with
 its true poses: the map's floor is flatter than a map of one observation per voxel (the map before), and the
@@ -97,7 +97,7 @@ def test_blocks_across_a_depth_edge_are_left_out(walk):
 
 def test_the_map_of_a_noisy_walk_is_flatter_than_one_observation_per_voxel(walk):
     """The same frames at their true poses: the map the assembler makes of its keyframes (running means of
-    the blocks, less those across depth edges) against the map before issue 25 (the first point per voxel).
+    the blocks, less those across depth edges) against a map of the first point per voxel.
     Quantised Kinect depth repeats its steps from similar viewpoints, so 16 looks average out a third of the
     floor's spread, not three quarters."""
     from kiss_icp.mapping import VoxelHashMap
@@ -151,7 +151,7 @@ def _floor_tilt_deg(points: np.ndarray) -> float:
 @pytest.mark.parametrize("limit, levelled", [(5.0, True), (0.0, False)])
 def test_the_map_is_levelled_on_its_floor_when_the_gravity_is_a_few_degrees_off(walk, limit, levelled):
     """An IMU 3 degrees off: the map is levelled on its floor plane (with `floor_level_max_deg` 0, on the
-    IMU's gravity, as before issue 25: the floor then leans 3 degrees)."""
+    IMU's gravity alone: the floor then leans 3 degrees)."""
     images, poses = walk
     tilt = np.radians(3.0)
     wrong_down = np.array([0.0, np.sin(tilt), -np.cos(tilt)])  # the world's down turned 3 deg about x

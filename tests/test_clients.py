@@ -158,7 +158,7 @@ print(json.dumps({
 
 
 def test_a_python_client_imports_its_generated_code_beside_affordmap_from_the_project_root(generated):
-    """Issue 26: protoc generates the schemas as the Python package `afford.v1`, which the project leaves to
+    """protoc generates the schemas as the Python package `afford.v1`, which the project leaves to
     clients (its command line is `affordcli`). In the project's root, where the project's packages come first
     on sys.path (`python -c`, `python -m`), one process imports the client's generated code, affordwire and
     the command line, and a Cloud passes between the client's class and affordwire's with the same bytes."""

@@ -1,4 +1,4 @@
-"""Jobs on a Ray cluster (issue 27 item 4): a head and a worker node started on this machine
+"""Jobs on a Ray cluster: a head and a worker node started on this machine
 (`affordcli.cluster.local_ray_cluster`), used through AFFORD_CLUSTER__ADDRESS, and torn down. Rooms
 generated there are the same bytes as local ones, and the k-fold evaluation gives the same figures."""
 

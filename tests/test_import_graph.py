@@ -1,6 +1,6 @@
-"""affordcore's modules import each other without a cycle (issue 24 untied learn/cascade <-> learn/learners
-and synth/furniture <-> synth/rooms), lazy imports inside functions included: a cycle is two modules that
-cannot be understood, tested or moved apart."""
+"""affordcore's modules import each other without a cycle (learn/cascade <-> learn/learners and
+synth/furniture <-> synth/rooms once had one), lazy imports inside functions included: a cycle is two
+modules that cannot be understood, tested or moved apart."""
 
 from __future__ import annotations
 

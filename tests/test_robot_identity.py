@@ -1,4 +1,4 @@
-"""One identity per robot (issue 25, item 4): on a site made with `afford certs --sensor NAME@ROBOT` (and
+"""One identity per robot: on a site made with `afford certs --sensor NAME@ROBOT` (and
 `--robot ROBOT`), a robot's sensor and services write only that robot's keys, whatever certificate the
 rest of the site holds.
 

@@ -345,7 +345,7 @@ class Assembler:
 
     def load_state(self, data) -> None:
         """Take the state `state_arrays` gave, on a fresh assembler."""
-        # snapshots before the running means (issue 25) kept one point per voxel: one observation each
+        # snapshots written before the map kept running means held one point per voxel: one observation each
         self.global_map.add_points(data["map_points"], data["map_weights"] if "map_weights" in data else None)
         self.trajectory.stamps = [float(t) for t in data["stamps"]]
         self.trajectory.poses = list(data["poses"])

@@ -53,7 +53,7 @@ def _decode(body: bytes) -> FrameRecord:
             guess=data["guess"] if data["guess"].size else None,
             gravity=data["gravity"],
             map_points=data["map_points"] if bool(data["keyframe"]) else None,
-            # journals before the running means (issue 25): one observation a point
+            # journals written before the map kept running means: one observation a point
             map_weights=data["map_weights"] if "map_weights" in data and data["map_weights"].size else None,
         )
 

@@ -2,7 +2,7 @@
 
 A Kinect-class depth measurement is off by a centimetre or two at a few metres, differently each time the
 surface is seen; a map that keeps the first point per voxel (KISS-ICP's `VoxelHashMap` with one point per
-voxel, the map before issue 25) keeps that first error for good, one noisy sample of each surface. The mean
+voxel, as this map once did) keeps that first error for good, one noisy sample of each surface. The mean
 of every observation is the surface the frames agree on, as the fused room of the offline path is
 (docs/services.md has the measurements).
 
