@@ -1,12 +1,13 @@
-"""Refit the shipped models' place models (and their cuts) on their own validation rooms, with the present
-code's candidates, leaving the pose models untouched: what training's last step does (`learn.train`), for a
-change in how candidates are found or matched that does not touch the poses' scores.
+"""Refit the shipped models' place models (their margins and cuts) on their own validation rooms and the real
+validation rooms, with the present code, leaving the pose models untouched: training's calibration without
+its pose threshold (`train.calibrate(..., pose=False)`), for a change in how candidates are found, matched or
+cut that does not touch the poses' scores.
 
-Reads the rooms each model file names as its validation rooms from `benchmarks/accuracy.py`'s data set and
-rewrites the model files in place (`--out` writes them elsewhere); prints each place model's cut and its
-places on those rooms before and after.
+Reads the rooms each model file names as its validation rooms from `benchmarks/accuracy.py`'s data set, and
+the real rooms from the folders `afford models rebuild --real` takes, and rewrites the model files in place
+(`--out` writes them elsewhere); prints each place model's margin, cut and places before and after.
 
-    .venv/bin/python benchmarks/refit_place_models.py        # about 5 minutes on 2 cores
+    .venv/bin/python benchmarks/refit_place_models.py --data bench-data/accuracy500 --out DIR   # 3 minutes
 """
 
 from __future__ import annotations
@@ -15,6 +16,9 @@ import argparse
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+REAL_ROOMS = [ROOT.parent / "shared" / "data" / d for d in ("rooms", "validation")] + [
+    ROOT / "bench-data" / "validation"
+]
 
 
 def main() -> None:
@@ -23,21 +27,25 @@ def main() -> None:
     parser.add_argument(
         "--out", type=Path, help="write the model files here (default: over the shipped ones)"
     )
+    parser.add_argument("--cache", type=Path, help="the room cache (default: learn.cache_dir)")
     args = parser.parse_args()
 
     from affordcore.geometry.features import FeatureLayout
-    from affordcore.learn.examples import data_set_rooms, load_rooms
+    from affordcore.learn.cache import RoomCache
+    from affordcore.learn.examples import Task, data_set_rooms, labelled_rooms, load_rooms
     from affordcore.learn.model import load_model, shipped_models
-    from affordcore.learn.thresholds import fit_places, room_scores
-    from affordcore.learn.train import place_model_report
+    from affordcore.learn.train import calibrate
     from affordcore.settings import Settings
 
     settings = Settings()
     layout = FeatureLayout.from_settings(settings)
+    cache = RoomCache(args.cache) if args.cache else RoomCache.from_settings(settings)
     files = {f.name: f for f in data_set_rooms(args.data)}
+    real = load_rooms(labelled_rooms([f for f in REAL_ROOMS if f.is_dir()]), settings, cache=cache)
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
-    print("| affordance | cut before | places before | cut after | places after |")
+    print(f"real rooms: {', '.join(room.name for room in real) or 'none'}\n")
+    print("| affordance | margin, cut before | places before | margin, cut after | places after |")
     print("|---|---:|---|---:|---|")
     for name, path in shipped_models().items():
         model = load_model(path, layout)
@@ -45,26 +53,23 @@ def main() -> None:
         missing = [n for n in names if n not in files]
         if missing:
             raise SystemExit(f"{args.data}: no rooms {', '.join(missing[:3])}...: make the data set first")
-        scored = [
-            room_scores(model, room, layout, settings)
-            for room in load_rooms([files[n] for n in names], settings)
-        ]
-        before = place_model_report(scored, model, settings)
-        cut_before = model.places.cut
-        place_model = fit_places(
-            scored, model.threshold, settings.learn.place_false_budget, settings.map.nms_radius
-        )
-        model.place_model = place_model.to_dict()
-        after = place_model_report(scored, model, settings)
-        model.validation.update(after)
+        before = (model.places.eligible_margin, model.places.cut, _said(model.validation))
+        rooms = load_rooms([files[n] for n in names], settings, cache=cache)
+        calibrate(model, rooms, Task(name, settings, layout), pose=False, real=real)
         model.save((args.out or path.parent) / path.name)
-        print(f"| {name} | {cut_before:.2f} | {_said(before)} | {model.places.cut:.2f} | {_said(after)} |")
+        print(
+            f"| {name} | {before[0]:g}, {before[1]:.2f} | {before[2]} | {model.places.eligible_margin:g}, "
+            f"{model.places.cut:.2f} | {_said(model.validation)} |"
+        )
 
 
-def _said(report: dict) -> str:
-    return ", ".join(
-        f"{k} {v:.2f}" if isinstance(v, float) else f"{k} {v}" for k, v in sorted(report.items())
-    )
+def _said(validation: dict) -> str:
+    keys = ("probability_place_recall", "probability_false_per_room")
+    own = ", ".join(f"{k.removeprefix('probability_')} {validation[k]:.2f}" for k in keys if k in validation)
+    real = validation.get("real") or {}
+    if real:
+        own += "; real: " + ", ".join(f"{k.removeprefix('probability_')} {real[k]:.2f}" for k in keys)
+    return own
 
 
 if __name__ == "__main__":

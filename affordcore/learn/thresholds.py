@@ -191,13 +191,13 @@ def place_decision(
     within the false budget (the smaller on a tie), judged as `place_cut` judges, on probabilities of place
     models fitted without each room."""
     is_real = np.zeros(len(candidates), bool) if is_real is None else np.asarray(is_real, bool)
-    held_out = _held_out(candidates, folds, is_real, real_share)
-    if held_out is None:
+    dealt = _dealt(candidates, folds, is_real, real_share)
+    if dealt is None:
         return 0.0, 0.5
-    best = (-1, 0.0, 0.5)
+    best = (-1.0, 0.0, 0.5)
     for margin in ELIGIBLE_MARGINS:
         eligible = [c.eligible_from(threshold - margin) for c in candidates]
-        cut, found = _walk(eligible, held_out, false_budget, radius, is_real)
+        cut, found = _walk(eligible, dealt, false_budget, radius, is_real)
         if found > best[0]:
             best = (found, margin, cut)
     return best[1], best[2]
@@ -213,49 +213,88 @@ def place_cut(
 ) -> float:
     """The probability a place must reach: walking down from a calibrated 0.5, the lowest of `PLACE_CUTS`
     before the rooms' false places per room exceed `false_budget` (the generated rooms' and, apart, the real
-    ones' of `is_real`). Each room's probabilities come from a place model fitted on the other folds of rooms
-    (dealt in turn), so the cut is judged on rooms its model did not see, as a map's rooms will be. Why lower
+    ones' of `is_real`). Each room's probabilities come from a place model fitted on the other folds of rooms,
+    so the cut is judged on rooms its model did not see, as a map's rooms will be, and over `DEALS` deals of
+    the rooms into folds, so that it does not hang on one deal. Why lower
     than 0.5 at all: where a kind of place has weak evidence (a chair pushed under a table scores low), the
     true places gather at 0.2-0.5 and a map at 0.5 misses most of them. Why not below 0.2: a place shown to a
     robot should be one in five likely or better."""
     is_real = np.zeros(len(candidates), bool) if is_real is None else np.asarray(is_real, bool)
-    held_out = _held_out(candidates, folds, is_real, real_share)
-    return 0.5 if held_out is None else _walk(candidates, held_out, false_budget, radius, is_real)[0]
+    dealt = _dealt(candidates, folds, is_real, real_share)
+    return 0.5 if dealt is None else _walk(candidates, dealt, false_budget, radius, is_real)[0]
+
+
+# The rooms are dealt into folds this many ways (the first in turn, the rest seeded at random) and a cut is
+# judged on all of them, so that it does not hang on how the rooms happened to be dealt (docs/maps.md,
+# "Real rooms in the calibration", measures how much one deal moves it)
+DEALS = 8
+
+
+def _dealt(
+    candidates: list[PlaceCandidates], folds: int, is_real: np.ndarray, real_share: float
+) -> list[list[np.ndarray]] | None:
+    """`_held_out` under each of `DEALS` deals of the rooms into folds; None as `_held_out`."""
+    dealt, n = [], len(candidates)
+    for deal in range(DEALS):
+        order = np.arange(n) if deal == 0 else np.random.default_rng(deal).permutation(n)
+        held_out = _held_out(candidates, folds, is_real, real_share, order)
+        if held_out is None:
+            return None
+        dealt.append(held_out)
+    return dealt
 
 
 def _held_out(
-    candidates: list[PlaceCandidates], folds: int, is_real: np.ndarray, real_share: float
+    candidates: list[PlaceCandidates],
+    folds: int,
+    is_real: np.ndarray,
+    real_share: float,
+    order: np.ndarray | None = None,
 ) -> list[np.ndarray] | None:
-    """Each room's candidate probabilities from a place model fitted on the other folds of rooms (dealt in
-    turn); None when a fold lacks either kind of candidate (nothing to judge a lower cut on)."""
-    held_out = [None] * len(candidates)
-    for fold in range(min(folds, len(candidates))):
-        inside = [k for k in range(len(candidates)) if k % folds != fold]
-        model = _fit_on([candidates[k] for k in inside], is_real[inside], real_share) if inside else None
+    """Each room's candidate probabilities from a place model fitted on the other folds of rooms, the rooms
+    dealt to folds in turn in `order` (default: as listed); None when a fold lacks either kind of candidate
+    (nothing to judge a lower cut on)."""
+    n = len(candidates)
+    position = np.empty(n, np.int64)
+    position[np.arange(n) if order is None else np.asarray(order)] = np.arange(n)
+    fold_of = position % folds
+    held_out = [None] * n
+    for fold in range(min(folds, n)):
+        inside = np.flatnonzero(fold_of != fold)
+        model = _fit_on([candidates[k] for k in inside], is_real[inside], real_share) if len(inside) else None
         if model is None:
             return None
-        for k in range(fold, len(candidates), folds):
+        for k in np.flatnonzero(fold_of == fold):
             held_out[k] = model.probability(candidates[k].evidence)
     return held_out
 
 
 def _walk(
     candidates: list[PlaceCandidates],
-    held_out: list[np.ndarray],
+    dealt: list[list[np.ndarray]],
     false_budget: float,
     radius: float,
     is_real: np.ndarray,
-) -> tuple[float, int]:
-    """(the lowest cut of `PLACE_CUTS` within the budget on each kind of room, the places found there)."""
+) -> tuple[float, float]:
+    """(the lowest cut of `PLACE_CUTS` within the budget on each kind of room, the places found there), the
+    false places and the places found counted over every deal of `dealt` (each room's held-out
+    probabilities, deal by deal), the places as a mean per deal."""
+
+    def counts(cut: float) -> np.ndarray:
+        return np.array(
+            [[c.places(p, cut, radius) for c, p in zip(candidates, held_out)] for held_out in dealt]
+        ).reshape(len(dealt), -1, 3)
+
     chosen, found = 0.5, None
     for cut in PLACE_CUTS:
-        counts = np.array([c.places(p, cut, radius) for c, p in zip(candidates, held_out)]).reshape(-1, 3)
-        false = counts[:, 2]
-        if any(false[kind].sum() > false_budget * kind.sum() for kind in (~is_real, is_real) if kind.any()):
+        at_cut = counts(cut)
+        false = at_cut[..., 2].sum(axis=0)
+        budget = false_budget * len(dealt)
+        if any(false[kind].sum() > budget * kind.sum() for kind in (~is_real, is_real) if kind.any()):
             break
-        chosen, found = float(cut), int(counts[:, 0].sum())
+        chosen, found = float(cut), float(at_cut[..., 0].sum() / len(dealt))
     if found is None:  # even 0.5 breaks the budget: 0.5 all the same, with what it finds
-        found = sum(c.places(p, 0.5, radius)[0] for c, p in zip(candidates, held_out))
+        found = float(counts(0.5)[..., 0].sum() / len(dealt))
     return chosen, found
 
 
