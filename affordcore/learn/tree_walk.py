@@ -20,7 +20,9 @@ BLOCK = 32  # rows walked side by side: their positions stay in registers and th
 def walk_complete(X, feature, threshold, missing_left, value, tree_base, leaf_shift, depth, out):
     """Adds each tree's leaf to `out` (rows of X), the trees laid out complete: position p's children are
     2p + 1 and 2p + 2 within its tree (positions absolute: the tree's base plus its own), and a walk that ends
-    at position p of the last level reads leaf value p + leaf_shift[tree]."""
+    at position p of the last level reads leaf value p + leaf_shift[tree]. `missing_left` None: rows without
+    NaN, and numba compiles a walk that reads no split's side for missing values (the walk is bound by its
+    chain of loads: one fewer a level makes it 1.7 times as fast, to the same leaves)."""
     position = np.empty(BLOCK, np.int64)
     for start in range(0, X.shape[0], BLOCK):
         rows = min(BLOCK, X.shape[0] - start)
@@ -31,28 +33,10 @@ def walk_complete(X, feature, threshold, missing_left, value, tree_base, leaf_sh
                 for i in range(rows):
                     p = position[i]
                     v = X[start + i, feature[p]]
-                    left = (v <= threshold[p]) | ((v != v) & missing_left[p])  # NaN: the split's side
+                    left = v <= threshold[p]
+                    if missing_left is not None:  # pruned at compile time for None
+                        left |= (v != v) & missing_left[p]  # NaN: the split's side
                     position[i] = 2 * p - base + 2 - left
-            shift = leaf_shift[tree]
-            for i in range(rows):
-                out[start + i] += value[position[i] + shift]
-
-
-@compiled
-def walk_complete_finite(X, feature, threshold, value, tree_base, leaf_shift, depth, out):
-    """`walk_complete` for rows without NaN: no split's side for missing values to read. The walk is bound by
-    its chain of loads, and one load fewer a level makes it 1.7 times as fast; the same leaves, the same
-    sums."""
-    position = np.empty(BLOCK, np.int64)
-    for start in range(0, X.shape[0], BLOCK):
-        rows = min(BLOCK, X.shape[0] - start)
-        for tree in range(tree_base.shape[0]):
-            base = tree_base[tree]
-            position[:rows] = base
-            for _ in range(depth):
-                for i in range(rows):
-                    p = position[i]
-                    position[i] = 2 * p - base + 2 - (X[start + i, feature[p]] <= threshold[p])
             shift = leaf_shift[tree]
             for i in range(rows):
                 out[start + i] += value[position[i] + shift]

@@ -63,16 +63,12 @@ class TreeEnsemble:
         complete = self._complete
         if complete is not None:
             threshold = complete.threshold32 if X.dtype == np.float32 else complete.threshold64
-            if np.isnan(X).any():
-                tree_walk.walk_complete(
-                    X, complete.feature, threshold, complete.missing_left, complete.value,
-                    complete.tree_base, complete.leaf_shift, self.depth, out,
-                )  # fmt: skip
-            else:  # features are finite unless a caller says otherwise: the faster walk, the same leaves
-                tree_walk.walk_complete_finite(
-                    X, complete.feature, threshold, complete.value, complete.tree_base, complete.leaf_shift,
-                    self.depth, out,
-                )  # fmt: skip
+            # features are finite unless a caller says otherwise: then the faster walk, to the same leaves
+            missing_left = complete.missing_left if np.isnan(X).any() else None
+            tree_walk.walk_complete(
+                X, complete.feature, threshold, missing_left, complete.value, complete.tree_base,
+                complete.leaf_shift, self.depth, out,
+            )  # fmt: skip
         else:
             feature = np.maximum(self.feature, 0)  # a leaf reads any column and leads back to itself
             tree_walk.walk_nodes(
