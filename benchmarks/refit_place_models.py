@@ -13,12 +13,11 @@ the real rooms from the folders `afford models rebuild --real` takes, and rewrit
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-REAL_ROOMS = [ROOT.parent / "shared" / "data" / d for d in ("rooms", "validation")] + [
-    ROOT / "bench-data" / "validation"
-]
+sys.path.insert(0, str(Path(__file__).parent))
+from accuracy import REAL_ROOMS, ROOT  # noqa: E402  the real validation rooms the accuracy runs read
 
 
 def main() -> None:

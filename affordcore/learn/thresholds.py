@@ -280,21 +280,19 @@ def _walk(
     false places and the places found counted over every deal of `dealt` (each room's held-out
     probabilities, deal by deal), the places as a mean per deal."""
 
-    def counts(cut: float) -> np.ndarray:
-        return np.array(
+    budget = false_budget * len(dealt)
+    chosen, found = 0.5, None
+    for cut in PLACE_CUTS:  # from 0.5 down
+        at_cut = np.array(
             [[c.places(p, cut, radius) for c, p in zip(candidates, held_out)] for held_out in dealt]
         ).reshape(len(dealt), -1, 3)
-
-    chosen, found = 0.5, None
-    for cut in PLACE_CUTS:
-        at_cut = counts(cut)
+        places = float(at_cut[..., 0].sum() / len(dealt))
         false = at_cut[..., 2].sum(axis=0)
-        budget = false_budget * len(dealt)
         if any(false[kind].sum() > budget * kind.sum() for kind in (~is_real, is_real) if kind.any()):
+            if found is None:  # even 0.5 breaks the budget: 0.5 all the same, with what it finds
+                found = places
             break
-        chosen, found = float(cut), float(at_cut[..., 0].sum() / len(dealt))
-    if found is None:  # even 0.5 breaks the budget: 0.5 all the same, with what it finds
-        found = float(counts(0.5)[..., 0].sum() / len(dealt))
+        chosen, found = float(cut), places
     return chosen, found
 
 
