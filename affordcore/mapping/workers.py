@@ -180,14 +180,16 @@ def _worker(
 
 
 def _warm_up_fields(settings: Settings) -> SceneFields:
-    """The fields of a 2.5 m square of floor with a seat-high and a table-high top on it."""
+    """The fields of a 2.5 m square of floor with a seat-high and a table-high box on it."""
+    from ..example import box_surface_points
     from ..geometry.scene import Cloud
     from .pipeline import prepare_scene
 
-    def square(low: float, high: float, z: float) -> np.ndarray:
-        axis = np.arange(low, high, 0.02)
-        xy = np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2)
-        return np.column_stack([xy, np.full(len(xy), z)])
-
-    points = np.vstack([square(0.0, 2.5, 0.0), square(0.4, 0.9, 0.45), square(1.4, 2.2, 0.75)])
+    rng = np.random.default_rng(0)
+    boxes = [
+        ((0.0, 0.0, 0.0), (2.5, 2.5, 0.0)),
+        ((0.4, 0.4, 0.0), (0.9, 0.9, 0.45)),
+        ((1.4, 1.4, 0.0), (2.2, 2.2, 0.75)),
+    ]
+    points = np.vstack([box_surface_points(np.array(low), np.array(high), 2500, rng) for low, high in boxes])
     return prepare_scene(Cloud(points, source="warm-up"), settings, gravity="none").fields
