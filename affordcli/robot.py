@@ -213,7 +213,7 @@ def publish(
         "",
         "--odometry-topic",
         help="a recording's nav_msgs/Odometry topic giving each scan its pose guess (default: its only one); "
-        "the sensor's mounting on the robot: AFFORD_ROS__BASE_FROM_CLOUD",
+        "the sensor's mounting on the robot from the recording's /tf_static (or AFFORD_ROS__BASE_FROM_CLOUD)",
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress bar"),
     zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help=ZENOH_CONFIG_HELP),

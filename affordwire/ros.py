@@ -18,6 +18,8 @@ Conventions (docs/ros.md):
   -a / |a|, in the IMU's frame.
 * Odometry: `pose.pose` is the pose of `child_frame_id` (the robot's base) in `header.frame_id` (its
   odometry frame); the covariances and the twist are not used.
+* TFMessage (`/tf`, `/tf_static`): each TransformStamped is the pose of `child_frame_id` in
+  `header.frame_id`, its parent; a `TransformTree` keeps the newest of each child and chains them.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from .messages import MessageError, finite_rows
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 IMU = "sensor_msgs/msg/Imu"
 ODOMETRY = "nav_msgs/msg/Odometry"
+TFMESSAGE = "tf2_msgs/msg/TFMessage"
 INSTALL = "pip install 'affordmap[ros]'"
 
 # sensor_msgs/msg/PointField datatypes (INT8 = 1 ... FLOAT64 = 8) as numpy kinds; the byte order is the
@@ -47,6 +50,10 @@ STANDARD_GRAVITY = 9.80665
 # network thread
 MAX_IMU_BYTES = 64 * 1024
 MAX_FRAME_ID = 1024  # characters of a header's frame_id (it goes into logs and the pose messages)
+# a TFMessage of a robot's whole tree is a few kilobytes (about 100 bytes a transform); more is refused
+# unparsed, and a tree keeps at most this many frames
+MAX_TF_BYTES = 256 * 1024
+MAX_TF_FRAMES = 4096
 
 
 class RosUnavailable(ImportError, ValueError):
@@ -385,3 +392,102 @@ class GravityTrack(_Readings):
             if abs(stamps[nearest] - stamp) > max_age:
                 return None
             return self._readings[nearest][1].copy()
+
+
+# -- tf ------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class RosTransform:
+    """One TransformStamped: `transform` (4 x 4) is the pose of `child` in `parent`, parent_from_child."""
+
+    parent: str
+    child: str
+    transform: np.ndarray
+    stamp: float
+
+
+def tf_message(payload: bytes, limits: LimitSettings | None = None) -> list[RosTransform]:
+    """The transforms of a CDR tf2_msgs/msg/TFMessage, every one checked before any is returned: a message
+    with one unusable transform is refused whole."""
+    if len(payload) > MAX_TF_BYTES:
+        raise MessageError(f"a TFMessage of {len(payload):,} bytes; at most {MAX_TF_BYTES:,} are parsed")
+    return [transform_of(t, limits) for t in deserialize(payload, TFMESSAGE).transforms]
+
+
+def transform_of(stamped, limits: LimitSettings | None = None) -> RosTransform:
+    """A geometry_msgs/msg/TransformStamped object; refused when a frame is unnamed, its own parent or too
+    long, the translation not finite or beyond AFFORD_LIMITS__MAX_EXTENT, the rotation no unit quaternion."""
+    limits = limits or LimitSettings()
+    stamp, parent = _header(stamped, limits, "tf")
+    child = stamped.child_frame_id
+    if len(child) > MAX_FRAME_ID:
+        raise MessageError(f"tf child_frame_id is {len(child):,} characters; at most {MAX_FRAME_ID}")
+    if not parent or not child or parent.strip("/") == child.strip("/"):
+        raise MessageError(f"tf from {parent!r} to {child!r}: both frames must be named, and differ")
+    t, q = stamped.transform.translation, stamped.transform.rotation
+    translation = np.array([t.x, t.y, t.z], dtype=np.float64)
+    if not np.isfinite(translation).all() or np.abs(translation).max() > limits.max_extent:
+        raise MessageError(
+            f"tf {parent!r} -> {child!r}: translation {translation.tolist()} is not finite or beyond "
+            f"AFFORD_LIMITS__MAX_EXTENT ({limits.max_extent:g} m)"
+        )
+    try:
+        rotation = rotation_of([q.x, q.y, q.z, q.w])
+    except ValueError as error:
+        raise MessageError(f"tf {parent!r} -> {child!r}: rotation {error}") from None
+    transform = np.eye(4)
+    transform[:3, :3], transform[:3, 3] = rotation, translation
+    return RosTransform(parent.strip("/"), child.strip("/"), transform, stamp)
+
+
+class TransformTree:
+    """The robot's tf tree as heard: the newest transform of each child frame from its parent, from /tf and
+    /tf_static alike (a mount is static; the base's pose in odom moves, and the newest is what a mount's
+    lookup needs). Frame names are taken without a leading slash, as tf2 does. Filled on the network
+    thread, read on the worker: hence the lock."""
+
+    def __init__(self, max_frames: int = MAX_TF_FRAMES):
+        self._parents: dict[str, tuple[str, np.ndarray]] = {}
+        self._max_frames = max_frames
+        self._lock = threading.Lock()
+
+    def add(self, transforms: list[RosTransform]) -> None:
+        """Keep each child's newest transform; MessageError, and nothing kept, when the new frames would pass
+        `max_frames` (a tree cannot grow without bound on hostile input)."""
+        with self._lock:
+            new = {t.child for t in transforms} - self._parents.keys()
+            if len(self._parents) + len(new) > self._max_frames:
+                raise MessageError(
+                    f"tf: {len(new)} new frames would make {len(self._parents) + len(new):,}; at most "
+                    f"{self._max_frames:,} are kept"
+                )
+            for t in transforms:
+                self._parents[t.child] = (t.parent, t.transform)
+
+    def __len__(self) -> int:
+        return len(self._parents)
+
+    def lookup(self, target: str, source: str) -> np.ndarray | None:
+        """target_from_source (4 x 4): a point in `source` expressed in `target`, chained through their
+        nearest common ancestor; None when the two are not (yet) joined in the tree."""
+        target, source = target.strip("/"), source.strip("/")
+        with self._lock:
+            up_from_source = self._chain(source)
+            up_from_target = self._chain(target)
+        common = next((frame for frame in up_from_source if frame in up_from_target), None)
+        if common is None:
+            return None
+        return np.linalg.inv(up_from_target[common]) @ up_from_source[common]
+
+    def _chain(self, frame: str) -> dict[str, np.ndarray]:
+        """{ancestor: ancestor_from_frame} for the frame itself and each frame above it, nearest first (a
+        cycle, which tf forbids but a hostile sender can make, ends the walk)."""
+        chain = {frame: np.eye(4)}
+        while frame in self._parents:
+            parent, parent_from_frame = self._parents[frame]
+            if parent in chain:
+                break
+            chain[parent] = parent_from_frame @ chain[frame]
+            frame = parent
+        return chain

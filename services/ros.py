@@ -15,11 +15,15 @@ Both carry the message as CDR, decoded by affordwire.ros. Clouds go through the 
 scan; Imu readings are decoded on arrival (a few hundred bytes, at hundreds of Hz: they would flood the scan
 inbox) into a `GravityTrack`, and each cloud takes the reading nearest its own stamp; Odometry readings
 likewise into a `PoseTrack`, and each cloud takes the pose interpolated at its stamp as its pose guess, moved
-to the cloud's sensor by `AFFORD_ROS__BASE_FROM_CLOUD`.
+to the cloud's sensor by its mount on the odometry's child frame.
 
-The IMU's `frame_id` is not looked up (there is no tf here): unless `AFFORD_ROS__CLOUD_FROM_IMU` gives the
-rotation from the IMU's frame to the cloud's, the IMU is taken to be mounted with the cloud sensor's axes, and
-a difference of frame names is said once on the log; so for the odometry's child frame and the cloud's.
+The mount and the IMU's rotation to the cloud's frame come from the robot's tf (`/tf_static` and `/tf`,
+AFFORD_ROS__TF_STATIC and AFFORD_ROS__TF, into a `TransformTree`), looked up by the frames the messages name;
+`AFFORD_ROS__BASE_FROM_CLOUD` and `AFFORD_ROS__CLOUD_FROM_IMU` stand in for tf where they are set. The static
+transforms are latched: /tf_static is subscribed with a zenoh AdvancedSubscriber whose history query reaches
+the cache of a TRANSIENT_LOCAL publisher (rmw_zenoh's), so a robot that published its tree before the
+assembler started is heard. Until a transform arrives, the sensor is taken to sit at the base's origin and
+the IMU to share the cloud's axes, and the log says so once, naming the frames.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from .settings import RosSettings
 POINTS_SCHEMA = f"ros2:{ros.POINTCLOUD2}"
 IMU_SCHEMA = f"ros2:{ros.IMU}"
 ODOMETRY_SCHEMA = f"ros2:{ros.ODOMETRY}"
+TF_SCHEMA = f"ros2:{ros.TFMESSAGE}"
 
 
 def dds_type(typename: str) -> str:
@@ -89,24 +94,27 @@ class Counts:
     with_gravity: int = 0
     odometry: int = 0
     with_odometry: int = 0
+    transforms: int = 0
 
 
 class RosInput:
-    """The assembler's ROS 2 topics (AFFORD_ROS__POINTS, AFFORD_ROS__IMU, AFFORD_ROS__ODOMETRY). `frame` turns
-    a cloud sample into the assembler's SensorFrame with the gravity of the Imu reading nearest its stamp and
-    the odometry's pose at it."""
+    """The assembler's ROS 2 topics (AFFORD_ROS__POINTS, AFFORD_ROS__IMU, AFFORD_ROS__ODOMETRY, and tf).
+    `frame` turns a cloud sample into the assembler's SensorFrame with the gravity of the Imu reading nearest
+    its stamp and the odometry's pose at it, both turned into the cloud's frame by tf."""
 
     def __init__(self, node: Node, inbox: Inbox):
         self.node, self.settings, self.limits = node, node.settings.ros, node.settings.limits
         ros.typestore()  # RosUnavailable (pip install affordmap[ros]) at the start, not at the first cloud
-        self.rotation = imu_rotation(self.settings)
-        self.gravity = ros.GravityTrack()
+        self.rotation = imu_rotation(self.settings)  # the settings' word over tf's, when given
+        self.gravity = ros.GravityTrack()  # in the IMU's frame
         self.mounting = sensor_mounting(self.settings)
         self.poses = ros.PoseTrack()
+        self.tree = ros.TransformTree()
         self.counts = Counts()
         self.imu_frame: str | None = None
         self.base_frame: str | None = None  # the odometry's child frame
-        self._warned_frames = self._warned_base = self._warned_nonfinite = False
+        self._said: set[tuple] = set()  # what the log has said once
+        self._warned_nonfinite = False
         self.point_keys = topic_keys(self.settings.points, ros.POINTCLOUD2, self.settings)
         self.imu_keys = topic_keys(self.settings.imu, ros.IMU, self.settings) if self.settings.imu else []
         for key in self.point_keys:
@@ -119,6 +127,7 @@ class RosInput:
         self._odometry_subscribers = [
             node.session.declare_subscriber(key, self._on_odometry) for key in self.odometry_keys
         ]
+        self.tf_keys = self._subscribe_tf()
         print(
             f"[{node.service}] ROS 2 in: PointCloud2 on {', '.join(self.point_keys)}"
             + (f"; Imu on {', '.join(self.imu_keys)}" if self.imu_keys else "; no Imu (AFFORD_ROS__IMU)")
@@ -126,9 +135,30 @@ class RosInput:
                 f"; Odometry on {', '.join(self.odometry_keys)}"
                 if self.odometry_keys
                 else "; no odometry (AFFORD_ROS__ODOMETRY)"
-            ),
+            )
+            + (f"; tf on {', '.join(self.tf_keys)}" if self.tf_keys else "; no tf (AFFORD_ROS__TF[_STATIC])"),
             flush=True,
         )
+
+    def _subscribe_tf(self) -> list[str]:
+        """Subscribe to /tf, and to /tf_static with its history (the robot's latched tree), on the keys of
+        every format; the keys."""
+        import zenoh.ext
+
+        keys = []
+        self._tf_subscribers = []
+        for topic, latched in ((self.settings.tf_static, True), (self.settings.tf, False)):
+            for key in topic_keys(topic, ros.TFMESSAGE, self.settings) if topic else []:
+                if latched:
+                    history = zenoh.ext.HistoryConfig(detect_late_publishers=True)
+                    subscriber = zenoh.ext.declare_advanced_subscriber(
+                        self.node.session, key, self._on_tf, history=history
+                    )
+                else:
+                    subscriber = self.node.session.declare_subscriber(key, self._on_tf)
+                self._tf_subscribers.append(subscriber)
+                keys.append(key)
+        return keys
 
     @staticmethod
     def wanted(settings: RosSettings) -> bool:
@@ -143,8 +173,7 @@ class RosInput:
 
     def _take_imu(self, payload: bytes) -> None:
         reading = ros.imu(payload, self.limits)
-        down = reading.down if self.rotation is None else self.rotation @ reading.down
-        self.gravity.add(reading.stamp, down)
+        self.gravity.add(reading.stamp, reading.down)
         self.imu_frame = reading.frame_id
         self.counts.imu += 1
 
@@ -157,6 +186,15 @@ class RosInput:
         self.poses.add(reading.stamp, reading.pose)
         self.base_frame = reading.child_frame_id
         self.counts.odometry += 1
+
+    def _on_tf(self, sample) -> None:
+        """On zenoh's thread: keep a TFMessage's transforms (all or, when one is unusable, none)."""
+        self._on_reading(sample, TF_SCHEMA, self._take_tf)
+
+    def _take_tf(self, payload: bytes) -> None:
+        transforms = ros.tf_message(payload, self.limits)
+        self.tree.add(transforms)
+        self.counts.transforms += len(transforms)
 
     def _on_reading(self, sample, schema: str, take) -> None:
         """Decode and keep a reading; a bad one is answered on the error key (an exception must not escape
@@ -179,9 +217,12 @@ class RosInput:
     def frame(self, item: Inbound, cloud) -> SensorFrame:
         """The SensorFrame of a decoded PointCloud2 sample, with the gravity and pose guess at its stamp."""
         gravity = self.gravity.at(cloud.stamp, self.settings.imu_max_age) if self.imu_keys else None
+        if gravity is not None:
+            rotation = self._cloud_from_imu(cloud.frame_id)
+            gravity = gravity if rotation is None else rotation @ gravity
         guess = None
         if self.odometry_keys:
-            guess = pose_guess(self.poses, cloud.stamp, self.settings, self.mounting)
+            guess = pose_guess(self.poses, cloud.stamp, self.settings, self._base_from_cloud(cloud.frame_id))
         self.counts.clouds += 1
         self.counts.points += cloud.total
         self.counts.read += cloud.read
@@ -196,7 +237,6 @@ class RosInput:
                 "on and reported at the stop",
                 flush=True,
             )
-        self._check_frames(cloud.frame_id)
         return SensorFrame(
             frame_id=cloud.frame_id or "sensor",
             stamp=cloud.stamp,
@@ -205,26 +245,48 @@ class RosInput:
             pose_guess=guess,
         )
 
-    def _check_frames(self, cloud_frame: str) -> None:
+    def _base_from_cloud(self, cloud_frame: str) -> np.ndarray | None:
+        """The cloud sensor's mount on the odometry's child frame: the settings', else tf's, else None (the
+        sensor at the base's origin, with its axes)."""
         base = self.base_frame
-        if not (self._warned_base or base is None or self.mounting is not None or base == cloud_frame):
-            self._warned_base = True
+        if self.mounting is not None or base is None or base.strip("/") == cloud_frame.strip("/"):
+            return self.mounting
+        return self._looked_up(
+            base, cloud_frame, "the sensor is taken to sit at its origin with its axes", "BASE_FROM_CLOUD"
+        )
+
+    def _cloud_from_imu(self, cloud_frame: str) -> np.ndarray | None:
+        """The rotation from the IMU's frame to the cloud's: the settings', else tf's, else None (alike)."""
+        imu_frame = self.imu_frame
+        if self.rotation is not None or imu_frame is None or imu_frame.strip("/") == cloud_frame.strip("/"):
+            return self.rotation
+        transform = self._looked_up(
+            cloud_frame, imu_frame, "the IMU is taken to share the cloud sensor's axes", "CLOUD_FROM_IMU"
+        )
+        return None if transform is None else transform[:3, :3]
+
+    def _looked_up(self, target: str, source: str, meanwhile: str, setting: str) -> np.ndarray | None:
+        """tf's target_from_source, saying once on the log when it is missing and once when it is found."""
+        transform = self.tree.lookup(target, source) if self.tf_keys else None
+        pair = (target, source)
+        if transform is None:
+            if (pair, False) not in self._said:
+                self._said.add((pair, False))
+                heard = f"tf has {len(self.tree)} frames" if self.tf_keys else "tf is not read"
+                print(
+                    f"[{self.node.service}] no transform from {source!r} to {target!r} ({heard}): "
+                    f"{meanwhile}; publish it on {self.settings.tf_static or '/tf_static'} or set "
+                    f"AFFORD_ROS__{setting}",
+                    flush=True,
+                )
+        elif (pair, True) not in self._said:
+            self._said.add((pair, True))
+            x, y, z = transform[:3, 3]
             print(
-                f"[{self.node.service}] the odometry is of frame {base!r}, the clouds in {cloud_frame!r}: "
-                "the sensor is taken to sit at its origin with its axes (no tf is read); set "
-                "AFFORD_ROS__BASE_FROM_CLOUD to where it is mounted otherwise",
+                f"[{self.node.service}] tf: {source!r} sits at ({x:.3f}, {y:.3f}, {z:.3f}) m in {target!r}",
                 flush=True,
             )
-        imu_frame = self.imu_frame
-        if self._warned_frames or imu_frame is None or self.rotation is not None or imu_frame == cloud_frame:
-            return
-        self._warned_frames = True
-        print(
-            f"[{self.node.service}] the Imu is in frame {imu_frame!r}, the clouds in {cloud_frame!r}: taken "
-            "to be mounted alike (no tf is read); set AFFORD_ROS__CLOUD_FROM_IMU to the rotation between "
-            "them otherwise",
-            flush=True,
-        )
+        return transform
 
     def summary(self) -> str:
         c = self.counts
@@ -232,7 +294,7 @@ class RosInput:
             f"ROS 2: {c.clouds} clouds decoded ({c.points:,} points, {c.read:,} of them read, "
             f"{c.nonfinite:,} of those NaN or infinite and dropped), {c.with_gravity} with an Imu gravity, "
             f"{c.with_odometry} with the odometry's pose; {c.imu} Imu and {c.odometry} Odometry readings "
-            "taken"
+            f"and {c.transforms} tf transforms taken"
         )
 
 
@@ -265,6 +327,8 @@ class RecordingStats:
     odometry_topic: str | None = None
     bad_odometry: int = 0
     with_odometry: int = 0
+    tf_topics: tuple[str, ...] = ()
+    bad_tf: int = 0
 
     def describe(self, sent: int, path: Path) -> str:
         gravity = f", {self.with_gravity} with gravity from {self.imu_topic}" if self.imu_topic else ""
@@ -283,6 +347,8 @@ class RecordingStats:
             said.append(
                 f"{self.bad_odometry} unusable Odometry messages of {self.odometry_topic} were left out"
             )
+        if self.bad_tf:
+            said.append(f"{self.bad_tf} unusable TFMessages of {', '.join(self.tf_topics)} were left out")
         if self.nonfinite:
             said.append(f"dropped {self.nonfinite:,} points with NaN or infinite coordinates")
         return said
@@ -329,7 +395,9 @@ def recording_frames(
     Scan keeps its header stamp (the bag's receive time when the header has none): the assembler's motion
     limits use the recorded times, whatever the rate of the replay. `odometry_topic`: a nav_msgs/Odometry
     topic giving each scan its pose guess (default: the only one, if any; none with `odometry` False), the
-    sensor's pose by `settings.base_from_cloud`. RecordingError when the topics are not as asked."""
+    sensor's pose by its mount, and the Imu's gravity turned into the cloud's frame: by
+    `settings.base_from_cloud` and `cloud_from_imu` where set, else by the bag's tf (its `settings.tf_static`
+    and `settings.tf` topics). RecordingError when the topics are not as asked."""
     try:
         from rosbags.highlevel import AnyReader
     except ImportError:
@@ -352,6 +420,8 @@ def recording_frames(
             stats.odometry_topic = _choose(
                 reader, path, ros.ODOMETRY, odometry_topic, "--odometry-topic or --no-odometry"
             )
+        tf_topics = set(_topics_of(reader, ros.TFMESSAGE))
+        stats.tf_topics = tuple(t for t in (settings.tf_static, settings.tf) if t and t in tf_topics)
     except BaseException:
         reader.close()
         raise
@@ -369,31 +439,46 @@ def _stream(reader, stats: RecordingStats, wanted: set[int], settings: RosSettin
     """The wanted clouds as Scans, in order. With an odometry topic a scan waits until a reading at or after
     its stamp is read (the bag is in receive order): its pose is interpolated, not the last before it."""
     rotation, mounting = imu_rotation(settings), sensor_mounting(settings)
-    track, poses = ros.GravityTrack(), ros.PoseTrack()
+    track, poses, tree = ros.GravityTrack(), ros.PoseTrack(), ros.TransformTree()
+    frames = {"imu": None, "base": None}  # the Imu's frame and the odometry's child frame, as read
     waiting: list[tuple[int, messages.Scan, float]] = []
+
+    def looked_up(target, source, override):
+        """The settings' transform, else tf's target_from_source (None: the frames taken to coincide)."""
+        if override is not None or None in (source, target) or source.strip("/") == target.strip("/"):
+            return override
+        return tree.lookup(target, source)
 
     def ready(until: float):
         while waiting and waiting[0][2] <= until:
             index, scan, stamp = waiting.pop(0)
-            guess = pose_guess(poses, stamp, settings, mounting)
+            guess = pose_guess(poses, stamp, settings, looked_up(frames["base"], scan.frame_id, mounting))
             if guess is not None:
                 messages.set_pose(scan.pose_guess, guess, "odom", scan.frame_id, at=stamp)
                 stats.with_odometry += 1
             yield index, scan
 
-    topics = {stats.topic, stats.imu_topic, stats.odometry_topic} - {None}
+    topics = {stats.topic, stats.imu_topic, stats.odometry_topic, *stats.tf_topics} - {None}
     connections = [c for c in reader.connections if c.topic in topics]
     sensor = stats.topic.strip("/").replace("/", "_") or "sensor"
     index, last = -1, max(wanted)
     try:
         for connection, bag_time, raw in reader.messages(connections=connections):
+            if connection.topic in stats.tf_topics:
+                try:
+                    message = reader.deserialize(raw, connection.msgtype)
+                    tree.add([ros.transform_of(t, limits) for t in message.transforms])
+                except Exception:  # noqa: BLE001 - one bad message: the tree keeps what it had
+                    stats.bad_tf += 1
+                continue
             if connection.topic == stats.imu_topic:
                 try:
                     reading = ros.gravity_of(reader.deserialize(raw, connection.msgtype), limits)
                 except Exception:  # noqa: BLE001 - one bad reading: the cloud takes a neighbour's
                     stats.bad_imu += 1
                     continue
-                track.add(reading.stamp, reading.down if rotation is None else rotation @ reading.down)
+                track.add(reading.stamp, reading.down)
+                frames["imu"] = reading.frame_id
                 continue
             if connection.topic == stats.odometry_topic:
                 try:
@@ -402,6 +487,7 @@ def _stream(reader, stats: RecordingStats, wanted: set[int], settings: RosSettin
                     stats.bad_odometry += 1
                     continue
                 poses.add(pose.stamp, pose.pose)
+                frames["base"] = pose.child_frame_id
                 yield from ready(pose.stamp)
                 continue
             index += 1
@@ -422,7 +508,10 @@ def _stream(reader, stats: RecordingStats, wanted: set[int], settings: RosSettin
             messages.stamp(scan.timestamp, stamp)
             gravity = track.at(stamp, settings.imu_max_age) if stats.imu_topic else None
             if gravity is not None:
-                messages.set_vector(scan.gravity, gravity)
+                turn = rotation
+                if turn is None and (tf := looked_up(scan.frame_id, frames["imu"], None)) is not None:
+                    turn = tf[:3, :3]
+                messages.set_vector(scan.gravity, gravity if turn is None else turn @ gravity)
                 stats.with_gravity += 1
             waiting.append((index, scan, stamp))
             if not stats.odometry_topic:

@@ -116,11 +116,22 @@ class RosSettings(BaseModel):
         "pose guess, interpolated at its time; the assembler then registers with the odometry as a prior "
         "(AFFORD_ASSEMBLER__ODOMETRY_PRIOR); empty: none",
     )
+    tf: str = Field(
+        "/tf",
+        description="tf2_msgs/msg/TFMessage topic of the robot's moving transforms; with tf_static, where "
+        "the assembler finds the cloud sensor's mount on the odometry's child frame and the IMU's rotation "
+        "to the cloud's frame; empty: not read",
+    )
+    tf_static: str = Field(
+        "/tf_static",
+        description="tf2_msgs/msg/TFMessage topic of the robot's fixed transforms (latched: what the robot "
+        "published before the assembler started is fetched too); empty: not read",
+    )
     base_from_cloud: list[float] | None = Field(
         None,
         description="where the cloud's sensor is mounted on the odometry's child frame (the robot's base): "
-        "[x, y, z, qx, qy, qz, qw], e.g. '[0.2,0,0.5,0,0,0,1]'; none: at the base's origin, with its axes "
-        "(no tf is read). A sensor ahead of the base moves sideways when the base turns: say where it is",
+        "[x, y, z, qx, qy, qz, qw], e.g. '[0.2,0,0.5,0,0,0,1]', in place of what tf says; none: tf's "
+        "transform, and until tf has one, the base's origin with its axes",
     )
     odometry_max_age: float = Field(
         0.1,
@@ -137,8 +148,8 @@ class RosSettings(BaseModel):
     cloud_from_imu: list[float] | None = Field(
         None,
         description="rotation (quaternion x, y, z, w) from the IMU's frame to the cloud's, e.g. "
-        "'[0,0,0.7071068,0.7071068]'; none: the IMU is taken to be mounted as the cloud's sensor (no tf "
-        "is read)",
+        "'[0,0,0.7071068,0.7071068]', in place of what tf says; none: tf's rotation, and until tf has "
+        "one, the IMU's axes taken to be the cloud sensor's",
     )
     imu_max_age: float = Field(
         0.5,
@@ -162,7 +173,7 @@ class RosSettings(BaseModel):
         "z = 0); a robot's tf needs a transform from its map frame to it",
     )
 
-    @field_validator("points", "imu", "odometry")
+    @field_validator("points", "imu", "odometry", "tf", "tf_static")
     @classmethod
     def _ros_name(cls, topic: str) -> str:
         """Checked before the service starts: a wildcard or space would subscribe to what it should not."""

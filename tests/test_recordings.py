@@ -22,6 +22,8 @@ from test_ros import (  # noqa: E402
     imu_message,
     odometry_message,
     ros_stream,
+    tf_payload,
+    transform_stamped,
 )
 
 from affordwire import messages, ros  # noqa: E402
@@ -31,11 +33,19 @@ STORAGES = ("sqlite3", "mcap")
 
 
 def write_bag(
-    path, storage: str, clouds, imus=(), topic="/camera/points", imu_topic="/imu", extra=(), odometry=()
+    path,
+    storage: str,
+    clouds,
+    imus=(),
+    topic="/camera/points",
+    imu_topic="/imu",
+    extra=(),
+    odometry=(),
+    tf_static=(),
 ):
     """A rosbag2 folder: `clouds`, `imus` and `odometry` are (stamp, CDR) pairs, written at their stamp's time
     (an Imu or Odometry a moment before, a cloud 5 ms after: received after it was taken); `extra` adds
-    topics of other types."""
+    topics of other types; `tf_static`: TFMessage CDR payloads on /tf_static, written first."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     plugin = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}[storage]
@@ -45,6 +55,11 @@ def write_bag(
         odom = writer.add_connection("/odom", ros.ODOMETRY, typestore=STORE) if odometry else None
         for name, typename in extra:
             writer.add_connection(name, typename, typestore=STORE)
+        if tf_static:
+            tf = writer.add_connection("/tf_static", ros.TFMESSAGE, typestore=STORE)
+            start = min(stamp for stamp, _ in clouds)
+            for payload in tf_static:
+                writer.write(tf, int((start - 1) * 1e9), payload)
         for stamp, payload in imus:
             writer.write(gravity, int(stamp * 1e9) - 1000, payload)
         for stamp, payload in odometry:
@@ -54,7 +69,7 @@ def write_bag(
     return path
 
 
-def small_stream(count: int = 6, start: float = 1_700_000_000.0):
+def small_stream(count: int = 6, start: float = 1_700_000_000.0, imu_frame: str = "lidar"):
     """`count` small organised clouds (with NaN returns) 0.1 s apart and 4 Imu readings per cloud, tilting
     slowly, so that each cloud's gravity says which reading it was given."""
     clouds, imus, downs = [], [], []
@@ -69,7 +84,8 @@ def small_stream(count: int = 6, start: float = 1_700_000_000.0):
             angle = 0.01 * (4 * k + j)
             acceleration = G * np.array([np.sin(angle), 0.0, np.cos(angle)])
             s, n = int(at), round((at % 1) * 1e9) % 1_000_000_000
-            imus.append((at, cdr(imu_message(acceleration, sec=s, nanosec=n), ros.IMU)))
+            message = imu_message(acceleration, sec=s, nanosec=n, frame_id=imu_frame)
+            imus.append((at, cdr(message, ros.IMU)))
             if j == 2:
                 downs.append(-acceleration / G)
     return clouds, imus, np.array(downs)
@@ -154,6 +170,32 @@ def test_each_scan_of_a_bag_carries_the_odometry_interpolated_at_its_stamp_on_th
         guess = messages.pose_matrix(scan.pose_guess)
         np.testing.assert_allclose(guess, truth(stamp) @ mounted, atol=2e-4)  # linear between readings
     assert not any(scan.HasField("pose_guess") for scan in scans_of(bag, odometry=False))
+
+
+def test_a_bag_s_tf_static_gives_the_sensor_s_mount_and_the_imu_s_rotation(tmp_path):
+    """The same stream with no mount set, but the bag's /tf_static saying where the sensor sits on the base
+    and how the IMU is turned: each scan's guess is on the sensor, its gravity in the sensor's frame; an
+    unusable TFMessage beside them is left out and reported."""
+    from services.ros import recording_frames
+
+    clouds, imus, downs = small_stream(6, start=1_700_000_000.013, imu_frame="imu_link")
+    readings, truth = odometry_stream(1_700_000_000.0, 0.7)
+    yaw = (0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4))  # the IMU's x is the lidar's y
+    tree = tf_payload(
+        transform_stamped("base_link", "lidar", [0.3, 0.0, 0.4]),
+        transform_stamped("lidar", "imu_link", [0.0, 0.0, 0.1], quaternion=yaw),
+    )
+    broken = tf_payload(transform_stamped("base_link", "lidar", [np.nan, 0, 0]))
+    bag = write_bag(tmp_path / "bag", "mcap", clouds, imus, odometry=readings, tf_static=[tree, broken])
+    stats, stream, _ = recording_frames(bag)
+    scans = [scan for _, scan in stream]
+    mounted = ros.rigid_of([0.3, 0.0, 0.4, 0, 0, 0, 1])
+    turn = ros.rotation_of(yaw)
+    for (stamp, _), scan, down in zip(clouds, scans, downs, strict=True):
+        np.testing.assert_allclose(messages.pose_matrix(scan.pose_guess), truth(stamp) @ mounted, atol=2e-4)
+        np.testing.assert_allclose(messages.gravity_of(scan), turn @ down, atol=1e-9)
+    assert stats.tf_topics == ("/tf_static",) and stats.bad_tf == 1
+    assert "1 unusable TFMessages of /tf_static were left out" in stats.notes()
 
 
 def test_a_broken_cloud_in_a_bag_is_left_out_and_reported(tmp_path):

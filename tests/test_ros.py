@@ -4,6 +4,7 @@ zenoh-plugin-ros2dds's keys; and, end to end, a ROS 2 robot's stream on rmw_zeno
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
 import sys
 import time
@@ -375,6 +376,133 @@ def test_a_sensor_mounted_ahead_of_the_base_moves_sideways_when_the_base_turns()
     assert pose_guess(track, 5.0, settings, sensor_mounting(settings)) is None
 
 
+# -- tf ------------------------------------------------------------------------------------------------------
+
+
+def transform_stamped(parent: str, child: str, translation, yaw_deg: float = 0.0, quaternion=None, sec=1):
+    q = quaternion or (0.0, 0.0, np.sin(np.radians(yaw_deg) / 2), np.cos(np.radians(yaw_deg) / 2))
+    return T["geometry_msgs/msg/TransformStamped"](
+        header=header(sec=sec, nanosec=0, frame_id=parent),
+        child_frame_id=child,
+        transform=T["geometry_msgs/msg/Transform"](
+            translation=T["geometry_msgs/msg/Vector3"](*map(float, translation)),
+            rotation=T["geometry_msgs/msg/Quaternion"](*map(float, q)),
+        ),
+    )
+
+
+def tf_payload(*transforms) -> bytes:
+    return cdr(T[ros.TFMESSAGE](transforms=list(transforms)), ros.TFMESSAGE)
+
+
+def _rigid(translation, yaw_deg: float = 0.0) -> np.ndarray:
+    pose = _pose_at(0.0, yaw_deg)
+    pose[:3, 3] = translation
+    return pose
+
+
+def test_a_tf_message_is_each_child_s_pose_in_its_parent():
+    mount, imu = ros.tf_message(
+        tf_payload(
+            transform_stamped("/base_link", "lidar", [0.2, 0.0, 0.5], 90.0),
+            transform_stamped("base_link", "imu_link", [0.0, 0.1, 0.2]),
+        )
+    )
+    assert (mount.parent, mount.child, imu.parent, imu.child) == (
+        "base_link",
+        "lidar",
+        "base_link",
+        "imu_link",
+    )
+    np.testing.assert_allclose(mount.transform, _rigid([0.2, 0.0, 0.5], 90.0), atol=1e-12)
+    np.testing.assert_allclose(mount.transform[:3, :3] @ [1, 0, 0], [0, 1, 0], atol=1e-12)  # lidar x = base y
+
+
+@pytest.mark.parametrize(
+    ("change", "reason"),
+    [
+        ({"parent": ""}, "both frames must be named"),
+        ({"child": "base_link"}, "both frames must be named, and differ"),
+        ({"translation": [np.nan, 0, 0]}, "not finite"),
+        ({"translation": [0, 0, 1e6]}, "MAX_EXTENT"),
+        ({"quaternion": (0.0, 0.0, 1.0, 1.0)}, "unit quaternion"),
+        ({"child": "x" * (ros.MAX_FRAME_ID + 1)}, "characters"),
+    ],
+)
+def test_a_tf_message_with_one_unusable_transform_is_refused_whole(change, reason):
+    arguments = {"parent": "base_link", "child": "lidar", "translation": [0.2, 0, 0.5]} | change
+    quaternion = arguments.pop("quaternion", None)
+    bad = transform_stamped(
+        arguments["parent"], arguments["child"], arguments["translation"], quaternion=quaternion
+    )
+    good = transform_stamped("base_link", "imu_link", [0, 0, 0.1])
+    with pytest.raises(MessageError, match=reason):
+        ros.tf_message(tf_payload(good, bad))
+
+
+def test_an_oversized_or_malformed_tf_message_is_refused_before_parsing():
+    with pytest.raises(MessageError, match="at most"):
+        ros.tf_message(b"\x00\x01\x00\x00" + b"\x00" * (ros.MAX_TF_BYTES + 1))
+    with pytest.raises(MessageError, match="not a CDR tf2_msgs/msg/TFMessage"):
+        ros.tf_message(tf_payload(transform_stamped("base_link", "lidar", [0, 0, 0]))[:30])
+
+
+def _tree(*transforms) -> ros.TransformTree:
+    tree = ros.TransformTree()
+    tree.add(ros.tf_message(tf_payload(*transforms)))
+    return tree
+
+
+def test_the_transform_tree_chains_frames_through_their_nearest_common_ancestor():
+    tree = _tree(
+        transform_stamped("odom", "base_link", [1.0, 0.0, 0.0], 90.0),
+        transform_stamped("base_link", "mast", [0.0, 0.0, 1.0]),
+        transform_stamped("mast", "lidar", [0.1, 0.0, 0.0], 180.0),
+        transform_stamped("base_link", "imu_link", [0.0, 0.2, 0.0], -90.0),
+    )
+    base_from_lidar = tree.lookup("base_link", "lidar")
+    np.testing.assert_allclose(base_from_lidar, _rigid([0, 0, 1]) @ _rigid([0.1, 0, 0], 180.0), atol=1e-12)
+    np.testing.assert_allclose(base_from_lidar @ [0, 0, 0, 1], [0.1, 0.0, 1.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(tree.lookup("lidar", "base_link"), np.linalg.inv(base_from_lidar), atol=1e-12)
+    # siblings under base_link: the IMU in the lidar's frame, and a point through both ways round
+    lidar_from_imu = tree.lookup("/lidar", "imu_link")
+    point = np.array([0.3, -0.2, 0.4, 1.0])
+    np.testing.assert_allclose(
+        base_from_lidar @ lidar_from_imu @ point, tree.lookup("base_link", "imu_link") @ point
+    )
+    np.testing.assert_allclose(
+        tree.lookup("odom", "lidar"), tree.lookup("odom", "base_link") @ base_from_lidar
+    )
+    assert tree.lookup("lidar", "camera") is None and tree.lookup("map", "odom") is None
+    np.testing.assert_allclose(tree.lookup("lidar", "lidar"), np.eye(4))
+
+
+def test_the_newest_transform_of_a_frame_holds_and_a_cycle_ends_the_walk():
+    tree = _tree(transform_stamped("base_link", "lidar", [0.1, 0, 0]))
+    tree.add(ros.tf_message(tf_payload(transform_stamped("base_link", "lidar", [0.3, 0, 0], sec=2))))
+    np.testing.assert_allclose(tree.lookup("base_link", "lidar")[:3, 3], [0.3, 0, 0])
+    tree.add(ros.tf_message(tf_payload(transform_stamped("lidar", "base_link", [0, 0, 1]))))  # a cycle
+    assert tree.lookup("base_link", "camera") is None  # returns, whatever it finds
+
+
+def test_the_transform_tree_keeps_a_bounded_number_of_frames():
+    tree = ros.TransformTree(max_frames=3)
+    tree.add(ros.tf_message(tf_payload(*(transform_stamped("base", f"f{i}", [0, 0, i]) for i in range(3)))))
+    with pytest.raises(MessageError, match="at most 3"):
+        tree.add(
+            ros.tf_message(
+                tf_payload(
+                    transform_stamped("base", "f1", [0, 0, 5]), transform_stamped("base", "f9", [0, 0, 0])
+                )
+            )
+        )
+    np.testing.assert_allclose(tree.lookup("base", "f1")[:3, 3], [0, 0, 1])  # nothing of the refused one kept
+    tree.add(
+        ros.tf_message(tf_payload(transform_stamped("base", "f1", [0, 0, 7])))
+    )  # known frames still move
+    assert len(tree) == 3 and tree.lookup("base", "f1")[2, 3] == 7
+
+
 @pytest.mark.parametrize("pose", ["[0, 0, 0, 0, 0, 1, 1]", "[0, 0, 0, 0, 0, 1]", "[NaN, 0, 0, 0, 0, 0, 1]"])
 def test_a_sensor_mounting_that_is_no_pose_is_refused_before_the_service_starts(pose, monkeypatch):
     from pydantic import ValidationError
@@ -471,14 +599,10 @@ def rmw_zenoh_key(topic: str, typename: str, domain: int = 0) -> str:
 
 
 @pytest.fixture
-def ros_assembler(tmp_path, monkeypatch):
-    """An assembler (in a thread) with a router, taking /robot1/points, /robot1/imu and /robot1/odom."""
-    import threading
-
-    from services.assembler import AssemblerService
+def ros_network(monkeypatch):
+    """(a router's endpoint, the robot's session on it), the assembler's ROS topics /robot1/points,
+    /robot1/imu and /robot1/odom set."""
     from services.launch import free_port
-    from services.node import Node
-    from services.settings import ServiceSettings
     from services.transport import open_session
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -487,18 +611,40 @@ def ros_assembler(tmp_path, monkeypatch):
     monkeypatch.setenv("AFFORD_ROS__IMU", "/robot1/imu")
     monkeypatch.setenv("AFFORD_ROS__ODOMETRY", "/robot1/odom")
     monkeypatch.setenv("AFFORD_SERVICE__MAX_LAG", "600")
+    client = open_session([endpoint])
+    try:
+        yield endpoint, client
+    finally:
+        client.close()
+        router.close()
+
+
+@contextlib.contextmanager
+def running_assembler(endpoint: str, tmp_path):
+    """The assembler service in a thread, stopped on leaving."""
+    import threading
+
+    from services.assembler import AssemblerService
+    from services.node import Node
+    from services.settings import ServiceSettings
+
     node = Node("assembler", "robot1", [endpoint], ServiceSettings(), rrd=tmp_path / "a.rrd")
     service = AssemblerService(node)
     thread = threading.Thread(target=service.run, daemon=True)
     thread.start()
-    client = open_session([endpoint])
     try:
-        yield service, client
+        yield service
     finally:
         node.stop_event.set()
         thread.join(30)
-        client.close()
-        router.close()
+
+
+@pytest.fixture
+def ros_assembler(ros_network, tmp_path):
+    """An assembler (in a thread) and the robot's session."""
+    endpoint, client = ros_network
+    with running_assembler(endpoint, tmp_path) as service:
+        yield service, client
 
 
 def _answers(client) -> tuple[list, list, list]:
@@ -601,6 +747,108 @@ def test_the_assembler_takes_each_cloud_s_pose_guess_from_the_odometry_and_answe
     assert service.ros.counts.with_odometry == 2
     # the last cloud's guess: the base at 0.25 s, interpolated (2.5 cm); the sensor is taken to sit on it
     np.testing.assert_allclose(service.assembler._last_guess[:3, 3], [0.025, 0.0, 0.0], atol=1e-9)
+    for subscriber in subscribers:
+        subscriber.undeclare()
+
+
+@pytest.mark.skipif(not _zenoh_ok(), reason="zenoh is not installed")
+def test_the_assembler_takes_the_mount_and_the_imu_s_rotation_from_the_robot_s_latched_tf(
+    ros_network, tmp_path, capfd
+):
+    """The robot publishes its tree on /tf_static (TRANSIENT_LOCAL, as rmw_zenoh: a cached publisher) before
+    the assembler starts: the lidar 0.5 m ahead of the base, the IMU rolled 90 degrees. The assembler fetches
+    it, puts each cloud's pose guess at the lidar rather than the base, and turns the IMU's gravity into the
+    lidar's frame; a bad TFMessage on /tf is answered on the error key."""
+    import zenoh
+    from conftest import eventually
+
+    from affordwire import messages
+
+    endpoint, client = ros_network
+    roll = (np.sin(np.pi / 4), 0.0, 0.0, np.cos(np.pi / 4))  # imu y -> base z
+    tree = tf_payload(
+        transform_stamped("base_link", "lidar", [0.5, 0.0, 0.0]),
+        transform_stamped("base_link", "imu_link", [0.0, 0.0, 0.2], quaternion=roll),
+    )
+    latched = zenoh.ext.declare_advanced_publisher(
+        client,
+        rmw_zenoh_key("/tf_static", ros.TFMESSAGE),
+        cache=zenoh.ext.CacheConfig(1),
+        publisher_detection=True,
+        # as rmw_zenoh's TRANSIENT_LOCAL publisher: the cache sequenced by number (no timestamping needed)
+        sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=0.5),
+    )
+    latched.put(tree)
+    with running_assembler(endpoint, tmp_path) as service:
+        errors, poses, subscribers = _answers(client)
+        assert eventually(lambda: service.ros.counts.transforms == 2, timeout=20, poll=0.02)
+        block = zenoh.CongestionControl.BLOCK
+        odometry, imu, clouds, tf = (
+            client.declare_publisher(key, congestion_control=block)
+            for key in ("robot1/odom", "robot1/imu", "robot1/points", "tf")
+        )
+        assert all(eventually_matched(p) for p in (odometry, imu, clouds, tf))
+        base = int(time.time())
+        for k in range(2):  # the base at the origin, turned 90 degrees
+            stamp = dict(sec=base, nanosec=k * 100_000_000)
+            odometry.put(
+                cdr(
+                    odometry_message([0, 0, 0], [0, 0, np.sin(np.pi / 4), np.cos(np.pi / 4)], **stamp),
+                    ros.ODOMETRY,
+                )
+            )
+            imu.put(
+                cdr(imu_message([0.0, G, 0.0], frame_id="imu_link", **stamp), ros.IMU)
+            )  # up: the IMU's +y
+        tf.put(
+            tf_payload(transform_stamped("base_link", "lidar", [0.5, 0, 0], quaternion=(0.0, 0.0, 0.0, 0.0)))
+        )
+        assert eventually(
+            lambda: service.ros.counts.odometry == 2 and service.ros.counts.imu == 2 and len(errors) == 1,
+            timeout=20,
+            poll=0.02,
+        )
+        clouds.put(cdr(cloud_message(_camera_floor(3), sec=base, nanosec=50_000_000, frame_id="lidar")))
+        assert eventually(lambda: len(poses) == 1, timeout=20), errors
+        # the lidar sits 0.5 m ahead of the base, which faces +y: at (0, 0.5, 0)
+        np.testing.assert_allclose(service.assembler._last_guess[:3, 3], [0.0, 0.5, 0.0], atol=1e-9)
+        # the IMU's down (its -y) is the lidar's -z
+        gravity = service.assembler._gravity_sum
+        np.testing.assert_allclose(gravity / np.linalg.norm(gravity), [0, 0, -1], atol=1e-6)
+        assert "unit quaternion" in messages.parse(messages.Error, errors[0]).reason
+        assert service.ros.counts.transforms == 2  # the refused message kept nothing
+        for subscriber in subscribers:
+            subscriber.undeclare()
+    latched.undeclare()
+    said = capfd.readouterr().out
+    assert "tf: 'lidar' sits at (0.500, 0.000, 0.000) m in 'base_link'" in said
+    assert "no transform" not in said
+
+
+@pytest.mark.skipif(not _zenoh_ok(), reason="zenoh is not installed")
+def test_a_missing_transform_is_said_once_naming_the_frames(ros_assembler, capfd):
+    import zenoh
+    from conftest import eventually
+
+    service, client = ros_assembler
+    errors, poses, subscribers = _answers(client)
+    block = zenoh.CongestionControl.BLOCK
+    odometry, clouds = (
+        client.declare_publisher(key, congestion_control=block) for key in ("robot1/odom", "robot1/points")
+    )
+    assert eventually_matched(odometry) and eventually_matched(clouds)
+    base = int(time.time())
+    odometry.put(cdr(odometry_message([0.2, 0, 0], sec=base, nanosec=0), ros.ODOMETRY))
+    assert eventually(lambda: service.ros.counts.odometry == 1, timeout=20, poll=0.02)
+    for k in range(3):
+        clouds.put(
+            cdr(cloud_message(_camera_floor(4 + k), sec=base, nanosec=10_000_000 * k, frame_id="lidar"))
+        )
+    assert eventually(lambda: len(poses) == 3, timeout=20), errors
+    np.testing.assert_allclose(service.assembler._last_guess[:3, 3], [0.2, 0, 0], atol=1e-9)  # at the base
+    said = capfd.readouterr().out
+    assert said.count("no transform from 'lidar' to 'base_link' (tf has 0 frames)") == 1, said
+    assert "AFFORD_ROS__BASE_FROM_CLOUD" in said
     for subscriber in subscribers:
         subscriber.undeclare()
 
