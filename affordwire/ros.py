@@ -415,6 +415,31 @@ def tf_message(payload: bytes, limits: LimitSettings | None = None) -> list[RosT
     return [transform_of(t, limits) for t in deserialize(payload, TFMESSAGE).transforms]
 
 
+def tf_bytes(transforms: list[RosTransform]) -> bytes:
+    """CDR bytes of a tf2_msgs/msg/TFMessage holding the transforms, each stamped with its own time."""
+    from scipy.spatial.transform import Rotation
+
+    types = typestore().types
+    stamped = []
+    for t in transforms:
+        seconds, nanoseconds = divmod(round(t.stamp * 1e9), 1_000_000_000)
+        x, y, z, w = Rotation.from_matrix(t.transform[:3, :3]).as_quat()
+        stamped.append(
+            types["geometry_msgs/msg/TransformStamped"](
+                header=types["std_msgs/msg/Header"](
+                    stamp=types["builtin_interfaces/msg/Time"](sec=seconds, nanosec=nanoseconds),
+                    frame_id=t.parent,
+                ),
+                child_frame_id=t.child,
+                transform=types["geometry_msgs/msg/Transform"](
+                    translation=types["geometry_msgs/msg/Vector3"](*map(float, t.transform[:3, 3])),
+                    rotation=types["geometry_msgs/msg/Quaternion"](float(x), float(y), float(z), float(w)),
+                ),
+            )
+        )
+    return serialize(types[TFMESSAGE](transforms=stamped), TFMESSAGE)
+
+
 def transform_of(stamped, limits: LimitSettings | None = None) -> RosTransform:
     """A geometry_msgs/msg/TransformStamped object; refused when a frame is unnamed, its own parent or too
     long, the translation not finite or beyond AFFORD_LIMITS__MAX_EXTENT, the rotation no unit quaternion."""
@@ -467,6 +492,12 @@ class TransformTree:
 
     def __len__(self) -> int:
         return len(self._parents)
+
+    def __contains__(self, frame: str) -> bool:
+        """Whether the tree names the frame, as a child or as a parent."""
+        frame = frame.strip("/")
+        with self._lock:
+            return frame in self._parents or any(parent == frame for parent, _ in self._parents.values())
 
     def lookup(self, target: str, source: str) -> np.ndarray | None:
         """target_from_source (4 x 4): a point in `source` expressed in `target`, chained through their

@@ -18,6 +18,7 @@ from affordwire.sensors import decode_sensor
 
 from .node import Inbound, Node
 from .ros import RosInput
+from .ros_maps import WorldInTf
 
 # seconds without scans after which a pending map goes out whatever the rate limit
 QUIET_BEFORE_PUBLISHING = 0.5
@@ -46,6 +47,10 @@ class AssemblerService:
         node.subscribe(node.keys.scans, self.inbox)
         # ROS 2 clouds (and Imu gravity) too, when AFFORD_ROS__POINTS names a topic (services/ros.py)
         self.ros = RosInput(node, self.inbox) if RosInput.wanted(node.settings.ros) else None
+        # afford's world in the robot's tf, when the maps go out on ROS 2 and the odometry ties the frames
+        self.world_tf = None
+        if self.ros is not None and WorldInTf.wanted(node.settings.ros):
+            self.world_tf = WorldInTf(node, self.ros)
         for key in (node.keys.cloud, node.keys.pose):
             node.answer_latest(key)
         node.on_reset = self.forget
@@ -85,6 +90,8 @@ class AssemblerService:
         # with scans waiting, a cheaper registration: more frames taken, fewer skipped to keep up
         busy = len(self.inbox) > 0
         record = self.assembler.add(frame, at, busy)  # a refused frame raises here and changes nothing
+        if self.ros is not None:
+            self.ros.tie(record.pose, frame.pose_guess)
         self.node.no_output = ""  # the map has changed: whether it makes one is not known until the next try
         if self.store:
             self.store.append(record)  # before anything goes out about it
@@ -152,6 +159,8 @@ class AssemblerService:
             origins=self.assembler.sensor_origins(world_from_odom, self.node.settings.visibility.max_origins),
         )
         self.node.publish(self.node.keys.cloud, cloud)
+        if self.world_tf is not None:
+            self.world_tf.publish(world_from_odom, self.last_stamp)
         self.last_published = self.last_attempt = time.monotonic()
         self.pending, self.behind = False, False
         set_time(self.node.recording, self.last_stamp)

@@ -113,6 +113,10 @@ class RosInput:
         self.counts = Counts()
         self.imu_frame: str | None = None
         self.base_frame: str | None = None  # the odometry's child frame
+        self.odom_frame: str | None = None  # the odometry's own frame (its header's)
+        # the robot's odometry frame from the assembler's (its first sensor frame), by the newest frame that
+        # came with a pose guess: what ties afford's world to the robot's tf
+        self.odom_from_assembler: np.ndarray | None = None
         self._said: set[tuple] = set()  # what the log has said once
         self._warned_nonfinite = False
         self.point_keys = topic_keys(self.settings.points, ros.POINTCLOUD2, self.settings)
@@ -143,19 +147,21 @@ class RosInput:
     def _subscribe_tf(self) -> list[str]:
         """Subscribe to /tf, and to /tf_static with its history (the robot's latched tree), on the keys of
         every format; the keys."""
+        import zenoh
         import zenoh.ext
 
         keys = []
         self._tf_subscribers = []
+        remote = zenoh.Locality.REMOTE  # not the world's transform this service publishes itself
         for topic, latched in ((self.settings.tf_static, True), (self.settings.tf, False)):
             for key in topic_keys(topic, ros.TFMESSAGE, self.settings) if topic else []:
                 if latched:
                     history = zenoh.ext.HistoryConfig(detect_late_publishers=True)
                     subscriber = zenoh.ext.declare_advanced_subscriber(
-                        self.node.session, key, self._on_tf, history=history
+                        self.node.session, key, self._on_tf, history=history, allowed_origin=remote
                     )
                 else:
-                    subscriber = self.node.session.declare_subscriber(key, self._on_tf)
+                    subscriber = self.node.session.declare_subscriber(key, self._on_tf, allowed_origin=remote)
                 self._tf_subscribers.append(subscriber)
                 keys.append(key)
         return keys
@@ -184,7 +190,7 @@ class RosInput:
     def _take_odometry(self, payload: bytes) -> None:
         reading = ros.odometry(payload, self.limits)
         self.poses.add(reading.stamp, reading.pose)
-        self.base_frame = reading.child_frame_id
+        self.base_frame, self.odom_frame = reading.child_frame_id, reading.frame_id
         self.counts.odometry += 1
 
     def _on_tf(self, sample) -> None:
@@ -244,6 +250,12 @@ class RosInput:
             gravity=gravity,
             pose_guess=guess,
         )
+
+    def tie(self, odom_from_sensor: np.ndarray, guess: np.ndarray | None) -> None:
+        """A registered frame's pose in the assembler's odometry frame, beside the pose the robot's odometry
+        gave it (its guess, in the robot's odometry frame): the two frames' offset, newest kept."""
+        if guess is not None:
+            self.odom_from_assembler = guess @ np.linalg.inv(odom_from_sensor)
 
     def _base_from_cloud(self, cloud_frame: str) -> np.ndarray | None:
         """The cloud sensor's mount on the odometry's child frame: the settings', else tf's, else None (the

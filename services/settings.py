@@ -170,7 +170,8 @@ class RosSettings(BaseModel):
     maps_frame_id: str = Field(
         "world",
         description="the frame_id of the maps' headers: afford's world (gravity-aligned, z up, floor at "
-        "z = 0); a robot's tf needs a transform from its map frame to it",
+        "z = 0); with odometry and the maps on, the assembler publishes its pose in the odometry's frame on "
+        "tf_static; a name the robot's tf does not use",
     )
 
     @field_validator("points", "imu", "odometry", "tf", "tf_static")

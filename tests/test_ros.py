@@ -853,6 +853,60 @@ def test_a_missing_transform_is_said_once_naming_the_frames(ros_assembler, capfd
         subscriber.undeclare()
 
 
+@pytest.mark.skipif(not _zenoh_ok(), reason="zenoh is not installed")
+def test_with_odometry_the_assembler_puts_afford_s_world_in_the_robot_s_tf(
+    ros_network, tmp_path, monkeypatch
+):
+    """With the maps on ROS 2 and odometry, each map the assembler aligns puts the pose of `world` in the
+    odometry's frame on /tf_static, latched (a subscriber that joins after it was sent gets it): a point of
+    the map in world is where the robot's odometry saw it."""
+    import zenoh
+    from conftest import eventually
+
+    from affordwire import messages
+    from services.transport import Keys
+
+    monkeypatch.setenv("AFFORD_ROS__MAPS", "true")
+    endpoint, client = ros_network
+    clouds = []
+    on_cloud = client.declare_subscriber(Keys("robot1").cloud, lambda s: clouds.append(s.payload.to_bytes()))
+    turned = (0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4))
+    with running_assembler(endpoint, tmp_path) as service:
+        block = zenoh.CongestionControl.BLOCK
+        odometry, points = (
+            client.declare_publisher(key, congestion_control=block)
+            for key in ("robot1/odom", "robot1/points")
+        )
+        assert eventually_matched(odometry) and eventually_matched(points)
+        base = int(time.time())
+        for k in range(4):  # the robot stands at (1, 2) in odom, turned 90 degrees; its lidar is the base
+            stamp = dict(sec=base, nanosec=k * 100_000_000)
+            odometry.put(cdr(odometry_message([1.0, 2.0, 0.0], turned, child="lidar", **stamp), ros.ODOMETRY))
+        assert eventually(lambda: service.ros.counts.odometry == 4, timeout=20, poll=0.02)
+        for k in range(3):
+            stamp = dict(sec=base, nanosec=50_000_000 + k * 100_000_000)
+            points.put(cdr(cloud_message(_camera_floor(10 + k), frame_id="lidar", **stamp)))
+        assert eventually(lambda: clouds and service.world_tf.published, timeout=30), service.node.no_output
+        heard = []
+        late = zenoh.ext.declare_advanced_subscriber(
+            client,
+            rmw_zenoh_key("/tf_static", ros.TFMESSAGE),
+            lambda sample: heard.append(sample.payload.to_bytes()),
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
+        )
+        assert eventually(lambda: heard, timeout=20)
+        late.undeclare()
+    on_cloud.undeclare()
+    (transform,) = ros.tf_message(heard[-1])
+    assert (transform.parent, transform.child) == ("odom", "world")
+    world_from_assembler = messages.pose_matrix(
+        messages.parse(messages.CloudMessage, clouds[-1]).world_from_input
+    )
+    # the first cloud's sensor origin (the assembler's odometry frame) is the robot's pose in odom
+    odom_from_sensor = ros.rigid_of([1.0, 2.0, 0.0, *turned])
+    np.testing.assert_allclose(transform.transform @ world_from_assembler, odom_from_sensor, atol=1e-4)
+
+
 # -- end to end: a ROS 2 robot on rmw_zenoh keys -------------------------------------------------------------
 
 
