@@ -73,14 +73,17 @@ if [ ! -x .venv/bin/python ]; then
   echo "bootstrap: creating .venv with $PY" >&2
   "$PY" -m venv .venv
 fi
-# the tests also install Ray ([cluster]), so tests/test_cluster.py runs a head and a worker node in CI; a
-# .venv set up for the tests has everything the demo needs, so `demo` after `test` installs nothing
+# the tests also install Ray ([cluster]), so tests/test_cluster.py runs a head and a worker node in CI, and
+# a .venv set up for the tests has everything the demo needs, so `demo` after `test` installs nothing;
 stamp_of() { (cat pyproject.toml; echo "$1") | sha256sum | cut -d' ' -f1; }
+# and real ROS 2's rclpy ([ros2-test], where its wheels exist for this Python), which tests/test_rclpy.py
+# checks the wire against
 extras="all,test"
-[ "$job" = test ] && extras="all,cluster,test"
+test_extras="all,cluster,test,ros2-test"
+[ "$job" = test ] && extras=$test_extras
 stamp=$(stamp_of "$extras")
 installed=$(cat .venv/.afford-stamp 2>/dev/null || true)
-if [ "$installed" != "$stamp" ] && [ "$installed" != "$(stamp_of all,cluster,test)" ]; then
+if [ "$installed" != "$stamp" ] && [ "$installed" != "$(stamp_of "$test_extras")" ]; then
   echo "bootstrap: installing affordmap and its dependencies into .venv (a minute or two)" >&2
   .venv/bin/python -m pip install --quiet --upgrade pip
   .venv/bin/python -m pip install --quiet -e ".[$extras]"

@@ -1,0 +1,175 @@
+"""The wire against real ROS 2: the type hashes rmw_zenoh keys carry, and CDR both ways, checked with ROS 2
+Kilted's own rclpy and message packages (the [ros2-test] extra, PyPI wheels for CPython 3.11 on x86-64 Linux),
+not with rosbags, the library the project makes and reads its messages with. Elsewhere these tests skip.
+
+DDS stays on this machine: discovery is limited to localhost, on a domain of its own."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rosbags")
+rclpy = pytest.importorskip(
+    "rclpy", reason="real ROS 2 is not installed: pip install -e '.[ros2-test]' (CPython 3.11, x86-64 Linux)"
+)
+
+from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
+from test_ros_maps import check_confidence, check_markers, check_places, small_map  # noqa: E402
+
+from affordwire import ros, ros_maps  # noqa: E402
+
+# every type the project puts on the wire or reads from it, and the rclpy class of each
+TYPES = {
+    ros.POINTCLOUD2: ("sensor_msgs.msg", "PointCloud2"),
+    ros.IMU: ("sensor_msgs.msg", "Imu"),
+    ros.ODOMETRY: ("nav_msgs.msg", "Odometry"),
+    ros_maps.PLACES: ("geometry_msgs.msg", "PoseArray"),
+    ros_maps.MARKERS: ("visualization_msgs.msg", "MarkerArray"),
+    "visualization_msgs/msg/Marker": ("visualization_msgs.msg", "Marker"),
+    ros_maps.CONFIDENCE: ("nav_msgs.msg", "OccupancyGrid"),
+    # a TFMessage is a sequence of these (tf2_msgs has no wheel on PyPI: its own hash is not checked here)
+    "geometry_msgs/msg/TransformStamped": ("geometry_msgs.msg", "TransformStamped"),
+}
+
+
+def message_class(typename: str):
+    import importlib
+
+    module, name = TYPES[typename]
+    return getattr(importlib.import_module(module), name)
+
+
+@pytest.fixture(scope="module")
+def node():
+    from rclpy.signals import SignalHandlerOptions
+
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    os.environ.setdefault(
+        "AMENT_PREFIX_PATH", sys.prefix
+    )  # the wheels' share/ is the venv's, as a setup.bash says
+    os.environ["ROS_DOMAIN_ID"] = str(100 + os.getpid() % 100)  # away from a robot's and other runs'
+    context = rclpy.context.Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    made = rclpy.create_node("afford_wire_check", context=context)
+    try:
+        yield made
+    finally:
+        made.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+def installed_hash(typename: str) -> str:
+    """The RIHS01 hash in the package's installed type description (share/<package>/msg/<Name>.json)."""
+    from ament_index_python.packages import get_package_share_directory
+
+    package, _, name = typename.split("/")
+    description = json.loads(
+        (Path(get_package_share_directory(package)) / "msg" / f"{name}.json").read_text()
+    )
+    return next(h["hash_string"] for h in description["type_hashes"] if h["type_name"] == typename)
+
+
+def test_every_type_hash_in_the_project_s_keys_is_real_ros2_s(node):
+    """rmw_zenoh's keys end in the type's hash: a key with another hash than the subscriber's matches
+    nothing. The project's (rosbags') hashes against the installed definitions and a real publisher's."""
+    topics = {typename: f"/afford_check/t{i}" for i, typename in enumerate(TYPES)}
+    publishers = [node.create_publisher(message_class(t), topic, 1) for t, topic in topics.items()]
+    deadline = time.monotonic() + 10
+    reported = {}
+    while len(reported) < len(topics) and time.monotonic() < deadline:
+        for typename, topic in topics.items():
+            info = node.get_publishers_info_by_topic(topic)
+            if info:
+                reported[typename] = str(info[0].topic_type_hash)
+        time.sleep(0.05)
+    for typename in TYPES:
+        ours = ros_maps.type_hash(typename)
+        assert ours == installed_hash(typename) == reported[typename], typename
+    for publisher in publishers:
+        node.destroy_publisher(publisher)
+
+
+def _fields(names_offsets, datatype: int = 7):
+    from sensor_msgs.msg import PointField
+
+    return [PointField(name=n, offset=o, datatype=datatype, count=1) for n, o in names_offsets]
+
+
+def test_an_organised_padded_cloud_rclpy_serialises_decodes_right():
+    """3 x 4 points, x y z float32 after an intensity, each point padded to 20 bytes and each row by 8 more, a
+    missing return as NaN: the finite points come out, in order."""
+    from sensor_msgs.msg import PointCloud2
+
+    height, width, point_step, row_step = 3, 4, 20, 4 * 20 + 8
+    xyz = np.arange(height * width * 3, dtype=np.float32).reshape(height, width, 3) / 10
+    xyz[1, 2] = np.nan
+    data = np.zeros((height, row_step), np.uint8)
+    for r in range(height):
+        for c in range(width):
+            data[r, c * point_step + 4 : c * point_step + 16] = np.frombuffer(xyz[r, c].tobytes(), np.uint8)
+    message = PointCloud2(height=height, width=width, point_step=point_step, row_step=row_step)
+    message.header.frame_id, message.header.stamp.sec = "camera_depth_optical_frame", 1_700_000_000
+    message.fields = _fields([("intensity", 0), ("x", 4), ("y", 8), ("z", 12)])
+    message.data = data.tobytes()
+    cloud = ros.pointcloud2(serialize_message(message))
+    finite = xyz.reshape(-1, 3)[np.isfinite(xyz.reshape(-1, 3)).all(axis=1)]
+    np.testing.assert_array_equal(cloud.points, finite.astype(np.float64))
+    assert (cloud.nonfinite, cloud.total, cloud.frame_id, cloud.stamp) == (
+        1,
+        12,
+        "camera_depth_optical_frame",
+        1_700_000_000.0,
+    )
+
+
+def test_a_big_endian_float64_cloud_rclpy_serialises_decodes_right():
+    from sensor_msgs.msg import PointCloud2
+
+    xyz = np.array([[1.5, -2.25, 3.0], [0.125, 4.0, -1.0]])
+    message = PointCloud2(height=1, width=2, point_step=24, row_step=48, is_bigendian=True, is_dense=True)
+    message.fields = _fields([("x", 0), ("y", 8), ("z", 16)], datatype=8)
+    message.data = xyz.astype(">f8").tobytes()
+    np.testing.assert_array_equal(ros.pointcloud2(serialize_message(message)).points, xyz)
+
+
+def test_imu_and_odometry_rclpy_serialises_decode_right():
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import Imu
+
+    imu = Imu()
+    imu.header.frame_id, imu.header.stamp.sec, imu.header.stamp.nanosec = "imu_link", 12, 500_000_000
+    imu.linear_acceleration.x, imu.linear_acceleration.z = 0.5, 9.79
+    reading = ros.imu(serialize_message(imu))
+    np.testing.assert_allclose(reading.down, -np.array([0.5, 0, 9.79]) / np.hypot(0.5, 9.79))
+    assert (reading.frame_id, reading.stamp) == ("imu_link", 12.5)
+    odometry = Odometry(child_frame_id="base_link")
+    odometry.header.frame_id = "odom"
+    odometry.pose.pose.position.x, odometry.pose.pose.position.y = 1.0, -2.0
+    half = np.radians(40) / 2
+    odometry.pose.pose.orientation.z, odometry.pose.pose.orientation.w = np.sin(half), np.cos(half)
+    pose = ros.odometry(serialize_message(odometry))
+    assert (pose.frame_id, pose.child_frame_id) == ("odom", "base_link")
+    np.testing.assert_allclose(pose.pose[:3, 3], [1.0, -2.0, 0.0])
+    np.testing.assert_allclose(pose.pose[:2, 0], [np.cos(2 * half), np.sin(2 * half)], atol=1e-12)
+
+
+def test_the_maps_the_project_makes_deserialise_in_rclpy():
+    from geometry_msgs.msg import PoseArray
+    from nav_msgs.msg import OccupancyGrid
+    from visualization_msgs.msg import MarkerArray
+
+    message, confidence = small_map()
+    colour = (0.2, 0.4, 0.6, 1.0)
+    check_places(deserialize_message(ros_maps.pose_array(message, "world"), PoseArray), message)
+    check_markers(
+        deserialize_message(ros_maps.marker_array(message, "world", colour), MarkerArray), message, colour
+    )
+    grid = deserialize_message(ros_maps.occupancy_grid(message, "world"), OccupancyGrid)
+    check_confidence(grid, message, confidence)
