@@ -37,11 +37,12 @@ from affordwire import messages, ros, ros_maps
 from .node import Node
 from .ros import dds_type
 
-# rmw_zenoh's QoS field of a liveliness token (liveliness_utils.cpp, qos_to_keyexpr): reliability
-# RELIABLE (1), durability TRANSIENT_LOCAL (1), history KEEP_LAST (1) of depth 1; deadline, lifespan and
-# liveliness left to the defaults. Written out, not left to rmw_zenoh's defaults: those changed between
-# releases.
-TOKEN_QOS = "1:1:1,1:,:,:,,"
+# rmw_zenoh's QoS field of a liveliness token for a RELIABLE, TRANSIENT_LOCAL, KEEP_LAST 1 publisher, as
+# rmw_zenoh writes it (liveliness_utils.cpp, qos_to_keyexpr): what equals its default QoS is left out
+# (RELIABLE, KEEP_LAST; deadline, lifespan, liveliness), so durability 1 and depth 1 only
+TOKEN_QOS = ":1:,1:,:,:,,"
+# the hash chunk of Humble's keys and tokens: Humble has no type hashes, and its subscribers match only this
+NO_TYPE_HASH = "TypeHashNotSupported"
 
 TOPICS = {"places": ros_maps.PLACES, "markers": ros_maps.MARKERS, "confidence": ros_maps.CONFIDENCE}
 
@@ -59,8 +60,13 @@ def map_topics(namespace: str, robot: str, affordance: str) -> dict[str, str]:
     return {kind: f"/{base}/{ros_token(affordance)}/{kind}" for kind in TOPICS}
 
 
-def rmw_zenoh_key(domain_id: int, topic: str, typename: str) -> str:
-    return f"{domain_id}/{topic.strip('/')}/{dds_type(typename)}/{ros_maps.type_hash(typename)}"
+def rmw_zenoh_key(domain_id: int, topic: str, typename: str, distribution: str = "jazzy") -> str:
+    return f"{domain_id}/{topic.strip('/')}/{dds_type(typename)}/{key_hash(typename, distribution)}"
+
+
+def key_hash(typename: str, distribution: str) -> str:
+    """The type's RIHS01 hash as rmw_zenoh's keys carry it, or Humble's placeholder."""
+    return NO_TYPE_HASH if distribution == "humble" else ros_maps.type_hash(typename)
 
 
 def attachment(sequence: int, source_time_ns: int, gid: bytes) -> bytes:
@@ -100,7 +106,9 @@ class LatchedTopics:
             self._liveliness(0, "NN", "")
         keys = []
         if "rmw_zenoh" in self.settings.key_formats:
-            keys.append((rmw_zenoh_key(self.settings.domain_id, topic, typename), True))
+            keys.append(
+                (rmw_zenoh_key(self.settings.domain_id, topic, typename, self.settings.distribution), True)
+            )
         if "ros2dds" in self.settings.key_formats:
             keys.append((topic.strip("/"), False))
         publishers = []
@@ -123,7 +131,8 @@ class LatchedTopics:
             if rmw:
                 entity_id = len(self._tokens) + 1
                 ros_type = _mangle(dds_type(typename))
-                rest = f"{_mangle(topic)}/{ros_type}/{ros_maps.type_hash(typename)}/{TOKEN_QOS}"
+                type_hash = key_hash(typename, self.settings.distribution)
+                rest = f"{_mangle(topic)}/{ros_type}/{type_hash}/{TOKEN_QOS}"
                 self._liveliness(entity_id, "MP", rest)
                 # rmw_zenoh's gid is a hash of the token's key; any 16 bytes unique to the publisher do
                 gid = hashlib.sha256(f"{self.zid}/{key}".encode()).digest()[:16]

@@ -139,6 +139,12 @@ class RosSettings(BaseModel):
         description="a scan takes odometry readings only within this many seconds of its header stamp",
     )
     domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID: the first chunk of rmw_zenoh's keys")
+    distribution: Literal["humble", "jazzy", "kilted", "rolling"] = Field(
+        "jazzy",
+        description="the robot's ROS 2 distribution: on humble the maps' and tf's rmw_zenoh keys carry "
+        "TypeHashNotSupported in place of the type's hash, which Humble's subscribers match (the "
+        "subscriptions take any hash either way)",
+    )
     key_formats: list[Literal["rmw_zenoh", "ros2dds"]] = Field(
         ["rmw_zenoh", "ros2dds"],
         min_length=1,

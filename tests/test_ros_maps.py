@@ -141,6 +141,23 @@ def test_type_hashes_are_jazzys():
     )
 
 
+def test_humble_keys_carry_no_type_hash_and_tokens_write_qos_as_rmw_zenoh(monkeypatch):
+    """Humble has no type hashes: its rmw_zenoh keys say TypeHashNotSupported, and a key with a hash would
+    match no Humble subscriber. The tokens' QoS leaves out what equals rmw_zenoh's default QoS."""
+    from services.ros_maps import TOKEN_QOS, rmw_zenoh_key
+    from services.settings import ServiceSettings
+
+    topic = "/robot1/affordances/sitting_relaxing/places"
+    assert rmw_zenoh_key(0, topic, ros_maps.PLACES, "humble") == (
+        "0/robot1/affordances/sitting_relaxing/places/geometry_msgs::msg::dds_::PoseArray_/TypeHashNotSupported"
+    )
+    assert rmw_zenoh_key(0, topic, ros_maps.PLACES).endswith(ros_maps.type_hash(ros_maps.PLACES))
+    monkeypatch.setenv("AFFORD_ROS__DISTRIBUTION", "humble")
+    assert ServiceSettings().ros.distribution == "humble"
+    # reliable, keep-last: rmw_zenoh's defaults, left out; transient local (1) and depth 1 written
+    assert TOKEN_QOS == ":1:,1:,:,:,,"
+
+
 def test_topic_names_are_ros_names_and_settings_are_checked(monkeypatch):
     from pydantic import ValidationError
 
