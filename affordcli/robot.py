@@ -167,6 +167,28 @@ def serve(
         )
 
 
+@app.command("ros-bridge", rich_help_panel=PANEL)
+def ros_bridge(
+    connect: list[str] = typer.Option(..., "--connect", help=CONNECT_HELP),
+    robot: str = typer.Option(..., "--robot", help=ROBOT_HELP),
+    zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help=ZENOH_CONFIG_HELP),
+) -> None:
+    """Bridge a ROS 2 robot on plain DDS to the services (its clouds, Imu, odometry and tf in; the maps and
+    afford's world in tf out) as a ROS 2 node on the robot's rclpy; AFFORD_ROS__* name the topics."""
+    with user_errors():
+        try:
+            import rclpy  # noqa: F401
+        except ImportError as error:
+            raise UserError(
+                "afford ros-bridge runs a ROS 2 node: it needs rclpy (source the robot's ROS 2 setup.bash, "
+                f"or pip install ros-kilted-rclpy and its message packages; {error})"
+            ) from None
+        from services.dds import run_dds_bridge
+
+        settings = _settings(zenoh_config)
+        run_dds_bridge(robot, connect, settings.ros, settings.service.zenoh_config)
+
+
 @app.command(rich_help_panel=PANEL)
 def publish(
     source: Path = typer.Argument(

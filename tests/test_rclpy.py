@@ -173,3 +173,191 @@ def test_the_maps_the_project_makes_deserialise_in_rclpy():
     )
     grid = deserialize_message(ros_maps.occupancy_grid(message, "world"), OccupancyGrid)
     check_confidence(grid, message, confidence)
+
+
+# -- afford ros-bridge: a robot on plain DDS -----------------------------------------------------------------
+
+
+@pytest.fixture
+def bridged(node, monkeypatch):
+    """(the bridge, a zenoh session on its router) for robot1 with /robot1/points and /robot1/imu, spinning
+    in a thread."""
+    import threading
+
+    from services.dds import DdsBridge
+    from services.launch import free_port
+    from services.settings import RosSettings
+    from services.transport import open_session
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_session([], mode="router", listen=[endpoint])
+    bridge_session, client = open_session([endpoint]), open_session([endpoint])
+    settings = RosSettings(points="/robot1/points", imu="/robot1/imu")
+    bridge = DdsBridge(bridge_session, "robot1", settings, node_name=f"afford_dds_test_{os.getpid()}")
+    stop = threading.Event()
+    thread = threading.Thread(target=bridge.run, args=(stop,), daemon=True)
+    thread.start()
+    try:
+        yield bridge, client
+    finally:
+        stop.set()
+        thread.join(10)
+        for session in (client, bridge_session, router):
+            session.close()
+
+
+def _spin_until(node, condition, timeout: float = 20.0, act=None) -> bool:
+    """Spin the node (in its own context) until `condition()`, calling `act()` before each spin."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    deadline = time.monotonic() + timeout
+    try:
+        while not condition():
+            if time.monotonic() > deadline:
+                return False
+            if act is not None:
+                act()
+            executor.spin_once(timeout_sec=0.05)
+        return True
+    finally:
+        executor.remove_node(node)
+        executor.shutdown()
+
+
+def test_the_bridge_carries_a_dds_robot_s_clouds_to_their_keys_and_the_maps_back_latched(node, bridged):
+    """A PointCloud2 published on DDS by a real rclpy node reaches the assembler's key as its CDR; a map
+    put on Zenoh (as the inference service puts it) reaches a TRANSIENT_LOCAL rclpy subscription that joins
+    after it went out."""
+    import zenoh
+    from geometry_msgs.msg import PoseArray
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from sensor_msgs.msg import PointCloud2
+
+    bridge, client = bridged
+    heard = []
+    subscriber = client.declare_subscriber("robot1/points", lambda s: heard.append(s.payload.to_bytes()))
+    cloud = PointCloud2(height=1, width=2, point_step=12, row_step=24, is_dense=True)
+    cloud.header.frame_id = "lidar"
+    cloud.fields = _fields([("x", 0), ("y", 4), ("z", 8)])
+    cloud.data = np.array([[1, 2, 3], [4, 5, 6]], np.float32).tobytes()
+    publisher = node.create_publisher(PointCloud2, "/robot1/points", 10)
+    assert _spin_until(node, lambda: publisher.get_subscription_count() > 0)
+    # sent until heard: DDS matching on both sides takes a moment
+    assert _spin_until(node, lambda: heard, act=lambda: publisher.publish(cloud))
+    carried = ros.pointcloud2(heard[0])  # the CDR as DDS carried it (its padding bytes are the writer's)
+    np.testing.assert_array_equal(carried.points, [[1, 2, 3], [4, 5, 6]])
+    assert carried.frame_id == "lidar"
+    subscriber.undeclare()
+
+    message, _ = small_map()
+    places = zenoh.ext.declare_advanced_publisher(
+        client,
+        "robot1/affordances/sitting_relaxing/places",
+        cache=zenoh.ext.CacheConfig(1),
+        publisher_detection=True,
+        sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=0.5),
+    )
+    places.put(ros_maps.pose_array(message, "world"))
+    assert _spin_until(node, lambda: bridge.counts["out"] == 1)
+    got = []
+    latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    node.create_subscription(PoseArray, "/robot1/affordances/sitting_relaxing/places", got.append, latched)
+    assert _spin_until(node, lambda: got)
+    check_places(got[0], message)
+    places.undeclare()
+
+
+@pytest.mark.slow
+def test_a_ros2_robot_on_dds_gets_its_maps_on_dds_through_the_bridge(node, generated_sequence, tmp_path):
+    """A real rclpy node publishes a walk's PointCloud2, Imu and Odometry on Fast DDS (localhost); `afford
+    ros-bridge` carries them to the three services and the maps back; a TRANSIENT_LOCAL rclpy subscriber gets
+    PoseArray, MarkerArray and OccupancyGrid for every affordance, the PoseArray with the places `afford
+    watch` writes from the same maps."""
+    import subprocess
+
+    from geometry_msgs.msg import PoseArray
+    from nav_msgs.msg import OccupancyGrid, Odometry
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from sensor_msgs.msg import Imu, PointCloud2
+    from test_end_to_end import AFFORD, AFFORDANCES, EVERY_FRAME, _check_maps
+    from test_ros import odometry_reading, ros_stream
+    from visualization_msgs.msg import MarkerArray
+
+    from affordcore.assembly.sequence import read_sequence
+    from services.launch import Stack
+    from services.ros_maps import map_topics
+
+    sequence = read_sequence(generated_sequence)
+    indices = list(range(0, 120, 3))
+    topics = {"AFFORD_ROS__POINTS": "/robot1/camera/points", "AFFORD_ROS__IMU": "/robot1/imu"}
+    topics["AFFORD_ROS__ODOMETRY"] = "/robot1/odom"
+    env = {**EVERY_FRAME, **topics, "AFFORD_ROS__MAPS": "true", "AFFORD_SERVICE__RECORDING_ID": "e2e-dds"}
+    stack = Stack(tmp_path / "run", env=env).start()
+    bridge = None
+    try:
+        bridge_env = {**os.environ, **topics, "AFFORD_ROS__MAPS": "true"}
+        bridge = subprocess.Popen(
+            AFFORD + ["ros-bridge", "--connect", stack.endpoint, "--robot", stack.robot],
+            env=bridge_env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        watch = subprocess.Popen(
+            AFFORD
+            + ["watch", "--connect", stack.endpoint, "--robot", stack.robot, "--frames", "40"]
+            + ["--timeout", "240", "--out", str(tmp_path / "maps")],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        received = {}
+        for affordance in AFFORDANCES:
+            for kind, topic in map_topics("/{robot}/affordances", "robot1", affordance).items():
+                cls = {"places": PoseArray, "markers": MarkerArray, "confidence": OccupancyGrid}[kind]
+                callback = lambda m, key=(affordance, kind): received.__setitem__(key, m)  # noqa: E731
+                node.create_subscription(cls, topic, callback, latched)
+        points = node.create_publisher(PointCloud2, "/robot1/camera/points", 10)
+        imu = node.create_publisher(Imu, "/robot1/imu", 50)
+        odometry = node.create_publisher(Odometry, "/robot1/odom", 50)
+        publishers = (points, imu, odometry)  # the bridge subscribes to each once it sees its publisher
+        assert _spin_until(node, lambda: all(p.get_subscription_count() for p in publishers), timeout=60)
+        start = time.time()
+        for k, (stamp, cloud, reading) in enumerate(ros_stream(sequence, indices, start, 1 / 30)):
+            imu.publish(reading)  # serialized CDR, published as it is
+            odometry.publish(odometry_reading(sequence, indices[k], stamp))
+            time.sleep(0.005)
+            points.publish(cloud)
+            time.sleep(1 / 30)
+        watched, _ = watch.communicate(timeout=300)
+        assert watch.returncode == 0, watched[-3000:] + stack.logs()
+        documents = _check_maps(tmp_path / "maps", 40, watched)
+        wanted = {(a, k) for a in AFFORDANCES for k in ("places", "markers", "confidence")}
+
+        def final() -> bool:  # every topic heard, and the places those of the last maps
+            return wanted <= received.keys() and all(
+                len(received[(a, "places")].poses) == len(documents[a]["skeletons"]) for a in AFFORDANCES
+            )
+
+        assert _spin_until(node, final, timeout=60), (sorted(received), stack.logs())
+    finally:
+        if bridge is not None:
+            bridge.terminate()
+            said, _ = bridge.communicate(timeout=30)
+        codes = stack.stop()
+    assert codes == {"assembler": 0, "features": 0, "inference": 0, "router": 0}, stack.logs()
+    assert sum(len(received[(a, "places")].poses) for a in AFFORDANCES) > 0  # places to compare
+    for affordance in AFFORDANCES:
+        poses = received[(affordance, "places")].poses
+        for pose, skeleton in zip(poses, documents[affordance]["skeletons"]):
+            assert (pose.position.x, pose.position.y) == pytest.approx(
+                (skeleton["x"], skeleton["y"]), abs=1e-4
+            )
+    log = (tmp_path / "run" / "assembler.log").read_text()
+    assert "40 clouds" in log and "40 with an Imu gravity" in log and "40 with the odometry's pose" in log, (
+        log
+    )
+    assert "ROS 2 over DDS: " in said and "messages in" in said, said
