@@ -271,14 +271,9 @@ def rotation_of(quaternion) -> np.ndarray:
     q = np.asarray(quaternion, dtype=np.float64).reshape(-1)
     if q.shape != (4,) or not np.isfinite(q).all() or abs(np.linalg.norm(q) - 1) > 1e-3:
         raise ValueError(f"{np.asarray(quaternion).tolist()} is not a unit quaternion (x, y, z, w)")
-    x, y, z, w = q / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_quat(q).as_matrix()  # scalar last, as ROS writes them
 
 
 # -- Odometry ------------------------------------------------------------------------------------------------

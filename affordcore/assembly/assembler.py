@@ -506,7 +506,9 @@ def nearest_rigid(matrix: np.ndarray) -> np.ndarray:
 
 def rotation_angle_deg(rotation: np.ndarray) -> float:
     """The angle of a 3 x 3 rotation, in degrees."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1, 1))))
+    from scipy.spatial.transform import Rotation
+
+    return float(np.degrees(Rotation.from_matrix(rotation).magnitude()))
 
 
 def thinning_step(points: int, most: int) -> int:

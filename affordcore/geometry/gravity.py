@@ -479,21 +479,13 @@ def _estimate_normals(points: np.ndarray, radius: float = 0.1, at: np.ndarray | 
 
 
 def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest rotation taking unit vector a onto unit vector b (Rodrigues, stable near opposite)."""
+    """The smallest rotation taking vector a onto vector b (half a turn when they are opposite)."""
+    from scipy.spatial.transform import Rotation
+
     a = np.asarray(a, dtype=np.float64) / np.linalg.norm(a)
     b = np.asarray(b, dtype=np.float64) / np.linalg.norm(b)
-    cross = np.cross(a, b)
-    sine, cosine = np.linalg.norm(cross), float(a @ b)
-    if sine < 1e-12:
-        if cosine > 0:
-            return np.eye(3)
-        # opposite: half a turn about any axis perpendicular to a
-        cross = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-        sine = np.linalg.norm(cross)
-    axis = cross / sine
-    angle = np.arctan2(np.linalg.norm(np.cross(a, b)), cosine)
-    skew = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(angle) * skew + (1 - np.cos(angle)) * skew @ skew
+    rotation, _ = Rotation.align_vectors([b], [a])  # one pair: the shortest rotation
+    return rotation.as_matrix()
 
 
 def _world_from(up: np.ndarray, floor_offset: float) -> np.ndarray:

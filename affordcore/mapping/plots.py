@@ -83,15 +83,15 @@ def plot_fields(fields: SceneFields, path: str | Path, slice_height: float = 0.4
 
 def plan_heights(points: np.ndarray, cell: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
     """The cloud seen from above: the highest point's height up to `CEILING_CUT` per `cell` square (NaN where
-    there is none), (nx, ny), and the (x, y) of the first cell's corner (the whole cloud's extent). One sort
-    of the points; `plot_map` of several maps of one room can share it."""
+    there is none), (nx, ny), and the (x, y) of the first cell's corner (the whole cloud's extent). One pass
+    over the points; `plot_map` of several maps of one room can share it."""
     low, high = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
     points = points[points[:, 2] <= CEILING_CUT]
     shape = np.ceil((high - low) / cell).astype(int) + 1
     index = np.floor((points[:, :2] - low) / cell).astype(int)
-    top = np.full(shape, np.nan)
-    order = np.argsort(points[:, 2])  # written lowest first, so each cell ends with its highest point
-    top[index[order, 0], index[order, 1]] = points[order, 2]
+    top = np.full(shape, -np.inf)
+    np.maximum.at(top, (index[:, 0], index[:, 1]), points[:, 2])  # defined for repeated cells, as = is not
+    top[np.isinf(top)] = np.nan
     return top, low
 
 
