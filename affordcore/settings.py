@@ -101,11 +101,6 @@ class FeatureSettings(BaseModel):
         description="the joints' distance feature is truncated here (m), so a change of the room changes "
         "scores only near it (docs/geometry.md); none: untruncated, as in the paper and the shipped models",
     )
-    unseen: bool = Field(
-        False,
-        description="each joint also reads the share of never-seen space around it (sensor positions known; "
-        "0 without them): a fourth block of 15 features, which the model must have been trained with",
-    )
     chunk_mb: float = Field(
         256.0, gt=0, description="feature rows are produced in chunks of at most this many MB"
     )
@@ -432,14 +427,6 @@ class LearnSettings(BaseModel):
         ge=1,
         description="and at most this many per room and affordance: a room has a bounded number of places, "
         "and the second stage's time stays bounded in large rooms (docs/maps.md measures it)",
-    )
-    without_positions: float = Field(
-        0.33,
-        ge=0,
-        le=1,
-        description="this share of the training rooms (the same ones every run) is featurised as if its "
-        "sensor positions were not known, as a cloud from a file comes: a model that reads unseen space "
-        "learns both",
     )
     workers: int = Field(
         0, ge=0, description="processes that prepare rooms for training in parallel (0: one per core)"

@@ -12,14 +12,7 @@ from affordcore.geometry.features import FeatureLayout, compute_features
 from affordcore.geometry.scene import Cloud, load_cloud, save_cloud
 from affordcore.geometry.skeleton import get_skeleton
 from affordcore.labels import ground_truth, load_labels
-from affordcore.learn.examples import (
-    Task,
-    as_trained,
-    data_set_rooms,
-    load_rooms,
-    positions_hidden,
-    room_examples,
-)
+from affordcore.learn.examples import Task, data_set_rooms, load_rooms, room_examples
 from affordcore.mapping.pipeline import prepare_scene
 from affordcore.settings import GridSettings, Settings
 from affordcore.synth.rooms import generate_room
@@ -182,26 +175,3 @@ def test_labelled_rooms_find_each_cloud_beside_its_labels_or_in_another_folder(t
     ]
     assert missing_clouds([shared, rebuilt]) == ["lost"]
     assert labelled_rooms([shared]) == rooms[:1] and missing_clouds([shared]) == ["lost", "meeting"]
-
-
-def test_a_fixed_share_of_rooms_is_trained_without_its_sensor_positions():
-    names = [f"living-{i:03d}" for i in range(600)]
-
-    def hidden(share: float) -> set[str]:
-        settings = Settings(learn={"without_positions": share})
-        return {n for n in names if positions_hidden(n, settings)}
-
-    assert hidden(0.0) == set() and hidden(1.0) == set(names)
-    third = hidden(0.33)
-    assert 0.28 < len(third) / len(names) < 0.38 and third == hidden(0.33)  # the same rooms every run
-    assert third < hidden(0.5)  # a larger share hides these and more
-
-    room = generate_room("living", np.random.default_rng(3), "room")
-    points, _ = sample_room_uniform(room, np.random.default_rng(3), points_per_m2=300)
-    fields = prepare_scene(Cloud(points, origins=np.array([[2.0, 2.0, 1.4]])), gravity="none").fields
-    settings = Settings(learn={"without_positions": 0.33})
-    shown, kept = sorted(set(names) - third)[0], sorted(third)[0]
-    assert as_trained(shown, fields, settings) is fields
-    stripped = as_trained(kept, fields, settings)
-    assert stripped.visibility is None and fields.visibility is not None  # the room's own fields untouched
-    np.testing.assert_array_equal(stripped.occupancy, fields.occupancy)

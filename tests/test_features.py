@@ -16,7 +16,6 @@ from affordcore.geometry.features import (
 from affordcore.geometry.fields import compute_fields
 from affordcore.geometry.grid import PoseGrid
 from affordcore.geometry.skeleton import JOINTS, get_skeleton, place_joints
-from affordcore.geometry.visibility import UNKNOWN, voxel_states
 from affordcore.settings import NormalSettings, VoxelSettings
 
 RNG_SEED = 7
@@ -83,23 +82,11 @@ def reference_features(fields, skeleton, pose, layout: FeatureLayout) -> np.ndar
     world_normals = _trilinear(fields.normals, origin, res, torso + offsets @ rotation.T)
     skeleton_normals = np.array([rotation.T @ w for w in world_normals])
     normals = list(skeleton_normals.reshape(n**3, per**3, 3).mean(axis=1).ravel())
-    unseen = []
-    if layout.unseen:  # the joints' read of the never-seen voxels
-        never_seen = (fields.visibility == UNKNOWN).astype(float)
-        unseen = list(_trilinear(never_seen, origin, res, joints))
-    return np.array(dist + coll + normals + unseen)
+    return np.array(dist + coll + normals)
 
 
 def _fields(resolution: float = 0.10):
     return compute_fields(_room(), VoxelSettings(resolution=resolution), NormalSettings())
-
-
-def _seen_fields():
-    """The room's fields with its visibility seen from one sensor position by the table: the space behind
-    the seat block and the shelf, and under the table, was never seen."""
-    fields = _fields()
-    fields.visibility = voxel_states(fields.occupancy, fields.lattice, np.array([[1.5, 0.6, 1.3]]))
-    return fields
 
 
 def _sparse_grid(fields, skeleton, n_theta: int = 9, seed: int = RNG_SEED) -> PoseGrid:
@@ -120,22 +107,19 @@ def _streamed_rows(fields, skeleton, grid, layout, wanted: np.ndarray) -> np.nda
 
 
 @pytest.mark.parametrize(
-    "affordance, cube_size, cell_size, resolution, cap, unseen",
+    "affordance, cube_size, cell_size, resolution, cap",
     [
-        ("sitting-working", 1.0, 0.10, 0.10, None, False),  # the paper's layout
-        ("standing-working", 1.0, 0.20, 0.10, 0.3, False),  # coarse cells: 2 x 2 x 2 samples each; truncated
+        ("sitting-working", 1.0, 0.10, 0.10, None),  # the paper's layout
+        ("standing-working", 1.0, 0.20, 0.10, 0.3),  # coarse cells: 2 x 2 x 2 samples each; truncated
         # finer voxels than the pose step (slab stride 2), 4^3 samples a cell
-        ("sitting-relaxing", 0.6, 0.20, 0.05, 0.5, False),
-        ("sitting-working", 1.0, 0.25, 0.10, None, True),  # the shipped cells, and the unseen block
+        ("sitting-relaxing", 0.6, 0.20, 0.05, 0.5),
     ],
 )
-def test_features_match_slow_reference_on_random_poses(
-    affordance, cube_size, cell_size, resolution, cap, unseen
-):
-    fields = _seen_fields() if unseen else _fields(resolution)
+def test_features_match_slow_reference_on_random_poses(affordance, cube_size, cell_size, resolution, cap):
+    fields = _fields(resolution)
     skeleton = get_skeleton(affordance)
     grid = _sparse_grid(fields, skeleton)
-    layout = FeatureLayout(cube_size, cell_size, resolution, cap, unseen=unseen)
+    layout = FeatureLayout(cube_size, cell_size, resolution, cap)
     wanted = np.sort(np.random.default_rng(RNG_SEED).choice(grid.size, 200, replace=False))
     fast = _streamed_rows(fields, skeleton, grid, layout, wanted)
     reference = np.array([reference_features(fields, skeleton, pose, layout) for pose in grid.poses(wanted)])
@@ -144,8 +128,7 @@ def test_features_match_slow_reference_on_random_poses(
         reference[:, :15].max() > 0.29
         and (cap is None or (fields.distance.max() > cap and reference[:, :15].max() <= cap + 1e-6))
         and reference[:, 15:30].max() > 0.5
-        and np.abs(reference[:, 30 : layout.unseen_start]).max() > 0.4
-        and (not unseen or 0.5 < reference[:, layout.unseen_start :].max() <= 1 + 1e-9)
+        and np.abs(reference[:, 30:]).max() > 0.4
     )
     np.testing.assert_allclose(fast, reference, atol=2e-5, rtol=1e-5)
     # the same poses asked for one by one, in any order (shuffled, one repeated): the same rows
@@ -303,21 +286,3 @@ def test_compute_features_refuses_a_matrix_that_does_not_fit():
     grid = PoseGrid.over_footprint(fields.footprint, skeleton.torso_height, 0.1)
     with pytest.raises(MemoryError, match="iter_features"):
         compute_features(fields, skeleton, grid, FeatureLayout(), max_mb=10)
-
-
-def test_the_unseen_block_reads_the_space_no_sensor_saw():
-    """Seen only from the front and above, the space under the table is never seen: a skeleton sitting up to
-    it has its knees there, the same skeleton turned round has them over open floor in view; without
-    sensor positions neither reads any unseen space (a file's cloud: unknown cannot be told from free)."""
-    seen, skeleton = _seen_fields(), get_skeleton("sitting-working")
-    layout = FeatureLayout(unseen=True)
-    grid = PoseGrid(np.array([1.5]), np.array([0.9]), np.array([0.64]), np.array([np.pi / 2, -np.pi / 2]))
-    to_table, away = features_at(seen, skeleton, grid, layout, np.arange(2))[:, layout.unseen_start :]
-    # (not the feet: space within a voxel of a seen surface is never carved free, `visibility`)
-    knees = [JOINTS.index(j) for j in ("L_KNEE", "R_KNEE")]
-    assert to_table[knees].min() > 0.7 and away[knees].max() < 0.1
-    unknown = features_at(_fields(), skeleton, grid, layout, np.arange(2))[:, layout.unseen_start :]
-    assert not unknown.any()
-    # the rest of the row is the layout without the block
-    plain = features_at(seen, skeleton, grid, FeatureLayout(), np.arange(2))
-    np.testing.assert_array_equal(features_at(seen, skeleton, grid, layout, np.arange(2))[:, :-15], plain)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_features import _fields, _seen_fields, _sparse_grid
+from test_features import _fields, _sparse_grid
 
 from affordcore.geometry.features import FeatureLayout, compute_features
 from affordcore.geometry.grid import PoseGrid
@@ -13,14 +13,11 @@ from affordcore.geometry.skeleton import get_skeleton
 from affordcore.mapping.inference import score_poses
 
 
-@pytest.mark.parametrize(
-    "cell_size, step, cap, unseen",
-    [(0.25, 0.1, 0.5, False), (0.10, 0.1, None, False), (0.5, 0.2, 0.3, False), (0.25, 0.1, None, True)],
-)
+@pytest.mark.parametrize("cell_size, step, cap", [(0.25, 0.1, 0.5), (0.10, 0.1, None), (0.5, 0.2, 0.3)])
 @pytest.mark.parametrize("affordance", ["sitting-relaxing", "standing-working"])
-def test_scores_equal_features_dot_weights(affordance, cell_size, step, cap, unseen):
-    fields, skeleton = (_seen_fields() if unseen else _fields()), get_skeleton(affordance)
-    layout = FeatureLayout(cell_size=cell_size, distance_cap=cap, unseen=unseen)
+def test_scores_equal_features_dot_weights(affordance, cell_size, step, cap):
+    fields, skeleton = _fields(), get_skeleton(affordance)
+    layout = FeatureLayout(cell_size=cell_size, distance_cap=cap)
     sparse = _sparse_grid(fields, skeleton, n_theta=5)
     grid = PoseGrid(sparse.x[:: round(step / 0.1)], sparse.y[:: round(step / 0.1)], sparse.z, sparse.theta)
     rng = np.random.default_rng(7)

@@ -7,11 +7,7 @@ One feature vector, in this order:
 * ``coll:<JOINT>`` (15): the occupancy at each placed joint, a fraction in [0, 1];
 * ``normal:<i>,<j>,<k>:<axis>`` (3 per cell): the mean surface normal of each cell of a cube of
   ``cube_size`` around the torso, cells indexed along the skeleton's own x (forward), y (left), z (up) and
-  C-ordered, the normal expressed in the skeleton frame (it turns with theta);
-* ``unseen:<JOINT>`` (15, layouts with ``unseen``): the share of never-seen space at each placed joint, in
-  [0, 1] (`geometry.visibility`; 0 throughout when the cloud came without its sensor positions, as a file
-  does: then unknown space cannot be told from free). With the collision feature it says how much of the
-  space a joint takes was seen empty: a seat hidden behind a table and open floor read alike otherwise.
+  C-ordered, the normal expressed in the skeleton frame (it turns with theta).
 
 Fields are read by trilinear interpolation between voxel centres. That makes every feature a continuous
 function of the pose (no ties at voxel faces), the collision feature the occupied fraction of a voxel-sized
@@ -68,8 +64,6 @@ class FeatureLayout:
     soft_fields: bool = False
     # how the normals are estimated (`NormalSettings.estimator`; its default)
     normal_estimator: str = "cube"
-    # the joints' share of never-seen space as a fourth block (`FeatureSettings.unseen`)
-    unseen: bool = False
 
     def __post_init__(self) -> None:
         if self.distance_cap is not None and not self.distance_cap > 0:
@@ -95,7 +89,6 @@ class FeatureLayout:
             settings.normals.steep_facing,
             settings.voxel.fields == "soft",
             settings.normals.estimator,
-            features.unseen,
         )
 
     @property
@@ -117,11 +110,6 @@ class FeatureLayout:
 
     @property
     def n_features(self) -> int:
-        return (3 if self.unseen else 2) * len(JOINTS) + 3 * self.n_cells
-
-    @property
-    def unseen_start(self) -> int:
-        """The first column of the unseen block (after the normal cube)."""
         return 2 * len(JOINTS) + 3 * self.n_cells
 
     def sample_positions(self) -> np.ndarray:
@@ -140,14 +128,13 @@ class FeatureLayout:
         cells = [
             f"normal:{i},{j},{k}:{a}" for i in range(n) for j in range(n) for k in range(n) for a in "xyz"
         ]
-        unseen = [f"unseen:{j}" for j in JOINTS] if self.unseen else []
-        return [f"dist:{j}" for j in JOINTS] + [f"coll:{j}" for j in JOINTS] + cells + unseen
+        return [f"dist:{j}" for j in JOINTS] + [f"coll:{j}" for j in JOINTS] + cells
 
     def describe(self) -> dict:
         described = {
             "version": FEATURE_VERSION,
             "joints": list(JOINTS),
-            "blocks": ["dist", "coll", "normal"] + (["unseen"] if self.unseen else []),
+            "blocks": ["dist", "coll", "normal"],
             "cube_size": self.cube_size,
             "cell_size": self.cell_size,
             "voxel_resolution": self.voxel_resolution,
@@ -268,7 +255,7 @@ class _PoseReader:
             name: np.stack([level[name] for level in levels]).reshape(
                 len(levels) * sampler.shape[0] * sampler.shape[1], -1
             )
-            for name in ("distance", "occupancy", "normals", "unseen")
+            for name in ("distance", "occupancy", "normals")
         }
         self.columns = sampler.shape[1]  # y extent: x steps a row index by this much
         self.per_level = sampler.shape[0] * sampler.shape[1]
@@ -288,12 +275,12 @@ class _PoseReader:
         out = np.empty((len(base), self.layout.n_features), dtype=np.float32)
         read_rows(
             base, theta, self.fields["distance"], self.fields["occupancy"], self.fields["normals"],
-            self.fields["unseen"], *self.joint_corners, *self.sample_corners, self.layout.cells_per_axis,
+            *self.joint_corners, *self.sample_corners, self.layout.cells_per_axis,
             self.layout.samples_per_cell, out,
         )  # fmt: skip
         # n_skeleton = R^T n_world; for row vectors that is n_world @ R (numpy's matmul, as the grid's slabs),
         # a block of rows at a time so that its temporaries stay small however many poses are asked for
-        normals = out[:, 2 * len(JOINTS) : self.layout.unseen_start]
+        normals = out[:, 2 * len(JOINTS) :]
         for start in range(0, len(base), ROTATED_ROWS):
             rows = slice(start, start + ROTATED_ROWS)
             block = normals[rows]
@@ -319,15 +306,6 @@ CORNERS = ((0, 0), (1, 0), (0, 1), (1, 1))  # bilinear corners, in the order the
 ROTATED_ROWS = 4096  # `features_at` turns the normals of this many rows at a time
 
 
-def unseen_field(fields: SceneFields) -> np.ndarray:
-    """(nx, ny, nz) float32: 1 in never-seen voxels, 0 elsewhere; 0 throughout without visibility states."""
-    from .visibility import UNKNOWN
-
-    if fields.visibility is None:
-        return np.zeros(fields.occupancy.shape, np.float32)
-    return (fields.visibility == UNKNOWN).astype(np.float32)
-
-
 class _SlabSampler:
     """Reads fields at offsets that are the same for every pose of a slab."""
 
@@ -342,7 +320,6 @@ class _SlabSampler:
         self.v0 = (grid.y[0] - lattice.origin[1]) / self.res
         self.nx, self.ny = len(grid.x), len(grid.y)
         self.shape = lattice.shape
-        self.unseen = unseen_field(fields) if layout.unseen else None
 
     def level(self, torso_z: float, skeleton: Skeleton) -> dict:
         """Everything that depends on the torso height only: fields interpolated in z."""
@@ -355,12 +332,6 @@ class _SlabSampler:
             "occupancy": self._lerp_z(self.fields.collision, joint_heights),  # (X, Y, 15)
             # (X, Y, cells, 3)
             "normals": self._cell_heights(self._lerp_z(self.fields.normals, sample_heights)),
-            # (X, Y, 15), or no values per position when the layout reads no unseen space
-            "unseen": (
-                np.zeros((*self.shape[:2], 0), np.float32)
-                if self.unseen is None
-                else self._lerp_z(self.unseen, joint_heights)
-            ),
         }
 
     def _cell_heights(self, samples: np.ndarray) -> np.ndarray:
@@ -470,16 +441,13 @@ class _Slab:
         if out is None:
             out = np.empty((n_rows, ny, layout.n_features), dtype=np.float32)
         n_joints = len(JOINTS)
-        unseen = layout.unseen_start if layout.unseen else None
         for j, corners in enumerate(self.joint_corners):
             self._read_into(out[:, :, j], self.level["distance"][:, :, j], corners, rows)
             self._read_into(out[:, :, n_joints + j], self.level["occupancy"][:, :, j], corners, rows)
-            if unseen is not None:
-                self._read_into(out[:, :, unseen + j], self.level["unseen"][:, :, j], corners, rows)
         # Cells are averaged from per_cell x per_cell sample columns (z is averaged already, per level).
         n_s, per_cell, cells = layout.samples_per_axis, layout.samples_per_cell, layout.cells_per_axis
         width = cells * 3  # one column of cells: `cells` heights x 3 normal components
-        normal_block = out[:, :, 2 * n_joints : layout.unseen_start]
+        normal_block = out[:, :, 2 * n_joints :]
         for index, corners in enumerate(self.sample_corners):
             a, b = divmod(index, n_s)
             cell = (a // per_cell) * cells + b // per_cell
@@ -499,5 +467,6 @@ def compile_reads() -> None:
 
     index, table = np.zeros(1, np.int64), np.zeros((1, 1, 4), np.int64)
     field, weights = np.zeros((4, 3), np.float32), np.zeros((1, 1, 4), np.float32)
-    unseen, out = np.zeros((4, 1), np.float32), np.zeros((1, 6), np.float32)
-    read_rows(index, index, field, field, field, unseen, table, weights, table, weights, 1, 1, out)
+    read_rows(
+        index, index, field, field, field, table, weights, table, weights, 1, 1, np.zeros((1, 5), np.float32)
+    )

@@ -17,18 +17,15 @@ from ..compiled import compiled
 
 @compiled
 def read_rows(
-    base, theta, distance, occupancy, normals, unseen, joint_rows, joint_weights, sample_rows,
-    sample_weights, cells, per_cell, out,
+    base, theta, distance, occupancy, normals, joint_rows, joint_weights, sample_rows, sample_weights,
+    cells, per_cell, out,
 ):  # fmt: skip
-    """Fills `out` (poses, 2 x joints + 3 x cells^3 [+ joints]), the normals in the world's frame, and
-    after them each joint's read of `unseen` when it has a value per joint (none: the layout reads none).
-    Pose p's fields start at row base[p] of each field (level, x, y flattened); its heading's corner tables
-    (theta[p]) give each read's row offsets (..., 4) and float32 weights. `normals` holds per row the cells'
-    heights x 3 values;
+    """Fills `out` (poses, 2 x joints + 3 x cells^3), the normals in the world's frame. Pose p's fields start
+    at row base[p] of each field (level, x, y flattened); its heading's corner tables (theta[p]) give each
+    read's row offsets (..., 4) and float32 weights. `normals` holds per row the cells' heights x 3 values;
     sample s of the cube's (cells x per_cell)^2 lattice lies in cell column (s // axis // per_cell,
     s % axis // per_cell)."""
     n_joints, n_values, axis = joint_rows.shape[1], normals.shape[1], cells * per_cell
-    with_unseen, unseen_start = unseen.shape[1] > 0, 2 * n_joints + cells * cells * n_values
     share = np.float32(1.0 / (per_cell * per_cell))
     cube = np.empty((cells, cells, n_values), np.float32)
     sample = np.empty(n_values, np.float32)
@@ -42,11 +39,6 @@ def read_rows(
                 d += distance[row, j] * weight
                 o += occupancy[row, j] * weight
             out[p, j], out[p, n_joints + j] = d, o
-            if with_unseen:
-                u = unseen[b + joint_rows[t, j, 0], j] * joint_weights[t, j, 0]
-                for c in range(1, 4):
-                    u += unseen[b + joint_rows[t, j, c], j] * joint_weights[t, j, c]
-                out[p, unseen_start + j] = u
         cube[:] = 0
         for s in range(sample_rows.shape[1]):
             row, weight = b + sample_rows[t, s, 0], sample_weights[t, s, 0]

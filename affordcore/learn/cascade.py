@@ -25,7 +25,7 @@ from ..mapping.inference import best_poses
 from ..mapping.maps import RULED_OUT
 from ..mapping.pipeline import score_model
 from .binning import fast_weighted_binning
-from .examples import Room, RoomExamples, Task, as_trained
+from .examples import Room, RoomExamples, Task
 from .fitted import Fitted
 from .trees import TreeEnsemble
 
@@ -62,9 +62,8 @@ def second_stage_examples(
     Xs, ys, ws = [], [], []
     for room in rooms:
         fields = room.fields  # read once per room (rooms in a cache hold no fields) and let go after
-        _, truth = room.grid_and_truth(task.skeleton, task.settings, fields)
-        fields = as_trained(room.name, fields, task.settings)
         grid, scores = score_model(first, fields, task.layout, task.settings)
+        _, truth = room.grid_and_truth(task.skeleton, task.settings, fields)
         flat = scores.ravel()
         # unlabelled poses are neither taught as positive nor as negative
         flat[truth.scored_mask().ravel() == 0] = RULED_OUT

@@ -15,9 +15,8 @@ examples are held in memory. Rooms and examples are prepared in parallel process
 
 from __future__ import annotations
 
-import zlib
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
 
@@ -229,22 +228,6 @@ def _map_rooms(function: Callable, jobs: list[tuple], settings: Settings, on_roo
         yield result
 
 
-def positions_hidden(name: str, settings: Settings) -> bool:
-    """Whether training reads the room's features as if its sensor positions were not known: a share of the
-    rooms (`learn.without_positions`), chosen by a hash of the name, so the same rooms in every run."""
-    return zlib.crc32(name.encode()) % 1000 < round(settings.learn.without_positions * 1000)
-
-
-def as_trained(name: str, fields: SceneFields, settings: Settings) -> SceneFields:
-    """The fields training featurises the room from: without their visibility states for the rooms whose
-    positions are hidden. A cloud from a file comes without sensor positions, and a model that reads unseen
-    space must know such rooms too; with every training room's positions known, it would take a file's
-    all-zero unseen block for rooms seen from everywhere."""
-    if fields.visibility is None or not positions_hidden(name, settings):
-        return fields
-    return replace(fields, visibility=None)
-
-
 def room_examples(
     room: Room, task: Task, negatives: int | None = None, rng: np.random.Generator | None = None
 ) -> RoomExamples:
@@ -263,7 +246,7 @@ def room_examples(
         weight = len(wanted_negatives) / negatives
         wanted_negatives = np.sort(rng.choice(wanted_negatives, negatives, replace=False))
     index = np.concatenate([wanted_positives, wanted_negatives])
-    X = features_at(as_trained(room.name, fields, task.settings), skeleton, grid, task.layout, index)
+    X = features_at(fields, skeleton, grid, task.layout, index)
     y = np.repeat(np.array([1, -1], dtype=np.int8), [len(wanted_positives), len(wanted_negatives)])
     weights = np.where(y > 0, 1.0, weight).astype(np.float32)
     return RoomExamples(room.name, X, y, weights, [room], task)
@@ -366,15 +349,8 @@ def examples_key(room: Room, task: Task, negatives: int | None) -> str:
     """What a room's stored examples depend on beyond its own key (the sampling's seed is the room's name)."""
     negatives = task.settings.learn.negatives_per_room if negatives is None else negatives
     layout = task.layout
-    hidden = positions_hidden(room.name, task.settings)
     return digest_of(
-        room.key,
-        task.affordance,
-        task.skeleton_record(),
-        layout.fingerprint,
-        layout.describe(),
-        negatives,
-        hidden,
+        room.key, task.affordance, task.skeleton_record(), layout.fingerprint, layout.describe(), negatives
     )
 
 

@@ -3,8 +3,7 @@
 A linear model's score is w . f + b, and every feature is a bilinear read of a field at an offset fixed per
 (z, theta) slab (`features.py`). So the weights can be applied to the fields first:
 
-* joints: w_dist,j D_j + w_coll,j O_j (+ w_unseen,j U_j) is one plane per joint, read once at the joint's
-  offset;
+* joints: w_dist,j D_j + w_coll,j O_j is one plane per joint, read once at the joint's offset;
 * the normal cube: a cell's normal enters in the skeleton frame, n . (R_theta w) with R_theta a turn about z,
   which is cos(theta) (w_x n_x + w_y n_y) + sin(theta) (w_x n_y - w_y n_x) + w_z n_z. The three planes in
   brackets, summed over the cell's heights, do not depend on theta: they are computed once per z level and
@@ -52,8 +51,7 @@ def score_poses(
     )
     w_dist, w_coll = weights[:n_joints], weights[n_joints : 2 * n_joints]
     # (cell column i*cells+j, height k, axis)
-    w_cube = weights[2 * n_joints : layout.unseen_start].reshape(cells * cells, cells, 3)
-    w_unseen = weights[layout.unseen_start :]  # empty unless the layout reads unseen space
+    w_cube = weights[2 * n_joints :].reshape(cells * cells, cells, 3)
     # which cell column each sample column (a, b) of the n_s x n_s sample lattice falls in
     a, b = np.divmod(np.arange(n_s * n_s), n_s)
     column_of_sample = (a // per_cell) * cells + b // per_cell
@@ -64,8 +62,6 @@ def score_poses(
         planes = level["distance"] * w_dist.astype(np.float32) + level["occupancy"] * w_coll.astype(
             np.float32
         )
-        if len(w_unseen):
-            planes += level["unseen"] * w_unseen.astype(np.float32)
         joint_planes.append(np.moveaxis(planes, 2, 0))
         n = level["normals"]  # (X, Y, cells in z, 3), world frame
         along.append(
