@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -45,6 +46,15 @@ def map_command(
         help="the room's labelled places (affordance-labels/1, in the cloud's frame): drawn on the PNGs, "
         "and each map says how many it found and how many skeletons match none",
     ),
+    next_views: int = typer.Option(
+        0,
+        "--next-views",
+        min=0,
+        max=20,
+        help="with the sensor positions, up to this many camera poses per map from which a robot would "
+        "settle most of what the map is unsure of (in the JSON, on the PNG; AFFORD_NEXT_VIEWS__* for the "
+        "camera)",
+    ),
 ) -> None:
     """Map where people can sit, relax, work and stand in a room: skeleton map, confidence map, positives."""
     with user_errors():
@@ -62,6 +72,7 @@ def map_command(
             origins,
             labels,
             png=not no_png,
+            next_views=next_views,
         )
 
 
@@ -77,6 +88,7 @@ def map_room(
     origins: Path | None = None,
     labels_file: Path | None = None,
     png: bool = True,
+    next_views: int = 0,
 ) -> list[Path]:
     """load -> align -> fields -> score -> map -> write, each one call into the library (the maps in worker
     processes and the files in a writer process started first, `outputs.map_and_write`), on one BLAS thread
@@ -95,6 +107,7 @@ def map_room(
 
     output_folder(out)
     settings = Settings()
+    settings.next_views.count = next_views or settings.next_views.count
     start = time.perf_counter()
     seconds: dict[str, float] = {}
     models = choose_models(model_files, affordances, FeatureLayout.from_settings(settings))
@@ -109,6 +122,11 @@ def map_room(
         loading = time.perf_counter()
         cloud = _loaded(cloud_path, origins)
         seconds["load the cloud"] = time.perf_counter() - loading
+        if next_views and cloud.origins is None:
+            raise UserError(
+                f"--next-views needs the sensor positions (--origins, or {cloud_path.stem}.origins.npy "
+                "beside the cloud): without them unknown space cannot be told from free"
+            )
         affordance_names = [model.affordance for model in models]
         record = (lambda world: writer.start_scene(world, affordance_names, out, rrd)) if writer else None
         scene = prepare_scene(cloud, settings, parse_gravity(gravity), seconds, on_world=record)
@@ -135,7 +153,7 @@ def map_room(
             )
         seconds["maps and outputs (wall)"] = time.perf_counter() - mapping
     for amap in maps.values():
-        typer.echo(summary_line(amap) + (_against(labels, amap) if labels else ""))
+        typer.echo(summary_line(amap) + (_against(labels, amap) if labels else "") + _views(amap))
     if timings:
         for stage, value in seconds.items():
             typer.echo(f"timing: {stage}: {value:.3f} s", err=True)
@@ -147,6 +165,17 @@ def map_room(
     typer.echo(f"{time.perf_counter() - start:.1f} s, {memory}")
     typer.echo("outputs: " + ", ".join(str(path) for path in written))
     return written
+
+
+def _views(amap) -> str:
+    """The best suggested view, where there are any."""
+    if not amap.next_views:
+        return ""
+    best = amap.next_views[0]
+    return (
+        f"; {len(amap.next_views)} next views, the best at ({best.x:.2f}, {best.y:.2f}) facing "
+        f"{math.degrees(best.heading):.0f} deg, {best.gain:.2f} bits"
+    )
 
 
 def _against(labels, amap) -> str:

@@ -178,6 +178,36 @@ class VisibilitySettings(BaseModel):
     )
 
 
+class NextViewSettings(BaseModel):
+    """Where a robot still mapping a room should look next (affordcore.mapping.next_views): a camera of a
+    Kinect-class field of view and range on a mobile base."""
+
+    count: int = Field(
+        0,
+        ge=0,
+        le=20,
+        description="views each map suggests where the sensor positions are known (afford map --next-views); "
+        "0: none",
+    )
+    fov_horizontal_deg: float = Field(58.0, gt=0, le=360, description="the camera's horizontal field of view")
+    fov_vertical_deg: float = Field(45.0, gt=0, le=180, description="its vertical field of view")
+    pitch_deg: float = Field(0.0, ge=-90, le=90, description="its tilt above the horizon (negative: down)")
+    min_range: float = Field(0.5, ge=0, description="the nearest it measures (m)")
+    max_range: float = Field(4.5, gt=0, description="the farthest it measures (m)")
+    height: float = Field(
+        1.0,
+        gt=0,
+        description="the camera's height above the floor (m), where the sensor positions do not say",
+    )
+    footprint: float = Field(
+        0.3,
+        ge=0,
+        description="the robot's radius (m): a view stands on seen-free floor this far from anything",
+    )
+    step: float = Field(0.4, gt=0, description="views are tried on a grid of this spacing (m)")
+    headings: int = Field(24, ge=1, le=360, description="headings tried at each position")
+
+
 class MapSettings(BaseModel):
     place_probability: float | None = Field(
         None,
@@ -478,6 +508,7 @@ class Settings(BaseSettings):
     gravity: GravitySettings = GravitySettings()
     map: MapSettings = MapSettings()
     visibility: VisibilitySettings = VisibilitySettings()
+    next_views: NextViewSettings = NextViewSettings()
     assembler: AssemblerSettings = AssemblerSettings()
     limits: LimitSettings = LimitSettings()
     learn: LearnSettings = LearnSettings()

@@ -13,7 +13,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -52,6 +52,12 @@ class AffordanceMap:
     # places a map asked for UNSURE_PROBABILITY would keep besides these (0 without a place model): what
     # lowering `map.place_probability` would add, for the one who reads the map
     unsure_places: int = 0
+    # (m, 6) x, y, z, theta, score, probability of every candidate place the place model may keep, kept
+    # or not (none without a place model): what the map is unsure of
+    candidates: np.ndarray = field(default_factory=lambda: np.empty((0, 6)))
+    # where to look next to settle its candidates (`next_views`; with `next_views.count` and the sensor
+    # positions)
+    next_views: list = field(default_factory=list)
 
     def unsure_note(self) -> str:
         """How many more places a map at UNSURE_PROBABILITY would keep, and how to ask for them ("" when
@@ -81,6 +87,7 @@ class AffordanceMap:
             self.place_threshold,
             self.probabilities,
             self.place_probability,
+            self.next_views,
         )
 
 
@@ -96,6 +103,7 @@ def map_document(
     place_threshold: float,
     probabilities: np.ndarray | None = None,
     place_probability: float = float("nan"),
+    next_views: list | None = None,
 ) -> dict:
     """The affordance-map/1 JSON document (what `afford map` writes and `afford watch` saves). A NaN (no place
     model) is written as null."""
@@ -109,7 +117,7 @@ def map_document(
     for skeleton, skeleton_joints, probability in zip(placed, joints, probabilities):
         skeleton["probability"] = _number(probability)
         skeleton["joints"] = np.round(skeleton_joints, 4).tolist()
-    return {
+    document = {
         "format": FORMAT,
         "affordance": affordance,
         "model": model_id,
@@ -122,6 +130,9 @@ def map_document(
         "skeletons": placed,
         "positives": rows(positives),
     }
+    if next_views:  # asked for (afford map --next-views): the views, best first
+        document["next_views"] = [view.to_json() for view in next_views]
+    return document
 
 
 def _number(value: float) -> float | None:
@@ -167,6 +178,7 @@ def build_map(
         kept = choose_places(xy, probabilities, place_probability, nms_radius, eligible)
         lower = min(UNSURE_PROBABILITY, place_probability)
         unsure = len(choose_places(xy, probabilities, lower, nms_radius, eligible)) - len(kept)
+        unsure_about = np.column_stack([candidates.rows, probabilities])[eligible].reshape(-1, 6)
         skeletons, probabilities = candidates.rows[kept].reshape(-1, 5), probabilities[kept]
         place_threshold = float("nan")
     else:
@@ -174,7 +186,7 @@ def build_map(
         i, j = peak_cells(confidence, grid, place_threshold, nms_radius, None).T
         skeletons = np.column_stack([grid.x[i], grid.y[j], best_z[i, j], best_theta[i, j], confidence[i, j]])
         probabilities, place_probability = np.full(len(skeletons), np.nan), float("nan")
-        unsure = 0
+        unsure, unsure_about = 0, np.empty((0, 6))
     joints = (
         place_joints(skeleton.joints, skeletons[:, :4])
         if len(skeletons)
@@ -195,4 +207,5 @@ def build_map(
         probabilities,
         float(place_probability),
         unsure,
+        unsure_about,
     )

@@ -257,9 +257,23 @@ class RoomMapper:
                 place_probability=self.settings.map.place_probability,
                 scanned=self.scanned[model.affordance],
             )
+            self._suggest_views(maps[model.affordance], fields)
             if on_map:
                 on_map(model.affordance, maps[model.affordance])
         return maps
+
+    def _suggest_views(self, mapped, fields: SceneFields) -> None:
+        """Where to look next to settle the map's candidates (`next_views`), when asked for and the sensor
+        positions tell unknown space from free."""
+        wanted = self.settings.next_views
+        if not wanted.count or fields.visibility is None or not len(mapped.candidates):
+            return
+        from .next_views import next_views
+
+        candidates = mapped.candidates
+        mapped.next_views = next_views(
+            fields, candidates[:, :2], candidates[:, 5], wanted.count, wanted, self.settings.visibility
+        )
 
     def scores(self, model, fields: SceneFields) -> tuple[PoseGrid, np.ndarray]:
         """A model's pose grid over the room and its score of every pose (`inference.model_scores`); only

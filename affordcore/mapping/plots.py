@@ -176,6 +176,7 @@ def plot_map(
             middle,
             arrowprops={"arrowstyle": "->", "color": "darkorange", "lw": 1.6},
         )
+    _draw_views(ax, amap.next_views)
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
@@ -186,11 +187,26 @@ def plot_map(
         ax.plot([], [], "o", color="crimson", label="place (p: probability a person can use it)")
     if labels is not None and labels.of(amap.affordance):
         ax.plot([], [], "-o", color="darkorange", lw=3, ms=4, label="labelled place (the room's labels)")
+    if amap.next_views:
+        ax.plot([], [], "s", color="royalblue", label="next view (its number, gain in bits)")
     if ax.get_legend_handles_labels()[0]:
         ax.legend(loc="upper right", fontsize=7)
     figure.savefig(path, dpi=110)
     plt.close(figure)
     return Path(path)
+
+
+def _draw_views(ax, views: list) -> None:
+    """Each suggested view: the camera (a square), its field of view as two rays of a metre, its rank and
+    gain, and a dotted line to each candidate place it would look at."""
+    for rank, view in enumerate(views, 1):
+        ax.plot(view.x, view.y, "s", color="royalblue", ms=6)
+        for side in (-1, 1):
+            edge = view.heading + side * np.radians(29)
+            ax.plot([view.x, view.x + np.cos(edge)], [view.y, view.y + np.sin(edge)], color="royalblue", lw=1)
+        for x, y, _ in view.looks_at:
+            ax.plot([view.x, x], [view.y, y], ":", color="royalblue", lw=0.8)
+        ax.text(view.x, view.y + 0.15, f"{rank}: {view.gain:.2f}", color="royalblue", fontsize=7, ha="center")
 
 
 def plot_labels(

@@ -1,0 +1,232 @@
+"""Where to look next: camera poses from which a robot still mapping a room would see most of what its maps
+are unsure of.
+
+A partial view misses places because their body space was never seen: a chair behind a table, a sofa's far
+end. The fields' visibility states (`geometry.visibility`) say which voxels were never seen, and the place
+model says how likely each candidate place is. A candidate whose probability is near 0.5 is the one a look
+would settle, so each candidate weighs its binary entropy H(p) (1 bit at p = 0.5, none at 0 or 1), shared out
+over the voxels of its body space (`VisibilitySettings.seen_radius`, `seen_low` ... `seen_high`); the
+never-seen ones among them are the targets. A view's gain is the weight of the targets it would see, in
+bits: a candidate whose whole body space is unknown, seen whole, gives H(p).
+
+Views stand where the robot can: nothing occupied within the robot's footprint up to the camera, and most
+of that space seen free (`_standable`; `NextViewSettings`), on a grid of `step`, each at `headings` headings.
+A target is seen when it lies within the camera's range and field of view and no occupied voxel stands on the
+line to it. Unknown voxels on the line count as clear: what hides behind them is what the view finds out.
+Views are
+chosen greedily, each counting only the targets the ones before it do not see.
+
+Everything is vectorised over positions, headings and targets; the line-of-sight samples are taken a block
+of positions at a time (`_LINE_BLOCK`), so memory stays bounded.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry.fields import SceneFields, disc
+from ..settings import NextViewSettings, VisibilitySettings
+
+_LINE_BLOCK = 2_000_000  # (position, target, sample) triples per block of the line-of-sight test
+# a candidate's body space is sampled every this many voxels along each axis (20 cm on 10 cm voxels): what a
+# camera sees of a body-sized space changes little within that, and the work falls eightfold
+_TARGET_STRIDE = 2
+_PLACES = 24  # the candidates a look would settle most (by their bits) are the ones targeted
+_SEEN_FREE = 0.5  # of a column a robot may stand in, at least this share was seen free
+_MIN_GAIN = 0.01  # bits: a view that would tell less is not worth the drive
+
+
+@dataclass
+class NextView:
+    """A camera pose (its position, world frame, and heading about z) and what it would tell."""
+
+    x: float
+    y: float
+    z: float
+    heading: float  # radians, 0 along +x
+    gain: float  # bits: the entropy of candidate places it would settle (`next_views`)
+    places: list[int]  # the candidates it would look at (their indices), most gained first
+    looks_at: np.ndarray  # (len(places), 3): their x, y and probability
+
+    def to_json(self) -> dict:
+        return {
+            "x": round(self.x, 3),
+            "y": round(self.y, 3),
+            "z": round(self.z, 3),
+            "heading": round(self.heading, 4),
+            "gain": round(self.gain, 4),
+            "looks_at": [
+                {"x": round(float(x), 3), "y": round(float(y), 3), "probability": round(float(p), 4)}
+                for x, y, p in self.looks_at
+            ],
+        }
+
+
+def entropy_bits(p: np.ndarray) -> np.ndarray:
+    """Binary entropy of probabilities, in bits (0 at 0 and 1)."""
+    p = np.clip(np.asarray(p, dtype=np.float64), 1e-12, 1 - 1e-12)
+    return -(p * np.log2(p) + (1 - p) * np.log2(1 - p))
+
+
+def next_views(
+    fields: SceneFields,
+    candidates: np.ndarray,
+    probabilities: np.ndarray,
+    count: int,
+    settings: NextViewSettings | None = None,
+    body: VisibilitySettings | None = None,
+    height: float | None = None,
+) -> list[NextView]:
+    """Up to `count` views, best first, for candidate places at (x, y) (`candidates`, (k, >= 2)) of the given
+    probabilities (NaN, from a model without a place model: taken as 0.5). `height`: the camera's above the
+    floor (default `settings.height`). ValueError when the fields carry no visibility (no sensor positions:
+    nothing tells unknown space from free)."""
+    settings, body = settings or NextViewSettings(), body or VisibilitySettings()
+    if fields.visibility is None:
+        raise ValueError("next views need the sensor positions: without them unknown space cannot be told")
+    candidates = np.asarray(candidates, dtype=np.float64).reshape(-1, np.shape(candidates)[-1] or 2)
+    probabilities = np.where(np.isfinite(probabilities), probabilities, 0.5)
+    bits = entropy_bits(probabilities)
+    bits[np.argsort(-bits, kind="stable")[_PLACES:]] = 0.0
+    targets, owner, weight = _targets(fields, candidates[:, :2], bits, body)
+    eye_z = settings.height if height is None else height  # the fields are levelled: the floor at z = 0
+    positions = _standable(fields, settings, eye_z)
+    if not len(targets) or not len(positions) or count < 1:
+        return []
+    eyes = np.column_stack([positions, np.full(len(positions), eye_z)])
+    in_view = _in_view(fields, eyes, targets, settings)  # (positions, headings, targets)
+    headings = 2 * np.pi * np.arange(settings.headings) / settings.headings
+    remaining, views = weight.astype(np.float32), []
+    for _ in range(count):
+        gains = in_view @ remaining  # (positions, headings)
+        p, h = np.unravel_index(int(np.argmax(gains)), gains.shape)
+        if gains[p, h] < _MIN_GAIN:
+            break
+        seen = (in_view[p, h] > 0) & (remaining > 0)
+        per_place = np.bincount(owner[seen], weights=remaining[seen], minlength=len(candidates))
+        places = [int(i) for i in np.argsort(-per_place, kind="stable") if per_place[i] > 0]
+        looks_at = np.column_stack([candidates[places, :2], probabilities[places]])
+        views.append(NextView(*map(float, eyes[p]), float(headings[h]), float(gains[p, h]), places, looks_at))
+        remaining[seen] = 0.0
+    return views
+
+
+def _floor_layer(fields: SceneFields) -> int:
+    """The voxel layer of the floor: the world frame's z = 0 (a few points of noise below it are no floor)."""
+    lattice = fields.lattice
+    return int(np.clip(np.rint(-lattice.origin[2] / lattice.resolution), 0, lattice.shape[2] - 1))
+
+
+def _targets(
+    fields: SceneFields, xy: np.ndarray, bits: np.ndarray, body: VisibilitySettings
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(the never-seen voxel centres of the candidates' body space (n, 3), each one's candidate, its weight:
+    the candidate's bits over its body space's voxel count), on the body space's `_TARGET_STRIDE` lattice;
+    candidates of no bits have none."""
+    from ..geometry.visibility import UNKNOWN
+
+    lattice, state = fields.lattice, fields.visibility
+    res = lattice.resolution
+    floor = lattice.origin[2] + _floor_layer(fields) * res
+    layers = np.arange(lattice.shape[2])
+    heights = lattice.origin[2] + layers * res - floor
+    band = layers[(heights >= body.seen_low - 1e-9) & (heights <= body.seen_high + 1e-9)][::_TARGET_STRIDE]
+    reach = int(round(body.seen_radius / res))
+    di, dj = np.nonzero(disc(reach))
+    di, dj = di - reach, dj - reach
+    on_stride = (di % _TARGET_STRIDE == 0) & (dj % _TARGET_STRIDE == 0)
+    di, dj = di[on_stride], dj[on_stride]
+    xy = xy[bits > 0]
+    bits, kept = bits[bits > 0], np.flatnonzero(bits > 0)
+    centre = np.rint((xy - lattice.origin[:2]) / res).astype(int)  # (k, 2)
+    ci = centre[:, :1] + di[None]  # (k, disc)
+    cj = centre[:, 1:] + dj[None]
+    inside = (ci >= 0) & (ci < lattice.shape[0]) & (cj >= 0) & (cj < lattice.shape[1])
+    owner_col = np.broadcast_to(np.arange(len(xy))[:, None], ci.shape)[inside]
+    ci, cj = ci[inside], cj[inside]
+    voxels_per_place = np.bincount(owner_col, minlength=len(xy)) * len(band)
+    unknown = state[ci[:, None], cj[:, None], band[None]] == UNKNOWN  # (columns, band)
+    column, layer = np.nonzero(unknown)
+    index = np.column_stack([ci[column], cj[column], band[layer]])
+    owner = owner_col[column]
+    weight = bits[owner] / np.maximum(voxels_per_place[owner], 1)
+    return lattice.centres(index), kept[owner], weight
+
+
+def _standable(fields: SceneFields, settings: NextViewSettings, eye_z: float) -> np.ndarray:
+    """(n, 2) positions on the `step` grid where the robot can stand: nothing occupied from 15 cm above the
+    floor up to the camera within `footprint` in plan, and most of the position's own column (`_SEEN_FREE`)
+    seen free. Not all of it: a camera looking level never sees the space at its feet, nor the floor under
+    its next stop, and a column looked through above the knee seldom hides anything below it."""
+    from scipy import ndimage
+
+    from ..geometry.visibility import FREE, OCCUPIED
+
+    lattice, state = fields.lattice, fields.visibility
+    res = lattice.resolution
+    floor = _floor_layer(fields)
+    top = min(int(np.ceil((eye_z - lattice.origin[2]) / res)), lattice.shape[2] - 1)
+    # from two layers up: the floor's own points spill into the layer above it (noise, a rug, a threshold),
+    # which a robot crosses
+    column = state[:, :, floor + 2 : top + 1]
+    obstacle = (column == OCCUPIED).any(axis=2)
+    reach = int(np.ceil(settings.footprint / res))
+    if reach:  # obstacles grown by the robot's radius, as a planner's costmap inflates them
+        obstacle = ndimage.binary_dilation(obstacle, disc(reach))
+    clear = ~obstacle & ((column == FREE).mean(axis=2) >= _SEEN_FREE)
+    stride = max(1, int(round(settings.step / res)))
+    keep = np.zeros_like(clear)
+    keep[::stride, ::stride] = True
+    i, j = np.nonzero(clear & keep)
+    return lattice.origin[:2] + np.column_stack([i, j]) * res
+
+
+def _in_view(
+    fields: SceneFields, eyes: np.ndarray, targets: np.ndarray, settings: NextViewSettings
+) -> np.ndarray:
+    """(positions, headings, targets) float: 1 where the camera at the position, turned to the heading, sees
+    the target (range, field of view, no occupied voxel on the line), else 0."""
+    offset = targets[None] - eyes[:, None]  # (P, T, 3)
+    distance = np.linalg.norm(offset, axis=2)
+    plan = np.hypot(offset[..., 0], offset[..., 1])
+    elevation = np.degrees(np.arctan2(offset[..., 2], plan)) - settings.pitch_deg
+    visible = (distance >= settings.min_range) & (distance <= settings.max_range)
+    visible &= np.abs(elevation) <= settings.fov_vertical_deg / 2
+    visible &= _clear_lines(fields, eyes, targets, visible)
+    azimuth = np.arctan2(offset[..., 1], offset[..., 0])  # (P, T)
+    headings = 2 * np.pi * np.arange(settings.headings) / settings.headings
+    off_axis = np.angle(np.exp(1j * (azimuth[:, None, :] - headings[None, :, None])))
+    within = np.abs(off_axis) <= np.radians(settings.fov_horizontal_deg) / 2
+    return (within & visible[:, None, :]).astype(np.float32)
+
+
+def _clear_lines(
+    fields: SceneFields, eyes: np.ndarray, targets: np.ndarray, wanted: np.ndarray
+) -> np.ndarray:
+    """(P, T) bool: no occupied voxel on the line from each eye to each target (the target's own voxel and
+    the one before it excepted), tested only where `wanted`; samples half a voxel apart."""
+    from ..geometry.visibility import OCCUPIED
+
+    lattice = fields.lattice
+    blocked = np.zeros(wanted.shape, bool)
+    p_index, t_index = np.nonzero(wanted)
+    if not len(p_index):
+        return ~blocked
+    length = np.linalg.norm(targets[t_index] - eyes[p_index], axis=1)
+    samples = int(np.ceil(length.max() / (lattice.resolution / 2)))
+    per_block = max(1, _LINE_BLOCK // samples)
+    shape = np.array(lattice.shape)
+    for start in range(0, len(p_index), per_block):
+        p, t = p_index[start : start + per_block], t_index[start : start + per_block]
+        share = np.linspace(0.0, 1.0, samples, endpoint=False)[None, :, None]
+        points = eyes[p][:, None] + share * (targets[t] - eyes[p])[:, None]  # (n, samples, 3)
+        # the last voxel and a half before the target are its own surroundings: not an obstacle
+        near_end = (1 - share[..., 0]) * length[start : start + per_block, None] < 1.5 * lattice.resolution
+        index = np.rint((points - lattice.origin) / lattice.resolution).astype(np.int64)
+        inside = ((index >= 0) & (index < shape)).all(axis=2)
+        index = np.clip(index, 0, shape - 1)
+        hit = fields.visibility[index[..., 0], index[..., 1], index[..., 2]] == OCCUPIED
+        blocked[p, t] = (hit & inside & ~near_end).any(axis=1)
+    return ~blocked
