@@ -158,7 +158,9 @@ class DdsBridge:
                 try:
                     cls = message_class(typename)
                 except ImportError as error:
-                    self.skipped.append(f"{topic}: {error}")
+                    if not any(line.startswith(f"{topic}:") for line in self.skipped):
+                        self.skipped.append(f"{topic}: {error}")
+                        print(f"[ros-bridge] not bridged: {self.skipped[-1]}", flush=True)
                     return
                 publisher = self._publishers[topic] = self.node.create_publisher(cls, topic, self.latched)
             self._sent.append(payload)
