@@ -204,7 +204,7 @@ class NextViewSettings(BaseModel):
         ge=0,
         description="the robot's radius (m): a view stands on seen-free floor this far from anything",
     )
-    step: float = Field(0.4, gt=0, description="views are tried on a grid of this spacing (m)")
+    step: float = Field(0.2, gt=0, description="views are tried on a grid of this spacing (m)")
     headings: int = Field(24, ge=1, le=360, description="headings tried at each position")
 
 
