@@ -299,23 +299,38 @@ def pose_of(message, limits: LimitSettings | None = None) -> RosPose:
     AFFORD_LIMITS__MAX_EXTENT of the odometry's origin, or its orientation is not a unit quaternion."""
     limits = limits or LimitSettings()
     stamp, frame_id = _header(message, limits, "Odometry")
+    child = _child_frame(message, "Odometry")
+    p, q = message.pose.pose.position, message.pose.pose.orientation
+    pose = _checked_rigid(p, q, limits, "Odometry position", "Odometry orientation")
+    return RosPose(pose, stamp, frame_id, child)
+
+
+def _child_frame(message, what: str) -> str:
+    """A message's child_frame_id, refused past MAX_FRAME_ID characters."""
     child = message.child_frame_id
     if len(child) > MAX_FRAME_ID:
-        raise MessageError(f"Odometry child_frame_id is {len(child):,} characters; at most {MAX_FRAME_ID}")
-    p, q = message.pose.pose.position, message.pose.pose.orientation
-    position = np.array([p.x, p.y, p.z], dtype=np.float64)
-    if not np.isfinite(position).all() or np.abs(position).max() > limits.max_extent:
+        raise MessageError(f"{what} child_frame_id is {len(child):,} characters; at most {MAX_FRAME_ID}")
+    return child
+
+
+def _checked_rigid(position, quaternion, limits: LimitSettings, where: str, turn: str) -> np.ndarray:
+    """4 x 4 transform of a message's point and quaternion; MessageError (`where` or `turn` naming the part)
+    when the point is not finite or lies beyond AFFORD_LIMITS__MAX_EXTENT, or the quaternion is not a unit
+    one."""
+    p, q = position, quaternion
+    translation = np.array([p.x, p.y, p.z], dtype=np.float64)
+    if not np.isfinite(translation).all() or np.abs(translation).max() > limits.max_extent:
         raise MessageError(
-            f"Odometry position {position.tolist()} is not finite or beyond AFFORD_LIMITS__MAX_EXTENT "
+            f"{where} {translation.tolist()} is not finite or beyond AFFORD_LIMITS__MAX_EXTENT "
             f"({limits.max_extent:g} m)"
         )
     try:
         rotation = rotation_of([q.x, q.y, q.z, q.w])
     except ValueError as error:
-        raise MessageError(f"Odometry orientation: {error}") from None
-    pose = np.eye(4)
-    pose[:3, :3], pose[:3, 3] = rotation, position
-    return RosPose(pose, stamp, frame_id, child)
+        raise MessageError(f"{turn}: {error}") from None
+    rigid = np.eye(4)
+    rigid[:3, :3], rigid[:3, 3] = rotation, translation
+    return rigid
 
 
 def rigid_of(pose) -> np.ndarray:
@@ -440,24 +455,12 @@ def transform_of(stamped, limits: LimitSettings | None = None) -> RosTransform:
     long, the translation not finite or beyond AFFORD_LIMITS__MAX_EXTENT, the rotation no unit quaternion."""
     limits = limits or LimitSettings()
     stamp, parent = _header(stamped, limits, "tf")
-    child = stamped.child_frame_id
-    if len(child) > MAX_FRAME_ID:
-        raise MessageError(f"tf child_frame_id is {len(child):,} characters; at most {MAX_FRAME_ID}")
+    child = _child_frame(stamped, "tf")
     if not parent or not child or parent.strip("/") == child.strip("/"):
         raise MessageError(f"tf from {parent!r} to {child!r}: both frames must be named, and differ")
     t, q = stamped.transform.translation, stamped.transform.rotation
-    translation = np.array([t.x, t.y, t.z], dtype=np.float64)
-    if not np.isfinite(translation).all() or np.abs(translation).max() > limits.max_extent:
-        raise MessageError(
-            f"tf {parent!r} -> {child!r}: translation {translation.tolist()} is not finite or beyond "
-            f"AFFORD_LIMITS__MAX_EXTENT ({limits.max_extent:g} m)"
-        )
-    try:
-        rotation = rotation_of([q.x, q.y, q.z, q.w])
-    except ValueError as error:
-        raise MessageError(f"tf {parent!r} -> {child!r}: rotation {error}") from None
-    transform = np.eye(4)
-    transform[:3, :3], transform[:3, 3] = rotation, translation
+    pair = f"tf {parent!r} -> {child!r}"
+    transform = _checked_rigid(t, q, limits, f"{pair}: translation", f"{pair}: rotation")
     return RosTransform(parent.strip("/"), child.strip("/"), transform, stamp)
 
 

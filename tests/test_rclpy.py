@@ -282,7 +282,7 @@ def test_a_ros2_robot_on_dds_gets_its_maps_on_dds_through_the_bridge(node, gener
     from rclpy.qos import DurabilityPolicy, QoSProfile
     from sensor_msgs.msg import Imu, PointCloud2
     from test_end_to_end import AFFORD, AFFORDANCES, EVERY_FRAME, _check_maps
-    from test_ros import odometry_reading, ros_stream
+    from test_ros import odometry_reading, ros_stream, watching
     from visualization_msgs.msg import MarkerArray
 
     from affordcore.assembly.sequence import read_sequence
@@ -305,14 +305,7 @@ def test_a_ros2_robot_on_dds_gets_its_maps_on_dds_through_the_bridge(node, gener
             stderr=subprocess.STDOUT,
             text=True,
         )
-        watch = subprocess.Popen(
-            AFFORD
-            + ["watch", "--connect", stack.endpoint, "--robot", stack.robot, "--frames", "40"]
-            + ["--timeout", "240", "--out", str(tmp_path / "maps")],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
+        watch = watching(stack, tmp_path / "maps", frames=40)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         received = {}
         for affordance in AFFORDANCES:

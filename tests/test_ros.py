@@ -970,7 +970,6 @@ def test_a_ros2_robot_on_rmw_zenoh_keys_gets_affordance_maps(generated_sequence,
     acceleration must come out as a map whose up is the room's, and the odometry must reach the assembler."""
     import zenoh
     from test_end_to_end import (
-        AFFORD,
         EVERY_FRAME,
         _assert_same_as_afford_map,
         _check_maps,
@@ -993,14 +992,7 @@ def test_a_ros2_robot_on_rmw_zenoh_keys_gets_affordance_maps(generated_sequence,
     }
     stack = Stack(tmp_path / "run", env=env).start()
     try:
-        watch = subprocess.Popen(
-            AFFORD
-            + ["watch", "--connect", stack.endpoint, "--robot", stack.robot, "--frames", "40"]
-            + ["--timeout", "240", "--out", str(tmp_path / "maps")],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
+        watch = watching(stack, tmp_path / "maps", frames=40)
         session = stack.session()
         try:
             block = zenoh.CongestionControl.BLOCK
@@ -1057,6 +1049,20 @@ def test_a_ros2_robot_on_rmw_zenoh_keys_gets_affordance_maps(generated_sequence,
 
     world_from_odom = messages.pose_matrix(cloud.world_from_input)
     assert _angle_deg(world_from_odom[:3, :3].T @ [0, 0, 1], -sequence.gravity(0)) < 3.0
+
+
+def watching(stack, out, frames: int) -> subprocess.Popen:
+    """`afford watch` of the stack's robot into `out` until maps cover `frames` scans (240 s at most), its
+    output kept for the test to read."""
+    from test_end_to_end import AFFORD
+
+    command = ["watch", "--connect", stack.endpoint, "--robot", stack.robot, "--frames", str(frames)]
+    return subprocess.Popen(
+        AFFORD + command + ["--timeout", "240", "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
 
 
 def eventually_matched(publisher, timeout: float = 20.0) -> bool:

@@ -178,7 +178,7 @@ def build_map(
         kept = choose_places(xy, probabilities, place_probability, nms_radius, eligible)
         lower = min(UNSURE_PROBABILITY, place_probability)
         unsure = len(choose_places(xy, probabilities, lower, nms_radius, eligible)) - len(kept)
-        unsure_about = np.column_stack([candidates.rows, probabilities])[eligible].reshape(-1, 6)
+        candidate_rows = np.column_stack([candidates.rows, probabilities])[eligible].reshape(-1, 6)
         skeletons, probabilities = candidates.rows[kept].reshape(-1, 5), probabilities[kept]
         place_threshold = float("nan")
     else:
@@ -186,7 +186,7 @@ def build_map(
         i, j = peak_cells(confidence, grid, place_threshold, nms_radius, None).T
         skeletons = np.column_stack([grid.x[i], grid.y[j], best_z[i, j], best_theta[i, j], confidence[i, j]])
         probabilities, place_probability = np.full(len(skeletons), np.nan), float("nan")
-        unsure, unsure_about = 0, np.empty((0, 6))
+        unsure, candidate_rows = 0, np.empty((0, 6))
     joints = (
         place_joints(skeleton.joints, skeletons[:, :4])
         if len(skeletons)
@@ -207,5 +207,5 @@ def build_map(
         probabilities,
         float(place_probability),
         unsure,
-        unsure_about,
+        candidate_rows,
     )

@@ -86,7 +86,7 @@ def next_views(
     settings, body = settings or NextViewSettings(), body or VisibilitySettings()
     if fields.visibility is None:
         raise ValueError("next views need the sensor positions: without them unknown space cannot be told")
-    candidates = np.asarray(candidates, dtype=np.float64).reshape(-1, np.shape(candidates)[-1] or 2)
+    candidates = np.atleast_2d(np.asarray(candidates, dtype=np.float64))
     probabilities = np.where(np.isfinite(probabilities), probabilities, 0.5)
     bits = entropy_bits(probabilities)
     bits[np.argsort(-bits, kind="stable")[_PLACES:]] = 0.0
