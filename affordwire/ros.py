@@ -349,11 +349,21 @@ class _Readings:
 
     def __init__(self, keep: int = 2048):
         self._readings: deque[tuple[float, np.ndarray]] = deque(maxlen=keep)
-        self._lock = threading.Lock()
+        self._lock = threading.Condition()
 
     def add(self, stamp: float, value: np.ndarray) -> None:
         with self._lock:
             self._readings.append((stamp, np.asarray(value, dtype=np.float64)))
+            self._lock.notify_all()
+
+    def wait_past(self, stamp: float, timeout: float) -> bool:
+        """Wait up to `timeout` seconds for a reading stamped at or after `stamp` (the newest one heard);
+        whether one came. A sensor's readings come on their own topic, through their own queues, and can
+        reach the service after the cloud they belong to."""
+        with self._lock:
+            return self._lock.wait_for(
+                lambda: bool(self._readings) and self._readings[-1][0] >= stamp, timeout=max(0.0, timeout)
+            )
 
     def __len__(self) -> int:
         return len(self._readings)

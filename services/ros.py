@@ -222,6 +222,7 @@ class RosInput:
 
     def frame(self, item: Inbound, cloud) -> SensorFrame:
         """The SensorFrame of a decoded PointCloud2 sample, with the gravity and pose guess at its stamp."""
+        self._wait_for_readings(item, cloud.stamp)
         gravity = self.gravity.at(cloud.stamp, self.settings.imu_max_age) if self.imu_keys else None
         if gravity is not None:
             rotation = self._cloud_from_imu(cloud.frame_id)
@@ -250,6 +251,14 @@ class RosInput:
             gravity=gravity,
             pose_guess=guess,
         )
+
+    def _wait_for_readings(self, item: Inbound, stamp: float) -> None:
+        """Give the odometry and the Imu until AFFORD_ROS__READING_WAIT after the cloud arrived to reach its
+        stamp, so that a cloud does not lose its pose or gravity to a reading still on its way."""
+        deadline = item.arrived + self.settings.reading_wait
+        for track, heard in ((self.poses, self.odometry_keys), (self.gravity, self.imu_keys)):
+            if heard:
+                track.wait_past(stamp, deadline - time.time())
 
     def tie(self, odom_from_sensor: np.ndarray, guess: np.ndarray | None) -> None:
         """A registered frame's pose in the assembler's odometry frame, beside the pose the robot's odometry

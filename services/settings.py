@@ -138,6 +138,13 @@ class RosSettings(BaseModel):
         gt=0,
         description="a scan takes odometry readings only within this many seconds of its header stamp",
     )
+    reading_wait: float = Field(
+        0.1,
+        ge=0,
+        description="a scan whose odometry or Imu readings have not yet reached its header stamp waits up "
+        "to this many seconds after it arrived for one that does (the readings come on their own topics "
+        "and can arrive after the scan they belong to); a scan already this late waits no more",
+    )
     domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID: the first chunk of rmw_zenoh's keys")
     distribution: Literal["humble", "jazzy", "kilted", "rolling"] = Field(
         "jazzy",

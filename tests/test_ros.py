@@ -364,6 +364,20 @@ def test_the_pose_track_interpolates_between_the_readings_either_side_of_a_cloud
     np.testing.assert_allclose(track.at(10.01, 0.05), _pose_at(0.0, 0.0))  # only one side within its age
 
 
+def test_waiting_for_a_reading_past_a_stamp_ends_when_one_comes_or_at_the_timeout():
+    import threading
+
+    track = ros.PoseTrack()
+    track.add(1.0, np.eye(4))
+    assert track.wait_past(1.0, 0.0)  # one at the stamp already
+    start = time.monotonic()
+    assert not track.wait_past(2.0, 0.2) and time.monotonic() - start >= 0.19
+    timer = threading.Timer(0.1, track.add, (2.5, np.eye(4)))
+    timer.start()
+    assert track.wait_past(2.0, 30.0)  # woken by the reading, long before the timeout
+    timer.join()
+
+
 def test_a_sensor_mounted_ahead_of_the_base_moves_sideways_when_the_base_turns():
     from services.ros import pose_guess, sensor_mounting
     from services.settings import RosSettings
@@ -749,6 +763,36 @@ def test_the_assembler_takes_each_cloud_s_pose_guess_from_the_odometry_and_answe
     np.testing.assert_allclose(service.assembler._last_guess[:3, 3], [0.025, 0.0, 0.0], atol=1e-9)
     for subscriber in subscribers:
         subscriber.undeclare()
+
+
+@pytest.mark.skipif(not _zenoh_ok(), reason="zenoh is not installed")
+def test_a_cloud_that_comes_before_its_odometry_waits_for_it(ros_network, tmp_path, monkeypatch):
+    """The odometry at a cloud's stamp comes on its own topic, here 0.3 s after the cloud: the cloud waits
+    for it (up to AFFORD_ROS__READING_WAIT after it arrived) and gets its pose guess from it."""
+    import zenoh
+    from conftest import eventually
+
+    monkeypatch.setenv("AFFORD_ROS__IMU", "")
+    monkeypatch.setenv("AFFORD_ROS__READING_WAIT", "30")
+    endpoint, client = ros_network
+    with running_assembler(endpoint, tmp_path) as service:
+        errors, poses, subscribers = _answers(client)
+        block = zenoh.CongestionControl.BLOCK
+        odometry, clouds = (
+            client.declare_publisher(key, congestion_control=block)
+            for key in ("robot1/odom", "robot1/points")
+        )
+        assert eventually_matched(odometry) and eventually_matched(clouds)
+        base = int(time.time())
+        clouds.put(cdr(cloud_message(_camera_floor(2), sec=base, nanosec=50_000_000, frame_id="lidar")))
+        time.sleep(0.3)
+        assert service.ros.counts.clouds == 0  # not taken yet: waiting for its odometry
+        odometry.put(cdr(odometry_message([0.5, 0.0, 0.0], sec=base, nanosec=100_000_000), ros.ODOMETRY))
+        assert eventually(lambda: len(poses) == 1, timeout=20), errors
+        assert service.ros.counts.with_odometry == 1
+        np.testing.assert_allclose(service.assembler._last_guess[:3, 3], [0.5, 0.0, 0.0], atol=1e-9)
+        for subscriber in subscribers:
+            subscriber.undeclare()
 
 
 @pytest.mark.skipif(not _zenoh_ok(), reason="zenoh is not installed")
