@@ -24,6 +24,7 @@ DepthFrame = sensing_pb2.DepthFrame
 CloudMessage = maps_pb2.Cloud
 SceneFieldsMessage = maps_pb2.SceneFields
 AffordanceMapMessage = maps_pb2.AffordanceMap
+NextViewsMessage = maps_pb2.NextViews
 Pose = geometry_pb2.Pose
 Status = service_pb2.Status
 Error = service_pb2.Error
@@ -53,6 +54,7 @@ MESSAGE_CLASSES = {
         Pose,
         SceneFieldsMessage,
         AffordanceMapMessage,
+        NextViewsMessage,
         Status,
         Error,
         Reset,
@@ -532,6 +534,24 @@ def map_message(
             joints=np.ravel(joints).tolist(),
             probability=_finite_or_none(probability),
         )
+    _carry_source(message, fields.world_from_input, fields, at)
+    return message
+
+
+def next_views_message(
+    views, camera, fields: SceneFieldsMessage, at: float | None = None
+) -> NextViewsMessage:
+    """A NextViews message of the views (`next_views.NextView`, best first) suggested for the maps of
+    `fields`, for the camera of `camera` (NextViewSettings)."""
+    message = NextViewsMessage(frame_id=WORLD)
+    for view in views:
+        out = message.views.add(heading=view.heading, gain=view.gain)
+        set_pose(out.pose, view.pose(), WORLD, "next_view", at)
+        for (x, y, probability), affordance in zip(view.looks_at, view.affordances):
+            out.places.add(affordance=affordance, x=x, y=y, probability=probability)
+    c = message.camera
+    c.fov_horizontal, c.fov_vertical = np.radians([camera.fov_horizontal_deg, camera.fov_vertical_deg])
+    c.pitch, c.min_range, c.max_range = np.radians(camera.pitch_deg), camera.min_range, camera.max_range
     _carry_source(message, fields.world_from_input, fields, at)
     return message
 

@@ -22,9 +22,11 @@ import math
 import numpy as np
 
 from . import ros
-from .messages import AffordanceMapMessage, nanoseconds
+from .messages import AffordanceMapMessage, NextViewsMessage, nanoseconds
 
 PLACES = "geometry_msgs/msg/PoseArray"
+VIEWS = "geometry_msgs/msg/PoseArray"
+GOAL = "geometry_msgs/msg/PoseStamped"
 MARKERS = "visualization_msgs/msg/MarkerArray"
 CONFIDENCE = "nav_msgs/msg/OccupancyGrid"
 NOT_TRIED = -1e30  # the map's confidence is float32's lowest (-3.4e38) where no pose was tried
@@ -42,7 +44,7 @@ def _types():
     return ros.typestore().types
 
 
-def _header(message: AffordanceMapMessage, frame_id: str):
+def _header(message: AffordanceMapMessage | NextViewsMessage, frame_id: str):
     """Stamped with the time of the cloud the map answers (the data's time, as a ROS driver stamps)."""
     t = _types()
     stamp = nanoseconds(message.cloud_timestamp)
@@ -70,6 +72,22 @@ def pose_array(message: AffordanceMapMessage, frame_id: str) -> bytes:
     """The places, likeliest first (the map's order)."""
     poses = [_pose(s.x, s.y, s.z, s.theta) for s in message.skeletons]
     return ros.serialize(_types()[PLACES](header=_header(message, frame_id), poses=poses), PLACES)
+
+
+def view_poses(message: NextViewsMessage, frame_id: str) -> bytes:
+    """The next views, best first: each the camera's position (at its height) and heading."""
+    poses = [_pose(v.pose.position.x, v.pose.position.y, v.pose.position.z, v.heading) for v in message.views]
+    return ros.serialize(_types()[VIEWS](header=_header(message, frame_id), poses=poses), VIEWS)
+
+
+def best_view_goal(message: NextViewsMessage, frame_id: str) -> bytes | None:
+    """The best view as a goal for the base (on the floor, z = 0, facing the heading), ready for Nav2's
+    navigate_to_pose; None without views."""
+    if not message.views:
+        return None
+    best = message.views[0]
+    pose = _pose(best.pose.position.x, best.pose.position.y, 0.0, best.heading)
+    return ros.serialize(_types()[GOAL](header=_header(message, frame_id), pose=pose), GOAL)
 
 
 def place_label(skeleton) -> str:

@@ -11,8 +11,9 @@ import threading
 import time
 
 from affordcore.geometry.features import FeatureLayout
+from affordcore.mapping.next_views import suggest_views
 from affordcore.mapping.pipeline import RoomMapper, Superseded, preload
-from affordcore.mapping.recording import log_map, set_time
+from affordcore.mapping.recording import log_map, log_views, set_time
 from affordcore.mapping.recording import preload as preload_recording
 from affordwire import messages
 
@@ -56,6 +57,8 @@ class InferenceService:
         node.subscribe(node.keys.fields, self.inbox)
         for model in self.models:
             node.answer_latest(node.keys.affordance(model.affordance))
+        if node.settings.next_views.count:
+            node.answer_latest(node.keys.next_views)
         self.ros = ros_output(node, self.models, node.keys.robot)
         node.fetch_latest(node.keys.fields, self.inbox)  # fields published before this service (re)started
         node.on_reset = self.forget
@@ -128,7 +131,7 @@ class InferenceService:
         try:
             if self.features_newest > self.mapping_cloud and self._may_give_up():
                 raise Superseded("a newer map reached the features service before these maps began")
-            self.mapper.maps(fields, on_map=publish)
+            maps = self.mapper.maps(fields, on_map=publish)
         except Superseded:
             self.gave_up_last, self.given_up = True, self.given_up + 1
             self.inbox.set_aside(item)  # the newer map may yet be refused
@@ -141,11 +144,28 @@ class InferenceService:
         finally:
             self.mapping = False
         self.gave_up_last = False
+        views = self._suggest_views(maps, fields, message)
         self.node.publish_status(
             messages.Status.READY,
-            f"published {len(self.models)} maps of a {message.frames}-frame map; "
+            f"published {len(self.models)} maps{views} of a {message.frames}-frame map; "
             + self.mapper.describe(self.ids),
         )
+
+    def _suggest_views(self, maps: dict, fields, message: messages.SceneFieldsMessage) -> str:
+        """Where to look next to settle this robot's maps, over every affordance (AFFORD_NEXT_VIEWS__COUNT),
+        published on next-views (and to ROS 2 and the recording); what the status says of them."""
+        settings = self.node.settings
+        if not settings.next_views.count:
+            return ""
+        if fields.visibility is None:
+            return " (no next views: the fields carry no sensor positions)"
+        views = suggest_views(fields, maps.values(), settings)
+        out = messages.next_views_message(views, settings.next_views, message)
+        self.node.publish(self.node.keys.next_views, out)
+        if self.ros is not None:
+            self.ros.publish_views(self.node.keys.robot, out)
+        log_views(self.node.recording, views, settings.next_views)
+        return f" and {len(views)} next views"
 
     def _may_give_up(self) -> bool:
         return not self.gave_up_last and self.node.settings.service.give_up_stale_maps
@@ -222,6 +242,12 @@ class ShardedInference(InferenceService):
             f"{sorted(self.members.view())}",
             flush=True,
         )
+        if node.settings.next_views.count:  # one robot's maps may be made by several workers
+            print(
+                f"[{node.service}] no next views from a sharded worker (AFFORD_NEXT_VIEWS__COUNT): a robot "
+                "that wants them gets its own inference service (afford serve inference --robot R)",
+                flush=True,
+            )
 
     # -- ownership -----------------------------------------------------------------------------------------
 

@@ -60,6 +60,12 @@ def map_topics(namespace: str, robot: str, affordance: str) -> dict[str, str]:
     return {kind: f"/{base}/{ros_token(affordance)}/{kind}" for kind in TOPICS}
 
 
+def view_topics(namespace: str, robot: str) -> dict[str, str]:
+    """{'views': '/robot1/affordances/next_views', 'goal': '/robot1/affordances/next_view_goal'}."""
+    base = namespace.replace("{robot}", ros_token(robot)).strip("/")
+    return {"views": f"/{base}/next_views", "goal": f"/{base}/next_view_goal"}
+
+
 def rmw_zenoh_key(domain_id: int, topic: str, typename: str, distribution: str = "jazzy") -> str:
     return f"{domain_id}/{topic.strip('/')}/{dds_type(typename)}/{key_hash(typename, distribution)}"
 
@@ -172,6 +178,7 @@ class RosMapOutput:
         self.node, self.settings = node, node.settings.ros
         self.colours = affordance_colours(affordances)  # as the recordings colour them
         self._publishers: dict[tuple[str, str], dict[str, list]] = {}
+        self._view_publishers: dict[str, dict[str, list]] = {}  # {robot: the next views' publishers}
         self.published = 0
         for affordance in affordances if robot is not None else []:
             self._publishers[(robot, affordance)] = self._declare(robot, affordance)
@@ -181,7 +188,13 @@ class RosMapOutput:
         print(
             f"[{node.service}] ROS 2 out: maps on {example['places'].rsplit('/', 2)[0]}/<affordance>/"
             f"{{places,markers,confidence}} in frame {self.settings.maps_frame_id!r} "
-            f"({', '.join(self.settings.key_formats)})",
+            f"({', '.join(self.settings.key_formats)})"
+            + (
+                f"; next views on {view_topics(self.settings.maps_namespace, robot or 'ROBOT')['views']}"
+                " and the best as a goal on .../next_view_goal"
+                if node.settings.next_views.count
+                else ""
+            ),
             flush=True,
         )
 
@@ -205,6 +218,21 @@ class RosMapOutput:
         for kind, publishers in self._publishers[unit].items():
             self.topics.put(publishers, payloads[kind], now)
         self.published += 1
+
+    def publish_views(self, robot: str, message: messages.NextViewsMessage) -> None:
+        """Put a robot's next views on their topics: every view as a PoseArray, the best as a PoseStamped
+        goal (left as it was when there is none)."""
+        if robot not in self._view_publishers:
+            topics = view_topics(self.settings.maps_namespace, robot)
+            self._view_publishers[robot] = {
+                "views": self.topics.declare(topics["views"], ros_maps.VIEWS),
+                "goal": self.topics.declare(topics["goal"], ros_maps.GOAL),
+            }
+        frame, now, publishers = self.settings.maps_frame_id, time.time_ns(), self._view_publishers[robot]
+        self.topics.put(publishers["views"], ros_maps.view_poses(message, frame), now)
+        goal = ros_maps.best_view_goal(message, frame)
+        if goal is not None:
+            self.topics.put(publishers["goal"], goal, now)
 
     def summary(self) -> str:
         return f"ROS 2: {self.published} maps published on {3 * len(self._publishers)} topics"

@@ -7,7 +7,8 @@ What this module writes is the policy (docs/security.md):
 * every identity with a certificate from the site CA may subscribe, query and watch liveliness on the
   whole key space;
 * each service may write (put, answer queries, assert liveliness) only its own keys: the assembler
-  `map/cloud` and `map/pose`, features `fields`, inference `affordance/*`, each its `status/` and `error/`;
+  `map/cloud` and `map/pose`, features `fields`, inference `affordance/*` and `next-views`, each its
+  `status/` and `error/`;
 * sensors (listed clients) may put `scan/**`; mappers (listed clients) may put a finished `map/cloud`;
   operators (listed clients) may put `control/**`: a reset of a robot's map and state (no one else may);
 * one identity per robot: a sensor or mapper named `NAME@ROBOT`, and the services of a robot given with
@@ -31,7 +32,7 @@ SERVICES = ("assembler", "features", "inference")
 OWNED = {
     "assembler": ("map/cloud", "map/pose"),
     "features": ("fields",),
-    "inference": ("affordance/*",),
+    "inference": ("affordance/*", "next-views"),
 }
 ROUTER = "router"
 CA = "ca"

@@ -48,6 +48,7 @@ class Keys:
     cloud = property(lambda self: self.key("map", "cloud"))
     pose = property(lambda self: self.key("map", "pose"))
     fields = property(lambda self: self.key("fields"))
+    next_views = property(lambda self: self.key("next-views"))
     reset = property(lambda self: self.key("control", "reset"))  # an operator's (docs/security.md)
 
     def scan(self, sensor: str) -> str:

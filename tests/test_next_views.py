@@ -114,3 +114,158 @@ def test_afford_map_writes_next_views_into_each_map_and_refuses_them_without_sen
         for view in document.get("next_views", []):
             assert set(view) == {"x", "y", "z", "heading", "gain", "looks_at"} and view["gain"] >= 0.01
     assert any(document.get("next_views") for document in documents), done.stdout
+
+
+def _candidates(affordance: str, rows) -> object:
+    """What `suggest_views` reads of an affordance map: its name and its candidates (x, y, z, theta, score,
+    probability)."""
+    from types import SimpleNamespace
+
+    candidates = np.array([[x, y, 0.45, 0.0, 1.0, p] for x, y, p in rows]).reshape(-1, 6)
+    return SimpleNamespace(affordance=affordance, candidates=candidates)
+
+
+def test_a_robot_s_views_settle_every_affordance_s_candidates_together(room):
+    """One robot, two maps: the hidden candidate is the working map's; the pooled views look at it and name
+    its affordance, and its gain is what the same candidate alone gives. No count, or no sensor positions:
+    no views."""
+    from affordcore.mapping.next_views import suggest_views
+    from affordcore.settings import Settings
+
+    settings = Settings()
+    settings.next_views.count = 2
+    relaxing = _candidates("sitting-relaxing", [(1.8, 1.0, 0.5)])  # in full view
+    working = _candidates("sitting-working", [(4.0, 2.0, 0.5)])  # behind the cabinet
+    views = suggest_views(room, [relaxing, working], settings)
+    assert views and views[0].affordances[0] == "sitting-working"
+    np.testing.assert_allclose(views[0].looks_at[0], [4.0, 2.0, 0.5])
+    alone = next_views(room, working.candidates[:, :2], working.candidates[:, 5], 1)
+    assert views[0].gain == pytest.approx(alone[0].gain)
+    assert views[0].to_json()["looks_at"][0]["affordance"] == "sitting-working"
+    settings.next_views.count = 0
+    assert suggest_views(room, [relaxing, working], settings) == []
+    settings.next_views.count = 2
+    room.visibility, kept = None, room.visibility
+    try:
+        assert suggest_views(room, [relaxing, working], settings) == []
+    finally:
+        room.visibility = kept
+
+
+def test_next_views_on_the_wire_carry_each_view_s_pose_gain_places_and_the_camera(room):
+    from affordwire import messages
+
+    working = _candidates("sitting-working", [(4.0, 2.0, 0.5), (5.2, 3.2, 0.4)])
+    views = next_views(room, working.candidates[:, :2], working.candidates[:, 5], 2)
+    for view in views:
+        view.affordances = ["sitting-working"] * len(view.places)
+    fields = messages.SceneFieldsMessage(frames=3, scans_received=4)
+    fields.cloud_timestamp.FromNanoseconds(1_700_000_000_500_000_000)
+    camera = NextViewSettings(pitch_deg=-10.0)
+    wire = messages.parse(
+        messages.NextViewsMessage, messages.next_views_message(views, camera, fields).SerializeToString()
+    )
+    assert wire.frame_id == "world" and (wire.frames, wire.scans_received) == (3, 4)
+    assert wire.cloud_timestamp.ToNanoseconds() == 1_700_000_000_500_000_000
+    assert wire.camera.pitch == pytest.approx(np.radians(-10.0))
+    assert wire.camera.fov_horizontal == pytest.approx(np.radians(58.0))
+    assert len(wire.views) == len(views) > 0
+    for sent, view in zip(wire.views, views):
+        p, q = sent.pose.position, sent.pose.orientation
+        assert (p.x, p.y, p.z) == pytest.approx((view.x, view.y, view.z))
+        yaw = np.arctan2(2 * q.w * q.z, 1 - 2 * q.z**2)
+        assert abs(q.x) + abs(q.y) < 1e-12 and np.angle(np.exp(1j * (yaw - view.heading))) == pytest.approx(0)
+        assert sent.gain == pytest.approx(view.gain)
+        assert [(s.affordance, s.x, s.y) for s in sent.places] == [
+            ("sitting-working", x, y) for x, y, _ in view.looks_at
+        ]
+
+
+def _room_with_a_hidden_seat():
+    """The cabinet room of `_room` with a seat east of the cabinet, which the sensor west of it never saw:
+    (points, fields with the sensor's visibility)."""
+    rng = np.random.default_rng(1)
+    boxes = [((0, 0, 0), (6, 4, 0)), ((0, -0.1, 0), (6, 0, 2.4)), ((2.9, 1.0, 0), (3.1, 3.0, 1.2))]
+    boxes += [((4.2, 1.5, 0), (5.0, 2.3, 0.45)), ((4.9, 1.5, 0.45), (5.0, 2.3, 0.9))]
+    points = np.concatenate([box_surface_points(np.array(a), np.array(b), 3000, rng) for a, b in boxes])
+    fields = compute_fields(points, VoxelSettings(), NormalSettings())
+    fields.visibility = voxel_states(fields.occupancy, fields.lattice, SENSOR)
+    return points, fields
+
+
+def test_the_inference_service_publishes_a_robot_s_next_views_on_the_wire_on_ros_2_and_in_its_recording(
+    tmp_path, monkeypatch
+):
+    """With AFFORD_NEXT_VIEWS__COUNT, the maps of fields that carry the sensor's visibility are followed by
+    one NextViews over every affordance on next-views (answered to a late get too), the views as a PoseArray
+    and the best as a PoseStamped goal on the floor on ROS 2, and frusta in the recording."""
+    pytest.importorskip("rosbags")
+    import threading
+
+    from conftest import eventually
+
+    from affordcore.geometry.features import FeatureLayout
+    from affordcore.learn.model import choose_models
+    from affordcore.mapping.recording import recorded_entities
+    from affordwire import messages, ros, ros_maps
+    from services.inference import InferenceService
+    from services.launch import free_port
+    from services.node import Node
+    from services.ros_maps import rmw_zenoh_key, view_topics
+    from services.settings import ServiceSettings
+    from services.transport import Keys, open_session, put_message
+
+    monkeypatch.setenv("AFFORD_NEXT_VIEWS__COUNT", "2")
+    monkeypatch.setenv("AFFORD_ROS__MAPS", "true")
+    settings = ServiceSettings()
+    models = choose_models([], [], FeatureLayout.from_settings(settings))
+    points, fields = _room_with_a_hidden_seat()
+    cloud = messages.cloud_message(points, np.eye(4), "test", at=1.7e9)
+    sent = messages.fields_message(fields, cloud, at=1.7e9)
+    topics = view_topics(settings.ros.maps_namespace, "robot-1")
+    ros_keys = {"views": rmw_zenoh_key(0, topics["views"], ros_maps.VIEWS)}
+    ros_keys["goal"] = rmw_zenoh_key(0, topics["goal"], ros_maps.GOAL)
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_session([], mode="router", listen=[endpoint])
+    node = Node("inference", "robot-1", [endpoint], settings, rrd=tmp_path / "i.rrd", models=models)
+    service = InferenceService(node)
+    thread = threading.Thread(target=service.run, daemon=True)
+    thread.start()
+    client = open_session([endpoint])
+    keys, heard = Keys("robot-1"), {}
+    try:
+        held = [client.declare_subscriber(keys.next_views, lambda s: heard.setdefault("wire", []).append(s))]
+        held += [
+            client.declare_subscriber(key, lambda s, kind=kind: heard.setdefault(kind, []).append(s))
+            for kind, key in ros_keys.items()
+        ]
+        put_message(client, keys.fields, sent)
+        assert eventually(lambda: {"wire", "views", "goal"} <= heard.keys(), timeout=120, poll=0.1), heard
+        wire = messages.parse(messages.NextViewsMessage, heard["wire"][0].payload.to_bytes())
+        replies = [r.ok for r in client.get(keys.next_views, timeout=5) if r.ok is not None]
+        assert [r.payload.to_bytes() for r in replies] == [heard["wire"][-1].payload.to_bytes()]
+    finally:
+        node.stop_event.set()
+        thread.join(30)
+        client.close()
+        router.close()
+    assert 1 <= len(wire.views) <= 2 and wire.views[0].gain > 0
+    assert {place.affordance for view in wire.views for place in view.places} <= {
+        m.affordance for m in models
+    }
+    store = ros.typestore()
+    poses = store.deserialize_cdr(heard["views"][-1].payload.to_bytes(), ros_maps.VIEWS).poses
+    goal = store.deserialize_cdr(heard["goal"][-1].payload.to_bytes(), ros_maps.GOAL)
+    np.testing.assert_allclose(
+        [(p.position.x, p.position.y, p.position.z) for p in poses],
+        [(v.pose.position.x, v.pose.position.y, v.pose.position.z) for v in wire.views],
+    )
+    best = wire.views[0].pose.position
+    assert (goal.pose.position.x, goal.pose.position.y, goal.pose.position.z) == pytest.approx(
+        (best.x, best.y, 0)
+    )
+    assert goal.header.frame_id == "world"
+    entities = recorded_entities(tmp_path / "i.rrd")
+    assert {f"/world/next_views/{rank}" for rank in range(len(wire.views))} <= entities
+    assert {"/plan/next_views", "/plan/next_views/fov", "/plan/next_views/looks"} <= entities

@@ -21,7 +21,7 @@ rclpy = pytest.importorskip(
 )
 
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
-from test_ros_maps import check_confidence, check_markers, check_places, small_map  # noqa: E402
+from test_ros_maps import check_confidence, check_markers, check_places, small_map, yaw_of  # noqa: E402
 
 from affordwire import ros, ros_maps  # noqa: E402
 
@@ -34,6 +34,7 @@ TYPES = {
     ros_maps.MARKERS: ("visualization_msgs.msg", "MarkerArray"),
     "visualization_msgs/msg/Marker": ("visualization_msgs.msg", "Marker"),
     ros_maps.CONFIDENCE: ("nav_msgs.msg", "OccupancyGrid"),
+    ros_maps.GOAL: ("geometry_msgs.msg", "PoseStamped"),
     # a TFMessage is a sequence of these (tf2_msgs has no wheel on PyPI: its own hash is not checked here)
     "geometry_msgs/msg/TransformStamped": ("geometry_msgs.msg", "TransformStamped"),
 }
@@ -173,6 +174,26 @@ def test_the_maps_the_project_makes_deserialise_in_rclpy():
     )
     grid = deserialize_message(ros_maps.occupancy_grid(message, "world"), OccupancyGrid)
     check_confidence(grid, message, confidence)
+
+
+def test_the_next_views_deserialise_in_rclpy_the_best_as_a_goal_on_the_floor():
+    from geometry_msgs.msg import PoseArray, PoseStamped
+
+    from affordwire import messages
+
+    message = messages.NextViewsMessage(frame_id="world")
+    message.cloud_timestamp.FromNanoseconds(1_700_000_000_250_000_000)
+    for x, y, heading in ((1.0, 2.0, 0.5), (3.0, -1.0, -2.5)):
+        view = message.views.add(heading=heading, gain=0.4)
+        view.pose.position.x, view.pose.position.y, view.pose.position.z = x, y, 1.0
+    poses = deserialize_message(ros_maps.view_poses(message, "map"), PoseArray)
+    assert poses.header.frame_id == "map" and poses.header.stamp.nanosec == 250_000_000
+    assert [(p.position.x, p.position.y, p.position.z) for p in poses.poses] == [(1, 2, 1), (3, -1, 1)]
+    assert [yaw_of(p.orientation) for p in poses.poses] == pytest.approx([0.5, -2.5])
+    goal = deserialize_message(ros_maps.best_view_goal(message, "map"), PoseStamped)
+    assert (goal.pose.position.x, goal.pose.position.y, goal.pose.position.z) == (1, 2, 0)
+    assert yaw_of(goal.pose.orientation) == pytest.approx(0.5) and goal.header.frame_id == "map"
+    assert ros_maps.best_view_goal(messages.NextViewsMessage(), "map") is None
 
 
 # -- afford ros-bridge: a robot on plain DDS -----------------------------------------------------------------

@@ -22,12 +22,12 @@ of positions at a time (`_LINE_BLOCK`), so memory stays bounded.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..geometry.fields import SceneFields, disc
-from ..settings import NextViewSettings, VisibilitySettings
+from ..settings import NextViewSettings, Settings, VisibilitySettings
 
 _LINE_BLOCK = 2_000_000  # (position, target, sample) triples per block of the line-of-sight test
 # a candidate's body space is sampled every this many voxels along each axis (20 cm on 10 cm voxels): what a
@@ -49,19 +49,47 @@ class NextView:
     gain: float  # bits: the entropy of candidate places it would settle (`next_views`)
     places: list[int]  # the candidates it would look at (their indices), most gained first
     looks_at: np.ndarray  # (len(places), 3): their x, y and probability
+    affordances: list[str] = field(default_factory=list)  # each place's affordance (`suggest_views`)
+
+    def pose(self) -> np.ndarray:
+        """world_from_view (4 x 4): at the camera, turned by the heading about z (x forward, z up)."""
+        from ..geometry.skeleton import rotation_z
+
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = rotation_z(self.heading), (self.x, self.y, self.z)
+        return pose
 
     def to_json(self) -> dict:
+        looks = [
+            {"x": round(float(x), 3), "y": round(float(y), 3), "probability": round(float(p), 4)}
+            for x, y, p in self.looks_at
+        ]
+        for look, affordance in zip(looks, self.affordances):
+            look["affordance"] = affordance
         return {
             "x": round(self.x, 3),
             "y": round(self.y, 3),
             "z": round(self.z, 3),
             "heading": round(self.heading, 4),
             "gain": round(self.gain, 4),
-            "looks_at": [
-                {"x": round(float(x), 3), "y": round(float(y), 3), "probability": round(float(p), 4)}
-                for x, y, p in self.looks_at
-            ],
+            "looks_at": looks,
         }
+
+
+def suggest_views(fields: SceneFields, maps, settings: Settings) -> list[NextView]:
+    """Up to `settings.next_views.count` views, best first, for the candidate places of `maps` (affordance
+    maps of these fields) together: one robot's views over every affordance, or one map's own. None when the
+    count is 0 or the fields carry no visibility (no sensor positions). Each view names the affordance of
+    each place it would look at."""
+    wanted, maps = settings.next_views, [amap for amap in maps if len(amap.candidates)]
+    if not wanted.count or fields.visibility is None or not maps:
+        return []
+    candidates = np.concatenate([amap.candidates for amap in maps])
+    names = [amap.affordance for amap in maps for _ in range(len(amap.candidates))]
+    views = next_views(fields, candidates[:, :2], candidates[:, 5], wanted.count, wanted, settings.visibility)
+    for view in views:
+        view.affordances = [names[index] for index in view.places]
+    return views
 
 
 def entropy_bits(p: np.ndarray) -> np.ndarray:

@@ -168,8 +168,18 @@ def map_affordances(
 ) -> dict:
     """Every model's affordance map of a room's fields: {affordance: AffordanceMap}; `on_map(affordance, map)`
     hears of each as soon as it is done. Models must match the feature layout (a `ModelError` names the model
-    otherwise); each places the skeleton it was trained with."""
-    return RoomMapper(models, layout, settings).maps(fields, on_map)
+    otherwise); each places the skeleton it was trained with, and carries its own next views
+    (`next_views.suggest_views`, with `settings.next_views.count` and the sensor positions)."""
+    from .next_views import suggest_views
+
+    settings = settings or Settings()
+
+    def with_views(affordance: str, amap) -> None:
+        amap.next_views = suggest_views(fields, [amap], settings)
+        if on_map:
+            on_map(affordance, amap)
+
+    return RoomMapper(models, layout, settings).maps(fields, with_views)
 
 
 class Superseded(Exception):
@@ -257,23 +267,9 @@ class RoomMapper:
                 place_probability=self.settings.map.place_probability,
                 scanned=self.scanned[model.affordance],
             )
-            self._suggest_views(maps[model.affordance], fields)
             if on_map:
                 on_map(model.affordance, maps[model.affordance])
         return maps
-
-    def _suggest_views(self, mapped, fields: SceneFields) -> None:
-        """Where to look next to settle the map's candidates (`next_views`), when asked for and the sensor
-        positions tell unknown space from free."""
-        wanted = self.settings.next_views
-        if not wanted.count or fields.visibility is None or not len(mapped.candidates):
-            return
-        from .next_views import next_views
-
-        candidates = mapped.candidates
-        mapped.next_views = next_views(
-            fields, candidates[:, :2], candidates[:, 5], wanted.count, wanted, self.settings.visibility
-        )
 
     def scores(self, model, fields: SceneFields) -> tuple[PoseGrid, np.ndarray]:
         """A model's pose grid over the room and its score of every pose (`inference.model_scores`); only

@@ -80,7 +80,17 @@ TAB10_NAMES = ("blue", "orange", "green", "red", "purple", "brown", "pink", "gre
 LABEL_COLOR = (245, 245, 245)  # the labels in near-white: not an affordance's colour, readable on the cloud
 LABEL_ARROW = 0.3  # m: a label's facing arrow
 # the plan's layers, bottom to top
-DRAW_ORDER = {"room": 0.0, "confidence": 1.0, "bar": 1.0, "labels": 1.5, "skeletons": 2.0, "places": 3.0}
+DRAW_ORDER = {
+    "room": 0.0,
+    "confidence": 1.0,
+    "bar": 1.0,
+    "labels": 1.5,
+    "skeletons": 2.0,
+    "places": 3.0,
+    "next_views": 3.5,
+}
+VIEW_COLOR = (65, 105, 225)  # royal blue, as the PNGs draw the next views
+VIEW_FRUSTUM = 0.6  # m: how deep a next view's frustum is drawn (its range would hide the room)
 
 
 _STATE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # recording -> _State
@@ -100,6 +110,7 @@ class _State:
     notes: dict[str, str] = field(default_factory=dict)  # under the table: what a lower probability would add
     timed: bool = False
     framed: tuple[np.ndarray, np.ndarray, int] | None = None  # the floor's (low, high) (x, y) corners, bars
+    views: int = 0  # next views the last call logged (so fewer clear the rest)
 
 
 def _state(recording) -> _State:
@@ -360,6 +371,64 @@ def log_map(recording, amap) -> None:
     _log_skeletons(recording, amap, class_id, color)
     _log_places_document(recording, amap, class_id)
     _frame_room(recording, amap.grid)
+
+
+def log_views(recording, views: list, camera) -> None:
+    """A robot's next views (`next_views.NextView`, best first) for a camera of `camera` (NextViewSettings):
+    each a frustum in 3D at its pose, tilted by the camera's pitch; on the plan its field of view as two
+    rays of a metre, a dotted line to each place it would look at, and its rank and gain."""
+    import rerun as rr
+
+    from ..geometry.skeleton import rotation_z
+
+    state = _state(recording)
+    half, tilt = np.radians(camera.fov_horizontal_deg) / 2, np.radians(camera.pitch_deg)
+    vertical = np.radians(camera.fov_vertical_deg)
+    pitch = np.array([[np.cos(tilt), 0, -np.sin(tilt)], [0, 1, 0], [np.sin(tilt), 0, np.cos(tilt)]])
+    for rank, view in enumerate(views):
+        _log(
+            recording,
+            f"world/next_views/{rank}",
+            rr.Transform3D(translation=[view.x, view.y, view.z], mat3x3=rotation_z(view.heading) @ pitch),
+            rr.Pinhole(
+                fov_y=float(vertical),
+                aspect_ratio=float(np.tan(half) / np.tan(vertical / 2)),
+                camera_xyz=rr.ViewCoordinates.FLU,
+                image_plane_distance=VIEW_FRUSTUM,
+                color=VIEW_COLOR,
+            ),
+        )
+    for rank in range(len(views), state.views):
+        _log(recording, f"world/next_views/{rank}", rr.Clear(recursive=True))
+    state.views = len(views)
+    labels = [f"view {rank}: {view.gain:.2f} bits" for rank, view in enumerate(views, 1)]
+    eyes = np.array([[view.x, view.y] for view in views]).reshape(-1, 2)
+    rays, looks = [], []
+    for view in views:
+        for side in (-half, half):
+            edge = view.heading + side
+            rays.append([[view.x, view.y], [view.x + np.cos(edge), view.y + np.sin(edge)]])
+        looks += [[[view.x, view.y], [x, y]] for x, y, _ in view.looks_at]
+    order = DRAW_ORDER["next_views"]
+    _log(
+        recording,
+        "plan/next_views",
+        rr.Points2D(_plan(eyes), radii=0.08, colors=VIEW_COLOR, labels=labels, draw_order=order),
+    )
+    _log(
+        recording,
+        "plan/next_views/fov",
+        rr.LineStrips2D(
+            _plan(np.array(rays).reshape(-1, 2, 2)), radii=0.015, colors=VIEW_COLOR, draw_order=order
+        ),
+    )
+    _log(
+        recording,
+        "plan/next_views/looks",
+        rr.LineStrips2D(
+            _plan(np.array(looks).reshape(-1, 2, 2)), radii=0.006, colors=VIEW_COLOR, draw_order=order
+        ),
+    )
 
 
 def log_labels(recording, labels, affordances: list[str]) -> None:

@@ -159,3 +159,61 @@ class AffordanceMap(_message.Message):
     place_probability: float
     scans_received: int
     def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., affordance: _Optional[str] = ..., model: _Optional[str] = ..., threshold: _Optional[float] = ..., grid: _Optional[_Union[PoseGridSpec, _Mapping]] = ..., skeletons: _Optional[_Iterable[_Union[PlacedSkeleton, _Mapping]]] = ..., positives: _Optional[bytes] = ..., confidence: _Optional[bytes] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ..., place_threshold: _Optional[float] = ..., place_probability: _Optional[float] = ..., scans_received: _Optional[int] = ...) -> None: ...
+
+class NextViews(_message.Message):
+    __slots__ = ("timestamp", "frame_id", "views", "world_from_input", "cloud_timestamp", "frames", "scans_received", "camera")
+    TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
+    FRAME_ID_FIELD_NUMBER: _ClassVar[int]
+    VIEWS_FIELD_NUMBER: _ClassVar[int]
+    WORLD_FROM_INPUT_FIELD_NUMBER: _ClassVar[int]
+    CLOUD_TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
+    FRAMES_FIELD_NUMBER: _ClassVar[int]
+    SCANS_RECEIVED_FIELD_NUMBER: _ClassVar[int]
+    CAMERA_FIELD_NUMBER: _ClassVar[int]
+    timestamp: _timestamp_pb2.Timestamp
+    frame_id: str
+    views: _containers.RepeatedCompositeFieldContainer[NextView]
+    world_from_input: _geometry_pb2.Pose
+    cloud_timestamp: _timestamp_pb2.Timestamp
+    frames: int
+    scans_received: int
+    camera: NextViewCamera
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., views: _Optional[_Iterable[_Union[NextView, _Mapping]]] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ..., scans_received: _Optional[int] = ..., camera: _Optional[_Union[NextViewCamera, _Mapping]] = ...) -> None: ...
+
+class NextView(_message.Message):
+    __slots__ = ("pose", "heading", "gain", "places")
+    POSE_FIELD_NUMBER: _ClassVar[int]
+    HEADING_FIELD_NUMBER: _ClassVar[int]
+    GAIN_FIELD_NUMBER: _ClassVar[int]
+    PLACES_FIELD_NUMBER: _ClassVar[int]
+    pose: _geometry_pb2.Pose
+    heading: float
+    gain: float
+    places: _containers.RepeatedCompositeFieldContainer[LookedAtPlace]
+    def __init__(self, pose: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., heading: _Optional[float] = ..., gain: _Optional[float] = ..., places: _Optional[_Iterable[_Union[LookedAtPlace, _Mapping]]] = ...) -> None: ...
+
+class LookedAtPlace(_message.Message):
+    __slots__ = ("affordance", "x", "y", "probability")
+    AFFORDANCE_FIELD_NUMBER: _ClassVar[int]
+    X_FIELD_NUMBER: _ClassVar[int]
+    Y_FIELD_NUMBER: _ClassVar[int]
+    PROBABILITY_FIELD_NUMBER: _ClassVar[int]
+    affordance: str
+    x: float
+    y: float
+    probability: float
+    def __init__(self, affordance: _Optional[str] = ..., x: _Optional[float] = ..., y: _Optional[float] = ..., probability: _Optional[float] = ...) -> None: ...
+
+class NextViewCamera(_message.Message):
+    __slots__ = ("fov_horizontal", "fov_vertical", "pitch", "min_range", "max_range")
+    FOV_HORIZONTAL_FIELD_NUMBER: _ClassVar[int]
+    FOV_VERTICAL_FIELD_NUMBER: _ClassVar[int]
+    PITCH_FIELD_NUMBER: _ClassVar[int]
+    MIN_RANGE_FIELD_NUMBER: _ClassVar[int]
+    MAX_RANGE_FIELD_NUMBER: _ClassVar[int]
+    fov_horizontal: float
+    fov_vertical: float
+    pitch: float
+    min_range: float
+    max_range: float
+    def __init__(self, fov_horizontal: _Optional[float] = ..., fov_vertical: _Optional[float] = ..., pitch: _Optional[float] = ..., min_range: _Optional[float] = ..., max_range: _Optional[float] = ...) -> None: ...
