@@ -36,6 +36,7 @@ _TARGET_STRIDE = 2
 _PLACES = 24  # the candidates a look would settle most (by their bits) are the ones targeted
 _SEEN_FREE = 0.5  # of a column a robot may stand in, at least this share was seen free
 _MIN_GAIN = 0.01  # bits: a view that would tell less is not worth the drive
+DRAWN_LOOKS = 3  # a view's places a plan draws a line to: the ones it settles most (more hide the plan)
 
 
 @dataclass

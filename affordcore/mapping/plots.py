@@ -198,13 +198,15 @@ def plot_map(
 
 def _draw_views(ax, views: list) -> None:
     """Each suggested view: the camera (a square), its field of view as two rays of a metre, its rank and
-    gain, and a dotted line to each candidate place it would look at."""
+    gain, and a dotted line to each of the candidate places it would settle most."""
+    from .next_views import DRAWN_LOOKS
+
     for rank, view in enumerate(views, 1):
         ax.plot(view.x, view.y, "s", color="royalblue", ms=6)
         for side in (-1, 1):
             edge = view.heading + side * np.radians(29)
             ax.plot([view.x, view.x + np.cos(edge)], [view.y, view.y + np.sin(edge)], color="royalblue", lw=1)
-        for x, y, _ in view.looks_at:
+        for x, y, _ in view.looks_at[:DRAWN_LOOKS]:
             ax.plot([view.x, x], [view.y, y], ":", color="royalblue", lw=0.8)
         ax.text(view.x, view.y + 0.15, f"{rank}: {view.gain:.2f}", color="royalblue", fontsize=7, ha="center")
 

@@ -376,10 +376,11 @@ def log_map(recording, amap) -> None:
 def log_views(recording, views: list, camera) -> None:
     """A robot's next views (`next_views.NextView`, best first) for a camera of `camera` (NextViewSettings):
     each a frustum in 3D at its pose, tilted by the camera's pitch; on the plan its field of view as two
-    rays of a metre, a dotted line to each place it would look at, and its rank and gain."""
+    rays of a metre, a line to each of the places it would settle most, and its rank and gain."""
     import rerun as rr
 
     from ..geometry.skeleton import rotation_z
+    from .next_views import DRAWN_LOOKS
 
     state = _state(recording)
     half, tilt = np.radians(camera.fov_horizontal_deg) / 2, np.radians(camera.pitch_deg)
@@ -408,7 +409,7 @@ def log_views(recording, views: list, camera) -> None:
         for side in (-half, half):
             edge = view.heading + side
             rays.append([[view.x, view.y], [view.x + np.cos(edge), view.y + np.sin(edge)]])
-        looks += [[[view.x, view.y], [x, y]] for x, y, _ in view.looks_at]
+        looks += [[[view.x, view.y], [x, y]] for x, y, _ in view.looks_at[:DRAWN_LOOKS]]
     order = DRAW_ORDER["next_views"]
     _log(
         recording,
