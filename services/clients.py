@@ -173,6 +173,15 @@ def describe(key: str, schema: str, payload: bytes) -> str:
         poses = len(message.positives) // 20  # five float32 per pose
         places = len(message.skeletons)
         return f"{key}: {places} places, {poses:,} poses above the threshold{best} ({message.frames} frames)"
+    if name == "NextViews":
+        if not message.views:
+            return f"{key}: no next view would settle anything ({message.frames} frames)"
+        best = message.views[0]
+        at = f"({best.pose.position.x:.2f}, {best.pose.position.y:.2f})"
+        return (
+            f"{key}: {len(message.views)} next views, the best at {at} facing "
+            f"{np.degrees(best.heading):.0f} deg, {best.gain:.2f} bits ({message.frames} frames)"
+        )
     if name == "SceneFields":
         grid = message.grid
         shape = f"{grid.nx} x {grid.ny} x {grid.nz}"

@@ -251,6 +251,12 @@ def test_the_inference_service_publishes_a_robot_s_next_views_on_the_wire_on_ros
         client.close()
         router.close()
     assert 1 <= len(wire.views) <= 2 and wire.views[0].gain > 0
+    from services.clients import describe  # what afford watch prints of it
+    from services.transport import schema_of
+
+    said = describe(keys.next_views, schema_of(heard["wire"][0]), heard["wire"][0].payload.to_bytes())
+    best = wire.views[0].pose.position
+    assert f"next views, the best at ({best.x:.2f}, {best.y:.2f}) facing" in said, said
     assert {place.affordance for view in wire.views for place in view.places} <= {
         m.affordance for m in models
     }
@@ -261,7 +267,6 @@ def test_the_inference_service_publishes_a_robot_s_next_views_on_the_wire_on_ros
         [(p.position.x, p.position.y, p.position.z) for p in poses],
         [(v.pose.position.x, v.pose.position.y, v.pose.position.z) for v in wire.views],
     )
-    best = wire.views[0].pose.position
     assert (goal.pose.position.x, goal.pose.position.y, goal.pose.position.z) == pytest.approx(
         (best.x, best.y, 0)
     )
