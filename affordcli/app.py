@@ -18,12 +18,9 @@ for theme in (room, learning, skeletons, robot, stack, config):
 
 def _version(value: bool) -> None:
     if value:
-        from importlib.metadata import PackageNotFoundError, version
+        from affordcore import version
 
-        try:
-            typer.echo(f"affordmap {version('affordmap')}")
-        except PackageNotFoundError:  # run from a source tree that was never installed
-            typer.echo("affordmap (not installed)")
+        typer.echo(f"affordmap {version()}")
         raise typer.Exit()
 
 

@@ -17,6 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from affordcore import version
 from affordwire import messages
 
 from .settings import ServiceSettings
@@ -29,7 +30,6 @@ from .transport import (
     put_message,
     schema_of,
     stop_on_signals,
-    version,
 )
 
 

@@ -19,16 +19,6 @@ WORKERS = f"{PREFIX}/@workers"
 _NOT_IN_A_NAME = "/*$?#@ "
 
 
-def version() -> str:
-    from importlib.metadata import PackageNotFoundError
-    from importlib.metadata import version as package_version
-
-    try:
-        return package_version("affordmap")
-    except PackageNotFoundError:
-        return "unknown"
-
-
 @dataclass(frozen=True)
 class Keys:
     """The key space of one robot (DESIGN.md, "Processes and key space")."""

@@ -76,3 +76,15 @@ def test_every_setting_the_docs_name_exists(variable):
     assert section in sections, f"{variable} ({settings_named()[variable]}): no settings section {section!r}"
     fields = sections[section].annotation.model_fields
     assert field in fields, f"{variable} ({settings_named()[variable]}): {section} has no {field!r}"
+
+
+def test_the_changelog_s_newest_release_is_the_package_s_version():
+    """A version moves with each capability: the one pyproject.toml gives is CHANGELOG.md's newest release."""
+    import re
+    import tomllib
+
+    version = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    releases = re.findall(
+        r"^## \[(\d+\.\d+\.\d+)\] - \d{4}-\d{2}-\d{2}$", (ROOT / "CHANGELOG.md").read_text(), re.M
+    )
+    assert releases and releases[0] == version, (releases[:3], version)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import version
 from ..geometry.features import FeatureLayout
 from ..settings import Settings
 from .baselines import undersampled_indices
@@ -150,6 +151,7 @@ def train_on_rooms(
         skeleton=task.skeleton_record(),
         grid=task.settings.grid.model_dump(),
         training={
+            "affordmap": version(),  # the release whose recipe made it (CHANGELOG.md)
             "rooms": train_names,
             "positives": training.positives,
             "negatives": int(len(training.y) - training.positives),
