@@ -26,8 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).parent))
-from place_evidence import STYLES, add_split_arguments, shipped_split  # noqa: E402  (the shipped models' split)
+sys.path.insert(0, str(Path(__file__).parent / "studies"))
+from which_place_evidence_survives_a_scan_change import (  # noqa: E402  (the shipped models' split)
+    STYLES,
+    add_split_arguments,
+    shipped_split,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -14,7 +14,7 @@ chair's state, with no chair at all too.
 Reads the data set of `benchmarks/accuracy.py` and its test rooms (`learn.defaults`' split), each with its
 ``<room>.origins.npy``; the real rooms carry no sensor positions and are not in it.
 
-    .venv/bin/python benchmarks/seen_places.py         # about 5 minutes on 2 cores
+    .venv/bin/python benchmarks/studies/are_missed_places_hidden_from_the_scans.py   # 5 min, 2 cores
 """
 
 from __future__ import annotations
@@ -28,7 +28,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from place_evidence import STYLES, add_split_arguments, shipped_split  # noqa: E402  (the shipped models' split)
+from which_place_evidence_survives_a_scan_change import (  # noqa: E402  (the shipped models' split)
+    STYLES,
+    add_split_arguments,
+    shipped_split,
+)
 
 SEEN, HIDDEN = 0.25, 0.5  # unknown shares at most (seen) and above (hidden)
 KINDS = ("seen", "partly seen", "hidden")

@@ -9,7 +9,7 @@ absolute change over 20,000 poses of the room's grid, as a percentage of the blo
 deviation over the same poses); then the fields' time. Rooms: the 10 m benchmark room and the generated rooms
 of benchmarks/grid_shift.py (made once).
 
-    .venv/bin/python benchmarks/field_stability.py              # about 2 minutes on 2 cores
+    .venv/bin/python benchmarks/studies/are_soft_fields_steadier_on_the_lattice.py   # 2 min, 2 cores
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: bench_map, grid_shift
 from bench_map import room_cloud  # noqa: E402
 from grid_shift import generated_rooms  # noqa: E402
 

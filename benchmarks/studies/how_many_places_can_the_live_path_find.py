@@ -19,8 +19,8 @@ reference down to what the assembler publishes:
 Every map is placed on the labels by ICP of its cloud onto the fused room (bench_live's scoring). The
 trajectory errors are against the true poses, anchored at the first frame.
 
-    .venv/bin/python benchmarks/live_ceiling.py                 # the real kitchen, 4 placements, ~10 min
-    .venv/bin/python benchmarks/live_ceiling.py --generated 2   # and two generated walks
+    .venv/bin/python benchmarks/studies/how_many_places_can_the_live_path_find.py   # the kitchen, ~10 min
+    .venv/bin/python benchmarks/studies/how_many_places_can_the_live_path_find.py --generated 2   # + 2 walks
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 

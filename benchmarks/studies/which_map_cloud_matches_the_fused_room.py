@@ -13,8 +13,8 @@ says how level the map it publishes is: the tilt of its floor plane, and for gen
 true up) the angle between the published z and the true up, levelled on the frames' gravity alone
 (`floor_level_max_deg` 0, as the assembler first did) and on the floor found under it (today).
 
-    .venv/bin/python benchmarks/bench_map_cloud.py                  # the kitchen + 3 generated rooms, ~10 min
-    .venv/bin/python benchmarks/bench_map_cloud.py --generated 0    # the kitchen only
+    .venv/bin/python benchmarks/studies/which_map_cloud_matches_the_fused_room.py  # kitchen + 3 walks, 10 min
+    .venv/bin/python benchmarks/studies/which_map_cloud_matches_the_fused_room.py --generated 0   # kitchen
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 

@@ -7,8 +7,8 @@ taken for the floor (up the wrong way along the right axis), a wall taken for it
 come from a data set of `afford synth` (default: the accuracy benchmark's, generated there if absent); the
 real rooms are not used.
 
-    .venv/bin/python benchmarks/gravity_choice.py              # 240 rooms x 3 frames, about 4 min on 2 cores
-    .venv/bin/python benchmarks/gravity_choice.py --rooms 60
+    .venv/bin/python benchmarks/studies/does_gravity_alignment_find_up.py   # 240 rooms x 3 frames, 4 min
+    .venv/bin/python benchmarks/studies/does_gravity_alignment_find_up.py --rooms 60
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 # each frame as the rotation taking the room's z-up coordinates into it, and the axis that is up there

@@ -19,7 +19,7 @@ Then the place cut (`learn.thresholds.place_cut`): the shipped place models refi
 (the same fit as training's), each cut chosen under a budget of false places per validation room, judged on
 the test rooms per scan style and on the real rooms (../shared/data/rooms, a test set: never fitted on).
 
-    .venv/bin/python benchmarks/place_evidence.py        # about 6 minutes on 2 cores
+    .venv/bin/python benchmarks/studies/which_place_evidence_survives_a_scan_change.py   # 6 min, 2 cores
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import numpy as np
 
 from affordcore.synth.styles import STYLES as SCAN_STYLES
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 REAL_ROOMS = ROOT.parent / "shared" / "data" / "rooms"
 DENSE, SPARSE = {"fused", "mesh", "laser"}, {"frames", "walk", "sweep"}
 SPLITS = {

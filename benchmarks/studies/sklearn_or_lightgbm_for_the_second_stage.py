@@ -13,9 +13,9 @@ precision (`average_precision_score` weighted by the examples' weights).
 Rooms come from the generated data set in bench-data/accuracy (never the real rooms). Run from the repository
 root (about 10 minutes on one core):
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/second_stage_trees.py
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/second_stage_trees.py --train 0-39 --test 110-125 \
-        --affordance standing-working --affordance sitting-relaxing
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/studies/sklearn_or_lightgbm_for_the_second_stage.py
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/studies/sklearn_or_lightgbm_for_the_second_stage.py \
+        --train 0-39 --test 110-125 --affordance standing-working --affordance sitting-relaxing
 
 Needs lightgbm (not a project dependency): .venv/bin/pip install lightgbm==4.7.0
 """
@@ -30,7 +30,7 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 import numpy as np
