@@ -33,7 +33,8 @@ _FURNITURE_BOTTOM = 0.15  # horizontal surfaces from this height ... (m)
 _FURNITURE_TOP = 1.3  # ... up to this one count as furniture tops for a floor's evidence (m)
 # How the evidence weighs the plane's own points and the points under it against furniture tops: fitted (a
 # pairwise logistic regression, rounded) to which candidate is the floor in generated rooms of every scan
-# style, each in three frames (docs/geometry.md; benchmarks/gravity_choice.py measures the choice)
+# style, each in three frames (docs/geometry.md; benchmarks/studies/does_gravity_alignment_find_up.py
+# measures the choice)
 _ON_PLANE_WEIGHT = 0.4
 _BELOW_WEIGHT = 25.0
 _REFITS = 10  # least-squares refits of the RANSAC plane, at most

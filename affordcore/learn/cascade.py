@@ -10,7 +10,8 @@ ground truth.
 
 Trees: scikit-learn's HistGradientBoostingClassifier (already a dependency), positives up-weighted to a fixed
 share, stored as node tables (`trees.TreeEnsemble`) so model files stay data and scoring needs neither
-library. LightGBM ranks as well and fits faster (benchmarks/second_stage_trees.py, docs/benchmarks.md).
+library. LightGBM ranks as well and fits faster (docs/benchmarks.md;
+benchmarks/studies/sklearn_or_lightgbm_for_the_second_stage.py).
 """
 
 from __future__ import annotations
