@@ -468,3 +468,145 @@ def test_the_cut_hangs_less_on_how_the_rooms_are_listed_when_judged_over_several
     one = cuts()
     assert len(set(one)) == 3 and len(set(several)) == 1, (one, several)  # 0.4-0.5 on one deal; 0.45
     assert min(one) < several[0] < max(one)
+
+
+def _room_scores(place_scores, place_false, label_best, room: str = "r"):
+    from affordcore.learn.thresholds import RoomScores
+
+    return RoomScores(
+        room=room,
+        scores=np.zeros(1),
+        labels=np.ones(1),
+        place_scores=np.asarray(place_scores, float),
+        place_false=np.asarray(place_false, bool),
+        label_best=np.asarray(label_best, float),
+        reference=0.0,
+    )
+
+
+def test_a_place_must_beat_the_cut_a_score_at_it_is_no_place():
+    """Kept skeletons and found labels answer the same rule: above the cut, not at it; and a candidate whose
+    peak is at a score is not eligible from it."""
+    from affordcore.learn.thresholds import PlaceCandidates
+
+    room = _room_scores([0.5, 0.7, 0.9], [False, True, False], [0.5, 0.9])
+    assert room.places(0.5) == (1, 2, 1)  # the label whose best skeleton scores 0.5 is not found at 0.5
+    assert room.places(0.49) == (2, 3, 1)
+    candidates = PlaceCandidates(
+        np.zeros((3, len(EVIDENCE))),
+        np.zeros((1, 3), bool),
+        np.zeros(3, bool),
+        np.zeros((3, 2)),
+        peaks=np.array([1.0, 0.5, 0.2]),
+    )
+    np.testing.assert_array_equal(candidates.eligible_from(0.5).eligible, [True, False, False])
+
+
+def test_each_labelled_place_a_kept_candidate_stands_on_counts_once():
+    """Three labels, two of them under kept candidates (one candidate on two labels), the third under a
+    candidate too unlikely to keep: two places found, two kept, none false; an unmatched kept candidate is
+    false unless it lies in an unlabelled region."""
+    from affordcore.learn.thresholds import PlaceCandidates
+
+    matches = np.array(
+        [[True, False, False, False], [True, False, False, False], [False, True, False, False]]
+    )
+    xy = np.array([[0.0, 0.0], [5.0, 0.0], [10.0, 0.0], [15.0, 0.0]])
+    ignored = np.array([False, False, False, True])
+    candidates = PlaceCandidates(np.zeros((4, len(EVIDENCE))), matches, ignored, xy)
+    assert candidates.places(np.array([0.9, 0.1, 0.8, 0.8]), 0.5, 0.45) == (2, 3, 1)
+    matches[2, 1] = False
+    assert candidates.places(np.array([0.9, 0.9, 0.1, 0.1]), 0.5, 0.45) == (2, 2, 1)
+
+
+def test_one_generated_room_beside_the_real_ones_still_gives_the_real_ones_their_share():
+    from affordcore.learn.thresholds import room_weights
+
+    weights = room_weights(np.array([False, True]), 0.75)
+    np.testing.assert_allclose(weights, [1.0, 3.0])  # the real room three quarters of the weight
+    np.testing.assert_allclose(room_weights(np.array([True, True]), 0.75), [1.0, 1.0])  # no generated room
+
+
+def test_the_place_threshold_reports_what_it_gives_per_room():
+    """Two rooms: the best place F1 keeps the two true skeletons and drops the false one, and its figures
+    are the places found of all labels and the false skeletons per room."""
+    from affordcore.learn.thresholds import place_threshold
+
+    rooms = [
+        _room_scores([1.0, 0.3], [False, True], [1.0], "a"),
+        _room_scores([0.8], [False], [0.8, -9.0], "b"),
+    ]
+    threshold, stats = place_threshold(rooms)
+    assert threshold == pytest.approx(0.3)  # the candidates: above 0.3 keeps the two true ones
+    assert stats == pytest.approx({"place_f1": 0.8, "place_recall": 2 / 3, "false_per_room": 0.0})
+    # one false skeleton among the best-scoring ones: worth keeping all, and it is half a false one a room
+    rooms = [
+        _room_scores([1.0, 0.9, 0.8], [False, True, False], [1.0, 0.8], "a"),
+        _room_scores([0.7], [False], [0.7]),
+    ]
+    _, stats = place_threshold(rooms)
+    assert stats == pytest.approx({"place_f1": 2 * 0.75 / 1.75, "place_recall": 1.0, "false_per_room": 0.5})
+
+
+def test_the_place_decision_holds_the_real_rooms_apart_and_weighs_them_by_their_share():
+    """Generated rooms whose places stand out, real ones of pure noise: judged apart, the real rooms stop the
+    walk higher than pooled ones would, the more so the more they weigh; the margin and the cut are the ones
+    `place_cut` gives when every candidate is eligible."""
+    from dataclasses import replace
+
+    from affordcore.learn.thresholds import place_cut, place_decision
+
+    generated = _rooms_of_candidates(40, 3, overlap=3.0, column=0)
+    noisy_real = _rooms_of_candidates(5, 7, overlap=0.0, column=1)
+    is_real = np.r_[np.zeros(40, bool), np.ones(5, bool)]
+    rooms = [replace(c, peaks=np.full(len(c.xy), 10.0)) for c in [*generated, *noisy_real]]
+    pooled = place_decision(rooms, 0.0, 1.0, 0.45)
+    apart = place_decision(rooms, 0.0, 1.0, 0.45, is_real=is_real)
+    assert pooled == (0.0, place_cut(rooms, 1.0, 0.45)) and apart == (
+        0.0,
+        place_cut(rooms, 1.0, 0.45, is_real=is_real),
+    )
+    assert pooled[1] < apart[1]
+    shares = [place_cut(rooms, 1.0, 0.45, is_real=is_real, real_share=share) for share in (0.1, 0.5, 0.9)]
+    assert shares == sorted(shares) and shares[0] < shares[2]
+    assert place_decision(rooms, 0.0, 1.0, 0.45, is_real=is_real, real_share=0.9)[1] == shares[2]
+
+
+def test_the_place_decision_lets_places_in_whose_peaks_fall_under_the_threshold_and_needs_two_folds():
+    """True places peaking 0.6 under the pose threshold, false ones anywhere: the decision takes the
+    smallest margin that lets them in (0.75); one room (no fold to judge on) keeps the calibrated 0.5 with no
+    margin, as does a set of rooms holding only places."""
+    from dataclasses import replace
+
+    from affordcore.learn.thresholds import place_cut, place_decision
+
+    rng = np.random.default_rng(0)
+    generated = _rooms_of_candidates(40, 3, overlap=3.0, column=0)
+    rooms = [
+        replace(c, peaks=np.where(c.matches.any(axis=0), -0.6, rng.uniform(-2, 1, len(c.xy))))
+        for c in generated
+    ]
+    margin, cut = place_decision(rooms, 0.0, 1.0, 0.45)
+    assert margin == 0.75 and 0.2 <= cut <= 0.5
+    assert (
+        place_decision(rooms[:1], 0.0, 1.0, 0.45) == (0.0, 0.5) and place_cut(generated[:1], 1.0, 0.45) == 0.5
+    )
+    only_places = [replace(c, matches=np.ones_like(c.matches)) for c in rooms]
+    assert place_decision(only_places, 0.0, 1.0, 0.45) == (0.0, 0.5)
+
+
+def test_the_walk_counts_places_as_a_mean_over_the_deals_and_keeps_0_5_when_even_it_breaks_the_budget():
+    from affordcore.learn.thresholds import PlaceCandidates, _walk
+
+    def room(false_probability: float):
+        evidence = np.zeros((2, len(EVIDENCE)))
+        xy = np.array([[0.0, 0.0], [5.0, 0.0]])
+        return PlaceCandidates(evidence, np.array([[True, False]]), np.zeros(2, bool), xy), np.array(
+            [0.9, false_probability]
+        )
+
+    (a, pa), (b, pb) = room(0.42), room(0.27)
+    two_deals = [[pa, pb], [pa, pb]]
+    assert _walk([a, b], two_deals, 0.5, 0.45, np.zeros(2, bool)) == (0.3, 2.0)  # two places a deal
+    (c, pc), (d, pd) = room(0.95), room(0.95)  # a phantom in each room at every cut
+    assert _walk([c, d], [[pc, pd]], 0.1, 0.45, np.zeros(2, bool)) == (0.5, 2.0)

@@ -249,14 +249,14 @@ def _held_out(
     folds: int,
     is_real: np.ndarray,
     real_share: float,
-    order: np.ndarray | None = None,
+    order: np.ndarray,
 ) -> list[np.ndarray] | None:
     """Each room's candidate probabilities from a place model fitted on the other folds of rooms, the rooms
-    dealt to folds in turn in `order` (default: as listed); None when a fold lacks either kind of candidate
-    (nothing to judge a lower cut on)."""
+    dealt to folds in turn in `order` (a permutation of them); None when a fold lacks either kind of
+    candidate (nothing to judge a lower cut on)."""
     n = len(candidates)
     position = np.empty(n, np.int64)
-    position[np.arange(n) if order is None else np.asarray(order)] = np.arange(n)
+    position[order] = np.arange(n)
     fold_of = position % folds
     held_out = [None] * n
     for fold in range(min(folds, n)):
