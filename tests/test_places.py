@@ -610,3 +610,26 @@ def test_the_walk_counts_places_as_a_mean_over_the_deals_and_keeps_0_5_when_even
     assert _walk([a, b], two_deals, 0.5, 0.45, np.zeros(2, bool)) == (0.3, 2.0)  # two places a deal
     (c, pc), (d, pd) = room(0.95), room(0.95)  # a phantom in each room at every cut
     assert _walk([c, d], [[pc, pd]], 0.1, 0.45, np.zeros(2, bool)) == (0.5, 2.0)
+
+
+def test_the_deals_are_the_same_every_time_and_real_rooms_may_be_marked_by_0_and_1():
+    """A cut is reproducible: the rooms are dealt into folds by fixed seeds, so two calls give the same
+    held-out probabilities; and rooms marked real by 0 / 1 are judged as by False / True."""
+    from affordcore.learn.thresholds import _dealt, place_cut
+
+    generated = _rooms_of_candidates(40, 3, overlap=3.0, column=0)
+    noisy_real = _rooms_of_candidates(5, 7, overlap=0.0, column=1)
+    rooms, is_real = [*generated, *noisy_real], np.r_[np.zeros(40, bool), np.ones(5, bool)]
+    first, second = _dealt(rooms, 5, is_real, 0.5), _dealt(rooms, 5, is_real, 0.5)
+    for a, b in zip(first, second):
+        for p, q in zip(a, b):
+            np.testing.assert_array_equal(p, q)
+    as_ints = [int(v) for v in is_real]
+    assert place_cut(rooms, 1.0, 0.45, is_real=as_ints) == place_cut(rooms, 1.0, 0.45, is_real=is_real)
+
+
+def test_one_room_s_false_skeletons_are_its_false_skeletons_per_room():
+    from affordcore.learn.thresholds import place_threshold
+
+    _, stats = place_threshold([_room_scores([1.0, 0.9, 0.8], [False, True, False], [1.0, 0.8])])
+    assert stats["false_per_room"] == 1.0
