@@ -274,3 +274,16 @@ def test_the_inference_service_publishes_a_robot_s_next_views_on_the_wire_on_ros
     entities = recorded_entities(tmp_path / "i.rrd")
     assert {f"/world/next_views/{rank}" for rank in range(len(wire.views))} <= entities
     assert {"/plan/next_views", "/plan/next_views/fov", "/plan/next_views/looks"} <= entities
+
+
+def test_with_a_prior_on_unseen_space_a_view_looks_where_no_candidate_stands_yet(room):
+    """A map sure of its one candidate asks for no view; told that never-seen body space holds a place one
+    time in five, it asks for the view that sees behind the cabinet, where the room was never seen, and that
+    view names no candidate."""
+    sure = np.array([[1.8, 1.0]]), np.array([0.999])
+    assert next_views(room, *sure, 2) == []
+    views = next_views(room, *sure, 2, NextViewSettings(unseen_prior=0.2))
+    assert views and views[0].gain > 0.05 and views[0].places == []
+    heading = np.array([np.cos(views[0].heading), np.sin(views[0].heading)])
+    behind = np.array([4.5, 2.0]) - np.array([views[0].x, views[0].y])
+    assert heading @ behind / np.linalg.norm(behind) > np.cos(np.radians(29 + 15))  # facing the hidden half

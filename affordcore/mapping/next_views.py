@@ -36,6 +36,8 @@ _TARGET_STRIDE = 2
 _PLACES = 24  # the candidates a look would settle most (by their bits) are the ones targeted
 _SEEN_FREE = 0.5  # of a column a robot may stand in, at least this share was seen free
 _MIN_GAIN = 0.01  # bits: a view that would tell less is not worth the drive
+_UNSEEN_STRIDE = 3  # the never-seen space no candidate stands in is sampled every 3 voxels (30 cm)
+_UNSEEN_TARGETS = 1500  # ... and at most this many samples (a line-of-sight test each, from every position)
 DRAWN_LOOKS = 3  # a view's places a plan draws a line to: the ones it settles most (more hide the plan)
 
 
@@ -120,6 +122,11 @@ def next_views(
     bits = entropy_bits(probabilities)
     bits[np.argsort(-bits, kind="stable")[_PLACES:]] = 0.0
     targets, owner, weight = _targets(fields, candidates[:, :2], bits, body)
+    if settings.unseen_prior > 0:  # the never-seen body space no candidate stands in: where places may hide
+        unseen, unseen_weight = _unseen_targets(fields, body, settings.unseen_prior, targets)
+        targets = np.concatenate([targets, unseen])
+        owner = np.concatenate([owner, np.full(len(unseen), -1)])
+        weight = np.concatenate([weight, unseen_weight])
     eye_z = settings.height if height is None else height  # the fields are levelled: the floor at z = 0
     positions = _standable(fields, settings, eye_z)
     if not len(targets) or not len(positions) or count < 1:
@@ -134,7 +141,8 @@ def next_views(
         if gains[p, h] < _MIN_GAIN:
             break
         seen = (in_view[p, h] > 0) & (remaining > 0)
-        per_place = np.bincount(owner[seen], weights=remaining[seen], minlength=len(candidates))
+        of_place = seen & (owner >= 0)
+        per_place = np.bincount(owner[of_place], weights=remaining[of_place], minlength=len(candidates))
         places = [int(i) for i in np.argsort(-per_place, kind="stable") if per_place[i] > 0]
         looks_at = np.column_stack([candidates[places, :2], probabilities[places]])
         views.append(NextView(*map(float, eyes[p]), float(headings[h]), float(gains[p, h]), places, looks_at))
@@ -182,6 +190,38 @@ def _targets(
     owner = owner_col[column]
     weight = bits[owner] / np.maximum(voxels_per_place[owner], 1)
     return lattice.centres(index), kept[owner], weight
+
+
+def _unseen_targets(
+    fields: SceneFields, body: VisibilitySettings, prior: float, taken: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(never-seen voxel centres of the body band over the whole floor, each one's weight): a body space no
+    candidate stands in holds a place with probability `prior`, so a body-sized volume of it seen whole is
+    worth H(prior) bits. On a coarser lattice than the candidates' (`_UNSEEN_STRIDE`), at most
+    `_UNSEEN_TARGETS` of them (spread evenly, their weights scaled to keep the total), so the views stay
+    within a second; the candidates' own targets (`taken`) are not counted twice."""
+    from ..geometry.visibility import UNKNOWN
+
+    lattice, state, res = fields.lattice, fields.visibility, fields.lattice.resolution
+    floor = lattice.origin[2] + _floor_layer(fields) * res
+    heights = lattice.origin[2] + np.arange(lattice.shape[2]) * res - floor
+    band = np.flatnonzero((heights >= body.seen_low - 1e-9) & (heights <= body.seen_high + 1e-9))
+    band = band[::_UNSEEN_STRIDE]
+    grid = state[::_UNSEEN_STRIDE, ::_UNSEEN_STRIDE][:, :, band] == UNKNOWN
+    index = np.argwhere(grid) * np.array([_UNSEEN_STRIDE, _UNSEEN_STRIDE, 1])
+    index[:, 2] = band[index[:, 2]]
+    centres = lattice.centres(index)
+    if len(taken):  # a candidate's target voxel is weighed by the candidate
+        near = np.abs(centres[:, None, :2] - taken[None, :: max(1, len(taken) // 500), :2]).max(axis=2)
+        centres = centres[(near > res * _UNSEEN_STRIDE / 2).all(axis=1)]
+    # a body space: a disc of seen_radius on the band, in this lattice's samples
+    per_body = max(1.0, np.pi * (body.seen_radius / (res * _UNSEEN_STRIDE)) ** 2 * len(band))
+    weight = np.full(len(centres), float(entropy_bits(prior)) / per_body)
+    if len(centres) > _UNSEEN_TARGETS:
+        keep = np.linspace(0, len(centres) - 1, _UNSEEN_TARGETS).astype(int)
+        weight = weight[keep] * (len(centres) / _UNSEEN_TARGETS)
+        centres = centres[keep]
+    return centres, weight
 
 
 def _standable(fields: SceneFields, settings: NextViewSettings, eye_z: float) -> np.ndarray:
