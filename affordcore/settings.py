@@ -207,7 +207,7 @@ class NextViewSettings(BaseModel):
     step: float = Field(0.2, gt=0, description="views are tried on a grid of this spacing (m)")
     headings: int = Field(24, ge=1, le=360, description="headings tried at each position")
     unseen_prior: float = Field(
-        0.0,
+        0.1,
         ge=0,
         le=0.5,
         description="the chance that never-seen body space no candidate stands in holds a place: a view that "

@@ -13,6 +13,9 @@ from affordcore.mapping.next_views import entropy_bits, next_views
 from affordcore.settings import NextViewSettings, NormalSettings, VoxelSettings
 
 SENSOR = np.array([[1.0, 2.0, 1.2]])  # one look, from the room's west end
+# the views of the candidates alone (no weight on never-seen space where none stands): what most tests here
+# are about
+CANDIDATES_ONLY = NextViewSettings(unseen_prior=0.0)
 
 
 def _room():
@@ -47,7 +50,7 @@ def test_the_best_view_looks_behind_what_hid_the_unsure_place(room):
     view is the one that sees behind the cabinet: it looks at the hidden candidate, from where the robot can
     stand, and turned towards it."""
     candidates = np.array([[1.8, 1.0], [4.0, 2.0]])
-    views = next_views(room, candidates, np.array([0.5, 0.5]), 3)
+    views = next_views(room, candidates, np.array([0.5, 0.5]), 3, CANDIDATES_ONLY)
     assert views and views[0].places[0] == 1
     best = views[0]
     towards = np.arctan2(2.0 - best.y, 4.0 - best.x)
@@ -66,16 +69,16 @@ def test_the_best_view_looks_behind_what_hid_the_unsure_place(room):
 
 
 def test_places_the_maps_are_sure_of_and_seen_places_ask_for_no_view(room):
-    sure = next_views(room, np.array([[4.0, 2.0]]), np.array([0.999]), 3)
+    sure = next_views(room, np.array([[4.0, 2.0]]), np.array([0.999]), 3, CANDIDATES_ONLY)
     assert not sure or sure[0].gain < 0.02
-    seen = next_views(room, np.array([[1.8, 1.0]]), np.array([0.5]), 3)
+    seen = next_views(room, np.array([[1.8, 1.0]]), np.array([0.5]), 3, CANDIDATES_ONLY)
     assert seen == []  # its body space was seen: nothing a look could add
 
 
 def test_a_narrower_range_sees_less_and_a_cloud_without_positions_is_refused(room):
     candidates, p = np.array([[4.0, 2.0], [5.2, 3.2]]), np.array([0.5, 0.5])
-    far = next_views(room, candidates, p, 1)[0].gain
-    near = next_views(room, candidates, p, 1, NextViewSettings(max_range=1.2))
+    far = next_views(room, candidates, p, 1, CANDIDATES_ONLY)[0].gain
+    near = next_views(room, candidates, p, 1, NextViewSettings(max_range=1.2, unseen_prior=0.0))
     assert not near or near[0].gain < far
     room.visibility, kept = None, room.visibility
     try:
@@ -133,13 +136,13 @@ def test_a_robot_s_views_settle_every_affordance_s_candidates_together(room):
     from affordcore.settings import Settings
 
     settings = Settings()
-    settings.next_views.count = 2
+    settings.next_views.count, settings.next_views.unseen_prior = 2, 0.0  # the candidates' views alone
     relaxing = _candidates("sitting-relaxing", [(1.8, 1.0, 0.5)])  # in full view
     working = _candidates("sitting-working", [(4.0, 2.0, 0.5)])  # behind the cabinet
     views = suggest_views(room, [relaxing, working], settings)
     assert views and views[0].affordances[0] == "sitting-working"
     np.testing.assert_allclose(views[0].looks_at[0], [4.0, 2.0, 0.5])
-    alone = next_views(room, working.candidates[:, :2], working.candidates[:, 5], 1)
+    alone = next_views(room, working.candidates[:, :2], working.candidates[:, 5], 1, CANDIDATES_ONLY)
     assert views[0].gain == pytest.approx(alone[0].gain)
     assert views[0].to_json()["looks_at"][0]["affordance"] == "sitting-working"
     settings.next_views.count = 0
@@ -156,7 +159,7 @@ def test_next_views_on_the_wire_carry_each_view_s_pose_gain_places_and_the_camer
     from affordwire import messages
 
     working = _candidates("sitting-working", [(4.0, 2.0, 0.5), (5.2, 3.2, 0.4)])
-    views = next_views(room, working.candidates[:, :2], working.candidates[:, 5], 2)
+    views = next_views(room, working.candidates[:, :2], working.candidates[:, 5], 2, CANDIDATES_ONLY)
     for view in views:
         view.affordances = ["sitting-working"] * len(view.places)
     fields = messages.SceneFieldsMessage(frames=3, scans_received=4)
@@ -281,7 +284,7 @@ def test_with_a_prior_on_unseen_space_a_view_looks_where_no_candidate_stands_yet
     time in five, it asks for the view that sees behind the cabinet, where the room was never seen, and that
     view names no candidate."""
     sure = np.array([[1.8, 1.0]]), np.array([0.999])
-    assert next_views(room, *sure, 2) == []
+    assert next_views(room, *sure, 2, CANDIDATES_ONLY) == []
     views = next_views(room, *sure, 2, NextViewSettings(unseen_prior=0.2))
     assert views and views[0].gain > 0.05 and views[0].places == []
     heading = np.array([np.cos(views[0].heading), np.sin(views[0].heading)])
