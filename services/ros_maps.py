@@ -54,15 +54,20 @@ def ros_token(name: str) -> str:
     return f"_{token}" if token[:1].isdigit() else token
 
 
+def _namespace(namespace: str, robot: str) -> str:
+    """AFFORD_ROS__MAPS_NAMESPACE for one robot, without its slashes: 'robot1/affordances'."""
+    return namespace.replace("{robot}", ros_token(robot)).strip("/")
+
+
 def map_topics(namespace: str, robot: str, affordance: str) -> dict[str, str]:
     """{'places': '/robot1/affordances/sitting_relaxing/places', ...} under AFFORD_ROS__MAPS_NAMESPACE."""
-    base = namespace.replace("{robot}", ros_token(robot)).strip("/")
+    base = _namespace(namespace, robot)
     return {kind: f"/{base}/{ros_token(affordance)}/{kind}" for kind in TOPICS}
 
 
 def view_topics(namespace: str, robot: str) -> dict[str, str]:
     """{'views': '/robot1/affordances/next_views', 'goal': '/robot1/affordances/next_view_goal'}."""
-    base = namespace.replace("{robot}", ros_token(robot)).strip("/")
+    base = _namespace(namespace, robot)
     return {"views": f"/{base}/next_views", "goal": f"/{base}/next_view_goal"}
 
 

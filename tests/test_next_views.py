@@ -203,20 +203,17 @@ def test_the_inference_service_publishes_a_robot_s_next_views_on_the_wire_on_ros
     one NextViews over every affordance on next-views (answered to a late get too), the views as a PoseArray
     and the best as a PoseStamped goal on the floor on ROS 2, and frusta in the recording."""
     pytest.importorskip("rosbags")
-    import threading
 
     from conftest import eventually
+    from test_ros_maps import running_inference
 
     from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.model import choose_models
     from affordcore.mapping.recording import recorded_entities
     from affordwire import messages, ros, ros_maps
-    from services.inference import InferenceService
-    from services.launch import free_port
-    from services.node import Node
     from services.ros_maps import rmw_zenoh_key, view_topics
     from services.settings import ServiceSettings
-    from services.transport import Keys, open_session, put_message
+    from services.transport import Keys, put_message
 
     monkeypatch.setenv("AFFORD_NEXT_VIEWS__COUNT", "2")
     monkeypatch.setenv("AFFORD_ROS__MAPS", "true")
@@ -229,15 +226,8 @@ def test_the_inference_service_publishes_a_robot_s_next_views_on_the_wire_on_ros
     ros_keys = {"views": rmw_zenoh_key(0, topics["views"], ros_maps.VIEWS)}
     ros_keys["goal"] = rmw_zenoh_key(0, topics["goal"], ros_maps.GOAL)
 
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    router = open_session([], mode="router", listen=[endpoint])
-    node = Node("inference", "robot-1", [endpoint], settings, rrd=tmp_path / "i.rrd", models=models)
-    service = InferenceService(node)
-    thread = threading.Thread(target=service.run, daemon=True)
-    thread.start()
-    client = open_session([endpoint])
     keys, heard = Keys("robot-1"), {}
-    try:
+    with running_inference(settings, models, tmp_path / "i.rrd") as client:
         held = [client.declare_subscriber(keys.next_views, lambda s: heard.setdefault("wire", []).append(s))]
         held += [
             client.declare_subscriber(key, lambda s, kind=kind: heard.setdefault(kind, []).append(s))
@@ -248,11 +238,6 @@ def test_the_inference_service_publishes_a_robot_s_next_views_on_the_wire_on_ros
         wire = messages.parse(messages.NextViewsMessage, heard["wire"][0].payload.to_bytes())
         replies = [r.ok for r in client.get(keys.next_views, timeout=5) if r.ok is not None]
         assert [r.payload.to_bytes() for r in replies] == [heard["wire"][-1].payload.to_bytes()]
-    finally:
-        node.stop_event.set()
-        thread.join(30)
-        client.close()
-        router.close()
     assert 1 <= len(wire.views) <= 2 and wire.views[0].gain > 0
     from services.clients import describe  # what afford watch prints of it
     from services.transport import schema_of

@@ -4,6 +4,7 @@ TRANSIENT_LOCAL subscription reads them (a zenoh AdvancedSubscriber with history
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 import time
@@ -201,6 +202,31 @@ def fields():
     return messages.fields_message(compute_fields(messages.cloud_points(cloud)), cloud, at=1.7e9)
 
 
+@contextlib.contextmanager
+def running_inference(settings, models, rrd):
+    """An inference service of robot-1 on a router of its own, in a thread: its client session while in the
+    block; on leaving, the service stopped (its thread ended) and the sessions closed."""
+    from services.inference import InferenceService
+    from services.launch import free_port
+    from services.node import Node
+    from services.transport import open_session
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_session([], mode="router", listen=[endpoint])
+    node = Node("inference", "robot-1", [endpoint], settings, rrd=rrd, models=models)
+    thread = threading.Thread(target=InferenceService(node).run, daemon=True)
+    thread.start()
+    client = open_session([endpoint])
+    try:
+        yield client
+    finally:
+        node.stop_event.set()
+        thread.join(30)
+        client.close()
+        router.close()
+    assert not thread.is_alive()
+
+
 def test_the_inference_service_publishes_latched_maps_on_rmw_zenoh_keys(fields, tmp_path, monkeypatch):
     import zenoh
     import zenoh.ext
@@ -209,12 +235,9 @@ def test_the_inference_service_publishes_latched_maps_on_rmw_zenoh_keys(fields, 
     from affordcore.geometry.features import FeatureLayout
     from affordcore.labels import affordance_colours
     from affordcore.learn.model import choose_models
-    from services.inference import InferenceService
-    from services.launch import free_port
-    from services.node import Node
     from services.ros_maps import TOPICS, map_topics, rmw_zenoh_key
     from services.settings import ServiceSettings
-    from services.transport import Keys, open_session, put_message
+    from services.transport import Keys, put_message
 
     monkeypatch.setenv("AFFORD_ROS__MAPS", "true")
     monkeypatch.setenv("AFFORD_ROS__DOMAIN_ID", "7")
@@ -224,15 +247,8 @@ def test_the_inference_service_publishes_latched_maps_on_rmw_zenoh_keys(fields, 
     topics = map_topics(settings.ros.maps_namespace, "robot-1", affordance)
     keys = {kind: rmw_zenoh_key(7, topic, TOPICS[kind]) for kind, topic in topics.items()}
 
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    router = open_session([], mode="router", listen=[endpoint])
-    node = Node("inference", "robot-1", [endpoint], settings, rrd=tmp_path / "i.rrd", models=models)
-    service = InferenceService(node)
-    thread = threading.Thread(target=service.run, daemon=True)
-    thread.start()
-    client = open_session([endpoint])
     live, late, maps = {}, {}, []
-    try:
+    with running_inference(settings, models, tmp_path / "i.rrd") as client:
         afford_keys = Keys("robot-1")
         held = [
             client.declare_subscriber(afford_keys.affordance(affordance), lambda s: maps.append(s)),
@@ -301,9 +317,3 @@ def test_the_inference_service_publishes_latched_maps_on_rmw_zenoh_keys(fields, 
         assert texts == (expected or [f"{affordance}: no place found"])
         colour = affordance_colours([m.affordance for m in models])[affordance]
         assert (markers[-1].color.r, markers[-1].color.g) == pytest.approx(colour[:2])
-    finally:
-        node.stop_event.set()
-        thread.join(30)
-        client.close()
-        router.close()
-    assert not thread.is_alive()

@@ -156,6 +156,14 @@ def _floor_layer(fields: SceneFields) -> int:
     return int(np.clip(np.rint(-lattice.origin[2] / lattice.resolution), 0, lattice.shape[2] - 1))
 
 
+def _body_band(fields: SceneFields, body: VisibilitySettings) -> np.ndarray:
+    """The voxel layers of a body's space above the floor (`seen_low` ... `seen_high`)."""
+    lattice = fields.lattice
+    layers = np.arange(lattice.shape[2])
+    heights = (layers - _floor_layer(fields)) * lattice.resolution
+    return layers[(heights >= body.seen_low - 1e-9) & (heights <= body.seen_high + 1e-9)]
+
+
 def _targets(
     fields: SceneFields, xy: np.ndarray, bits: np.ndarray, body: VisibilitySettings
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -166,10 +174,7 @@ def _targets(
 
     lattice, state = fields.lattice, fields.visibility
     res = lattice.resolution
-    floor = lattice.origin[2] + _floor_layer(fields) * res
-    layers = np.arange(lattice.shape[2])
-    heights = lattice.origin[2] + layers * res - floor
-    band = layers[(heights >= body.seen_low - 1e-9) & (heights <= body.seen_high + 1e-9)][::_TARGET_STRIDE]
+    band = _body_band(fields, body)[::_TARGET_STRIDE]
     reach = int(round(body.seen_radius / res))
     di, dj = np.nonzero(disc(reach))
     di, dj = di - reach, dj - reach
@@ -203,10 +208,7 @@ def _unseen_targets(
     from ..geometry.visibility import UNKNOWN
 
     lattice, state, res = fields.lattice, fields.visibility, fields.lattice.resolution
-    floor = lattice.origin[2] + _floor_layer(fields) * res
-    heights = lattice.origin[2] + np.arange(lattice.shape[2]) * res - floor
-    band = np.flatnonzero((heights >= body.seen_low - 1e-9) & (heights <= body.seen_high + 1e-9))
-    band = band[::_UNSEEN_STRIDE]
+    band = _body_band(fields, body)[::_UNSEEN_STRIDE]
     grid = state[::_UNSEEN_STRIDE, ::_UNSEEN_STRIDE][:, :, band] == UNKNOWN
     index = np.argwhere(grid) * np.array([_UNSEEN_STRIDE, _UNSEEN_STRIDE, 1])
     index[:, 2] = band[index[:, 2]]

@@ -378,14 +378,15 @@ def log_views(recording, views: list, camera) -> None:
     each a frustum in 3D at its pose, tilted by the camera's pitch; on the plan its field of view as two
     rays of a metre, a line to each of the places it would settle most, and its rank and gain."""
     import rerun as rr
+    from scipy.spatial.transform import Rotation
 
     from ..geometry.skeleton import rotation_z
     from .next_views import DRAWN_LOOKS
 
     state = _state(recording)
-    half, tilt = np.radians(camera.fov_horizontal_deg) / 2, np.radians(camera.pitch_deg)
-    vertical = np.radians(camera.fov_vertical_deg)
-    pitch = np.array([[np.cos(tilt), 0, -np.sin(tilt)], [0, 1, 0], [np.sin(tilt), 0, np.cos(tilt)]])
+    half, vertical = np.radians(camera.fov_horizontal_deg) / 2, np.radians(camera.fov_vertical_deg)
+    # tilted up by the pitch: about the camera's y (left) axis, a positive turn takes x (forward) down
+    pitch = Rotation.from_euler("y", -camera.pitch_deg, degrees=True).as_matrix()
     for rank, view in enumerate(views):
         _log(
             recording,
