@@ -16,8 +16,8 @@ After each frame the cloud so far (every frame's points, every frame's sensor po
 levelled) and a `RoomMapper` per policy (each map updated from the last, as a robot's maps are), the three
 shipped models. Then each policy picks the next pose:
 
-* suggested: the best of the maps' next views (`next_views.next_views` on each map's candidates, as
-  `RoomMapper` calls it; the highest gain of the three maps' first views);
+* suggested: the best next view over the three maps' candidates together (`next_views.suggest_views`, as
+  the inference service pools a robot's affordances);
 * frontier: nearest-frontier exploration: of the positions where the robot can stand (`next_views._standable`,
   the same rule the views stand by), the nearest to the camera that lies within a grid step of a voxel column
   never seen (most of it unknown, none of it occupied; outside the fields' lattice counts as never seen),
@@ -137,16 +137,11 @@ def main() -> None:
         "views_median_s": statistics.median(view_seconds) if view_seconds else None,
         "views_max_s": max(view_seconds) if view_seconds else None,
         "map_median_s": statistics.median(map_seconds) if map_seconds else None,
-        "views_per_affordance_median_s": statistics.median(
-            s for room in rooms for per in room["view_seconds_each"] for s in per
-        )
-        if view_seconds
-        else None,
     }
     print(
-        f"\nnext views per map (the three maps' views, apart from mapping): median "
-        f"{timing['views_median_s']:.3f} s, max {timing['views_max_s']:.3f} s over {len(view_seconds)} maps "
-        f"(one map's views: median {timing['views_per_affordance_median_s']:.3f} s); the mapping itself "
+        f"\nnext views per map (over the three maps' candidates, apart from mapping): median "
+        f"{timing['views_median_s']:.3f} s, max {timing['views_max_s']:.3f} s over {len(view_seconds)} maps; "
+        f"the mapping itself "
         f"(fields + three maps): median {timing['map_median_s']:.2f} s; {os.cpu_count()} cores"
     )
     targets = print_targets(table, affordances, timing)
@@ -226,7 +221,6 @@ def run_room(index: int, args, settings, layout, models, policies: list[str]) ->
         "first": first,
         "policies": {},
         "view_seconds": [],
-        "view_seconds_each": [],
     }
     for policy in policies:
         explore = copy.deepcopy(start, {id(model): model for model in models})  # the models are shared
@@ -236,9 +230,8 @@ def run_room(index: int, args, settings, layout, models, policies: list[str]) ->
         for _ in range(args.views):
             aimed = policy in SUGGESTING
             if aimed:
-                suggested, seconds, each = explore.suggest(args.suggest, room, raycaster, camera)
+                suggested, seconds = explore.suggest(args.suggest, room, raycaster, camera)
                 result["view_seconds"].append(seconds)
-                result["view_seconds_each"].append(each)
                 steps[-1]["suggested"] = suggested
                 pose = pose_of_view(suggested)
                 aimed = pose is not None
@@ -296,34 +289,29 @@ class Exploration:
         self.maps = self.mapper.maps(scene.fields)
         self.map_seconds.append(time.perf_counter() - t0)
 
-    def suggest(self, count: int, room, raycaster, camera) -> tuple[dict | None, float, list[float]]:
-        """The best next view of the three maps (as `RoomMapper._suggest_views` asks for them), the seconds
-        all of them took, and each map's; with what the view was meant to see, or why there was none."""
-        from affordcore.mapping.next_views import next_views
+    def suggest(self, count: int, room, raycaster, camera) -> tuple[dict | None, float]:
+        """The best next view over the three maps' candidates (as the inference service asks for them) and
+        the seconds the views took; with what the view was meant to see, or why there was none."""
+        from affordcore.mapping.next_views import suggest_views
 
-        best, each, chosen = None, [], None
-        for affordance, amap in self.maps.items():
-            t0 = time.perf_counter()
-            views = []
-            if len(amap.candidates):
-                c = amap.candidates
-                views = next_views(
-                    self.fields, c[:, :2], c[:, 5], count, self.settings.next_views, self.settings.visibility
-                )
-            each.append(time.perf_counter() - t0)
-            if views and (best is None or views[0].gain > best["gain"]):
-                best, chosen = {"affordance": affordance, **views[0].to_json()}, (amap, views[0])
-        if chosen is None:
+        settings = self.settings.model_copy(deep=True)
+        settings.next_views.count = count
+        t0 = time.perf_counter()
+        views = suggest_views(self.fields, list(self.maps.values()), settings)
+        seconds = time.perf_counter() - t0
+        if not views:
             self.expected = None
-            return {"none": self.why_none()}, sum(each), each
-        best.update(self.aimed_at(room, raycaster, camera, *chosen))
-        return best, sum(each), each
+            return {"none": self.why_none()}, seconds
+        best = {"affordances": views[0].affordances, **views[0].to_json()}
+        best.update(self.aimed_at(room, raycaster, camera, views[0]))
+        return best, seconds
 
-    def targets(self, amap):
-        """The map's targets as `next_views` takes them: (never-seen voxel centres, their weights)."""
+    def targets(self):
+        """The maps' targets as `suggest_views` takes them: (never-seen voxel centres, their weights) of
+        the three maps' candidates together."""
         from affordcore.mapping import next_views as nv
 
-        c = amap.candidates
+        c = np.concatenate([m.candidates for m in self.maps.values() if len(m.candidates)])
         p = np.where(np.isfinite(c[:, 5]), c[:, 5], 0.5)
         bits = nv.entropy_bits(p)
         bits[np.argsort(-bits, kind="stable")[nv._PLACES :]] = 0.0
@@ -335,16 +323,15 @@ class Exploration:
         body space seen), nowhere to stand, or every target out of sight of every standable pose."""
         from affordcore.mapping import next_views as nv
 
-        weights = [self.targets(m)[1].sum() if len(m.candidates) else 0.0 for m in self.maps.values()]
-        if max(weights) < nv._MIN_GAIN:
-            if not any(len(m.candidates) for m in self.maps.values()):
-                return "no candidate place"
+        if not any(len(m.candidates) for m in self.maps.values()):
+            return "no candidate place"
+        if self.targets()[1].sum() < nv._MIN_GAIN:
             return "nothing unsure is unseen"
         if not len(nv._standable(self.fields, self.settings.next_views, self.settings.next_views.height)):
             return "nowhere to stand"
         return "targets out of sight"
 
-    def aimed_at(self, room, raycaster, camera, amap, view) -> dict:
+    def aimed_at(self, room, raycaster, camera, view) -> dict:
         """What the view is meant to see (its targets, kept for `seen_after`; their bits against the view's
         gain) and, in the true room, what of it the frame cannot see, by weight: targets inside a solid
         (a sofa's base, a cabinet: unknown whatever looks at them), outside the camera's image (the views'
@@ -355,11 +342,11 @@ class Exploration:
         from affordcore.mapping import next_views as nv
         from affordcore.synth.scanner import look_at
 
-        targets, weight = self.targets(amap)
+        targets, weight = self.targets()
         settings = self.settings.next_views
         heading = int(round(view.heading / (2 * np.pi / settings.headings))) % settings.headings
         eye = np.array([view.x, view.y, view.z])
-        seen = nv._in_view(self.fields, eye[None], targets, settings)[0, heading] > 0
+        seen = nv.seen_by_view(self.fields, eye, heading, targets, settings)
         targets, weight = targets[seen], weight[seen]
         total = float(weight.sum())
         lattice = self.fields.lattice
@@ -384,7 +371,7 @@ class Exploration:
         offset = targets - eye
         hit, _, _ = raycaster.cast(np.broadcast_to(eye, offset.shape), offset)
         length = np.linalg.norm(offset, axis=1)
-        behind = hit < 1 - 1.5 * self.fields.lattice.resolution / length  # as `_clear_lines` spares the end
+        behind = hit < 1 - 1.5 * self.fields.lattice.resolution / length  # as the views spare the end
 
         def share(mask):
             return float(weight[mask].sum() / total) if total else 0.0

@@ -9,7 +9,7 @@ import pytest
 from affordcore.example import box_surface_points
 from affordcore.geometry.fields import compute_fields, disc
 from affordcore.geometry.visibility import FREE, OCCUPIED, voxel_states
-from affordcore.mapping.next_views import entropy_bits, next_views
+from affordcore.mapping.next_views import entropy_bits, next_views, seen_by_view
 from affordcore.settings import NextViewSettings, NormalSettings, VoxelSettings
 
 SENSOR = np.array([[1.0, 2.0, 1.2]])  # one look, from the room's west end
@@ -66,6 +66,40 @@ def test_the_best_view_looks_behind_what_hid_the_unsure_place(room):
         assert not (around == OCCUPIED).any()
         assert (room.visibility[i, j, floor + 2 : floor + 11] == FREE).mean() >= 0.5
         assert view.z == pytest.approx(1.0)  # the camera's height above the floor (at z = 0)
+
+
+def test_a_camera_sees_what_its_range_and_field_of_view_hold_and_no_surface_hides(room):
+    """From the sensor's corner of the room, a camera 1 m up, level, of 58 x 45 degrees and 0.5-4.5 m (the
+    defaults, 24 headings 15 degrees apart): which points it sees, turned to which headings."""
+    eye, level = np.array([1.0, 2.0, 1.0]), NextViewSettings()
+    points = {
+        "ahead": (2.0, 2.0, 0.6),
+        "behind the cabinet": (4.0, 2.0, 0.6),  # the cabinet (1.2 m tall) stands on the line
+        "over the cabinet": (4.0, 2.0, 1.8),  # the line passes 0.3 m above it
+        "on the cabinet's face": (2.85, 2.0, 0.6),  # a target's own surroundings hide nothing
+        "too far": (5.5, 3.8, 1.8),  # 4.9 m, past the cabinet's top
+        "too high": (1.5, 2.0, 2.0),  # 63 degrees above the horizon
+        "to the right": (1.0, 0.5, 1.0),  # azimuth -90 degrees: heading 18 of 24
+        "too near": (1.3, 2.0, 1.0),
+    }
+    targets = np.array(list(points.values()))
+    seen = {}
+    for heading in range(level.headings):
+        for name, sees in zip(points, seen_by_view(room, eye, heading, targets, level)):
+            if sees:
+                seen.setdefault(name, set()).add(heading)
+    # 29 degrees either side of the heading: the headings -15, 0 and +15 degrees see a point straight ahead
+    assert seen == {
+        "ahead": {23, 0, 1},
+        "over the cabinet": {23, 0, 1},
+        "on the cabinet's face": {23, 0, 1},
+        "to the right": {17, 18, 19},
+    }
+    far = NextViewSettings(max_range=6.0)
+    assert seen_by_view(room, eye, 1, targets, far)[list(points).index("too far")]  # 21 degrees off ahead
+    tilted = NextViewSettings(pitch_deg=45.0)  # the point is 18 degrees above the tilted axis
+    assert seen_by_view(room, eye, 0, targets, tilted)[list(points).index("too high")]
+    assert not seen_by_view(room, eye, 0, targets, tilted)[list(points).index("ahead")]  # 66 degrees below it
 
 
 def test_places_the_maps_are_sure_of_and_seen_places_ask_for_no_view(room):
@@ -275,3 +309,19 @@ def test_with_a_prior_on_unseen_space_a_view_looks_where_no_candidate_stands_yet
     heading = np.array([np.cos(views[0].heading), np.sin(views[0].heading)])
     behind = np.array([4.5, 2.0]) - np.array([views[0].x, views[0].y])
     assert heading @ behind / np.linalg.norm(behind) > np.cos(np.radians(29 + 15))  # facing the hidden half
+
+
+def test_maps_with_no_candidate_yet_still_ask_to_look_where_places_may_hide(room):
+    """A robot's first frame may show no candidate at all: its views look at the never-seen room, unless
+    the prior on unseen space is 0."""
+    from affordcore.mapping.next_views import suggest_views
+    from affordcore.settings import Settings
+
+    settings = Settings()
+    settings.next_views.count = 2
+    empty = [_candidates(name, []) for name in ("sitting-relaxing", "standing-working")]
+    views = suggest_views(room, empty, settings)
+    assert views and views[0].places == [] and views[0].affordances == []
+    assert views[0].x > 1.5  # it walks east, towards the cabinet and the room behind it
+    settings.next_views.unseen_prior = 0.0
+    assert suggest_views(room, empty, settings) == []

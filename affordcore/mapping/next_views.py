@@ -16,8 +16,9 @@ line to it. Unknown voxels on the line count as clear: what hides behind them is
 Views are
 chosen greedily, each counting only the targets the ones before it do not see.
 
-Everything is vectorised over positions, headings and targets; the line-of-sight samples are taken a block
-of positions at a time (`_LINE_BLOCK`), so memory stays bounded.
+What each position sees is one compiled pass over its (position, target) pairs (`sight_lines`): a line of
+sight is marched only until its first occupied voxel, and a target's azimuth, kept per pair, says which
+headings see it, so memory grows with positions x targets and never with the headings.
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ import numpy as np
 from ..geometry.fields import SceneFields, disc
 from ..settings import NextViewSettings, Settings, VisibilitySettings
 
-_LINE_BLOCK = 2_000_000  # (position, target, sample) triples per block of the line-of-sight test
 # a candidate's body space is sampled every this many voxels along each axis (20 cm on 10 cm voxels): what a
 # camera sees of a body-sized space changes little within that, and the work falls eightfold
 _TARGET_STRIDE = 2
@@ -85,9 +85,10 @@ def suggest_views(fields: SceneFields, maps, settings: Settings) -> list[NextVie
     count is 0 or the fields carry no visibility (no sensor positions). Each view names the affordance of
     each place it would look at."""
     wanted, maps = settings.next_views, [amap for amap in maps if len(amap.candidates)]
-    if not wanted.count or fields.visibility is None or not maps:
+    if not wanted.count or fields.visibility is None or not (maps or wanted.unseen_prior):
         return []
-    candidates = np.concatenate([amap.candidates for amap in maps])
+    # no candidate yet: the views look where places may hide (the unseen prior's space)
+    candidates = np.concatenate([amap.candidates for amap in maps]) if maps else np.zeros((0, 6))
     names = [amap.affordance for amap in maps for _ in range(len(amap.candidates))]
     views = next_views(fields, candidates[:, :2], candidates[:, 5], wanted.count, wanted, settings.visibility)
     for view in views:
@@ -131,23 +132,58 @@ def next_views(
     positions = _standable(fields, settings, eye_z)
     if not len(targets) or not len(positions) or count < 1:
         return []
+    from .sight_lines import seen_from, view_gains
+
     eyes = np.column_stack([positions, np.full(len(positions), eye_z)])
-    in_view = _in_view(fields, eyes, targets, settings)  # (positions, headings, targets)
-    headings = 2 * np.pi * np.arange(settings.headings) / settings.headings
-    remaining, views = weight.astype(np.float32), []
+    azimuths = _azimuths(fields, eyes, targets, settings)  # (positions, targets), NaN where unseen
+    half_fov = np.radians(settings.fov_horizontal_deg) / 2
+    gains = np.zeros((len(eyes), settings.headings))
+    seen = np.zeros(len(targets), bool)
+    remaining, views = weight.astype(np.float64), []
     for _ in range(count):
-        gains = in_view @ remaining  # (positions, headings)
+        view_gains(azimuths, remaining, settings.headings, half_fov, gains)
         p, h = np.unravel_index(int(np.argmax(gains)), gains.shape)
         if gains[p, h] < _MIN_GAIN:
             break
-        seen = (in_view[p, h] > 0) & (remaining > 0)
+        seen_from(azimuths[p], h, settings.headings, half_fov, seen)
+        seen &= remaining > 0
         of_place = seen & (owner >= 0)
         per_place = np.bincount(owner[of_place], weights=remaining[of_place], minlength=len(candidates))
         places = [int(i) for i in np.argsort(-per_place, kind="stable") if per_place[i] > 0]
         looks_at = np.column_stack([candidates[places, :2], probabilities[places]])
-        views.append(NextView(*map(float, eyes[p]), float(headings[h]), float(gains[p, h]), places, looks_at))
+        heading = 2 * np.pi * h / settings.headings
+        views.append(NextView(*map(float, eyes[p]), float(heading), float(gains[p, h]), places, looks_at))
         remaining[seen] = 0.0
     return views
+
+
+def seen_by_view(
+    fields: SceneFields, eye: np.ndarray, heading: int, targets: np.ndarray, settings: NextViewSettings
+) -> np.ndarray:
+    """(targets,) bool: which of the points the camera at `eye`, turned to heading number `heading` of
+    `settings.headings`, would see, as the views count them."""
+    from .sight_lines import seen_from
+
+    azimuths = _azimuths(fields, np.asarray(eye, np.float64)[None], targets, settings)
+    seen = np.zeros(len(targets), bool)
+    seen_from(azimuths[0], heading, settings.headings, np.radians(settings.fov_horizontal_deg) / 2, seen)
+    return seen
+
+
+def compile_sight_lines() -> None:
+    """Compile the views' kernels now (or read them from numba's cache) with the argument types
+    `next_views` passes, so that a service's first views do not wait."""
+    from ..geometry.visibility import OCCUPIED
+    from .sight_lines import seen_from, sight_azimuths, view_gains
+
+    eyes, targets = np.zeros((1, 3)), np.ones((1, 3))
+    azimuths = np.empty((1, 1), np.float32)
+    ranges, elevations = np.array([0.0, 5.0]), np.array([-1.0, 1.0])
+    sight_azimuths(
+        eyes, targets, np.zeros((2, 2, 2), np.uint8), np.zeros(3), 0.1, OCCUPIED, ranges, elevations, azimuths
+    )
+    view_gains(azimuths, np.ones(1), 4, 0.5, np.zeros((1, 4)))
+    seen_from(azimuths[0], 0, 4, 0.5, np.zeros(1, bool))
 
 
 def _floor_layer(fields: SceneFields) -> int:
@@ -205,6 +241,8 @@ def _unseen_targets(
     worth H(prior) bits. On a coarser lattice than the candidates' (`_UNSEEN_STRIDE`), at most
     `_UNSEEN_TARGETS` of them (spread evenly, their weights scaled to keep the total), so the views stay
     within a second; the candidates' own targets (`taken`) are not counted twice."""
+    from scipy import ndimage
+
     from ..geometry.visibility import UNKNOWN
 
     lattice, state, res = fields.lattice, fields.visibility, fields.lattice.resolution
@@ -212,10 +250,14 @@ def _unseen_targets(
     grid = state[::_UNSEEN_STRIDE, ::_UNSEEN_STRIDE][:, :, band] == UNKNOWN
     index = np.argwhere(grid) * np.array([_UNSEEN_STRIDE, _UNSEEN_STRIDE, 1])
     index[:, 2] = band[index[:, 2]]
+    if len(taken):  # a column within half a sample of a candidate's target is weighed by the candidate
+        claimed = np.zeros(lattice.shape[:2], bool)
+        column = np.rint((taken[:, :2] - lattice.origin[:2]) / res).astype(int)
+        claimed[column[:, 0], column[:, 1]] = True
+        reach = _UNSEEN_STRIDE // 2  # voxels: the sample's half-width, rounded down
+        claimed = ndimage.binary_dilation(claimed, np.ones((2 * reach + 1,) * 2, bool))
+        index = index[~claimed[index[:, 0], index[:, 1]]]
     centres = lattice.centres(index)
-    if len(taken):  # a candidate's target voxel is weighed by the candidate
-        near = np.abs(centres[:, None, :2] - taken[None, :: max(1, len(taken) // 500), :2]).max(axis=2)
-        centres = centres[(near > res * _UNSEEN_STRIDE / 2).all(axis=1)]
     # a body space: a disc of seen_radius on the band, in this lattice's samples
     per_body = max(1.0, np.pi * (body.seen_radius / (res * _UNSEEN_STRIDE)) ** 2 * len(band))
     weight = np.full(len(centres), float(entropy_bits(prior)) / per_body)
@@ -254,50 +296,28 @@ def _standable(fields: SceneFields, settings: NextViewSettings, eye_z: float) ->
     return lattice.origin[:2] + np.column_stack([i, j]) * res
 
 
-def _in_view(
+def _azimuths(
     fields: SceneFields, eyes: np.ndarray, targets: np.ndarray, settings: NextViewSettings
 ) -> np.ndarray:
-    """(positions, headings, targets) float: 1 where the camera at the position, turned to the heading, sees
-    the target (range, field of view, no occupied voxel on the line), else 0."""
-    offset = targets[None] - eyes[:, None]  # (P, T, 3)
-    distance = np.linalg.norm(offset, axis=2)
-    plan = np.hypot(offset[..., 0], offset[..., 1])
-    elevation = np.degrees(np.arctan2(offset[..., 2], plan)) - settings.pitch_deg
-    visible = (distance >= settings.min_range) & (distance <= settings.max_range)
-    visible &= np.abs(elevation) <= settings.fov_vertical_deg / 2
-    visible &= _clear_lines(fields, eyes, targets, visible)
-    azimuth = np.arctan2(offset[..., 1], offset[..., 0])  # (P, T)
-    headings = 2 * np.pi * np.arange(settings.headings) / settings.headings
-    off_axis = np.angle(np.exp(1j * (azimuth[:, None, :] - headings[None, :, None])))
-    within = np.abs(off_axis) <= np.radians(settings.fov_horizontal_deg) / 2
-    return (within & visible[:, None, :]).astype(np.float32)
-
-
-def _clear_lines(
-    fields: SceneFields, eyes: np.ndarray, targets: np.ndarray, wanted: np.ndarray
-) -> np.ndarray:
-    """(P, T) bool: no occupied voxel on the line from each eye to each target (the target's own voxel and
-    the one before it excepted), tested only where `wanted`; samples half a voxel apart."""
+    """(positions, targets) float32: the azimuth of each target from each eye where the camera there could
+    see it (within range and the vertical field of view, no occupied voxel on the line), else NaN; which
+    headings see it is the horizontal field's business (`sight_lines.heading_span`)."""
     from ..geometry.visibility import OCCUPIED
+    from .sight_lines import sight_azimuths
 
     lattice = fields.lattice
-    blocked = np.zeros(wanted.shape, bool)
-    p_index, t_index = np.nonzero(wanted)
-    if not len(p_index):
-        return ~blocked
-    length = np.linalg.norm(targets[t_index] - eyes[p_index], axis=1)
-    samples = int(np.ceil(length.max() / (lattice.resolution / 2)))
-    per_block = max(1, _LINE_BLOCK // samples)
-    shape = np.array(lattice.shape)
-    for start in range(0, len(p_index), per_block):
-        p, t = p_index[start : start + per_block], t_index[start : start + per_block]
-        share = np.linspace(0.0, 1.0, samples, endpoint=False)[None, :, None]
-        points = eyes[p][:, None] + share * (targets[t] - eyes[p])[:, None]  # (n, samples, 3)
-        # the last voxel and a half before the target are its own surroundings: not an obstacle
-        near_end = (1 - share[..., 0]) * length[start : start + per_block, None] < 1.5 * lattice.resolution
-        index = np.rint((points - lattice.origin) / lattice.resolution).astype(np.int64)
-        inside = ((index >= 0) & (index < shape)).all(axis=2)
-        index = np.clip(index, 0, shape - 1)
-        hit = fields.visibility[index[..., 0], index[..., 1], index[..., 2]] == OCCUPIED
-        blocked[p, t] = (hit & inside & ~near_end).any(axis=1)
-    return ~blocked
+    half = settings.fov_vertical_deg / 2
+    elevations = np.radians([settings.pitch_deg - half, settings.pitch_deg + half])
+    out = np.empty((len(eyes), len(targets)), np.float32)
+    sight_azimuths(
+        np.ascontiguousarray(eyes, np.float64),
+        np.ascontiguousarray(targets, np.float64),
+        fields.visibility,
+        np.asarray(lattice.origin, np.float64),
+        float(lattice.resolution),
+        OCCUPIED,
+        np.array([settings.min_range, settings.max_range]),
+        elevations,
+        out,
+    )
+    return out

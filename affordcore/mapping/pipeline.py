@@ -140,8 +140,8 @@ def prepare_scene(
 def preload() -> None:
     """Import now what the fields and the maps import when first needed (scipy's ndimage and spatial, the
     scoring modules: 0.3-1 s on a busy 2-core machine), so that a service's first answer does not wait for
-    it, and workers forked afterwards share it; and compile the kernels of the fields' range images and of
-    the second stage (its features' reads and its trees' walk)."""
+    it, and workers forked afterwards share it; and compile the kernels of the fields' range images, of
+    the next views and of the second stage (its features' reads and its trees' walk)."""
     import scipy.ndimage  # noqa: F401
     import scipy.spatial  # noqa: F401
     from threadpoolctl import threadpool_limits
@@ -153,8 +153,10 @@ def preload() -> None:
     from ..geometry.visibility import compile_range_images
     from ..learn.trees import compile_walk
     from . import inference, maps, places, updates  # noqa: F401
+    from .next_views import compile_sight_lines
 
     compile_range_images()
+    compile_sight_lines()
     compile_reads()
     compile_walk()
 
