@@ -3,9 +3,11 @@
 mutmut changes one thing at a time in a module (a sign, a constant, a comparison, an argument, a default) and
 runs the test files that import the module against each change; a change they all pass "survived". Per
 module this prints the mutants, how many the tests killed, how many survived, how many the importing tests
-never reach ("not reached": the module's function runs in no test that imports it), timeouts, the mutants
-listed as equivalent (`benchmarks/mutation_equivalent.txt`: a change that cannot alter behaviour, each with
-why), and the share killed of the rest. Survivors, with their diffs, go to `<out>/<module>.survivors.txt`.
+never reach ("not reached": the module's function runs in no test that imports it), timeouts (the tests
+ran past mutmut's limit: a loop that no longer ends, a limit that lets a test's input grow huge; detected,
+as Stryker and cosmic-ray count them), the mutants listed as equivalent (`benchmarks/mutation_equivalent.txt`:
+a change that cannot alter behaviour, each with why), and the share detected (killed or timed out) of the
+rest. Survivors, with their diffs, go to `<out>/<module>.survivors.txt`.
 
     .venv/bin/python benchmarks/mutation.py affordcore/learn/thresholds.py   # one module: 5-15 min, one core
     .venv/bin/python benchmarks/mutation.py --all --jobs 2                    # the four packages: hours
@@ -144,7 +146,7 @@ def run_module(module: Path, out: Path, jobs: int, every_test: bool = False) -> 
         "total": total,
         **counts,
         "equivalent": len(shown_equivalent),
-        "killed share": counts["killed"] / judged if judged else float("nan"),
+        "killed share": (counts["killed"] + counts["timeout"]) / judged if judged else float("nan"),
     }
 
 
@@ -186,7 +188,7 @@ def main() -> None:
             f"{row['no tests']} | {row['timeout']} | {row['equivalent']} | {row['killed share']:.0%} |",
             flush=True,
         )
-    killed = sum(r.get("killed", 0) for r in rows)
+    killed = sum(r.get("killed", 0) + r.get("timeout", 0) for r in rows)
     judged = sum(
         r.get("killed", 0)
         + r.get("survived", 0)
@@ -196,7 +198,7 @@ def main() -> None:
         for r in rows
     )
     if judged:
-        print(f"\nall: {killed} of {judged} non-equivalent mutants killed ({killed / judged:.0%})")
+        print(f"\nall: {killed} of {judged} non-equivalent mutants killed or timed out ({killed / judged:.0%})")
     (args.out / "results.json").write_text(json.dumps(rows, indent=1))
 
 
