@@ -198,7 +198,8 @@ def main() -> None:
         for r in rows
     )
     if judged:
-        print(f"\nall: {killed} of {judged} non-equivalent mutants killed or timed out ({killed / judged:.0%})")
+        share = f"{killed / judged:.0%}"
+        print(f"\nall: {killed} of {judged} non-equivalent mutants killed or timed out ({share})")
     (args.out / "results.json").write_text(json.dumps(rows, indent=1))
 
 

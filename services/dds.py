@@ -24,6 +24,7 @@ from affordwire import ros, ros_maps
 
 from .ros_maps import ros_token
 from .settings import RosSettings
+from .transport import put
 
 # the rclpy message class of each ROS type the bridge carries
 MESSAGE_CLASSES = {
@@ -145,7 +146,7 @@ class DdsBridge:
         """A DDS sample onto its key (on rclpy's executor thread); one this bridge sent out is not."""
         if payload in self._sent:
             return
-        self.session.put(key, payload)
+        put(self.session, key, payload)  # with BLOCK: a cloud is never dropped on a full queue
         self.counts["in"] += 1
 
     def _to_dds(self, key: str, typename: str, sample) -> None:

@@ -186,8 +186,8 @@ def _block():
     return zenoh.CongestionControl.BLOCK
 
 
-def put(session, key: str, payload: bytes, encoding) -> None:
-    """Publish bytes with their encoding (congestion control BLOCK)."""
+def put(session, key: str, payload: bytes, encoding=None) -> None:
+    """Publish bytes with their encoding, zenoh's default when None (congestion control BLOCK)."""
     session.put(key, payload, encoding=encoding, congestion_control=_block())
 
 

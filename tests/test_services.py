@@ -675,3 +675,23 @@ def test_inference_maps_the_fields_it_gave_up_for_a_newer_map_the_features_servi
         publisher.undeclare()
     finally:
         running.stop()
+
+
+def test_every_publication_on_a_session_blocks_on_a_full_queue_rather_than_dropping():
+    """zenoh's default congestion control (DROP) loses a multi-megabyte cloud when the transmission queue is
+    full, as it is under load: every put and publisher the services and clients make on a session says
+    BLOCK (services/transport does; the DDS bridge once did not, and lost a cloud in forty)."""
+    import ast
+
+    publishing = {"put", "declare_publisher", "declare_advanced_publisher"}
+    unblocked = []
+    root = Path(__file__).parents[1]
+    for path in sorted(p for package in ("services", "affordcli") for p in (root / package).rglob("*.py")):
+        for call in ast.walk(ast.parse(path.read_text())):
+            if not (isinstance(call, ast.Call) and isinstance(call.func, ast.Attribute)):
+                continue
+            on = [ast.unparse(call.func.value)] + [ast.unparse(a) for a in call.args[:1]]
+            if call.func.attr in publishing and any(o.endswith("session") for o in on):
+                if "congestion_control" not in {k.arg for k in call.keywords}:
+                    unblocked.append(f"{path.name}:{call.lineno} {ast.unparse(call.func)}")
+    assert unblocked == []
