@@ -56,6 +56,54 @@ def key_of(topic: str) -> str:
     return topic.strip("/")
 
 
+def _depth(topic: str, settings: RosSettings) -> int:
+    """The queue of an input topic, on DDS and to Zenoh: the latched tree's newest message; 10 clouds (a
+    ROS 2 sensor queue); and some seconds of the small, fast readings (Imu, odometry, tf at hundreds of
+    hertz), which must reach the assembler by their clouds' stamps however busy the bridge is."""
+    if topic == settings.tf_static:
+        return 1
+    return 10 if topic == settings.points else 1000
+
+
+class _Forwarder:
+    """One topic's messages onto its Zenoh key, in order, from a thread of its own: a put that waits on a
+    full Zenoh queue (congestion control BLOCK) holds back only its own topic, and rclpy's executor, which
+    takes every topic's samples, never waits on Zenoh. Past `depth` waiting, the oldest is dropped and
+    counted, as a DDS queue of that depth would."""
+
+    def __init__(self, session, key: str, depth: int):
+        self.session, self.key = session, key
+        self.waiting: deque[bytes] = deque(maxlen=depth)
+        self.sent = self.dropped = 0
+        self._ready = threading.Condition()
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name=f"ros-bridge {key}", daemon=True)
+        self._thread.start()
+
+    def offer(self, payload: bytes) -> None:
+        with self._ready:
+            self.dropped += len(self.waiting) == self.waiting.maxlen
+            self.waiting.append(payload)
+            self._ready.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._ready:
+                self._ready.wait_for(lambda: self.waiting or self._closed)
+                if not self.waiting:
+                    return
+                payload = self.waiting.popleft()
+            put(self.session, self.key, payload)  # BLOCK: never dropped by Zenoh
+            self.sent += 1
+
+    def close(self, timeout: float = 5.0) -> None:
+        """Send what is waiting (for up to `timeout` seconds), then end the thread."""
+        with self._ready:
+            self._closed = True
+            self._ready.notify()
+        self._thread.join(timeout)
+
+
 class DdsBridge:
     """The ROS 2 node and its Zenoh session's subscriptions; `run` spins until `stop` is set."""
 
@@ -76,7 +124,8 @@ class DdsBridge:
             reliability=ReliabilityPolicy.RELIABLE,
             history=HistoryPolicy.KEEP_LAST,
         )
-        self.counts = {"in": 0, "out": 0}
+        self.counts = {"out": 0}
+        self._forwarders: dict[str, _Forwarder] = {}  # per Zenoh key of an input topic
         self._sent: deque[bytes] = deque(maxlen=32)  # what went out on DDS, not to be taken back in
         self._publishers: dict[str, object] = {}
         self._lock = threading.Lock()
@@ -111,10 +160,11 @@ class DdsBridge:
             if not offered:
                 continue
             qos = offered[0].qos_profile
-            depth = 1 if topic == self.settings.tf_static else 10
+            depth = _depth(topic, self.settings)
             profile = QoSProfile(depth=depth, reliability=qos.reliability, durability=qos.durability)
             key = key_of(topic)
-            callback = lambda payload, key=key: self._to_zenoh(key, payload)  # noqa: E731
+            forwarder = self._forwarders[key] = _Forwarder(self.session, key, depth)
+            callback = lambda payload, forwarder=forwarder: self._to_zenoh(forwarder, payload)  # noqa: E731
             self._dds_subscriptions.append(
                 self.node.create_subscription(cls, topic, callback, profile, raw=True)
             )
@@ -142,12 +192,10 @@ class DdsBridge:
             for key, typename in keys
         ]
 
-    def _to_zenoh(self, key: str, payload: bytes) -> None:
-        """A DDS sample onto its key (on rclpy's executor thread); one this bridge sent out is not."""
-        if payload in self._sent:
-            return
-        put(self.session, key, payload)  # with BLOCK: a cloud is never dropped on a full queue
-        self.counts["in"] += 1
+    def _to_zenoh(self, forwarder: _Forwarder, payload: bytes) -> None:
+        """A DDS sample to its forwarder (on rclpy's executor thread); one this bridge sent out is not."""
+        if payload not in self._sent:
+            forwarder.offer(payload)
 
     def _to_dds(self, key: str, typename: str, sample) -> None:
         """A Zenoh sample onto its DDS topic, latched (on zenoh's thread)."""
@@ -186,12 +234,24 @@ class DdsBridge:
         for subscriber in self._zenoh_subscribers:
             subscriber.undeclare()
         self._zenoh_subscribers = []
+        for forwarder in self._forwarders.values():
+            forwarder.close()
         if self.context.ok():
             self.node.destroy_node()
             rclpy.shutdown(context=self.context)
 
     def summary(self) -> str:
-        return f"ROS 2 over DDS: {self.counts['in']} messages in, {self.counts['out']} out"
+        forwarders = sorted(self._forwarders.values(), key=lambda f: f.key)
+        each = ", ".join(f"{f.key} {f.sent}" for f in forwarders)
+        said = f"ROS 2 over DDS: {self.messages_in} messages in ({each or 'none'}), {self.counts['out']} out"
+        dropped = [f"{f.key} {f.dropped}" for f in forwarders if f.dropped]
+        if dropped:
+            said += f"; dropped, the oldest of a topic's {', '.join(dropped)} (Zenoh did not keep up)"
+        return said
+
+    @property
+    def messages_in(self) -> int:
+        return sum(f.sent for f in self._forwarders.values())
 
 
 def run_dds_bridge(

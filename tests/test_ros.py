@@ -1116,3 +1116,38 @@ def eventually_matched(publisher, timeout: float = 20.0) -> bool:
             return False
         time.sleep(0.05)
     return True
+
+
+def test_the_dds_bridge_s_forwarder_never_holds_rclpy_up_keeps_order_and_counts_what_it_drops():
+    """A put that waits on a full Zenoh queue holds back only its own topic: offering returns at once, the
+    messages go out in order, past the queue's depth the oldest waiting is dropped and counted, and a close
+    sends what still waits."""
+    import threading
+
+    import zenoh
+
+    from services.dds import _Forwarder
+
+    class Congested:  # a session whose queue is full until `free` is set
+        def __init__(self):
+            self.free, self.sent, self.calls = threading.Event(), [], threading.Event()
+
+        def put(self, key, payload, **options):
+            self.calls.set()
+            self.free.wait()
+            self.sent.append((key, payload, options["congestion_control"]))
+
+    session = Congested()
+    forwarder = _Forwarder(session, "robot1/odom", depth=3)
+    forwarder.offer(b"0")
+    assert session.calls.wait(5)  # the thread waits in its put of b"0"
+    start = time.monotonic()
+    for payload in (b"1", b"2", b"3", b"4"):
+        forwarder.offer(payload)
+    assert time.monotonic() - start < 0.5  # never waited on the congested put
+    assert forwarder.dropped == 1  # b"1", the oldest of the four waiting behind a queue of three
+    session.free.set()
+    forwarder.close()
+    block = zenoh.CongestionControl.BLOCK
+    assert session.sent == [("robot1/odom", p, block) for p in (b"0", b"2", b"3", b"4")]
+    assert forwarder.sent == 4
