@@ -88,3 +88,14 @@ def test_the_changelog_s_newest_release_is_the_package_s_version():
         r"^## \[(\d+\.\d+\.\d+)\] - \d{4}-\d{2}-\d{2}$", (ROOT / "CHANGELOG.md").read_text(), re.M
     )
     assert releases and releases[0] == version, (releases[:3], version)
+
+
+def test_the_reference_pages_are_what_the_code_generates(tmp_path):
+    """docs/reference/ is written from the settings classes and the typer app: a setting or an option changed
+    without rerunning docs/reference/generate.py fails here."""
+    import runpy
+
+    generate = runpy.run_path(str(ROOT / "docs" / "reference" / "generate.py"))
+    for name, page in generate["PAGES"].items():
+        written = (ROOT / "docs" / "reference" / name).read_text()
+        assert written == page(), f"docs/reference/{name} is stale: rerun docs/reference/generate.py"
