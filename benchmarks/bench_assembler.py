@@ -420,7 +420,7 @@ def _map_before(voxel_map, image: DepthImage, pose: np.ndarray, settings: Assemb
 
 def _map_today(voxel_map, image: DepthImage, pose: np.ndarray, settings: AssemblerSettings) -> float:
     """Seconds today's map takes for a keyframe (`Assembler.register`'s keyframe step, and `apply`'s)."""
-    from affordcore.assembly.voxelmap import cell_sums
+    from affordcore.geometry.cells import cell_sums
 
     start = time.perf_counter()
     low, high, spread = settings.min_range, settings.max_range, settings.map_edge_spread

@@ -22,10 +22,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..geometry.cells import cell_sums
 from ..settings import AssemblerSettings, LimitSettings, Settings
 from .depth import DepthImage, back_project
 from .planes import LocalPlanes, align_with_prior, odometry_information
-from .voxelmap import VoxelMeans, cell_sums
+from .voxelmap import VoxelMeans
 
 
 @dataclass

@@ -15,23 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry.cells import cell_keys
+from ..geometry.cells import cell_sums
 
 # points kept aside before a merge, at least: below this a merge is cheap whatever the store's size
 _MIN_PENDING = 50_000
-
-
-def cell_sums(
-    points: np.ndarray, voxel: float, weights: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(sorted unique cell keys, (n, 3) sums of the points in each, counts) of `points` at `voxel`, each
-    point counted `weights` times (default once)."""
-    keys = cell_keys(np.floor(points / voxel + 0.5).astype(np.int64))
-    unique, inverse = np.unique(keys, return_inverse=True)
-    weighted = points if weights is None else points * weights[:, None]
-    sums = np.stack([np.bincount(inverse, weighted[:, k], len(unique)) for k in range(3)], axis=1)
-    counts = np.bincount(inverse, weights, len(unique)).round().astype(np.int64)
-    return unique, sums, counts
 
 
 class VoxelMeans:

@@ -23,3 +23,16 @@ def cells_of_keys(keys: np.ndarray) -> np.ndarray:
     half, mask = 1 << (_KEY_BITS - 1), (1 << _KEY_BITS) - 1
     axes = [(keys >> (2 * _KEY_BITS)) & mask, (keys >> _KEY_BITS) & mask, keys & mask]
     return np.stack(axes, axis=1) - half
+
+
+def cell_sums(
+    points: np.ndarray, voxel: float, weights: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(sorted unique cell keys, (n, 3) sums of the points in each, counts) of `points` at `voxel`, each
+    point counted `weights` times (default once)."""
+    keys = cell_keys(np.floor(points / voxel + 0.5).astype(np.int64))
+    unique, inverse = np.unique(keys, return_inverse=True)
+    weighted = points if weights is None else points * weights[:, None]
+    sums = np.stack([np.bincount(inverse, weighted[:, k], len(unique)) for k in range(3)], axis=1)
+    counts = np.bincount(inverse, weights, len(unique)).round().astype(np.int64)
+    return unique, sums, counts

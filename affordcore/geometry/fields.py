@@ -26,7 +26,7 @@ from functools import partial
 import numpy as np
 
 from ..settings import NormalSettings, VoxelSettings
-from .cells import cell_keys
+from .cells import cell_sums
 
 _UP_FACING_NZ = 0.5  # |n_z| above this (within 60 deg of vertical) means "faces up"
 # a steep surface faces the side whose disc of this radius (m), this far out (m), holds more scanned floor
@@ -241,11 +241,8 @@ def voxel_down_sample(points: np.ndarray, voxel: float) -> np.ndarray:
 def thin_cells(points: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
     """(`voxel_down_sample`'s means, each one's cell as one int64 key: `cell_keys` of its (i, j, k)), sorted
     by key."""
-    cells = np.floor(points / voxel + 0.5).astype(np.int64)
-    keys = cell_keys(cells)
-    unique, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-    means = np.stack([np.bincount(inverse, points[:, k]) for k in range(3)], axis=1) / counts[:, None]
-    return means, unique
+    unique, sums, counts = cell_sums(points, voxel)
+    return sums / counts[:, None], unique
 
 
 def _flat_index(lattice: VoxelLattice, index: np.ndarray) -> np.ndarray:
