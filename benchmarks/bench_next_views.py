@@ -319,16 +319,17 @@ class Exploration:
         return targets, weight
 
     def why_none(self) -> str:
-        """Why no map suggested a view: nothing unsure is unseen (no candidate, candidates sure, or their
-        body space seen), nowhere to stand, or every target out of sight of every standable pose."""
+        """Why no map suggested a view: nowhere to stand, nothing unsure is unseen (no candidate and nothing
+        of the unseen room worth a view, candidates sure, or their body space seen), or every target out of
+        sight of every standable pose."""
         from affordcore.mapping import next_views as nv
 
-        if not any(len(m.candidates) for m in self.maps.values()):
-            return "no candidate place"
-        if self.targets()[1].sum() < nv._MIN_GAIN:
-            return "nothing unsure is unseen"
         if not len(nv._standable(self.fields, self.settings.next_views, self.settings.next_views.height)):
             return "nowhere to stand"
+        if not any(len(m.candidates) for m in self.maps.values()):
+            return "no candidate place, and no view of the unseen room worth the drive"
+        if self.targets()[1].sum() < nv._MIN_GAIN:
+            return "nothing unsure is unseen"
         return "targets out of sight"
 
     def aimed_at(self, room, raycaster, camera, view) -> dict:
