@@ -302,6 +302,7 @@ def test_a_known_pixel_back_projects_through_the_pinhole():
     depth[1, 3] = 1500  # v = 1, u = 3, 1.5 m
     depth[2, 0] = 65535  # no measurement (7-Scenes)
     frame = messages.depth_frame_message(depth, K)
+    assert frame.frame_id == "camera"  # unnamed, a depth image is in the camera's own frame
     points = back_project_message(_wire(frame))
     # x = (u - cx) / fx * d = (3 - 2.2) / 500 * 1.5; y = (v - cy) / fy * d = (1 - 1.7) / 400 * 1.5
     np.testing.assert_allclose(points, [[0.0024, -0.002625, 1.5]], atol=1e-12)
