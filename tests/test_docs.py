@@ -90,7 +90,7 @@ def test_the_changelog_s_newest_release_is_the_package_s_version():
     assert releases and releases[0] == version, (releases[:3], version)
 
 
-def test_the_reference_pages_are_what_the_code_generates(tmp_path):
+def test_the_reference_pages_are_what_the_code_generates():
     """docs/reference/ is written from the settings classes and the typer app: a setting or an option changed
     without rerunning docs/reference/generate.py fails here."""
     import runpy
