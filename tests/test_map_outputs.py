@@ -85,7 +85,7 @@ def test_the_room_is_handed_to_the_writer_without_waiting_for_it(room, tmp_path,
 
     from affordcore.mapping import outputs
 
-    monkeypatch.setattr(outputs, "_writer_main", lambda connection: time.sleep(600))  # never reads
+    monkeypatch.setattr(outputs, "_writer_main", lambda connection, *outputs_wanted: time.sleep(600))  # never reads
     scene = room[0]
     assert scene.cloud.points.nbytes > 1 << 20
     writer = outputs.OutputWriter()
@@ -111,7 +111,7 @@ def test_a_writer_closed_before_it_finished_is_ended_not_waited_for(monkeypatch)
 
     from affordcore.mapping import outputs
 
-    monkeypatch.setattr(outputs, "_writer_main", lambda connection: time.sleep(3))
+    monkeypatch.setattr(outputs, "_writer_main", lambda connection, *outputs_wanted: time.sleep(3))
     with pytest.raises(ValueError, match="empty file"), outputs.OutputWriter() as writer:
         raise ValueError("an empty file")
     assert writer._process.exitcode == -signal.SIGKILL
