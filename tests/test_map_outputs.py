@@ -85,7 +85,10 @@ def test_the_room_is_handed_to_the_writer_without_waiting_for_it(room, tmp_path,
 
     from affordcore.mapping import outputs
 
-    monkeypatch.setattr(outputs, "_writer_main", lambda connection, *outputs_wanted: time.sleep(600))  # never reads
+    def never_reads(connection, *outputs_wanted):
+        time.sleep(600)
+
+    monkeypatch.setattr(outputs, "_writer_main", never_reads)
     scene = room[0]
     assert scene.cloud.points.nbytes > 1 << 20
     writer = outputs.OutputWriter()
