@@ -164,6 +164,12 @@ class VisibilitySettings(BaseModel):
     max_origins: int = Field(
         32, ge=1, description="at most this many sensor positions carve free space (spread out over all)"
     )
+    carrier_radius: float = Field(
+        0.2,
+        ge=0,
+        description="a sensor's carrier (robot, person) stood this far around each sensor position, from the "
+        "floor up to it (m): that space is free though no sensor looked at it; 0: none",
+    )
     seen_low: float = Field(0.2, description="a place's body space starts this high above the floor (m)")
     seen_high: float = Field(1.4, description="and ends this high (m)")
     seen_radius: float = Field(

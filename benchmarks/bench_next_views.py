@@ -308,14 +308,19 @@ class Exploration:
 
     def targets(self):
         """The maps' targets as `suggest_views` takes them: (never-seen voxel centres, their weights) of
-        the three maps' candidates together."""
+        the three maps' candidates together, and of the never-seen room no candidate stands in."""
         from affordcore.mapping import next_views as nv
 
-        c = np.concatenate([m.candidates for m in self.maps.values() if len(m.candidates)])
+        maps = [m.candidates for m in self.maps.values() if len(m.candidates)]
+        c = np.concatenate(maps) if maps else np.zeros((0, 6))
         p = np.where(np.isfinite(c[:, 5]), c[:, 5], 0.5)
         bits = nv.entropy_bits(p)
         bits[np.argsort(-bits, kind="stable")[nv._PLACES :]] = 0.0
         targets, _, weight = nv._targets(self.fields, c[:, :2], bits, self.settings.visibility)
+        prior = self.settings.next_views.unseen_prior
+        if prior > 0:
+            unseen, unseen_weight = nv._unseen_targets(self.fields, self.settings.visibility, prior, targets)
+            targets, weight = np.concatenate([targets, unseen]), np.concatenate([weight, unseen_weight])
         return targets, weight
 
     def why_none(self) -> str:

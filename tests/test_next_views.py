@@ -325,3 +325,27 @@ def test_maps_with_no_candidate_yet_still_ask_to_look_where_places_may_hide(room
     assert views[0].x > 1.5  # it walks east, towards the cabinet and the room behind it
     settings.next_views.unseen_prior = 0.0
     assert suggest_views(room, empty, settings) == []
+
+
+def test_a_robot_can_be_sent_back_to_where_its_sensor_stood():
+    """A camera never sees the floor at its own feet: with the floor within 1.5 m of the sensor unscanned
+    (a depth camera's first frame), the spot it stood on reads as never seen. The carrier's space
+    (`VisibilitySettings.carrier_radius`) makes it standable, so a view can turn the robot where it is."""
+    from affordcore.mapping.next_views import _standable
+    from affordcore.settings import VisibilitySettings
+
+    rng = np.random.default_rng(2)
+    floor = box_surface_points(np.array((0, 0, 0)), np.array((6, 4, 0)), 20000, rng)
+    floor = floor[np.hypot(*(floor[:, :2] - SENSOR[0, :2]).T) > 1.5]
+    walls = [((0, -0.1, 0), (6, 0, 2.4)), ((0, 4, 0), (6, 4.1, 2.4)), ((-0.1, 0, 0), (0, 4, 2.4))]
+    walls = [box_surface_points(np.array(a), np.array(b), 4000, rng) for a, b in walls]
+    points = np.concatenate([floor, *walls])
+    fields = compute_fields(points, VoxelSettings(), NormalSettings())
+    spots = {}
+    for radius in (0.0, 0.2):
+        fields.visibility = voxel_states(
+            fields.occupancy, fields.lattice, SENSOR, VisibilitySettings(carrier_radius=radius)
+        )
+        positions = _standable(fields, CANDIDATES_ONLY, 1.0)
+        spots[radius] = np.hypot(*(positions - SENSOR[0, :2]).T).min()
+    assert spots[0.0] > 0.3 and spots[0.2] < 0.15

@@ -224,7 +224,7 @@ def test_the_compiled_range_images_give_numpy_states_to_the_bit():
     origins = np.array(
         [[1.0, 1.0, 1.5], [2.45, 1.5, 2.3], [5.0, -1.0, 1.0], [3.3, 2.3, 0.95], [3.9, 0.2, 0.1]]
     )
-    settings = VisibilitySettings()
+    settings = VisibilitySettings(carrier_radius=0)  # the reference knows only what the sensors saw
     compile_range_images()
     compiled = [len(range_images.draw_outlines.signatures), len(range_images.mark_in_front.signatures)]
     state = voxel_states(fields.occupancy, fields.lattice, origins, settings)
@@ -254,3 +254,28 @@ def test_a_sensor_facing_one_wall_leaves_the_open_side_behind_it_unknown():
         assert _state_at(fields, state, xyz) == UNKNOWN, xyz
     for xyz in [(2.6, 1.5, 1.2), (2.8, 1.2, 0.9), (2.6, 1.9, 1.5)]:  # between the sensor and the wall
         assert _state_at(fields, state, xyz) == FREE, xyz
+
+
+def test_the_space_the_sensor_s_carrier_stood_in_is_free_down_to_the_first_surface_under_it():
+    """A camera never sees its own feet: with no floor scanned under it, the column under it, within the
+    carrier's radius, is free from the room's lowest surface up to the sensor; beyond the radius, and under
+    a top a sensor was held over, space stays as the sensors saw it."""
+    x, y = np.meshgrid(np.arange(0, 3, SPACING), np.arange(0, 3, SPACING), indexing="ij")
+    x, y = x.ravel(), y.ravel()
+    floor = np.column_stack([x, y, np.zeros(x.size)])[x >= 1.5]  # nothing scanned under the first sensor
+    top = np.column_stack([x, y, np.full(x.size, 0.7)])[(x > 1.6) & (y > 1.6)]
+    fields = _fields(np.concatenate([floor, top]))
+    sensors = np.array([[1.0, 1.0, 1.2], [2.5, 2.5, 1.2]])
+    seen = voxel_states(fields.occupancy, fields.lattice, sensors, VisibilitySettings(carrier_radius=0))
+    state = voxel_states(fields.occupancy, fields.lattice, sensors, VisibilitySettings(carrier_radius=0.2))
+
+    def at(states, xyz):
+        return _state_at(fields, states, xyz)
+
+    for xyz in [(1.0, 1.0, 0.1), (1.0, 1.0, 0.6), (1.0, 1.0, 1.2), (1.1, 0.9, 0.3), (1.0, 0.8, 0.2)]:
+        assert (at(seen, xyz), at(state, xyz)) == (UNKNOWN, FREE), xyz
+    assert at(state, (1.0, 1.0, -0.3)) == UNKNOWN  # not below the room's floor
+    for xyz in [(1.4, 1.0, 0.3), (1.0, 1.4, 0.6), (1.0, 1.0, 1.6)]:  # past the radius, above the sensor
+        assert at(state, xyz) == at(seen, xyz), xyz
+    assert at(state, (2.5, 2.5, 0.7)) == OCCUPIED and at(state, (2.5, 2.5, 1.0)) == FREE  # over the top
+    assert at(seen, (2.5, 2.5, 0.2)) == at(state, (2.5, 2.5, 0.2)) == UNKNOWN  # under it, never stood in

@@ -16,6 +16,11 @@ taken to have looked all round: a camera's field of view is not known here, so s
 counts as seen. That errs towards free only where a surface was seen from elsewhere and the space in
 front of it lies in the open view of another position, which a moving sensor mostly did look through.
 A direction with no surface at all (an open door, a missing return) frees nothing.
+
+The space the sensor's carrier stood in is free too (`_carrier_space`): a robot or a person was there, from
+the floor up to the sensor, within `VisibilitySettings.carrier_radius` of it, though a camera looking ahead
+never sees the space at its own feet (as a planner's costmap clears the robot's footprint). Without it the
+spot a robot stands on reads as never seen, and a robot could not be sent back to turn where it stood.
 """
 
 from __future__ import annotations
@@ -60,8 +65,36 @@ def voxel_states(
         image = _range_image(surface - origin, lattice.resolution, settings.angular_step)
         offsets = [axis - np.float32(o) for axis, o in zip(axes, origin)]
         _in_front(offsets, image, settings.angular_step, lattice.resolution, free)
+    if settings.carrier_radius > 0:
+        free[_carrier_space(occupied, lattice, origins, settings.carrier_radius)] = True
     state[free & ~occupied] = FREE
     return state
+
+
+def _carrier_space(
+    occupied: np.ndarray, lattice: VoxelLattice, origins: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Indices (i, j, k) of the voxels the sensors' carrier filled: in the columns within `radius` of each
+    sensor position (every one of them, not only the spread-out ones), from the sensor's voxel down to just
+    above the first occupied voxel under it (the floor, or a top the sensor was held over), or, where the
+    scan holds nothing under it (a camera never sees its own feet), to the room's lowest surface."""
+    (nx, ny, nz), cell = lattice.shape, lattice.voxel_of(origins)
+    reach = int(np.floor(radius / lattice.resolution + 0.5))
+    di, dj = np.nonzero(disc(reach))
+    i, j = cell[:, :1] + (di - reach), cell[:, 1:2] + (dj - reach)  # (origins, disc cells)
+    top = np.broadcast_to(np.minimum(cell[:, 2:], nz - 1), i.shape)
+    inside = (i >= 0) & (i < nx) & (j >= 0) & (j < ny) & (top >= 0)
+    highest = np.full(nx * ny, -1)
+    np.maximum.at(highest, i[inside] * ny + j[inside], top[inside])  # under several: to the highest
+    columns = np.flatnonzero(highest >= 0)
+    ci, cj, top = columns // ny, columns % ny, highest[columns]
+    k = np.arange(nz)
+    below = occupied[ci, cj] & (k < top[:, None])  # (columns, nz)
+    lowest_surface = int(np.argmax(occupied.any(axis=(0, 1))))
+    bottom = np.where(below, k, -1).max(axis=1)
+    bottom[bottom < 0] = lowest_surface
+    rows, layers = np.nonzero((k > bottom[:, None]) & (k <= top[:, None]))
+    return ci[rows], cj[rows], layers
 
 
 def spread_origins(origins: np.ndarray, count: int) -> np.ndarray:
