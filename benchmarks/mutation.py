@@ -11,17 +11,27 @@ rest. Survivors, with their diffs, go to `<out>/<module>.survivors.txt`.
 
     .venv/bin/python benchmarks/mutation.py affordcore/learn/thresholds.py   # one module: 5-15 min, one core
     .venv/bin/python benchmarks/mutation.py --all --jobs 2                    # the four packages: hours
+    .venv/bin/python benchmarks/mutation.py --all --sample 10 --jobs 2        # an estimate of that: 1-2 hours
 
-Each module is mutated in a scratch copy of the repository's tracked files (`<out>/<module>/`, default
-out `bench-data/mutation`), never in the working tree; `../shared` is linked beside the copy so the tests
-that read it run. Slow end-to-end tests are left out (`-m "not slow"`): they import everything and decide
-little here. mutmut 3 is in the test extra (`bash bootstrap.sh test` installs it)."""
+`--sample N` draws N mutants of each module at random (`--seed`) and runs them all in one scratch copy
+against every test that reaches the mutated function (as mutmut finds them from one run of the suite), then
+estimates the share detected over all the modules' mutants: each module weighted by its count of mutants (a
+stratified sample), with a 95 % interval. Mutant sampling: a few hundred mutants bound the figure to a few
+points for a fraction of the hours.
+
+Each module is mutated in a scratch copy of the repository's tracked files (`<out>/<module>/`, or
+`<out>/sample/`; default out `bench-data/mutation`), never in the working tree; `../shared` is linked where
+the tests look for it, so those that read it run. Slow end-to-end tests are left out (`-m "not slow"`): they
+import everything and decide little here. mutmut 3 is in the test extra (`bash bootstrap.sh test` installs
+it)."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
+import random
 import re
 import shutil
 import subprocess
@@ -63,23 +73,24 @@ def importing_tests(module: Path) -> list[str]:
     return tests
 
 
-def scratch_copy(module: Path, tests: list[str], out: Path) -> Path:
-    """A copy of the tracked files with mutmut's settings for this module in its pyproject.toml."""
-    copy = out / "_".join(module.with_suffix("").parts) / "repo"
+def scratch_copy(name: str, sources: list[Path], tests: list[str], out: Path) -> Path:
+    """A copy of the tracked files with mutmut's settings for these sources in its pyproject.toml."""
+    copy = out / name / "repo"
     if copy.exists():
         shutil.rmtree(copy)
     tracked = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True)
-    for name in tracked.stdout.splitlines():
-        source = ROOT / name
+    for tracked_name in tracked.stdout.splitlines():
+        source = ROOT / tracked_name
         if source.is_file():
-            target = copy / name
+            target = copy / tracked_name
             target.parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(source, target)
     shared = (ROOT / ".." / "shared").resolve()
-    if shared.exists() and not (copy.parent / "shared").exists():
-        (copy.parent / "shared").symlink_to(shared)
+    for beside in (copy.parent, copy):  # the tests run in the copy and in mutmut's own copy of it, mutants/
+        if shared.exists() and not (beside / "shared").exists():
+            (beside / "shared").symlink_to(shared)
     settings = {
-        "source_paths": [str(module)],
+        "source_paths": [str(source) for source in sources],
         "pytest_add_cli_args_test_selection": tests,
         "pytest_add_cli_args": ["-p", "no:cacheprovider", "-q", "-x", "-m", "not slow"],
         # every tracked top-level entry: the tests read the docs, schemas, Dockerfiles and pyproject.toml too
@@ -102,52 +113,113 @@ def equivalent() -> dict[str, str]:
     return listed
 
 
+MUTMUT = [sys.executable, "-m", "mutmut"]
+LISTING = """import sys; from pathlib import Path
+from mutmut.mutation.file_mutation import mutate_file_contents
+from mutmut.utils.format_utils import get_mutant_name
+for name in sys.argv[1:]:
+    path = Path(name)
+    for mutant in mutate_file_contents(name, path.read_text()).mutant_names:
+        print(get_mutant_name(path, mutant))
+"""
+
+
+def mutant_names(copy: Path, module: Path) -> list[str]:
+    """Every mutant mutmut makes of `module`, by name, without running anything (inside the scratch copy,
+    whose settings mutmut reads)."""
+    listed = subprocess.run(
+        [sys.executable, "-c", LISTING, str(module)], cwd=copy, capture_output=True, text=True, check=True
+    )
+    return listed.stdout.split()
+
+
+def run_mutmut(copy: Path, jobs: int, chosen: list[str]) -> dict[str, str]:
+    """Run mutmut in the copy (on the chosen mutants, or all) and return {mutant: status}."""
+    with open(copy.parent / "mutmut.log", "w") as log:
+        run = [*MUTMUT, "run", "--max-children", str(jobs), *chosen]
+        subprocess.run(run, cwd=copy, stdout=log, stderr=log)
+    results = subprocess.run(
+        [*MUTMUT, "results", "--all", "true"], cwd=copy, capture_output=True, text=True
+    ).stdout
+    status = dict(line.strip().rsplit(": ", 1) for line in results.splitlines() if ": " in line)
+    return {name: status.get(name, "not checked") for name in chosen} if chosen else status
+
+
+def tally(module: Path, status: dict[str, str], copy: Path, out: Path) -> dict:
+    """Counts of one module's mutants by what became of them; the survivors not shown equivalent, with
+    their diffs, to `<out>/<module>.survivors.txt`. A timeout counts as detected (as Stryker and
+    cosmic-ray count it); "other" (mutmut's suspicious, segfault, not checked) is left out of the share."""
+    counts = dict.fromkeys(("killed", "survived", "no tests", "timeout", "other"), 0)
+    for value in status.values():
+        counts[value if value in counts else "other"] += 1
+    listed = equivalent()
+    survivors = [name for name, value in status.items() if value in ("survived", "no tests")]
+    left = [name for name in survivors if name not in listed]
+    with open(out / f"{row_name(module)}.survivors.txt", "w") as report:
+        for name in left:
+            diff = subprocess.run([*MUTMUT, "show", name], cwd=copy, capture_output=True, text=True)
+            report.write(f"{diff.stdout}\n")
+    detected = counts["killed"] + counts["timeout"]
+    judged = detected + len(left)
+    return {
+        "module": str(module),
+        "total": len(status),
+        **counts,
+        "equivalent": len(survivors) - len(left),
+        "detected": detected,
+        "judged": judged,
+        "killed share": detected / judged if judged else float("nan"),
+    }
+
+
 def run_module(module: Path, out: Path, jobs: int, every_test: bool = False) -> dict:
     """Mutate one module in its scratch copy and count what became of each mutant: against the test files
     that import it, or (`every_test`) against every test that runs the mutated function, as mutmut finds
     them from a run of the whole suite."""
     tests = importing_tests(module) if not every_test else ["tests"]
-    row = {"module": str(module), "tests": len(tests)}
     if not tests:
-        return {**row, "total": 0, "note": "no test file imports it"}
-    copy = scratch_copy(module, tests, out)
-    mutmut = [sys.executable, "-m", "mutmut"]
-    env = dict(os.environ)
+        return {"module": str(module), "tests": 0, "total": 0, "note": "no test file imports it"}
+    copy = scratch_copy(row_name(module), [module], tests, out)
     start = time.perf_counter()
-    with open(copy.parent / "mutmut.log", "w") as log:
-        subprocess.run(
-            [*mutmut, "run", "--max-children", str(jobs)], cwd=copy, stdout=log, stderr=log, env=env
-        )
-    row["seconds"] = time.perf_counter() - start
-    results = subprocess.run([*mutmut, "results"], cwd=copy, capture_output=True, text=True, env=env).stdout
-    status = dict(line.strip().rsplit(": ", 1) for line in results.splitlines() if ": " in line)
-    counts = {"killed": 0, "survived": 0, "no tests": 0, "timeout": 0, "suspicious": 0}
-    stats = copy / "mutants" / "mutmut-cicd-stats.json"
-    subprocess.run([*mutmut, "export-cicd-stats"], cwd=copy, capture_output=True, env=env)
-    if stats.exists():
-        exported = json.loads(stats.read_text())
-        counts["killed"], total = exported["killed"], exported["total"]
-    else:
-        total = len(status)
-    for value in status.values():
-        if value in counts and value != "killed":
-            counts[value] += 1
-    listed = equivalent()
-    survivors = [name for name, value in status.items() if value in ("survived", "no tests")]
-    shown_equivalent = [name for name in survivors if name in listed]
-    left = [name for name in survivors if name not in listed]
-    with open(out / f"{row_name(module)}.survivors.txt", "w") as report:
-        for name in left:
-            diff = subprocess.run([*mutmut, "show", name], cwd=copy, capture_output=True, text=True, env=env)
-            report.write(f"{diff.stdout}\n")
-    judged = counts["killed"] + len(left) + counts["timeout"]
-    return {
-        **row,
-        "total": total,
-        **counts,
-        "equivalent": len(shown_equivalent),
-        "killed share": (counts["killed"] + counts["timeout"]) / judged if judged else float("nan"),
-    }
+    status = run_mutmut(copy, jobs, [])
+    return {**tally(module, status, copy, out), "tests": len(tests), "seconds": time.perf_counter() - start}
+
+
+def run_sample(found: list[Path], out: Path, jobs: int, sample: int, seed: int) -> list[dict]:
+    """`sample` mutants of each module drawn at random, all run in one copy against every test that reaches
+    the mutated function; each module's row also holds its count of mutants ("all mutants")."""
+    copy = scratch_copy("sample", found, ["tests"], out)
+    draw = random.Random(seed)
+    every = {module: mutant_names(copy, module) for module in found}
+    chosen = {module: sorted(draw.sample(names, min(sample, len(names)))) for module, names in every.items()}
+    status = run_mutmut(copy, jobs, [name for names in chosen.values() for name in names])
+    rows = []
+    for module in found:
+        row = tally(module, {name: status[name] for name in chosen[module]}, copy, out)
+        rows.append({**row, "tests": "reaching", "all mutants": len(every[module])})
+    return rows
+
+
+def stratified(rows: list[dict]) -> tuple[float, float]:
+    """The share detected over all the modules' non-equivalent mutants, estimated from samples (each module
+    weighted by its mutants, less the share of its sample shown equivalent), and the half-width of its 95 %
+    interval (normal approximation; each module's variance from (detected + 1) / (judged + 2), so a module
+    whose few sampled mutants were all caught still counts as uncertain; finite-population corrected)."""
+    weight, share, variance = [], [], []
+    for row in rows:
+        if not row.get("judged"):
+            continue
+        population = row["all mutants"] * row["judged"] / (row["judged"] + row["equivalent"])
+        p = row["detected"] / row["judged"]
+        smoothed = (row["detected"] + 1) / (row["judged"] + 2)
+        correction = max(0.0, 1 - row["judged"] / population)
+        weight.append(population)
+        share.append(p)
+        variance.append(smoothed * (1 - smoothed) / row["judged"] * correction)
+    total = sum(weight)
+    estimate = sum(w * p for w, p in zip(weight, share)) / total
+    half = 1.96 * math.sqrt(sum((w / total) ** 2 * v for w, v in zip(weight, variance)))
+    return estimate, half
 
 
 def row_name(module: Path) -> str:
@@ -167,40 +239,44 @@ def main() -> None:
         action="store_true",
         help="run each mutant against every test that reaches its function, not only the importing files",
     )
+    parser.add_argument("--sample", type=int, default=0, help="mutants drawn at random from each module")
+    parser.add_argument("--seed", type=int, default=0, help="the draw's seed")
     args = parser.parse_args()
     if not args.modules and not args.all:
         parser.error("name modules, or --all")
     args.out.mkdir(parents=True, exist_ok=True)
-    rows = []
+    found = modules(args.modules)
     print(f"{os.cpu_count()} cores, {args.jobs} mutant(s) at a time", flush=True)
     header = (
-        "| module | tests | mutants | killed | survived | not reached | timeout | equivalent | killed share |"
+        "| module | tests | mutants | killed | survived | not reached | timeout | other | equivalent "
+        "| share |"
     )
-    print(header + "\n|---|---:|---:|---:|---:|---:|---:|---:|---:|", flush=True)
-    for module in modules(args.modules):
-        row = run_module(module, args.out, args.jobs, args.every_test)
-        rows.append(row)
+    print(header + "\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|", flush=True)
+    if args.sample:
+        rows = run_sample(found, args.out, args.jobs, args.sample, args.seed)
+    else:
+        rows = (run_module(module, args.out, args.jobs, args.every_test) for module in found)
+    kept = []
+    for row in rows:
+        kept.append(row)
         if not row["total"]:
-            print(f"| {module} | 0 | - | - | - | - | - | - | {row.get('note', '')} |", flush=True)
+            print(f"| {row['module']} | 0 | - | - | - | - | - | - | - | {row.get('note', '')} |", flush=True)
             continue
+        mutants = f"{row['total']} of {row['all mutants']}" if "all mutants" in row else row["total"]
         print(
-            f"| {module} | {row['tests']} | {row['total']} | {row['killed']} | {row['survived']} | "
-            f"{row['no tests']} | {row['timeout']} | {row['equivalent']} | {row['killed share']:.0%} |",
+            f"| {row['module']} | {row['tests']} | {mutants} | {row['killed']} | {row['survived']} | "
+            f"{row['no tests']} | {row['timeout']} | {row['other']} | {row['equivalent']} | "
+            f"{row['killed share']:.0%} |",
             flush=True,
         )
-    killed = sum(r.get("killed", 0) + r.get("timeout", 0) for r in rows)
-    judged = sum(
-        r.get("killed", 0)
-        + r.get("survived", 0)
-        + r.get("no tests", 0)
-        + r.get("timeout", 0)
-        - r.get("equivalent", 0)
-        for r in rows
-    )
+    detected, judged = sum(r.get("detected", 0) for r in kept), sum(r.get("judged", 0) for r in kept)
     if judged:
-        share = f"{killed / judged:.0%}"
-        print(f"\nall: {killed} of {judged} non-equivalent mutants killed or timed out ({share})")
-    (args.out / "results.json").write_text(json.dumps(rows, indent=1))
+        share = f"{detected / judged:.1%}"
+        print(f"\nrun: {detected} of {judged} non-equivalent mutants killed or timed out ({share})")
+    if args.sample and judged:
+        estimate, half = stratified(kept)
+        print(f"all the modules' mutants, estimated: {estimate:.1%} +- {half:.1%} (95 %)")
+    (args.out / "results.json").write_text(json.dumps(kept, indent=1))
 
 
 if __name__ == "__main__":
