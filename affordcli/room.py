@@ -101,8 +101,9 @@ def map_room(
     from affordcore.geometry.features import FeatureLayout
     from affordcore.labels import load_labels
     from affordcore.learn.model import choose_models
-    from affordcore.mapping.outputs import OutputWriter, default_workers, map_and_write, summary_line
+    from affordcore.mapping.outputs import OutputWriter, map_and_write, summary_line
     from affordcore.mapping.pipeline import parse_gravity, prepare_scene
+    from affordcore.mapping.workers import mapping_workers
     from affordcore.settings import Settings
 
     output_folder(out)
@@ -112,7 +113,7 @@ def map_room(
     seconds: dict[str, float] = {}
     models = choose_models(model_files, affordances, FeatureLayout.from_settings(settings))
     labels = load_labels(labels_file) if labels_file else None  # a bad file fails before the cloud is read
-    workers = default_workers(len(models))
+    workers = mapping_workers(len(models))
     # the writer imports matplotlib and rerun on the other core while this process loads the room; it and
     # the workers are forked inside the BLAS limit, and keep it
     with (

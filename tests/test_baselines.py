@@ -43,6 +43,14 @@ def test_best_z_is_the_best_there_is(seed):
     assert z > 0 and f1_at(z * plus - minus, labels) == pytest.approx(brute)
 
 
+def test_best_z_stays_below_every_breakpoint_when_the_start_is_best():
+    """The positive is on for every z > 0, the negative turns on at z = 1: F1 is 1 below it and 2/3 above, so
+    the best z lies below the first breakpoint."""
+    plus, minus, labels = np.array([1.0, 1.0]), np.array([-1.0, 1.0]), np.array([1, -1])
+    z = best_z(plus, minus, labels)
+    assert 0 < z < 1 and f1_at(z * plus - minus, labels) == 1.0
+
+
 def test_every_baseline_learns_a_separable_problem():
     X, y = imbalanced_gaussian(4000, 8, 100, 5.0, 0)
     rng = np.random.default_rng(0)

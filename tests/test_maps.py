@@ -4,6 +4,7 @@ place."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from affordcore.geometry.grid import PoseGrid
 from affordcore.geometry.skeleton import get_skeleton
@@ -118,3 +119,10 @@ def test_observed_floor_is_the_scanned_floor_and_a_margin():
     x, y = np.array([0.55, 1.85, 2.25, 2.55, 3.05]), np.array([2.05])
     np.testing.assert_array_equal(observed_floor(fields, x, y, 0.3)[:, 0], [True, True, True, False, False])
     np.testing.assert_array_equal(observed_floor(fields, x, y, 0.0)[:, 0], [True, True, False, False, False])
+
+
+def test_a_plan_spans_the_outer_edges_of_the_grid_s_cells():
+    from affordcore.mapping.plots import _extent
+
+    # cell centres 0.05 .. 1.95 and 0.05 .. 0.95, 0.1 apart
+    assert _extent(_grid()) == pytest.approx((0.0, 2.0, 0.0, 1.0))

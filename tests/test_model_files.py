@@ -48,7 +48,8 @@ def test_round_trip(tmp_path):
 def test_another_layout_is_refused_with_both_layouts_named(tmp_path):
     path = _model(FeatureLayout(cell_size=0.25)).save(tmp_path / "m.json")
     with pytest.raises(
-        ModelError, match=r"m.json: trained on feature layout .*222 features.* computes .*3030 features"
+        ModelError,
+        match=r"m.json: trained on .*222 features, 0.25 m cells.* computes .*3030 features, 0.1 m cells",
     ):
         load_model(path, FeatureLayout())
 

@@ -349,3 +349,29 @@ def test_a_robot_can_be_sent_back_to_where_its_sensor_stood():
         positions = _standable(fields, CANDIDATES_ONLY, 1.0)
         spots[radius] = np.hypot(*(positions - SENSOR[0, :2]).T).min()
     assert spots[0.0] > 0.3 and spots[0.2] < 0.15
+
+
+def test_a_view_in_json_names_each_place_it_looks_at_where_it_is_and_how_likely():
+    from affordcore.mapping.next_views import NextView
+
+    view = NextView(
+        1.23456,
+        -2.5,
+        1.0,
+        0.123456,
+        1.98766,
+        [4, 1],
+        np.array([[0.12345, 3.45678, 0.512345], [2, -1, 1]]),
+        ["a", "b"],
+    )
+    assert view.to_json() == {
+        "x": 1.235,
+        "y": -2.5,
+        "z": 1.0,
+        "heading": 0.1235,
+        "gain": 1.9877,
+        "looks_at": [
+            {"x": 0.123, "y": 3.457, "probability": 0.5123, "affordance": "a"},
+            {"x": 2.0, "y": -1.0, "probability": 1.0, "affordance": "b"},
+        ],
+    }

@@ -70,8 +70,15 @@ def test_validation_scored_in_batches_is_the_per_iteration_run(method, batch):
 
 def test_without_positives_is_an_error():
     X = np.zeros((10, 3), np.float32)
-    with pytest.raises(ValueError, match="no positive"):
+    with pytest.raises(ValueError, match="^no positive examples to learn from$"):
         train_ssvm(X, -np.ones(10))
+
+
+def test_the_default_slack_weighs_2500_times_svmperfs_default_c():
+    """Neither C nor c_svmperf given: SVMperf's default -c, the slack weighing (n x label / n)^2 = 2500 x it
+    whatever the number of examples."""
+    for n in (7, 200_000):
+        assert SSVMSettings().slack_weight(n) == pytest.approx(2500 * 1.0e4)
 
 
 def test_c_in_svmperf_units_round_trips_and_means_the_same_problem():

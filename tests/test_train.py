@@ -246,6 +246,9 @@ def test_the_evaluation_picks_each_affordance_its_best_learner(tmp_path):
     ]
     (tmp_path / "results.json").write_text(json.dumps({"results": rows}))
     assert winners(tmp_path / "results.json") == {"a": "dcm", "b": "ssvm"}  # b: zsvm's lead is one lucky fold
+    tied = [{"affordance": "a", "learner": learner, "f1": 0.3} for learner in ("dcm", "zsvm")]
+    (tmp_path / "results.json").write_text(json.dumps({"results": tied}))
+    assert winners(tmp_path / "results.json") == {"a": "dcm"}  # a tie does not unseat the first
 
 
 @pytest.mark.slow

@@ -5,6 +5,7 @@ and leave the workers ready for the next fields."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 
 import numpy as np
@@ -121,6 +122,17 @@ def test_worker_count():
     assert mapping_workers(3, asked=1) == 1
     assert mapping_workers(3, asked=5) == 3
     assert 1 <= mapping_workers(3) <= 3
+
+
+def test_workers_are_forked_one_per_model_on_linux_with_two_cores_and_not_otherwise(monkeypatch):
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    assert mapping_workers(3) == 3 and mapping_workers(12) == 8
+    monkeypatch.setattr(os, "cpu_count", lambda: 1)
+    assert mapping_workers(3) == 1
+    monkeypatch.setattr(os, "cpu_count", lambda: 4)
+    monkeypatch.setattr(sys, "platform", "darwin")  # no fork to share the fields: all in this process
+    assert mapping_workers(3) == 1 and mapping_workers(3, asked=2) == 2
 
 
 def test_preload_compiles_the_kernels_a_map_calls(room):

@@ -205,8 +205,7 @@ def best_z(plus: np.ndarray, minus: np.ndarray, labels: np.ndarray) -> float:
     positive = labels > 0
     rising = plus > 0  # these turn positive as z passes their breakpoint; plus < 0 turn negative
     flat = plus == 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        breaks = np.where(flat, np.inf, minus / np.where(flat, 1.0, plus))
+    breaks = np.where(flat, np.inf, minus / np.where(flat, 1.0, plus))  # no division by zero: flat ones by 1
     z0 = 1e-12
     state = np.where(flat, -minus > 0, z0 * plus - minus > 0)  # sides just above z = 0
     tp, fp = int(np.sum(state & positive)), int(np.sum(state & ~positive))

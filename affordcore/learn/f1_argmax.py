@@ -95,7 +95,7 @@ def most_violated(scores: np.ndarray, labels: np.ndarray) -> Violation:
     maybe, flip = _flippable(maybe, scores[maybe], b0, n_pos)
     maybe_scores = scores[maybe]
     if flip < len(maybe):
-        top = np.argpartition(-maybe_scores, flip)[:flip] if flip else np.empty(0, dtype=np.int64)
+        top = np.argpartition(-maybe_scores, flip)[:flip]
     else:
         top = np.arange(len(maybe))
     top = top[np.argsort(-maybe_scores[top], kind="stable")]

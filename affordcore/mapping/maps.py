@@ -101,7 +101,7 @@ def map_document(
     positives: np.ndarray,
     world_from_input: np.ndarray,
     place_threshold: float,
-    probabilities: np.ndarray | None = None,
+    probabilities: np.ndarray,
     place_probability: float = float("nan"),
     next_views: list | None = None,
 ) -> dict:
@@ -112,7 +112,6 @@ def map_document(
         keys = ("x", "y", "z", "theta", "score")
         return [dict(zip(keys, (round(float(v), 4) for v in row))) for row in values]
 
-    probabilities = np.full(len(skeletons), np.nan) if probabilities is None else probabilities
     placed = rows(skeletons)
     for skeleton, skeleton_joints, probability in zip(placed, joints, probabilities):
         skeleton["probability"] = _number(probability)

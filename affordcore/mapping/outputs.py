@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -76,9 +75,11 @@ def map_and_write(
     `rrd` is None), and matplotlib is never imported."""
     global _JOB
 
+    from .workers import mapping_workers
+
     out.mkdir(parents=True, exist_ok=True)
     timings = {} if timings is None else timings
-    workers = default_workers(len(models)) if workers is None else max(1, min(workers, len(models)))
+    workers = mapping_workers(len(models), workers or 0)
     if workers == 1:
         return _map_and_write_here(scene, models, settings, out, rrd, on_map, timings, labels, png)
     import multiprocessing
@@ -143,14 +144,6 @@ def _map_and_write_here(
         timings["recording"] = time.perf_counter() - start
         written.append(rrd)
     return maps, written
-
-
-def default_workers(n_models: int) -> int:
-    """Worker processes for `map_and_write`: one per model where fork exists (Linux) and there are two
-    cores or more, else none (1: all in this process)."""
-    if not sys.platform.startswith("linux") or (os.cpu_count() or 1) < 2:
-        return 1
-    return max(1, min(n_models, 8))
 
 
 def _map_one(index: int) -> tuple:
