@@ -10,14 +10,18 @@ a change that cannot alter behaviour, each with why), and the share detected (ki
 rest. Survivors, with their diffs, go to `<out>/<module>.survivors.txt`.
 
     .venv/bin/python benchmarks/mutation.py affordcore/learn/thresholds.py   # one module: 5-15 min, one core
-    .venv/bin/python benchmarks/mutation.py --all --jobs 2                    # the four packages: hours
-    .venv/bin/python benchmarks/mutation.py --all --sample 10 --jobs 2        # an estimate of that: 1-2 hours
+    .venv/bin/python benchmarks/mutation.py --all --jobs 2                    # 21,854 mutants: days
+    .venv/bin/python benchmarks/mutation.py --all --sample 10 --jobs 2        # an estimate of that: 2-3 hours
 
-`--sample N` draws N mutants of each module at random (`--seed`) and runs them all in one scratch copy
-against every test that reaches the mutated function (as mutmut finds them from one run of the suite), then
-estimates the share detected over all the modules' mutants: each module weighted by its count of mutants (a
-stratified sample), with a 95 % interval. Mutant sampling: a few hundred mutants bound the figure to a few
-points for a fraction of the hours.
+`--sample N` draws N mutants of each module at random (`--seed`) and runs them all in one scratch copy against
+every test that reaches the mutated function (as mutmut finds them from one run of the suite). mutmut sees
+only the calls made in the test process, so the mutants it finds no test for (code the tests run in forked
+workers and subprocesses: the map's scoring workers and writer, the services) are run once more against the
+test files that import their module, the mutant written into the copy's source. Then it estimates the share
+detected over all the modules' mutants, each module weighted by its count of mutants (a stratified sample),
+with a 95 % interval: a few hundred mutants bound the figure to a few points for a fraction of the days.
+`--reuse` tallies an earlier run again (after listing equivalent mutants) without rerunning what it has
+verdicts for.
 
 Each module is mutated in a scratch copy of the repository's tracked files (`<out>/<module>/`, or
 `<out>/sample/`; default out `bench-data/mutation`), never in the working tree; `../shared` is linked where
@@ -138,11 +142,12 @@ def run_mutmut(copy: Path, jobs: int, chosen: list[str]) -> dict[str, str]:
     with open(copy.parent / "mutmut.log", "w") as log:
         run = [*MUTMUT, "run", "--max-children", str(jobs), *chosen]
         subprocess.run(run, cwd=copy, stdout=log, stderr=log)
+    if chosen:
+        return read_results(copy, chosen)
     results = subprocess.run(
         [*MUTMUT, "results", "--all", "true"], cwd=copy, capture_output=True, text=True
     ).stdout
-    status = dict(line.strip().rsplit(": ", 1) for line in results.splitlines() if ": " in line)
-    return {name: status.get(name, "not checked") for name in chosen} if chosen else status
+    return dict(line.strip().rsplit(": ", 1) for line in results.splitlines() if ": " in line)
 
 
 def tally(module: Path, status: dict[str, str], copy: Path, out: Path) -> dict:
@@ -185,19 +190,80 @@ def run_module(module: Path, out: Path, jobs: int, every_test: bool = False) -> 
     return {**tally(module, status, copy, out), "tests": len(tests), "seconds": time.perf_counter() - start}
 
 
-def run_sample(found: list[Path], out: Path, jobs: int, sample: int, seed: int) -> list[dict]:
+def run_sample(found: list[Path], out: Path, jobs: int, sample: int, seed: int, reuse: bool) -> list[dict]:
     """`sample` mutants of each module drawn at random, all run in one copy against every test that reaches
-    the mutated function; each module's row also holds its count of mutants ("all mutants")."""
-    copy = scratch_copy("sample", found, ["tests"], out)
+    the mutated function; each module's row also holds its count of mutants ("all mutants"). With `reuse`,
+    the copy and mutmut's results of an earlier run (the same draw) are taken as they are."""
+    copy = out / "sample" / "repo"
+    if not reuse:
+        copy = scratch_copy("sample", found, ["tests"], out)
     draw = random.Random(seed)
     every = {module: mutant_names(copy, module) for module in found}
     chosen = {module: sorted(draw.sample(names, min(sample, len(names)))) for module, names in every.items()}
-    status = run_mutmut(copy, jobs, [name for names in chosen.values() for name in names])
+    names = [name for names in chosen.values() for name in names]
+    status = run_mutmut(copy, jobs, names) if not reuse else read_results(copy, names)
     rows = []
     for module in found:
-        row = tally(module, {name: status[name] for name in chosen[module]}, copy, out)
+        module_status = {name: status[name] for name in chosen[module]}
+        module_status.update(importers_look(copy, module, module_status, jobs, out))
+        row = tally(module, module_status, copy, out)
         rows.append({**row, "tests": "reaching", "all mutants": len(every[module])})
     return rows
+
+
+def importers_look(copy: Path, module: Path, status: dict[str, str], jobs: int, out: Path) -> dict[str, str]:
+    """The mutants no test reached, as mutmut saw it, run against the test files that import their module,
+    slow tests included: mutmut records which tests call a function in the test process only, so code the
+    tests run in a forked worker or a subprocess (the map's scoring workers, its writer, the services) reads
+    as unreached, and so does code only the slow end-to-end tests run (training). Each mutant is written into
+    the copy's source (`mutmut apply`) and the tests run with the copy first on every process's path; the
+    source is restored after (from `<module>.orig`, also when a run was killed midway). Verdicts are
+    remembered in `<out>/importers.json`."""
+    unreached = [name for name, value in status.items() if value == "no tests"]
+    tests = importing_tests(module)
+    if not unreached or not tests:
+        return {}
+    memo_path = out / "importers.json"
+    memo = json.loads(memo_path.read_text()) if memo_path.exists() else {}
+    source, pristine = copy / module, copy / f"{module}.orig"
+    if pristine.exists():
+        shutil.copy2(pristine, source)
+    else:
+        shutil.copy2(source, pristine)
+    env = {**os.environ, "PYTHONPATH": str(copy)}
+    pytest = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider"]
+    if jobs > 1:
+        pytest += ["-n", str(jobs)]
+    try:
+        for name in (n for n in unreached if n not in memo):
+            subprocess.run([*MUTMUT, "apply", name], cwd=copy, capture_output=True, check=True)
+            try:
+                code = subprocess.run(
+                    [*pytest, *tests], cwd=copy, env=env, capture_output=True, timeout=IMPORTERS_TIMEOUT
+                ).returncode
+            except subprocess.TimeoutExpired:
+                code = "timeout"
+            finally:
+                shutil.copy2(pristine, source)
+            memo[name] = VERDICT.get(code, "timeout")
+            memo_path.write_text(json.dumps(memo, indent=1))
+    finally:
+        shutil.copy2(pristine, source)
+    return {name: memo[name] for name in unreached}
+
+
+IMPORTERS_TIMEOUT = 900  # s of wall time for one mutant's importing tests, slow ones included
+# pytest's exit codes: tests failed, or could not be collected or run (the mutant broke an import), is a kill
+VERDICT = {0: "survived", 1: "killed", 2: "killed", 3: "killed", 5: "no tests"}
+
+
+def read_results(copy: Path, names: list[str]) -> dict[str, str]:
+    """{mutant: status} of the named mutants from mutmut's results in the copy."""
+    results = subprocess.run(
+        [*MUTMUT, "results", "--all", "true"], cwd=copy, capture_output=True, text=True
+    ).stdout
+    status = dict(line.strip().rsplit(": ", 1) for line in results.splitlines() if ": " in line)
+    return {name: status.get(name, "not checked") for name in names}
 
 
 def stratified(rows: list[dict]) -> tuple[float, float]:
@@ -241,6 +307,9 @@ def main() -> None:
     )
     parser.add_argument("--sample", type=int, default=0, help="mutants drawn at random from each module")
     parser.add_argument("--seed", type=int, default=0, help="the draw's seed")
+    parser.add_argument(
+        "--reuse", action="store_true", help="with --sample: tally an earlier run's copy, running nothing new"
+    )
     args = parser.parse_args()
     if not args.modules and not args.all:
         parser.error("name modules, or --all")
@@ -253,7 +322,7 @@ def main() -> None:
     )
     print(header + "\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|", flush=True)
     if args.sample:
-        rows = run_sample(found, args.out, args.jobs, args.sample, args.seed)
+        rows = run_sample(found, args.out, args.jobs, args.sample, args.seed, args.reuse)
     else:
         rows = (run_module(module, args.out, args.jobs, args.every_test) for module in found)
     kept = []
