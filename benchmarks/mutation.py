@@ -11,7 +11,7 @@ rest. Survivors, with their diffs, go to `<out>/<module>.survivors.txt`.
 
     .venv/bin/python benchmarks/mutation.py affordcore/learn/thresholds.py   # one module: 5-15 min, one core
     .venv/bin/python benchmarks/mutation.py --all --jobs 2                    # 21,854 mutants: days
-    .venv/bin/python benchmarks/mutation.py --all --sample 10 --jobs 2        # an estimate of that: 2-3 hours
+    .venv/bin/python benchmarks/mutation.py --all --sample 10 --jobs 2        # an estimate of that: hours
 
 `--sample N` draws N mutants of each module at random (`--seed`) and runs them all in one scratch copy against
 every test that reaches the mutated function (as mutmut finds them from one run of the suite). mutmut sees
