@@ -253,3 +253,13 @@ def test_second_stage_rows_are_joined_into_float64_in_order_and_let_go():
     assert joined.dtype == np.float64 and parts == []  # each room's rows were let go once copied
     with pytest.raises(ValueError, match="no training room"):
         _joined_float64([])
+
+
+def test_the_cascade_refuses_examples_that_come_without_their_rooms():
+    """Its second stage learns from the first stage's best poses of each room: rows alone cannot train it."""
+    from types import SimpleNamespace
+
+    from affordcore.learn.cascade import fit_cascade
+
+    with pytest.raises(ValueError, match="^the cascade learns from rooms: train it with `afford train`"):
+        fit_cascade(SimpleNamespace(task=None, rooms=[]), None, {}, None, None)

@@ -80,6 +80,7 @@ def test_a_streamed_cascade_is_the_model_trained_in_memory(data_set, tmp_path):
     assert len(list((tmp_path / "cache" / "fields").glob("*.npz"))) == 3
     assert len(list((tmp_path / "cache" / "examples").glob("*.npz"))) == 3
     assert held.training["negatives"] == 3000
+    assert len(held.trees.roots) == FAST["max_iter"]  # the trees' settings reach the trees (no early stop)
     texts = [
         m.save(tmp_path / f"{i}.model.json").read_text() for i, m in enumerate((held, written, read_back))
     ]
