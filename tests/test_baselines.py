@@ -97,3 +97,14 @@ def test_standardised_rows_are_the_float32_values_liblinear_was_given_before_in_
     standard = _standardised(X, mean, scale, rows=128)  # blocks that do not divide the rows
     assert standard.dtype == np.float64 and standard.flags.c_contiguous
     np.testing.assert_array_equal(standard, before)
+
+
+def test_the_undersampling_learner_takes_its_c_from_the_parameters():
+    from affordcore.learn.examples import RoomExamples
+    from affordcore.learn.learners import get_learner
+
+    X, y = imbalanced_gaussian(2000, 6, 20, 1.0, 5)
+    rooms = RoomExamples("train", X, y), RoomExamples("validation", X, y)
+    fit = get_learner("undersample").fit
+    strong, weak = (fit(*rooms, {"C": c}, np.random.default_rng(0)).weights for c in (1e-4, 1.0))
+    assert np.linalg.norm(strong) < 0.2 * np.linalg.norm(weak)  # C = 1e-4 regularises far harder

@@ -152,3 +152,17 @@ def test_bundle_and_cutting_planes_reach_the_same_optimum():
         assert result.converged
         values.append(objective(X, y, result.iterations[-1].weights, settings))
     assert abs(values[0] - values[1]) <= settings.slack_weight(len(y)) * settings.epsilon
+
+
+def test_the_structured_svm_as_a_learner_decides_as_its_best_iteration_did():
+    """The learner's model (weights and bias per example) labels the validation rows as the solver's best
+    iteration did: the same validation F1 at threshold 0."""
+    from affordcore.learn.examples import RoomExamples
+    from affordcore.learn.learners import get_learner
+
+    X, y = imbalanced_gaussian(3000, 6, 50, 1.5, 3)
+    Xv, yv = imbalanced_gaussian(2000, 6, 50, 1.5, 4)
+    train, validation = RoomExamples("train", X, y), RoomExamples("validation", Xv, yv)
+    fitted = get_learner("ssvm").fit(train, validation, {"max_iterations": 40}, np.random.default_rng(0))
+    best = max(fitted.report["validation_f1"])
+    assert best > 0.3 and f1_at(Xv @ fitted.weights + fitted.bias, yv) == pytest.approx(best)
