@@ -313,14 +313,8 @@ class Exploration:
 
         maps = [m.candidates for m in self.maps.values() if len(m.candidates)]
         c = np.concatenate(maps) if maps else np.zeros((0, 6))
-        p = np.where(np.isfinite(c[:, 5]), c[:, 5], 0.5)
-        bits = nv.entropy_bits(p)
-        bits[np.argsort(-bits, kind="stable")[nv._PLACES :]] = 0.0
-        targets, _, weight = nv._targets(self.fields, c[:, :2], bits, self.settings.visibility)
-        prior = self.settings.next_views.unseen_prior
-        if prior > 0:
-            unseen, unseen_weight = nv._unseen_targets(self.fields, self.settings.visibility, prior, targets)
-            targets, weight = np.concatenate([targets, unseen]), np.concatenate([weight, unseen_weight])
+        wanted, body = self.settings.next_views, self.settings.visibility
+        targets, _, weight = nv.view_targets(self.fields, c[:, :2], c[:, 5], wanted, body)
         return targets, weight
 
     def why_none(self) -> str:

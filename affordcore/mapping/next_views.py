@@ -118,16 +118,7 @@ def next_views(
     settings, body = settings or NextViewSettings(), body or VisibilitySettings()
     if fields.visibility is None:
         raise ValueError("next views need the sensor positions: without them unknown space cannot be told")
-    candidates = np.atleast_2d(np.asarray(candidates, dtype=np.float64))
-    probabilities = np.where(np.isfinite(probabilities), probabilities, 0.5)
-    bits = entropy_bits(probabilities)
-    bits[np.argsort(-bits, kind="stable")[_PLACES:]] = 0.0
-    targets, owner, weight = _targets(fields, candidates[:, :2], bits, body)
-    if settings.unseen_prior > 0:  # the never-seen body space no candidate stands in: where places may hide
-        unseen, unseen_weight = _unseen_targets(fields, body, settings.unseen_prior, targets)
-        targets = np.concatenate([targets, unseen])
-        owner = np.concatenate([owner, np.full(len(unseen), -1)])
-        weight = np.concatenate([weight, unseen_weight])
+    targets, owner, weight = view_targets(fields, candidates, probabilities, settings, body)
     eye_z = settings.height if height is None else height  # the fields are levelled: the floor at z = 0
     positions = _standable(fields, settings, eye_z)
     if not len(targets) or not len(positions) or count < 1:
@@ -198,6 +189,29 @@ def _body_band(fields: SceneFields, body: VisibilitySettings) -> np.ndarray:
     layers = np.arange(lattice.shape[2])
     heights = (layers - _floor_layer(fields)) * lattice.resolution
     return layers[(heights >= body.seen_low - 1e-9) & (heights <= body.seen_high + 1e-9)]
+
+
+def view_targets(
+    fields: SceneFields,
+    candidates: np.ndarray,
+    probabilities: np.ndarray,
+    settings: NextViewSettings,
+    body: VisibilitySettings,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What views would look at: (never-seen voxel centres (t, 3), the candidate each belongs to (-1: the
+    unseen prior's), its weight in bits) of the `_PLACES` weightiest candidates at (x, y) of the given
+    probabilities (NaN taken as 0.5), and of the never-seen body space no candidate stands in."""
+    candidates = np.atleast_2d(np.asarray(candidates, dtype=np.float64))
+    probabilities = np.where(np.isfinite(probabilities), probabilities, 0.5)
+    bits = entropy_bits(probabilities)
+    bits[np.argsort(-bits, kind="stable")[_PLACES:]] = 0.0
+    targets, owner, weight = _targets(fields, candidates[:, :2], bits, body)
+    if settings.unseen_prior > 0:  # the never-seen body space no candidate stands in: where places may hide
+        unseen, unseen_weight = _unseen_targets(fields, body, settings.unseen_prior, targets)
+        targets = np.concatenate([targets, unseen])
+        owner = np.concatenate([owner, np.full(len(unseen), -1)])
+        weight = np.concatenate([weight, unseen_weight])
+    return targets, owner, weight
 
 
 def _targets(
