@@ -142,12 +142,7 @@ def run_mutmut(copy: Path, jobs: int, chosen: list[str]) -> dict[str, str]:
     with open(copy.parent / "mutmut.log", "w") as log:
         run = [*MUTMUT, "run", "--max-children", str(jobs), *chosen]
         subprocess.run(run, cwd=copy, stdout=log, stderr=log)
-    if chosen:
-        return read_results(copy, chosen)
-    results = subprocess.run(
-        [*MUTMUT, "results", "--all", "true"], cwd=copy, capture_output=True, text=True
-    ).stdout
-    return dict(line.strip().rsplit(": ", 1) for line in results.splitlines() if ": " in line)
+    return read_results(copy, chosen or None)
 
 
 def tally(module: Path, status: dict[str, str], copy: Path, out: Path) -> dict:
@@ -234,21 +229,18 @@ def importers_look(copy: Path, module: Path, status: dict[str, str], jobs: int, 
     pytest = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider"]
     if jobs > 1:
         pytest += ["-n", str(jobs)]
-    try:
-        for name in (n for n in unreached if n not in memo):
+    for name in (n for n in unreached if n not in memo):
+        try:
             subprocess.run([*MUTMUT, "apply", name], cwd=copy, capture_output=True, check=True)
-            try:
-                code = subprocess.run(
-                    [*pytest, *tests], cwd=copy, env=env, capture_output=True, timeout=IMPORTERS_TIMEOUT
-                ).returncode
-            except subprocess.TimeoutExpired:
-                code = "timeout"
-            finally:
-                shutil.copy2(pristine, source)
-            memo[name] = VERDICT.get(code, "timeout")
-            memo_path.write_text(json.dumps(memo, indent=1))
-    finally:
-        shutil.copy2(pristine, source)
+            code = subprocess.run(
+                [*pytest, *tests], cwd=copy, env=env, capture_output=True, timeout=IMPORTERS_TIMEOUT
+            ).returncode
+        except subprocess.TimeoutExpired:
+            code = "timeout"
+        finally:
+            shutil.copy2(pristine, source)
+        memo[name] = VERDICT.get(code, "timeout")
+        memo_path.write_text(json.dumps(memo, indent=1))
     return {name: memo[name] for name in unreached}
 
 
@@ -257,13 +249,14 @@ IMPORTERS_TIMEOUT = 900  # s of wall time for one mutant's importing tests, slow
 VERDICT = {0: "survived", 1: "killed", 2: "killed", 3: "killed", 5: "no tests"}
 
 
-def read_results(copy: Path, names: list[str]) -> dict[str, str]:
-    """{mutant: status} of the named mutants from mutmut's results in the copy."""
+def read_results(copy: Path, names: list[str] | None = None) -> dict[str, str]:
+    """{mutant: status} from mutmut's results in the copy: of every mutant, or of the named ones ("not
+    checked" for one mutmut has no verdict for)."""
     results = subprocess.run(
         [*MUTMUT, "results", "--all", "true"], cwd=copy, capture_output=True, text=True
     ).stdout
     status = dict(line.strip().rsplit(": ", 1) for line in results.splitlines() if ": " in line)
-    return {name: status.get(name, "not checked") for name in names}
+    return status if names is None else {name: status.get(name, "not checked") for name in names}
 
 
 def stratified(rows: list[dict]) -> tuple[float, float]:
