@@ -471,6 +471,11 @@ class LearnSettings(BaseModel):
         description="and at most this many per room and affordance: a room has a bounded number of places, "
         "and the second stage's time stays bounded in large rooms (docs/maps.md measures it)",
     )
+    local_detail: bool = Field(
+        False,
+        description="a cascade trained now gives its trees the fine columns around each pose besides its "
+        "features: the lowest and highest surface of 5 cm columns in the skeleton's frame",
+    )
     workers: int = Field(
         0, ge=0, description="processes that prepare rooms for training in parallel (0: one per core)"
     )

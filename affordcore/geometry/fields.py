@@ -27,6 +27,7 @@ import numpy as np
 
 from ..settings import NormalSettings, VoxelSettings
 from .cells import cell_sums
+from .columns import FineColumns, fine_columns
 
 _UP_FACING_NZ = 0.5  # |n_z| above this (within 60 deg of vertical) means "faces up"
 # a steep surface faces the side whose disc of this radius (m), this far out (m), holds more scanned floor
@@ -73,10 +74,13 @@ class SceneFields:
     # decides where the floor was seen and what was scanned
     soft_occupancy: np.ndarray | None = None
     normal_estimator: str = "cube"  # how the normals were estimated (`NormalSettings.estimator`)
+    # the lowest and highest surface over each 5 cm column (`columns`): what a second stage may read finer
+    # than the voxels; None in fields made before they were kept, or sent without them
+    columns: FineColumns | None = None
 
     @property
     def nbytes(self) -> int:
-        extras = (a.nbytes for a in (self.visibility, self.soft_occupancy) if a is not None)
+        extras = (a.nbytes for a in (self.visibility, self.soft_occupancy, self.columns) if a is not None)
         return self.occupancy.nbytes + self.distance.nbytes + self.normals.nbytes + sum(extras)
 
     @property
@@ -133,6 +137,7 @@ def compute_fields(
     normal_settings = normal_settings or NormalSettings()
     points = np.asarray(points, dtype=np.float64)
     lattice = lattice_around(points, voxel)
+    columns = fine_columns(points)
     flat = _flat_index(lattice, lattice.voxel_of(points))
     n_voxels = int(np.prod(lattice.shape))
     occupied = np.bincount(flat, minlength=n_voxels) > 0
@@ -152,12 +157,12 @@ def compute_fields(
         distance = distance_to_points(lattice, points, distance)
         return SceneFields(
             lattice, occupancy, distance, field, footprint, normal_settings.steep_facing,
-            soft_occupancy=soft, normal_estimator=normal_settings.estimator,
+            soft_occupancy=soft, normal_estimator=normal_settings.estimator, columns=columns,
         )  # fmt: skip
     field = _normal_field(lattice, points, normals, steep)
     return SceneFields(
         lattice, occupancy, distance.astype(np.float32), field, footprint, normal_settings.steep_facing,
-        normal_estimator=normal_settings.estimator,
+        normal_estimator=normal_settings.estimator, columns=columns,
     )  # fmt: skip
 
 

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..geometry.columns import RESOLUTION, FineColumns
 from ..geometry.fields import SceneFields, VoxelLattice
 from ..geometry.scene import origins_file
 from ..settings import Settings
@@ -99,7 +100,12 @@ def save_fields(path: Path, fields: SceneFields) -> None:
         normal_estimator=np.str_(fields.normal_estimator),
         **({} if fields.visibility is None else {"visibility": fields.visibility}),
         **({} if fields.soft_occupancy is None else {"soft_occupancy": fields.soft_occupancy}),
+        **({} if fields.columns is None else _columns_arrays(fields.columns)),
     )
+
+
+def _columns_arrays(columns: FineColumns) -> dict[str, np.ndarray]:
+    return {"columns_origin": columns.origin, "columns_low": columns.low, "columns_high": columns.high}
 
 
 def load_fields(path: Path) -> SceneFields:
@@ -117,6 +123,9 @@ def load_fields(path: Path) -> SceneFields:
             data["visibility"] if "visibility" in data else None,
             data["soft_occupancy"] if "soft_occupancy" in data else None,
             str(data["normal_estimator"]),
+            FineColumns(data["columns_origin"], RESOLUTION, data["columns_low"], data["columns_high"])
+            if "columns_low" in data
+            else None,
         )
 
 

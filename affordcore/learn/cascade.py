@@ -21,8 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.features import features_at
-from ..mapping.inference import best_poses
+from ..mapping.inference import best_poses, second_stage_rows
 from ..mapping.maps import RULED_OUT
 from ..mapping.pipeline import score_model
 from .binning import fast_weighted_binning
@@ -53,6 +52,7 @@ def second_stage_examples(
     rng: np.random.Generator,
     max_negatives: int = 4000,
     max_poses: int | None = None,
+    local_detail: bool = False,
 ) -> RoomExamples:
     """The poses the trees will rescore at inference, with their features and labels, from every room."""
     from .model import AffordanceModel
@@ -78,7 +78,7 @@ def second_stage_examples(
         if rate < 1.0:
             negatives = rng.choice(negatives, max_negatives, replace=False)
         chosen = np.concatenate([np.flatnonzero(label), negatives])
-        Xs.append(features_at(fields, task.skeleton, grid, task.layout, best[chosen]))
+        Xs.append(second_stage_rows(fields, task.skeleton, grid, task.layout, best[chosen], local_detail))
         ys.append(np.where(label[chosen], 1, -1).astype(np.int8))
         ws.append(np.where(label[chosen], 1.0, 1.0 / rate).astype(np.float32))
     return RoomExamples("second-stage", _joined_float64(Xs), np.concatenate(ys), np.concatenate(ws))
@@ -148,9 +148,11 @@ def fit_cascade(
     trees_settings = TreeSettings(
         **{k: v for k, v in params.items() if k in TreeSettings.__dataclass_fields__}
     )
+    local_detail = bool(params.get("local_detail", task.settings.learn.local_detail))
     examples = second_stage_examples(
-        train.rooms, task, first.weights, first.bias, fraction, rng, max_poses=max_poses
-    )
+        train.rooms, task, first.weights, first.bias, fraction, rng, max_poses=max_poses,
+        local_detail=local_detail,
+    )  # fmt: skip
     trees = fit_trees(examples, trees_settings, int(rng.integers(2**31)))
     return Fitted(
         first.weights,
@@ -162,5 +164,10 @@ def fit_cascade(
             "second_stage_positives": examples.positives,
             **{k: v for k, v in first.report.items() if k not in ("train_f1", "validation_f1")},
         },
-        rescorer={"fraction": fraction, "max_poses": max_poses, "trees": trees.to_dict()},
+        rescorer={
+            "fraction": fraction,
+            "max_poses": max_poses,
+            **({"local_detail": True} if local_detail else {}),
+            "trees": trees.to_dict(),
+        },
     )

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry.columns import column_reads
 from ..geometry.features import FeatureLayout, _SlabSampler, features_at
 from ..geometry.fields import SceneFields
 from ..geometry.grid import PoseGrid
@@ -214,10 +215,37 @@ def model_scores(
     best = best_poses(flat, model.rescorer["fraction"], cap)
     rescored = known.ravel()[best] if known is not None else np.full(len(best), RULED_OUT, np.float32)
     fresh = rescored <= RULED_OUT
-    rescored[fresh] = model.trees.log_odds(features_at(fields, skeleton, grid, layout, best[fresh]))
+    rows = second_stage_rows(
+        fields, skeleton, grid, layout, best[fresh], bool(model.rescorer.get("local_detail", False))
+    )
+    rescored[fresh] = model.trees.log_odds(rows)
     flat[:] = RULED_OUT
     flat[best] = rescored
     return scores
+
+
+def second_stage_rows(
+    fields: SceneFields,
+    skeleton: Skeleton,
+    grid: PoseGrid,
+    layout: FeatureLayout,
+    index: np.ndarray,
+    local_detail: bool = False,
+) -> np.ndarray:
+    """What the second stage reads of the given poses (flat grid indices): their features, and with
+    `local_detail` the fine columns around each (`columns.column_reads`) after them."""
+    rows = features_at(fields, skeleton, grid, layout, index)
+    if not local_detail:
+        return rows
+    if fields.columns is None:
+        raise ValueError(
+            "this model's second stage reads the room's fine columns, and these fields were made without "
+            "them: compute the fields again from the cloud"
+        )
+    iz, it, ix, iy = np.unravel_index(np.asarray(index, dtype=np.int64), grid.shape)
+    feet = grid.z[iz] - skeleton.torso_height
+    columns = column_reads(fields.columns, grid.x[ix], grid.y[iy], grid.theta[it], feet)
+    return np.hstack([rows, columns])
 
 
 def best_poses(flat_scores: np.ndarray, fraction: float, max_poses: int | None = None) -> np.ndarray:

@@ -221,6 +221,7 @@ def _fields_around(fields: SceneFields, window: PoseGrid, reach: int) -> SceneFi
         fields.steep_facing,
         soft_occupancy=None if fields.soft_occupancy is None else fields.soft_occupancy[part],
         normal_estimator=fields.normal_estimator,
+        columns=fields.columns,  # in world coordinates: a window reads them as the whole room does
     )
 
 
