@@ -69,12 +69,14 @@ class _Forwarder:
     """One topic's messages onto its Zenoh key, in order, from a thread of its own: a put that waits on a
     full Zenoh queue (congestion control BLOCK) holds back only its own topic, and rclpy's executor, which
     takes every topic's samples, never waits on Zenoh. Past `depth` waiting, the oldest is dropped and
-    counted, as a DDS queue of that depth would."""
+    counted, as a DDS queue of that depth would. A put that fails (a closing session, a refused key) loses
+    that message alone: it is counted, its error said once, and the topic goes on."""
 
     def __init__(self, session, key: str, depth: int):
         self.session, self.key = session, key
         self.waiting: deque[bytes] = deque(maxlen=depth)
-        self.sent = self.dropped = 0
+        self.sent = self.dropped = self.failed = 0
+        self.error = ""  # the last failed put's error
         self._ready = threading.Condition()
         self._closed = False
         self._thread = threading.Thread(target=self._run, name=f"ros-bridge {key}", daemon=True)
@@ -93,7 +95,14 @@ class _Forwarder:
                 if not self.waiting:
                     return
                 payload = self.waiting.popleft()
-            put(self.session, self.key, payload)  # BLOCK: never dropped by Zenoh
+            try:
+                put(self.session, self.key, payload)  # BLOCK: never dropped by Zenoh
+            except Exception as error:  # noqa: BLE001 - whatever Zenoh raises, the topic must go on
+                self.failed += 1
+                if str(error) != self.error:
+                    print(f"[ros-bridge] {self.key}: a message was not put on Zenoh: {error}", flush=True)
+                self.error = str(error)
+                continue
             self.sent += 1
 
     def close(self, timeout: float = 5.0) -> None:
@@ -247,6 +256,9 @@ class DdsBridge:
         dropped = [f"{f.key} {f.dropped}" for f in forwarders if f.dropped]
         if dropped:
             said += f"; dropped, the oldest of a topic's {', '.join(dropped)} (Zenoh did not keep up)"
+        failed = [f"{f.key} {f.failed} ({f.error})" for f in forwarders if f.failed]
+        if failed:
+            said += f"; not put on Zenoh: {', '.join(failed)}"
         return said
 
     @property

@@ -1151,3 +1151,27 @@ def test_the_dds_bridge_s_forwarder_never_holds_rclpy_up_keeps_order_and_counts_
     block = zenoh.CongestionControl.BLOCK
     assert session.sent == [("robot1/odom", p, block) for p in (b"0", b"2", b"3", b"4")]
     assert forwarder.sent == 4
+
+
+def test_a_dds_bridge_forwarder_whose_put_fails_loses_that_message_alone_and_says_so(capsys):
+    """A put that raises (a closing session, a refused key) must not end the topic's thread: later messages
+    still go out, the failure is counted and its error said once."""
+    from services.dds import _Forwarder
+
+    class Refusing:
+        def __init__(self):
+            self.sent = []
+
+        def put(self, key, payload, **options):
+            if payload.startswith(b"bad"):
+                raise RuntimeError("refused")
+            self.sent.append(payload)
+
+    session = Refusing()
+    forwarder = _Forwarder(session, "robot1/odom", depth=8)
+    for payload in (b"bad0", b"1", b"bad2", b"3"):
+        forwarder.offer(payload)
+    forwarder.close()
+    assert session.sent == [b"1", b"3"]
+    assert (forwarder.sent, forwarder.failed, forwarder.error) == (2, 2, "refused")
+    assert capsys.readouterr().out.count("robot1/odom: a message was not put on Zenoh: refused") == 1
