@@ -384,6 +384,8 @@ def fields_message(
         message.visibility = np.ascontiguousarray(fields.visibility, dtype=np.uint8).tobytes()
     if fields.soft_occupancy is not None:
         message.soft_occupancy = np.ascontiguousarray(fields.soft_occupancy, dtype="<f4").tobytes()
+    if fields.columns is not None:
+        _set_columns(message.columns, fields.columns)
     message.grid.origin.x, message.grid.origin.y, message.grid.origin.z = (float(v) for v in lattice.origin)
     message.grid.resolution = lattice.resolution
     message.grid.nx, message.grid.ny, message.grid.nz = lattice.shape
@@ -459,7 +461,58 @@ def scene_fields(
     visibility = _visibility(message, occupancy)
     occupancy = occupancy.astype(np.float32)
     soft = _soft_occupancy(message, shape)
-    return SceneFields(lattice, occupancy, distance, normals, footprint, facing, visibility, soft, estimator)
+    columns = _columns(message, lattice)
+    return SceneFields(
+        lattice, occupancy, distance, normals, footprint, facing, visibility, soft, estimator, columns
+    )
+
+
+def _set_columns(out, columns) -> None:
+    out.x0, out.y0 = (float(v) for v in columns.origin)
+    out.resolution = columns.resolution
+    out.nx, out.ny = columns.low.shape
+    out.low = np.ascontiguousarray(columns.low, dtype="<f4").tobytes()
+    out.high = np.ascontiguousarray(columns.high, dtype="<f4").tobytes()
+
+
+# how far past the voxel grid's plan the fine columns may reach (they are made 1 m round the cloud)
+_COLUMNS_REACH = 1.5
+
+
+def _columns(message: SceneFieldsMessage, lattice):
+    """The fine columns a SceneFields carries (None when it carries none), checked: at the resolution the
+    models read, within reach of the voxel grid (which bounds their number), each height in the band or
+    the empty column's."""
+    from affordcore.geometry import columns as fine
+
+    if not message.HasField("columns"):
+        return None
+    c = message.columns
+    if abs(c.resolution - fine.RESOLUTION) > 1e-9:
+        raise MessageError(f"columns at {c.resolution} m; the models read {fine.RESOLUTION} m columns")
+    origin = np.array([c.x0, c.y0])
+    end = origin + np.array([c.nx, c.ny]) * c.resolution
+    low_bound, high_bound = lattice.origin[:2] - _COLUMNS_REACH, lattice.upper[:2] + _COLUMNS_REACH
+    if not (np.isfinite(origin).all() and (origin >= low_bound).all() and (end <= high_bound).all()):
+        raise MessageError(
+            f"columns from {origin.round(3).tolist()} to {end.round(3).tolist()} reach more than "
+            f"{_COLUMNS_REACH} m beyond the voxel grid"
+        )
+    if c.nx == 0 or c.ny == 0:
+        raise MessageError("columns are empty (nx or ny is 0)")
+    n = c.nx * c.ny
+    for name in ("low", "high"):
+        if len(getattr(c, name)) != 4 * n:
+            size = len(getattr(c, name))
+            raise MessageError(f"columns.{name} holds {size} bytes; {c.nx} x {c.ny} columns need {4 * n}")
+    low = np.frombuffer(c.low, dtype="<f4").reshape(c.nx, c.ny)
+    high = np.frombuffer(c.high, dtype="<f4").reshape(c.nx, c.ny)
+    band = np.float32(fine.BAND[0]) - 1e-6, np.float32(fine.BAND[1]) + 1e-6
+    if not (((low >= band[0]) & (low <= band[1])) | (low == fine.EMPTY_LOW)).all():
+        raise MessageError(f"columns.low holds heights outside {fine.BAND} m that are not {fine.EMPTY_LOW}")
+    if not (((high >= band[0]) & (high <= band[1])) | (high == 0)).all():
+        raise MessageError(f"columns.high holds heights outside {fine.BAND} m that are not 0")
+    return fine.FineColumns(origin, c.resolution, low, high)
 
 
 def _soft_occupancy(message: SceneFieldsMessage, shape: tuple[int, int, int]) -> np.ndarray | None:

@@ -575,6 +575,47 @@ def test_unusable_soft_occupancy_is_refused(soft_fields, spoil, reason):
         messages.scene_fields(_wire(message))
 
 
+def test_scene_fields_carry_the_fine_columns_and_fields_without_them_carry_none(soft_fields):
+    from dataclasses import replace
+
+    cloud = messages.cloud_message(np.zeros((100, 3)), np.eye(4), "x")
+    message = _wire(messages.fields_message(soft_fields, cloud))
+    back = messages.scene_fields(message)
+    assert (back.columns.low < 2.0).any() and (back.columns.high > 0).any()
+    for name in ("low", "high", "origin"):
+        np.testing.assert_array_equal(getattr(back.columns, name), getattr(soft_fields.columns, name))
+    # cell (i, j) is element i * ny + j, as the schema says
+    i, j = np.argwhere(soft_fields.columns.low < 2.0)[0]
+    ny = soft_fields.columns.low.shape[1]
+    assert np.frombuffer(message.columns.low, "<f4")[i * ny + j] == soft_fields.columns.low[i, j]
+    bare = _wire(messages.fields_message(replace(soft_fields, columns=None), cloud))
+    assert not bare.HasField("columns") and messages.scene_fields(bare).columns is None
+
+
+def _nan_first(data: bytes) -> bytes:
+    return b"\x00\x00\xc0\x7f" + data[4:]
+
+
+@pytest.mark.parametrize(
+    ("spoil", "reason"),
+    [
+        (lambda c: setattr(c, "resolution", 0.1), r"columns at 0.1 m; the models read 0.05 m"),
+        (lambda c: setattr(c, "low", c.low[:-4]), r"columns.low holds \d+ bytes; \d+ x \d+ columns need"),
+        (lambda c: setattr(c, "low", _nan_first(c.low)), r"columns.low holds heights outside"),
+        (lambda c: setattr(c, "high", np.float32(3.0).tobytes() + c.high[4:]), r"columns.high holds heights"),
+        (lambda c: setattr(c, "x0", c.x0 - 2.0), r"reach more than 1.5 m beyond the voxel grid"),
+        (lambda c: setattr(c, "nx", c.nx * 100), r"reach more than 1.5 m beyond the voxel grid"),
+        (lambda c: setattr(c, "ny", 0), r"columns are empty"),
+    ],
+    ids=["resolution", "short", "NaN", "too-high", "far", "huge", "empty"],
+)
+def test_unusable_fine_columns_are_refused(soft_fields, spoil, reason):
+    message = messages.fields_message(soft_fields, messages.cloud_message(np.zeros((100, 3)), np.eye(4), "x"))
+    spoil(message.columns)
+    with pytest.raises(MessageError, match=reason):
+        messages.scene_fields(_wire(message))
+
+
 def _seen(fields):
     """The fields with their voxel states, seen from one position in front of the wall."""
     from affordcore.geometry.visibility import voxel_states

@@ -49,7 +49,7 @@ class VoxelGrid(_message.Message):
     def __init__(self, origin: _Optional[_Union[_geometry_pb2.Vector3, _Mapping]] = ..., resolution: _Optional[float] = ..., nx: _Optional[int] = ..., ny: _Optional[int] = ..., nz: _Optional[int] = ...) -> None: ...
 
 class SceneFields(_message.Message):
-    __slots__ = ("timestamp", "frame_id", "grid", "occupancy", "distance", "normals", "x_min", "y_min", "x_max", "y_max", "world_from_input", "cloud_timestamp", "frames", "steep_facing", "scans_received", "visibility", "soft_occupancy", "normal_estimator")
+    __slots__ = ("timestamp", "frame_id", "grid", "occupancy", "distance", "normals", "x_min", "y_min", "x_max", "y_max", "world_from_input", "cloud_timestamp", "frames", "steep_facing", "scans_received", "visibility", "soft_occupancy", "normal_estimator", "columns")
     TIMESTAMP_FIELD_NUMBER: _ClassVar[int]
     FRAME_ID_FIELD_NUMBER: _ClassVar[int]
     GRID_FIELD_NUMBER: _ClassVar[int]
@@ -68,6 +68,7 @@ class SceneFields(_message.Message):
     VISIBILITY_FIELD_NUMBER: _ClassVar[int]
     SOFT_OCCUPANCY_FIELD_NUMBER: _ClassVar[int]
     NORMAL_ESTIMATOR_FIELD_NUMBER: _ClassVar[int]
+    COLUMNS_FIELD_NUMBER: _ClassVar[int]
     timestamp: _timestamp_pb2.Timestamp
     frame_id: str
     grid: VoxelGrid
@@ -86,7 +87,26 @@ class SceneFields(_message.Message):
     visibility: bytes
     soft_occupancy: bytes
     normal_estimator: str
-    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., grid: _Optional[_Union[VoxelGrid, _Mapping]] = ..., occupancy: _Optional[bytes] = ..., distance: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., x_min: _Optional[float] = ..., y_min: _Optional[float] = ..., x_max: _Optional[float] = ..., y_max: _Optional[float] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ..., steep_facing: _Optional[str] = ..., scans_received: _Optional[int] = ..., visibility: _Optional[bytes] = ..., soft_occupancy: _Optional[bytes] = ..., normal_estimator: _Optional[str] = ...) -> None: ...
+    columns: FineColumns
+    def __init__(self, timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frame_id: _Optional[str] = ..., grid: _Optional[_Union[VoxelGrid, _Mapping]] = ..., occupancy: _Optional[bytes] = ..., distance: _Optional[bytes] = ..., normals: _Optional[bytes] = ..., x_min: _Optional[float] = ..., y_min: _Optional[float] = ..., x_max: _Optional[float] = ..., y_max: _Optional[float] = ..., world_from_input: _Optional[_Union[_geometry_pb2.Pose, _Mapping]] = ..., cloud_timestamp: _Optional[_Union[datetime.datetime, _timestamp_pb2.Timestamp, _Mapping]] = ..., frames: _Optional[int] = ..., steep_facing: _Optional[str] = ..., scans_received: _Optional[int] = ..., visibility: _Optional[bytes] = ..., soft_occupancy: _Optional[bytes] = ..., normal_estimator: _Optional[str] = ..., columns: _Optional[_Union[FineColumns, _Mapping]] = ...) -> None: ...
+
+class FineColumns(_message.Message):
+    __slots__ = ("x0", "y0", "resolution", "nx", "ny", "low", "high")
+    X0_FIELD_NUMBER: _ClassVar[int]
+    Y0_FIELD_NUMBER: _ClassVar[int]
+    RESOLUTION_FIELD_NUMBER: _ClassVar[int]
+    NX_FIELD_NUMBER: _ClassVar[int]
+    NY_FIELD_NUMBER: _ClassVar[int]
+    LOW_FIELD_NUMBER: _ClassVar[int]
+    HIGH_FIELD_NUMBER: _ClassVar[int]
+    x0: float
+    y0: float
+    resolution: float
+    nx: int
+    ny: int
+    low: bytes
+    high: bytes
+    def __init__(self, x0: _Optional[float] = ..., y0: _Optional[float] = ..., resolution: _Optional[float] = ..., nx: _Optional[int] = ..., ny: _Optional[int] = ..., low: _Optional[bytes] = ..., high: _Optional[bytes] = ...) -> None: ...
 
 class PoseGridSpec(_message.Message):
     __slots__ = ("x0", "y0", "step", "nx", "ny", "z", "theta_step", "n_theta")
