@@ -101,10 +101,26 @@ def test_a_cascade_model_file_round_trips_and_a_broken_one_is_named(boosted, tmp
             good.replace('"fraction": 0.03', '"fraction": 0.03, "max_poses": -4'),
             "max_poses must be a positive",
         ),
+        (good.replace('"fraction": 0.03', '"fraction": 0.03, "local_detail": "yes"'), "true or false"),
     ):
         path.write_text(broken)
         with pytest.raises(ModelError, match=message):
             load_model(path)
+
+
+def test_a_model_whose_trees_split_past_the_end_of_their_rows_is_refused(boosted, tmp_path):
+    """The trees' kernel reads rows unchecked, so a split on a column the second stage does not make must be
+    refused when the file is read, naming both widths; the fine columns widen the rows they may split on."""
+    from affordcore.geometry.columns import N_FEATURES
+
+    trees = TreeEnsemble.from_sklearn(boosted[0])  # splits on features up to 5
+    assert trees.n_features_used == 6
+    narrow = _cascade_model(trees, 4).save(tmp_path / "narrow.model.json")
+    with pytest.raises(ModelError, match="split on feature 5; the second stage's rows have 4"):
+        load_model(narrow)
+    detailed = _cascade_model(trees, 4)
+    detailed.rescorer = {**detailed.rescorer, "local_detail": True}
+    assert load_model(detailed.save(tmp_path / "detailed.model.json")).second_stage_width == 4 + N_FEATURES
 
 
 def test_the_second_stage_takes_the_best_fraction_of_the_candidates_and_at_most_max_poses():

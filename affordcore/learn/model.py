@@ -64,7 +64,9 @@ class AffordanceModel:
     training: dict = field(default_factory=dict)  # rooms and class counts
     validation: dict = field(default_factory=dict)  # precision, recall, f1
     place_threshold: float | None = None  # None: the threshold
-    rescorer: dict | None = None  # the cascade's second stage: {"fraction", "max_poses", "trees"}
+    # the cascade's second stage: {"fraction", "max_poses", "trees"}, and "local_detail": true when its trees
+    # read the fine columns after the features (`inference.second_stage_rows`)
+    rescorer: dict | None = None
     # "room-median": place_threshold counts from the median candidate score of the room (room_reference)
     place_reference: str | None = None
     place_floor: float | None = None  # and a place must also beat this absolute score (None: no floor)
@@ -84,6 +86,11 @@ class AffordanceModel:
             if max_poses is not None and (not isinstance(max_poses, int) or max_poses < 1):
                 raise ValueError(
                     f"the rescorer's max_poses must be a positive whole number, not {max_poses!r}"
+                )
+            if not isinstance(self.rescorer.get("local_detail", False), bool):
+                raise ValueError(
+                    f"the rescorer's local_detail must be true or false, not "
+                    f"{self.rescorer['local_detail']!r}"
                 )
 
     @property
@@ -160,6 +167,14 @@ class AffordanceModel:
     @cached_property
     def trees(self) -> TreeEnsemble | None:
         return TreeEnsemble.from_dict(self.rescorer["trees"]) if self.rescorer else None
+
+    @property
+    def second_stage_width(self) -> int:
+        """The columns of the rows the trees read: the features, and the fine columns after them."""
+        from ..geometry.columns import N_FEATURES
+
+        local = bool(self.rescorer and self.rescorer.get("local_detail", False))
+        return int(self.layout.get("n_features", len(self.weights))) + (N_FEATURES if local else 0)
 
     def check_layout(self, layout: FeatureLayout, source: str | None = None) -> None:
         """Raise ModelError unless the model's features are the layout's; `source` names the model in the
@@ -265,6 +280,12 @@ def load_model(path: str | Path, layout: FeatureLayout | None = None) -> Afforda
     if len(model.weights) != model.layout.get("n_features"):
         raise ModelError(
             f"{path}: {len(model.weights)} weights for a layout of {model.layout.get('n_features')} features"
+        )
+    if model.trees is not None and model.trees.n_features_used > model.second_stage_width:
+        # the trees' kernel reads rows unchecked: a split past the row's end would read beyond it
+        raise ModelError(
+            f"{path}: the trees split on feature {model.trees.n_features_used - 1}; the second stage's rows "
+            f"have {model.second_stage_width}"
         )
     if layout is not None:
         model.check_layout(layout, str(path))
