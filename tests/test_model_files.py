@@ -151,3 +151,34 @@ def test_a_model_s_id_follows_a_replaced_place_model_and_rescorer_and_keeps_the_
     assert model.id == load_model(model.save(tmp_path / "o.json")).id
     sent = pickle.loads(pickle.dumps(model))  # to a worker process: the same model, without the kept texts
     assert not set(KEPT_TEXTS) & set(vars(sent)) and sent.id == model.id
+
+
+def test_the_shipped_models_record_the_split_they_were_trained_for(tmp_path):
+    """`accuracy.py --shipped` scores the shipped models on the test rooms their files name, so the record
+    must be the recipe's: `afford synth` rooms of the default seed and count, every scan style, and the
+    held-out rooms exactly the ones `split_by_index` deals to test (none of them trained or validated on); a
+    rebuild's record (`data_record` of the data set's summary) says the same."""
+    import json
+
+    from affordcore.learn.defaults import (
+        ROOMS,
+        SEED,
+        TEST,
+        VALIDATION,
+        data_record,
+        data_set_styles,
+        split_by_index,
+    )
+    from affordcore.learn.model import shipped_models
+    from affordcore.synth.dataset import SynthOptions
+    from affordcore.synth.styles import STYLES
+
+    options = SynthOptions(ROOMS, SEED)
+    _, _, test = split_by_index([options.room_name(i) for i in range(ROOMS)], VALIDATION, TEST)
+    for affordance, path in shipped_models().items():
+        data = load_model(path).parameters["data"]
+        assert (data["generator"], data["rooms"], data["seed"]) == ("afford synth", ROOMS, SEED), affordance
+        assert data["styles"] == list(STYLES), affordance
+        assert data["held_out_test_rooms"] == test, affordance
+    (tmp_path / "summary.json").write_text(json.dumps({"rooms": ROOMS, "styles": list(STYLES)}))
+    assert data_record(ROOMS, SEED, test, data_set_styles(tmp_path)) == data
