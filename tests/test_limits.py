@@ -89,11 +89,13 @@ def test_fields_grids_up_to_the_voxel_limit_are_taken(fields_message):
 
 
 def _moved_to(message, origin_x: float):
-    """The fields message with its grid (and the floor footprint in it) moved along x to `origin_x`."""
+    """The fields message with its grid (and the floor footprint and fine columns over it) moved along x to
+    `origin_x`."""
     moved = _reparsed(message)
     shift = origin_x - moved.grid.origin.x
     moved.grid.origin.x = origin_x
     moved.x_min, moved.x_max = moved.x_min + shift, moved.x_max + shift
+    moved.columns.x0 += shift
     return moved
 
 
