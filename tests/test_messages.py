@@ -439,6 +439,7 @@ def test_fields_carry_the_world_from_input_they_are_given_else_the_clouds():
         visibility=None,
         soft_occupancy=None,
         normal_estimator="nearest",
+        columns=None,
     )
     levelling = _rigid(9)
     given = _wire(messages.fields_message(fields, cloud, levelling))
