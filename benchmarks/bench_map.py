@@ -10,7 +10,8 @@ processes sharing them; sampled every 50 ms). Medians over the repeats.
 With ``--old PATH`` (a git worktree of an earlier commit: ``git worktree add /tmp/old-afford HEAD``) the same
 command of that commit runs alternately with this one (its code on PYTHONPATH, the same venv), so the ratio
 is measured side by side on the same machine state; the maps of both are compared (places, positive poses,
-scores).
+scores). ``--models DIR`` maps with the model files in DIR instead of the shipped ones, and ``--old-models
+DIR`` runs the other side as this tree with those (two recipes' models side by side, no worktree).
 
 Then, in this process, the library stages one by one (``--library``, default on): gravity alignment, voxel
 fields, per affordance the scoring and map (`map_affordances`), outputs (`write_map_outputs`, serially), and,
@@ -123,11 +124,13 @@ class TreeMemory:
         return self.peak / 2**20
 
 
-def run_command(room: Path, out: Path, old: Path | None) -> dict:
+def run_command(room: Path, out: Path, old: Path | None, models: Path | None = None) -> dict:
     """One `afford map` process: wall seconds, CPU seconds, peak RSS, the process tree's peak PSS, its
-    --timings stages."""
+    --timings stages. `models`: a folder whose model files it maps with (default: the shipped ones)."""
     env = dict(os.environ)
     command = [str(AFFORD), "map", str(room), "--out", str(out), "-q"]
+    for path in sorted(models.glob("*.model.json")) if models else []:
+        command += ["--model", str(path)]
     if old is not None:
         env["PYTHONPATH"] = str(old)  # before the editable install of this tree
     else:
@@ -177,18 +180,22 @@ def compare_maps(old: Path, new: Path) -> str:
 
 
 def command_table(args, files: dict[str, Path]) -> None:
-    sides = [("this tree", None)] + ([("old", Path(args.old))] if args.old else [])
+    other = [("old", Path(args.old), None)] if args.old else []
+    if args.old_models:
+        other = [("old", None, Path(args.old_models))]
+    sides = [("this tree", None, Path(args.models) if args.models else None)] + other
     runs: dict[tuple[str, str], list[dict]] = {}
     load_before = os.getloadavg()[0]
     agreement = {}
     with tempfile.TemporaryDirectory() as scratch:
         for repeat in range(args.repeats):
             for kind, room in files.items():
-                for side, old in sides if repeat % 2 == 0 else sides[::-1]:  # alternate who goes first
+                order = sides if repeat % 2 == 0 else sides[::-1]  # alternate who goes first
+                for side, old, models in order:
                     out = Path(scratch) / f"{side}-{kind}"
-                    runs.setdefault((kind, side), []).append(run_command(room, out, old))
+                    runs.setdefault((kind, side), []).append(run_command(room, out, old, models))
         for kind in files:
-            if args.old:
+            if len(sides) > 1:
                 folders = Path(scratch) / f"old-{kind}", Path(scratch) / f"this tree-{kind}"
                 agreement[kind] = compare_maps(*folders)
     print(
@@ -197,9 +204,9 @@ def command_table(args, files: dict[str, Path]) -> None:
         f"{os.getloadavg()[0]:.1f} after (above 0.5, other processes shared the cores)"
     )
     header = "| PLY | wall s | CPU s | largest process MB | process tree MB (PSS) |"
-    if args.old:
+    if len(sides) > 1:
         header += " old commit wall s | old commit CPU s | old / new (wall) |"
-    print(header + "\n|---|---:|---:|---:|---:|" + ("---:|---:|---:|" if args.old else ""))
+    print(header + "\n|---|---:|---:|---:|---:|" + ("---:|---:|---:|" if len(sides) > 1 else ""))
     for kind in files:
         new = runs[(kind, "this tree")]
         row = (
@@ -207,7 +214,7 @@ def command_table(args, files: dict[str, Path]) -> None:
             f"{statistics.median(r['cpu'] for r in new):.2f} | "
             f"{max(r['largest MB'] for r in new):.0f} | {max(r['tree MB'] for r in new):.0f} |"
         )
-        if args.old:
+        if len(sides) > 1:
             old = runs[(kind, "old")]
             ratios = [o["wall"] / n["wall"] for o, n in zip(old, new)]
             row += (
@@ -345,7 +352,8 @@ def library_table(args, files: dict[str, Path]) -> None:
 
     pyplot()
     settings = Settings()
-    models = [load_model(path) for path in shipped_models().values()]
+    paths = sorted(Path(args.models).glob("*.model.json")) if args.models else shipped_models().values()
+    models = [load_model(path) for path in paths]
     loads = {kind: [] for kind in files}
     for _ in range(args.repeats):
         for kind, path in files.items():
@@ -386,6 +394,10 @@ def main() -> None:
     parser.add_argument("--old", help="a worktree of the commit to compare against, run side by side")
     parser.add_argument("--library", action=argparse.BooleanOptionalAction, default=True)
     parser.add_argument("--large", action="store_true", help="a 20 m x 20 m room too (the command only)")
+    parser.add_argument("--models", help="a folder of model files to map with (default: the shipped ones)")
+    parser.add_argument(
+        "--old-models", help="the other side: this tree with the model files of this folder (not with --old)"
+    )
     args = parser.parse_args()
     files = room_files(args.large)
     command_table(args, files)
