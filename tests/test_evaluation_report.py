@@ -54,3 +54,13 @@ def test_the_report_gives_each_learners_cell_the_paper_beside_it_and_the_imbalan
     assert sweep[2] == "| learner | 1:4 | all |"
     assert "| ssvm | 0.20 | 0.90 |" in sweep and "| dcm | 0.10 |  |" in sweep
     assert report.endswith("|\n")
+
+
+def test_results_json_holds_the_folds_the_table_and_every_run(evaluation):
+    document = evaluation.to_json()
+    assert document["format"] == "affordance-evaluation/1"
+    assert document["folds"] == [["a", "b"], ["c"]]
+    assert document["results"] == evaluation.table()
+    assert [(r["learner"], r["fold"], r["sweep"]) for r in document["runs"]] == [
+        (o.learner, o.fold, o.sweep) for o in evaluation.outcomes
+    ]

@@ -182,3 +182,34 @@ def test_the_shipped_models_record_the_split_they_were_trained_for(tmp_path):
         assert data["held_out_test_rooms"] == test, affordance
     (tmp_path / "summary.json").write_text(json.dumps({"rooms": ROOMS, "styles": list(STYLES)}))
     assert data_record(ROOMS, SEED, test, data_set_styles(tmp_path)) == data
+
+
+def test_a_rebuild_trains_on_rooms_it_generates_with_their_cache_beside_them_and_keeps_neither(
+    tmp_path, monkeypatch
+):
+    """`afford models rebuild` generates the recipe's rooms into a temporary folder and trains there with
+    the rooms' cache inside it: nothing of it lands in the user's learn.cache_dir, and all of it goes
+    after."""
+    from pathlib import Path
+
+    from affordcore.learn import defaults
+    from affordcore.synth import batch
+
+    seen = {}
+
+    def synthesize(options, out, workers):
+        seen.update(options=options, data=Path(out), workers=workers)
+
+    def train(data, out, learners, seed, on_step, cache, real):
+        seen.update(train_data=data, cache=cache.folder, seed=seed, real=real, exists=data.is_dir())
+        return [out / "m.model.json"]
+
+    monkeypatch.setattr(batch, "synthesize", synthesize)
+    monkeypatch.setattr(defaults, "train_default_models", train)
+    said = []
+    written = defaults.rebuild_default_models(tmp_path, rooms=120, seed=7, workers=2, on_step=said.append)
+    assert written == [tmp_path / "m.model.json"] and said == ["120 rooms generated"]
+    assert (seen["options"].rooms, seen["options"].seed, seen["workers"]) == (120, 7, 2)
+    assert seen["train_data"] == seen["data"] and seen["cache"] == seen["data"] / "cache" and seen["exists"]
+    assert seen["seed"] == 7 and seen["real"] is None
+    assert not seen["data"].exists()  # the rooms and their cache went with the rebuild

@@ -350,8 +350,29 @@ def test_default_models_train_on_the_split_the_benchmark_uses_and_are_reproducib
     command = [sys.executable, "-m", "affordcli", "synth", "--rooms", "5", "--seed", "2", "--out", str(data)]
     result = subprocess.run(command + ["--scanner", "uniform", "--quiet"], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
-    first = train_default_models(data, tmp_path / "a", "linear-tuned", validation=1, test=1)
-    second = train_default_models(data, tmp_path / "b", "linear-tuned", validation=1, test=1)
+    # a room of another seed stands for the real rooms that calibrate the place models beside validation
+    real_folder = tmp_path / "real"
+    command[command.index("--seed") + 1], command[command.index("--out") + 1] = "3", str(real_folder)
+    command[command.index("--rooms") + 1] = "1"
+    result = subprocess.run(command + ["--scanner", "uniform", "--quiet"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    from affordcore.learn.examples import labelled_rooms
+
+    real = labelled_rooms([real_folder])
+    said: list[str] = []
+    kept = {"validation": 1, "test": 1, "real": real}
+    first = train_default_models(data, tmp_path / "a", "linear-tuned", on_step=said.append, **kept)
+    second = train_default_models(data, tmp_path / "b", "linear-tuned", **kept)
+    # each affordance reports its validation figures, and the real rooms' beside them
+    assert len(said) == len(first)
+    for line, path in zip(said, first):
+        v = load_model(path).validation
+        assert line.startswith(f"{path.name.removesuffix('.model.json')} (linear-tuned): validation pose F1 ")
+        assert (
+            f"place recall {v['place_recall']:.2f}, {v['false_per_room']:.1f} false skeletons per room"
+            in line
+        )
+        assert f"; real rooms: place recall {v['real']['probability_place_recall']:.2f}, " in line
     from affordcore.geometry.skeleton import skeleton_files
 
     shipped = sorted(skeleton_files(Settings().skeleton_dirs))
