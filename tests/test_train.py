@@ -252,6 +252,37 @@ def test_the_evaluation_picks_each_affordance_its_best_learner(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_cascade_with_local_detail_reads_the_fine_columns_in_training_and_in_its_maps(
+    data_set, cache, tmp_path
+):
+    """`local_detail`: the trees learn from the fine columns after the features, the model file says so, and
+    mapping with it reads the columns of the room (fields without them are refused, not misread)."""
+    from affordcore.geometry.columns import N_FEATURES
+    from affordcore.geometry.features import FeatureLayout
+    from affordcore.learn.examples import data_set_rooms, load_rooms
+    from affordcore.mapping.pipeline import score_model
+
+    settings = _settings()
+    affordance = _affordance(data_set)
+    params = {"max_iter": 20, "local_detail": True}
+    model = load_model(
+        train(data_set, affordance, "cascade", settings, params, seed=0, cache=cache).save(
+            tmp_path / "m.json"
+        )
+    )
+    layout = FeatureLayout.from_settings(settings)
+    assert model.rescorer["local_detail"] is True
+    assert model.second_stage_width == layout.n_features + N_FEATURES
+    split_on = np.unique(model.trees.feature[model.trees.feature >= 0])
+    assert (split_on >= layout.n_features).any()  # the trees use what the columns show
+    fields = load_rooms(data_set_rooms(data_set), settings, cache=cache)[0].fields
+    _, scores = score_model(model, fields, layout, settings)
+    assert np.isfinite(scores[scores > np.finfo(np.float32).min]).all()
+    with pytest.raises(ValueError, match="fine columns"):
+        score_model(model, dataclasses.replace(fields, columns=None), layout, settings)
+
+
+@pytest.mark.slow
 def test_a_cascade_trains_from_rooms_and_maps_through_afford_maps_path(data_set, cache, tmp_path):
     from affordcore.geometry.features import FeatureLayout
     from affordcore.learn.examples import data_set_rooms, load_rooms
