@@ -169,12 +169,17 @@ class AffordanceModel:
         return TreeEnsemble.from_dict(self.rescorer["trees"]) if self.rescorer else None
 
     @property
+    def local_detail(self) -> bool:
+        """Whether the second stage's trees read the fine columns after the features."""
+        return bool(self.rescorer and self.rescorer.get("local_detail", False))
+
+    @property
     def second_stage_width(self) -> int:
         """The columns of the rows the trees read: the features, and the fine columns after them."""
         from ..geometry.columns import N_FEATURES
 
-        local = bool(self.rescorer and self.rescorer.get("local_detail", False))
-        return int(self.layout.get("n_features", len(self.weights))) + (N_FEATURES if local else 0)
+        extra = N_FEATURES if self.local_detail else 0
+        return int(self.layout.get("n_features", len(self.weights))) + extra
 
     def check_layout(self, layout: FeatureLayout, source: str | None = None) -> None:
         """Raise ModelError unless the model's features are the layout's; `source` names the model in the

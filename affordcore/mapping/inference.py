@@ -215,9 +215,7 @@ def model_scores(
     best = best_poses(flat, model.rescorer["fraction"], cap)
     rescored = known.ravel()[best] if known is not None else np.full(len(best), RULED_OUT, np.float32)
     fresh = rescored <= RULED_OUT
-    rows = second_stage_rows(
-        fields, skeleton, grid, layout, best[fresh], bool(model.rescorer.get("local_detail", False))
-    )
+    rows = second_stage_rows(fields, skeleton, grid, layout, best[fresh], model.local_detail)
     rescored[fresh] = model.trees.log_odds(rows)
     flat[:] = RULED_OUT
     flat[best] = rescored
