@@ -488,7 +488,7 @@ def _columns(message: SceneFieldsMessage, lattice):
     if not message.HasField("columns"):
         return None
     c = message.columns
-    if abs(c.resolution - fine.RESOLUTION) > 1e-9:
+    if not abs(c.resolution - fine.RESOLUTION) <= 1e-9:  # NaN fails too
         raise MessageError(f"columns at {c.resolution} m; the models read {fine.RESOLUTION} m columns")
     origin = np.array([c.x0, c.y0])
     end = origin + np.array([c.nx, c.ny]) * c.resolution

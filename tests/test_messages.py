@@ -601,6 +601,7 @@ def _nan_first(data: bytes) -> bytes:
     ("spoil", "reason"),
     [
         (lambda c: setattr(c, "resolution", 0.1), r"columns at 0.1 m; the models read 0.05 m"),
+        (lambda c: setattr(c, "resolution", float("nan")), r"columns at nan m; the models read 0.05 m"),
         (lambda c: setattr(c, "low", c.low[:-4]), r"columns.low holds \d+ bytes; \d+ x \d+ columns need"),
         (lambda c: setattr(c, "low", _nan_first(c.low)), r"columns.low holds heights outside"),
         (lambda c: setattr(c, "high", np.float32(3.0).tobytes() + c.high[4:]), r"columns.high holds heights"),
@@ -608,7 +609,7 @@ def _nan_first(data: bytes) -> bytes:
         (lambda c: setattr(c, "nx", c.nx * 100), r"reach more than 1.5 m beyond the voxel grid"),
         (lambda c: setattr(c, "ny", 0), r"columns are empty"),
     ],
-    ids=["resolution", "short", "NaN", "too-high", "far", "huge", "empty"],
+    ids=["resolution", "NaN-resolution", "short", "NaN", "too-high", "far", "huge", "empty"],
 )
 def test_unusable_fine_columns_are_refused(soft_fields, spoil, reason):
     message = messages.fields_message(soft_fields, messages.cloud_message(np.zeros((100, 3)), np.eye(4), "x"))
