@@ -181,7 +181,7 @@ def compare_maps(old: Path, new: Path) -> str:
 
 def command_table(args, files: dict[str, Path]) -> None:
     other = [("old", Path(args.old), None)] if args.old else []
-    if args.old_models:
+    if args.old_models:  # main() refuses it beside --old
         other = [("old", None, Path(args.old_models))]
     sides = [("this tree", None, Path(args.models) if args.models else None)] + other
     runs: dict[tuple[str, str], list[dict]] = {}
@@ -399,6 +399,8 @@ def main() -> None:
         "--old-models", help="the other side: this tree with the model files of this folder (not with --old)"
     )
     args = parser.parse_args()
+    if args.old and args.old_models:
+        parser.error("--old and --old-models each name the other side: give one")
     files = room_files(args.large)
     command_table(args, files)
     if args.library:
