@@ -472,7 +472,7 @@ class LearnSettings(BaseModel):
         "and the second stage's time stays bounded in large rooms (docs/maps.md measures it)",
     )
     local_detail: bool = Field(
-        False,
+        True,
         description="a cascade trained now gives its trees the fine columns around each pose besides its "
         "features: the lowest and highest surface of 5 cm columns in the skeleton's frame",
     )
