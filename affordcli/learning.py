@@ -61,6 +61,12 @@ def synth(
         max=1.0,
         help="share of rooms scanned from a few viewpoints, as real rooms are",
     ),
+    furniture: str = typer.Option(
+        "base",
+        "--furniture",
+        help="base, or extended: base's pieces and round tables ringed by chairs, low reclined loveseats, "
+        "ottomans (every room drawn differently from base's)",
+    ),
     workers: int = typer.Option(
         0, "--workers", min=0, help="rooms generated in parallel processes (0: one per core)"
     ),
@@ -86,6 +92,7 @@ def synth(
             frames,
             few_views,
             tuple(names(styles)),
+            furniture,
         )
         output_folder(out)  # after the options are checked: a refused command leaves no folder behind
         with cluster_jobs(Settings()), progress(quiet) as bar:

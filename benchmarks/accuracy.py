@@ -66,6 +66,11 @@ def main() -> None:
     )
     parser.add_argument("--data", type=Path, default=ROOT / "bench-data" / "accuracy")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "accuracy")
+    parser.add_argument(
+        "--furniture",
+        default="base",
+        help="what the generated rooms are furnished from (afford synth --furniture)",
+    )
     parser.add_argument("--learners", default="cascade")
     parser.add_argument("--curve", default="30", help="training-room counts of the learning curve")
     parser.add_argument("--curve-learners", default="cascade")
@@ -277,9 +282,12 @@ def generated_rooms(args) -> list:
     have = json.loads(stamp.read_text()) if stamp.exists() else {}
     styles = tuple(args.styles.split(",")) if args.styles else tuple(STYLES)
     wanted = {"seed": args.seed, "generator": generator_version(), "styles": list(styles)}
+    if args.furniture != "base":  # a base data set's stamp names no furniture
+        wanted["furniture"] = args.furniture
     if have.get("rooms", 0) < args.rooms or {k: have.get(k) for k in wanted} != wanted:
         print(f"generating {args.rooms} rooms into {args.data} ...")
-        synthesize(SynthOptions(rooms=args.rooms, seed=args.seed, styles=styles), args.data)
+        options = SynthOptions(rooms=args.rooms, seed=args.seed, styles=styles, furniture=args.furniture)
+        synthesize(options, args.data)
         stamp.write_text(json.dumps({"rooms": args.rooms, **wanted}))
     # by generation index, not by name: names start with the room kind, and kinds are dealt round-robin,
     # so every part of the split holds every kind
@@ -321,8 +329,13 @@ def unseen_rooms(args, settings, cache) -> list:
 
     if not args.unseen:
         return []
+    # base furniture whatever the split's: models trained on either are scored on the same rooms
     wanted = SimpleNamespace(
-        data=unseen_folder(args), rooms=args.unseen, seed=args.unseen_seed, styles=args.styles
+        data=unseen_folder(args),
+        rooms=args.unseen,
+        seed=args.unseen_seed,
+        styles=args.styles,
+        furniture="base",
     )
     files = generated_rooms(wanted)
     return [

@@ -1,6 +1,7 @@
 """The furniture real rooms have: counter-height seating (bar stools, high chairs), lounge chairs, chaises,
-chairs pushed as far as they go, swivel chairs turned away from desks, things left on seats; their labels and
-the pose grid that must reach them."""
+chairs pushed as far as they go, swivel chairs turned away from desks, things left on seats, and in the
+extended furniture round tables, low loveseats and ottomans; their labels and the pose grid that must reach
+them."""
 
 from __future__ import annotations
 
@@ -11,8 +12,9 @@ from affordcore.geometry.grid import PoseGrid
 from affordcore.geometry.skeleton import JOINTS, get_skeleton, place_joints
 from affordcore.labels import polygon_contains
 from affordcore.synth import furniture as F
+from affordcore.synth.dataset import SynthOptions
 from affordcore.synth.rooms import generate_room, role_affordances
-from affordcore.synth.shapes import Box, boxes_overlap
+from affordcore.synth.shapes import Box, boxes_overlap, disc
 
 SEEDS = range(25)
 COUNTER_SEATING = {
@@ -108,6 +110,8 @@ def test_a_skeleton_without_the_reach_keeps_design_s_three_levels():
         lambda rng: F.armchair(rng, things=False),
         F.meeting_table,
         F.desk,
+        F.round_table,
+        lambda rng: F.loveseat(rng, things=False),
     ],
 )
 def test_every_new_piece_s_label_has_room_for_its_skeleton(builder, no_chairs):
@@ -261,3 +265,92 @@ def test_rooms_hold_the_new_pieces_and_the_same_seed_makes_the_same_room():
     assert [(p.note, p.x, p.y, p.yaw, p.parts) for p in a.pieces] == [
         (p.note, p.x, p.y, p.yaw, p.parts) for p in b.pieces
     ]
+
+
+def test_a_disc_fills_its_polygon_and_stays_inside_its_circle():
+    radius, sides = 0.55, 16
+    boxes = disc(radius, 0.70, 0.73, (0.5, 0.5, 0.5), sides)
+    assert len(boxes) == sides // 2
+    xy = np.stack(np.meshgrid(*[np.linspace(-0.7, 0.7, 141)] * 2), axis=-1).reshape(-1, 2)
+    inside = np.any([box.contains_xy(xy) for box in boxes], axis=0)
+    distance = np.hypot(*xy.T)
+    apothem = radius * np.cos(np.pi / sides)
+    assert inside[distance < apothem - 1e-9].all()  # no hole between the boxes
+    assert not inside[distance > radius + 1e-9].any()
+    assert all(box.z_range == pytest.approx((0.70, 0.73)) for box in boxes)
+
+
+def test_round_table_places_face_its_centre_evenly_spread_outside_its_edge():
+    spreads = set()
+    for seed in SEEDS:
+        table = F.round_table(np.random.default_rng(seed))
+        top = table.parts[0]
+        radius = np.hypot(*top.size[:2]) / 2  # the polygon's corners lie on the circle
+        places = np.array([anchor.start for anchor in table.anchors])
+        assert 3 <= len(places) <= 6 and all(anchor.is_point for anchor in table.anchors)
+        distance = np.hypot(*places.T)
+        assert distance == pytest.approx(radius * np.cos(np.pi / 16) + F.DESK_LABEL_OFFSET)
+        for (x, y), anchor in zip(places, table.anchors):  # facing the centre
+            assert np.cos(anchor.facing - np.arctan2(-y, -x)) == pytest.approx(1.0)
+        angles = np.sort(np.arctan2(places[:, 1], places[:, 0]))
+        gaps = np.diff(np.append(angles, angles[0] + 2 * np.pi))
+        assert gaps == pytest.approx(2 * np.pi / len(places))
+        assert np.pi * 2 * radius / len(places) >= F.ROUND_PLACE_SPACING or len(places) == 3
+        spreads.add(len(places))
+    assert len(spreads) >= 3  # small and large tables
+
+
+def test_round_table_chairs_are_pushed_under_its_top_or_left_out():
+    """Pushed-in chairs reach inside the top's circle; every chair stays out of the top and its base."""
+    under = 0
+    for seed in SEEDS:
+        table = F.round_table(np.random.default_rng(seed))
+        radius = np.hypot(*table.parts[0].size[:2]) / 2
+        chairs = [anchor for anchor in table.anchors if anchor.labelled]
+        furniture = [p for p in table.parts if not any(p in anchor.support for anchor in chairs)]
+        for anchor in chairs:
+            seat = anchor.support[0]
+            assert not any(boxes_overlap(part, other) for part in anchor.support for other in furniture)
+            if "pushed in" in anchor.note:
+                inner = np.hypot(*seat.corners_xy().T).min()
+                under += inner < radius - 0.05
+    assert under >= 10
+
+
+def test_loveseats_are_low_two_seat_sofas_with_a_reclined_back():
+    for seed in SEEDS:
+        sofa = F.loveseat(np.random.default_rng(seed), things=False)
+        seat = sofa.parts[0]
+        assert F.LOW_SOFA["seat"][0] <= seat.z_range[1] <= F.LOW_SOFA["seat"][1]
+        assert max(part.z_range[1] for part in sofa.parts) <= F.LOW_SOFA["back"][1]
+        (anchor,) = sofa.anchors
+        assert anchor.role == F.LOUNGE and not anchor.is_point
+        backs = sorted(
+            (p for p in sofa.parts if p.z_range[0] >= seat.z_range[1] - 1e-9 and p.size[1] >= seat.size[1]),
+            key=lambda p: p.centre[2],
+        )
+        rears = [p.corners_xy()[:, 0].min() for p in backs]
+        assert len(rears) == 3 and np.all(np.diff(rears) < 0)  # each step of the backrest further back
+
+
+def test_an_ottoman_is_a_seat_no_label_describes():
+    for seed in range(5):
+        ottoman = F.ottoman(np.random.default_rng(seed))
+        assert not ottoman.anchors and ottoman.unlabelled_seats
+        assert 0.38 <= ottoman.parts[0].z_range[1] <= 0.46
+
+
+def test_only_extended_rooms_hold_the_extended_pieces():
+    extended = {"round-table", "low-sofa", "ottoman"}
+    held = {"base": set(), "extended": set()}
+    for furniture in held:
+        for kind in ("living", "office"):
+            for seed in range(12):
+                room = generate_room(kind, np.random.default_rng(seed), f"{kind}-{seed}", furniture)
+                held[furniture] |= {piece.kind for piece in room.pieces}
+    assert not held["base"] & extended
+    assert extended <= held["extended"]
+    with pytest.raises(ValueError, match="unknown furniture"):
+        generate_room("living", np.random.default_rng(0), "x", "fancy")
+    with pytest.raises(ValueError, match="furniture must be one of"):
+        SynthOptions(rooms=1, furniture="fancy")

@@ -12,7 +12,14 @@ import pytest
 from affordcore.geometry.skeleton import all_skeletons, get_skeleton, place_joints
 from affordcore.labels import load_labels, polygon_contains, save_labels
 from affordcore.synth import furniture as F
-from affordcore.synth.rooms import KINDS, generate_room, inside_polygon, role_affordances, support_seen_share
+from affordcore.synth.rooms import (
+    FURNITURE,
+    KINDS,
+    generate_room,
+    inside_polygon,
+    role_affordances,
+    support_seen_share,
+)
 from affordcore.synth.scanner import (
     DepthCamera,
     Raycaster,
@@ -29,9 +36,13 @@ from affordcore.synth.shapes import Box, any_overlap, boxes_overlap, rot2
 ROOMS = [(kind, seed) for kind in KINDS for seed in range(6)]
 
 
-@pytest.fixture(scope="module")
-def rooms():
-    return [generate_room(kind, np.random.default_rng(seed), f"{kind}-{seed}") for kind, seed in ROOMS]
+@pytest.fixture(scope="module", params=FURNITURE)
+def rooms(request):
+    """Rooms of every kind, from each furniture set in turn."""
+    return [
+        generate_room(kind, np.random.default_rng(seed), f"{kind}-{seed}", request.param)
+        for kind, seed in ROOMS
+    ]
 
 
 def test_no_furniture_intersects_furniture_or_walls(rooms):

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .rooms import KINDS, generate_room
+from .rooms import FURNITURE, KINDS, generate_room
 from .styles import STYLES
 
 SENSORS = ("depth", "lidar")
@@ -40,6 +40,7 @@ class SynthOptions:
     few_views: float = 0.5
     # how depth-scanned rooms are scanned (styles.STYLES), dealt to rooms by index (`style_of`)
     styles: tuple[str, ...] = tuple(STYLES)
+    furniture: str = "base"  # rooms.FURNITURE
 
     def __post_init__(self) -> None:
         unknown = set(self.kinds) - set(KINDS)
@@ -54,6 +55,8 @@ class SynthOptions:
         unknown = set(self.styles) - set(STYLES)
         if unknown or not self.styles:
             raise ValueError(f"unknown scan styles {sorted(unknown)}; choose from {', '.join(STYLES)}")
+        if self.furniture not in FURNITURE:
+            raise ValueError(f"furniture must be one of {', '.join(FURNITURE)}, not {self.furniture!r}")
         if self.rooms < 1 or self.frames < 1:
             raise ValueError("rooms and frames must be at least 1")
 
@@ -81,7 +84,7 @@ def make_room(options: SynthOptions, out: Path, index: int, seed: np.random.Seed
 
     rng = np.random.default_rng(seed)
     name = options.room_name(index)
-    room = generate_room(options.kinds[index % len(options.kinds)], rng, name)
+    room = generate_room(options.kinds[index % len(options.kinds)], rng, name, options.furniture)
     regime = "few" if rng.random() < options.few_views else "full"  # drawn whatever the style: same stream
     if options.scanner == "depth":
         style = options.style_of(index)

@@ -16,7 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .shapes import Anchor, Box, Piece, any_overlap, rot2
+from .shapes import Anchor, Box, Piece, any_overlap, disc, rot2
 
 LOUNGE, DESK_SEAT, STANDING_EDGE = "lounge-seat", "desk-seat", "standing-work-edge"
 
@@ -61,27 +61,41 @@ def _free_space(x0: float, x1: float, y0: float, y1: float, height: float = 1.8)
 # ---------------------------------------------------------------- seating for relaxing
 
 
+# A low sofa's shape (the loveseats of real listening and living rooms): seat, backrest top and armrest
+# heights, and how far its backrest leans back from the vertical (degrees)
+LOW_SOFA = {"seat": (0.36, 0.42), "back": (0.62, 0.74), "arms": (0.52, 0.62), "recline": (10.0, 20.0)}
+
+
 def sofa(
-    rng: np.random.Generator, seats: int | None = None, armrests: bool | None = None, things: bool = True
+    rng: np.random.Generator,
+    seats: int | None = None,
+    armrests: bool | None = None,
+    things: bool = True,
+    low: bool = False,
 ) -> Piece:
     """A sofa of 1 to 4 seats with a backrest (and usually armrests): one lounge segment; with `things`,
-    now and then things left on its seats (`_things_on_seats`)."""
+    now and then things left on its seats (`_things_on_seats`); `low`: a seat and back of LOW_SOFA's, the
+    back reclined."""
     seats = int(rng.integers(1, 5)) if seats is None else seats
     armrests = bool(rng.random() < 0.85) if armrests is None else armrests
     seat_width = rng.uniform(0.55, 0.68)
     arm = rng.uniform(0.10, 0.22) if armrests else 0.0
-    depth, seat_h = rng.uniform(0.80, 0.98), rng.uniform(0.38, 0.50)
-    back_h, back_t, leg_h = rng.uniform(0.75, 0.95), rng.uniform(0.15, 0.25), rng.uniform(0.05, 0.12)
+    depth, seat_h = rng.uniform(0.80, 0.98), rng.uniform(*(LOW_SOFA["seat"] if low else (0.38, 0.50)))
+    back_h, back_t = rng.uniform(*(LOW_SOFA["back"] if low else (0.75, 0.95))), rng.uniform(0.15, 0.25)
+    leg_h = rng.uniform(0.05, 0.12)
     length = seats * seat_width + 2 * arm
     color = _pick(rng, FABRIC)
     x0, x1, y_half = -depth / 2, depth / 2, length / 2
-    parts = [
-        Box.span((x0 + back_t, -y_half + arm, leg_h), (x1, y_half - arm, seat_h), color),  # seat cushions
-        Box.span((x0, -y_half, leg_h), (x0 + back_t, y_half, back_h), color),  # backrest
-        *_legs(rng, depth / 2, y_half, leg_h, 0.05, _pick(rng, WOOD)),
-    ]
+    seat = Box.span((x0 + back_t, -y_half + arm, leg_h), (x1, y_half - arm, seat_h), color)  # seat cushions
+    if low:  # the back leans over the seat's rear as it rises, the rear of its lowest step on the frame's
+        recline = np.radians(rng.uniform(*LOW_SOFA["recline"]))
+        back = _reclined_back(x0 + back_t, seat_h, back_h - seat_h, recline, back_t, (-y_half, y_half), color)
+        back[0] = Box.span((x0, -y_half, leg_h), (x0 + back_t, y_half, back[0].z_range[1]), color)
+    else:
+        back = [Box.span((x0, -y_half, leg_h), (x0 + back_t, y_half, back_h), color)]
+    parts = [seat, *back, *_legs(rng, depth / 2, y_half, leg_h, 0.05, _pick(rng, WOOD))]
     if armrests:
-        arm_h = rng.uniform(0.55, 0.68)
+        arm_h = rng.uniform(*(LOW_SOFA["arms"] if low else (0.55, 0.68)))
         parts += [
             Box.span(
                 (x0, side * y_half - (arm if side > 0 else 0), leg_h),
@@ -96,8 +110,14 @@ def sofa(
     anchor = Anchor(
         LOUNGE, (seat_centre_x, -reach), (seat_centre_x, reach), 0.0, [legroom], f"{seats}-seat sofa"
     )
-    piece = Piece("sofa", parts, [anchor], note=f"{seats}-seat sofa, seat {seat_h:.2f} m")
+    kind = "low-sofa" if low else "sofa"
+    piece = Piece(kind, parts, [anchor], note=f"{seats}-seat {'low ' * low}sofa, seat {seat_h:.2f} m")
     return _things_on_seats(rng, piece, parts[0], seat_width) if things else piece
+
+
+def loveseat(rng: np.random.Generator, things: bool = True) -> Piece:
+    """A low two-seat sofa with a reclined back, as the real rooms' listening and living sofas are."""
+    return sofa(rng, seats=2, armrests=rng.random() < 0.85, things=things, low=True)
 
 
 def corner_sofa(rng: np.random.Generator) -> Piece:
@@ -261,11 +281,11 @@ def lounge_chair(rng: np.random.Generator, things: bool = True) -> Piece:
     x_front, y_half = depth / 2, width / 2 + arm
     seat = Box.span((-depth / 2, -width / 2, leg_h), (x_front, width / 2, seat_h), color)
     parts = [seat, *_legs(rng, depth / 2, y_half, leg_h, 0.04, _pick(rng, WOOD + METAL))]
-    steps = 4  # the reclined backrest as a stair of boxes, each set back by the recline over its height
-    for k in range(steps):
-        z0, z1 = seat_h + k * back_h / steps, seat_h + (k + 1) * back_h / steps
-        back = -depth / 2 - np.tan(recline) * (z0 - seat_h)
-        parts.append(Box.span((back - back_t, -width / 2, z0 if k else leg_h), (back, width / 2, z1), color))
+    back = _reclined_back(-depth / 2, seat_h, back_h, recline, back_t, (-width / 2, width / 2), color)
+    back[0] = Box.span(
+        (-depth / 2 - back_t, -width / 2, leg_h), (-depth / 2, width / 2, back[0].z_range[1]), color
+    )
+    parts += back
     if arm:
         parts += [
             Box.span(
@@ -280,6 +300,19 @@ def lounge_chair(rng: np.random.Generator, things: bool = True) -> Piece:
     anchor = Anchor(LOUNGE, centre, centre, 0.0, [legroom], "lounge chair", seat_h + TORSO_ABOVE_SEAT)
     piece = Piece("lounge-chair", parts, [anchor], note=f"lounge chair, seat {seat_h:.2f} m")
     return _things_on_seats(rng, piece, seat, width) if things else piece
+
+
+def _reclined_back(front: float, seat_h: float, height: float, recline: float, thickness: float, span, color):
+    """A backrest rising `height` above a seat at `seat_h`, leaning back by `recline` from the vertical: a
+    stair of four boxes, each set back by the recline over its height, the lowest with its front at x =
+    `front`; `span` its (low, high) y."""
+    steps = 4
+    boxes = []
+    for k in range(steps):
+        z0, z1 = seat_h + k * height / steps, seat_h + (k + 1) * height / steps
+        back = front - np.tan(recline) * (z0 - seat_h)
+        boxes.append(Box.span((back - thickness, span[0], z0), (back, span[1], z1), color))
+    return boxes
 
 
 # ---------------------------------------------------------------- tables, desks, chairs
@@ -484,6 +517,38 @@ def meeting_table(rng: np.random.Generator, chair_maker=None, kind: str = "meeti
 
 def dining_table(rng: np.random.Generator) -> Piece:
     return meeting_table(rng, dining_chair, "dining-table")
+
+
+ROUND_PLACE_SPACING = 0.65  # the least arc of a round table's edge each place takes (m)
+
+
+def round_table(rng: np.random.Generator) -> Piece:
+    """A round table (0.8-1.3 m across) on a pedestal or four legs, its places spread evenly round it, each
+    labelled like a straight table's: 0.25 m outside the edge on the line to the centre, facing the centre,
+    its chair (swivel or dining, one kind per table) in one of the CHAIR_STATES."""
+    radius, height = rng.uniform(0.40, 0.65), rng.uniform(0.72, 0.76)
+    color, top_t = _pick(rng, WOOD + LAMINATE[:2]), rng.uniform(0.025, 0.045)
+    parts = disc(radius, height - top_t, height, color)
+    if rng.random() < 0.6:  # a pedestal: a post on a foot plate
+        post = rng.uniform(0.08, 0.14)
+        parts.append(Box.span((-post / 2, -post / 2, 0.03), (post / 2, post / 2, height - top_t), color))
+        parts += disc(rng.uniform(0.22, 0.32), 0.0, 0.03, _pick(rng, METAL), sides=8)
+    else:
+        half = radius * 0.55
+        parts += _legs(rng, half, half, height - top_t, 0.05, color, inset=0.0)
+    keep = (radius - WORK_EDGE_KEEP) / np.sqrt(2)  # things stay clear of every place's edge
+    if keep > 0.05:
+        parts += _clutter(rng, (-keep, keep), (-keep, keep), height, int(rng.integers(0, 3)))
+    places = int(np.clip(2 * np.pi * radius // ROUND_PLACE_SPACING, 3, 6))
+    chair_maker = office_chair if rng.random() < 0.5 else dining_chair
+    edge = radius * np.cos(np.pi / 16)  # the top's apothem
+    start = rng.uniform(0, 2 * np.pi)
+    anchors = [
+        _add_chair(rng, parts, edge, 0.0, chair_maker, start + 2 * np.pi * k / places) for k in range(places)
+    ]
+    chairs = sum(anchor.labelled for anchor in anchors)
+    note = f"round table {2 * radius:.2f} m across, {height:.2f} m, {places} places, {chairs} chairs"
+    return Piece("round-table", parts, anchors, note=note)
 
 
 def _add_chair(
@@ -801,6 +866,14 @@ def coffee_table(rng: np.random.Generator) -> Piece:
         table(rng, rng.uniform(0.8, 1.3), rng.uniform(0.45, 0.70), rng.uniform(0.35, 0.45)),
         note="coffee table (seat height, not a seat)",
     )
+
+
+def ottoman(rng: np.random.Generator) -> Piece:
+    """An upholstered block in front of a sofa where a coffee table would stand: seat height, nothing to lean
+    on (a seat no label describes)."""
+    size, height = rng.uniform(0.45, 0.90, 2), rng.uniform(0.38, 0.46)
+    block = Box.span((-size[0] / 2, -size[1] / 2, 0), (size[0] / 2, size[1] / 2, height), _pick(rng, FABRIC))
+    return _seat_everywhere(Piece("ottoman", [block], note=f"ottoman {height:.2f} m"))
 
 
 def tv_unit(rng: np.random.Generator) -> Piece:

@@ -26,6 +26,10 @@ from . import furniture as F
 from .shapes import Anchor, Box, Piece, any_overlap, rot2
 
 KINDS = ("living", "office", "workshop", "mixed")
+# What rooms are furnished from: "base", or "extended", which adds shapes the real validation rooms have and
+# base lacks (round tables ringed by chairs, low reclined loveseats, ottomans) and draws every base room
+# differently
+FURNITURE = ("base", "extended")
 ROLES_FILE = Path(__file__).resolve().parents[1] / "data" / "furniture_roles.json"
 WALL = 0.10
 WALL_COLOR = (0.86, 0.85, 0.80)
@@ -260,12 +264,14 @@ def _rounded(point) -> list[float]:
     return [round(float(v), 4) for v in point]
 
 
-def generate_room(kind: str, rng: np.random.Generator, name: str) -> Room:
+def generate_room(kind: str, rng: np.random.Generator, name: str, furniture: str = "base") -> Room:
     if kind not in KINDS:
         raise ValueError(f"unknown room kind {kind!r}; choose from {', '.join(KINDS)}")
+    if furniture not in FURNITURE:
+        raise ValueError(f"unknown furniture {furniture!r}; choose from {', '.join(FURNITURE)}")
     room = _shell(kind, rng, name)
     previous = None  # the piece the last builder made, if it found a place
-    for builder, mode in _program(kind, rng):
+    for builder, mode in _program(kind, rng, furniture == "extended"):
         piece = builder(rng)
         reserve_body_space(piece)
         if mode == "in-front" and previous is None:
@@ -431,24 +437,30 @@ def _on_boundary(polygon: np.ndarray, points: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------- what goes in a room
 
 
-def _program(kind: str, rng: np.random.Generator) -> list[tuple]:
-    """(builder, placement) pairs in placement order: the big pieces first, then context and distractors."""
+def _program(kind: str, rng: np.random.Generator, extended: bool = False) -> list[tuple]:
+    """(builder, placement) pairs in placement order: the big pieces first, then context and distractors;
+    `extended`: from the extended furniture (FURNITURE)."""
     n = lambda low, high: int(rng.integers(low, high + 1))  # noqa: E731
     maybe = lambda share, pieces: pieces if rng.random() < share else []  # noqa: E731
     pick = lambda shares: list(shares)[int(rng.choice(len(shares), p=list(shares.values())))]  # noqa: E731
+    # base draws nothing for these, so its rooms stay as they were
+    extend = lambda base, shares: pick({base: 1 - sum(shares.values()), **shares}) if extended else base  # noqa: E731
     # Every kind also gets, now and then, another kind's furniture, so that each affordance's model sees the
     # others' furniture as negatives in every kind of room (shares in docs/synthetic-rooms.md).
     lounge_corner = [(pick({F.sofa: 0.4, F.armchair: 0.35, F.lounge_chair: 0.25}), "wall")]
-    lounge_corner.append((F.coffee_table, "in-front"))
+    lounge_corner.append((extend(F.coffee_table, {F.ottoman: 0.3}), "in-front"))
     living = (
         [
-            (pick({F.sofa: 0.55, F.corner_sofa: 0.25, F.chaise_sofa: 0.2}), "wall"),
-            (F.coffee_table, "in-front"),
+            (
+                extend(pick({F.sofa: 0.55, F.corner_sofa: 0.25, F.chaise_sofa: 0.2}), {F.loveseat: 0.3}),
+                "wall",
+            ),
+            (extend(F.coffee_table, {F.ottoman: 0.3}), "in-front"),
         ]
         # before the armchairs and shelves: a table ringed by places finds no room once they stand (an
         # island, ringed by stools and standing room, first of all)
         + maybe(0.35, [_counter_height_seating(rng)])  # a kitchen-dining flavour
-        + maybe(0.5, [(F.dining_table, "free")])
+        + maybe(0.5, [(extend(F.dining_table, {F.round_table: 0.4}), "free")])
         + maybe(0.3, [(F.desk, "wall")])  # an office corner
         + [
             (pick({F.armchair: 0.65, F.lounge_chair: 0.35}), "free" if rng.random() < 0.5 else "wall")
@@ -459,7 +471,7 @@ def _program(kind: str, rng: np.random.Generator) -> list[tuple]:
     )
     office = (
         [(F.desk, "wall") for _ in range(n(1, 4))]
-        + [(F.meeting_table, "free")] * n(0, 1)
+        + [(extend(F.meeting_table, {F.round_table: 0.4}), "free")] * n(0, 1)
         + [(F.cabinet, "wall")] * n(1, 3)
         + [(F.shelf, "wall")] * n(0, 2)
         + maybe(0.3, lounge_corner)
