@@ -281,9 +281,12 @@ def generated_rooms(args) -> list:
     stamp = args.data / "accuracy-options.json"
     have = json.loads(stamp.read_text()) if stamp.exists() else {}
     styles = tuple(args.styles.split(",")) if args.styles else tuple(STYLES)
-    wanted = {"seed": args.seed, "generator": generator_version(), "styles": list(styles)}
-    if args.furniture != "base":  # a base data set's stamp names no furniture
-        wanted["furniture"] = args.furniture
+    wanted = {
+        "seed": args.seed,
+        "generator": generator_version(),
+        "styles": list(styles),
+        "furniture": args.furniture,
+    }
     if have.get("rooms", 0) < args.rooms or {k: have.get(k) for k in wanted} != wanted:
         print(f"generating {args.rooms} rooms into {args.data} ...")
         options = SynthOptions(rooms=args.rooms, seed=args.seed, styles=styles, furniture=args.furniture)

@@ -87,10 +87,10 @@ def sofa(
     color = _pick(rng, FABRIC)
     x0, x1, y_half = -depth / 2, depth / 2, length / 2
     seat = Box.span((x0 + back_t, -y_half + arm, leg_h), (x1, y_half - arm, seat_h), color)  # seat cushions
-    if low:  # the back leans over the seat's rear as it rises, the rear of its lowest step on the frame's
+    if low:  # the back leans away from the seat's rear as it rises
         recline = np.radians(rng.uniform(*LOW_SOFA["recline"]))
-        back = _reclined_back(x0 + back_t, seat_h, back_h - seat_h, recline, back_t, (-y_half, y_half), color)
-        back[0] = Box.span((x0, -y_half, leg_h), (x0 + back_t, y_half, back[0].z_range[1]), color)
+        span = (-y_half, y_half)
+        back = _reclined_back(x0 + back_t, seat_h, back_h - seat_h, recline, back_t, span, color, leg_h)
     else:
         back = [Box.span((x0, -y_half, leg_h), (x0 + back_t, y_half, back_h), color)]
     parts = [seat, *back, *_legs(rng, depth / 2, y_half, leg_h, 0.05, _pick(rng, WOOD))]
@@ -281,11 +281,9 @@ def lounge_chair(rng: np.random.Generator, things: bool = True) -> Piece:
     x_front, y_half = depth / 2, width / 2 + arm
     seat = Box.span((-depth / 2, -width / 2, leg_h), (x_front, width / 2, seat_h), color)
     parts = [seat, *_legs(rng, depth / 2, y_half, leg_h, 0.04, _pick(rng, WOOD + METAL))]
-    back = _reclined_back(-depth / 2, seat_h, back_h, recline, back_t, (-width / 2, width / 2), color)
-    back[0] = Box.span(
-        (-depth / 2 - back_t, -width / 2, leg_h), (-depth / 2, width / 2, back[0].z_range[1]), color
+    parts += _reclined_back(
+        -depth / 2, seat_h, back_h, recline, back_t, (-width / 2, width / 2), color, leg_h
     )
-    parts += back
     if arm:
         parts += [
             Box.span(
@@ -302,16 +300,18 @@ def lounge_chair(rng: np.random.Generator, things: bool = True) -> Piece:
     return _things_on_seats(rng, piece, seat, width) if things else piece
 
 
-def _reclined_back(front: float, seat_h: float, height: float, recline: float, thickness: float, span, color):
+def _reclined_back(
+    front: float, seat_h: float, height: float, recline: float, thickness: float, span, color, bottom: float
+) -> list[Box]:
     """A backrest rising `height` above a seat at `seat_h`, leaning back by `recline` from the vertical: a
     stair of four boxes, each set back by the recline over its height, the lowest with its front at x =
-    `front`; `span` its (low, high) y."""
+    `front` and reaching down to `bottom` (the frame under the seat); `span` its (low, high) y."""
     steps = 4
     boxes = []
     for k in range(steps):
         z0, z1 = seat_h + k * height / steps, seat_h + (k + 1) * height / steps
         back = front - np.tan(recline) * (z0 - seat_h)
-        boxes.append(Box.span((back - thickness, span[0], z0), (back, span[1], z1), color))
+        boxes.append(Box.span((back - thickness, span[0], z0 if k else bottom), (back, span[1], z1), color))
     return boxes
 
 
